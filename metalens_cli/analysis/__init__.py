@@ -1,0 +1,1 @@
+"""Closed-form and numerical analyses: symmetry, bands, MTF (no torch at import)."""

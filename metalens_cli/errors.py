@@ -1,0 +1,25 @@
+"""Typed errors raised by the core; the CLI turns them into one line and exit code 2."""
+
+
+class MetalensError(Exception):
+    """Base class of every error the package raises on purpose."""
+
+
+class InputError(MetalensError, ValueError):
+    """A value given by the user is malformed or out of range.
+
+    ``field`` names the option or TOML key path, ``expected`` the accepted form.
+    """
+
+    def __init__(self, field: str, message: str, expected: str | None = None):
+        self.field = field
+        self.message = message
+        self.expected = expected
+        text = f"{field}: {message}"
+        if expected:
+            text += f" (expected {expected})"
+        super().__init__(text)
+
+
+class SamplingError(MetalensError):
+    """A simulation grid cannot represent the field without aliasing or wrap-around."""

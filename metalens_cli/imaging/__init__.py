@@ -1,0 +1,1 @@
+"""Obstructions, image formation and image metrics."""

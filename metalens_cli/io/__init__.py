@@ -1,0 +1,1 @@
+"""Units, presets, EXR and layout files."""

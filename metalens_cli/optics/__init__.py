@@ -1,0 +1,1 @@
+"""Optics: lens, source, propagators, sensor PSF and spectra (torch, SI units)."""

@@ -1,0 +1,1 @@
+"""Matplotlib figures; imported only when a command is asked for a plot."""
