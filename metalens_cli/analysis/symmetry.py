@@ -1,0 +1,93 @@
+"""Depth-wavelength symmetry of a diffractive lens (Suppl. Note 1 of the paper).
+
+A lens designed to focus a plane wave of wavelength λd at distance f focuses, on the same
+plane, a point source of wavelength λ placed at depth (paraxial model)
+
+    z(λ) = λd · f / (λ − λd),         λ(z) = λd · (1 + f / z),
+
+and a depth step Δz maps to a wavelength step Δλ = λ1 − λ2 with z2 = z1 − Δz:
+
+    Δλ = λd · f · (1/z1 − 1/(z1 − Δz)).
+
+λ → λd gives z → ∞ (the asymptote); λ < λd gives z < 0, a virtual source with no real
+depth. All values in metres. Pure Python so that the command answers instantly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from metalens_cli.errors import InputError
+
+DEFAULT_WAVELENGTHS_M = tuple(float(f"{(400 + 10 * i) * 1e-9:.12g}") for i in range(31))  # 400-700 nm
+
+
+@dataclass(frozen=True)
+class DepthRow:
+    """The depth at which ``wavelength_m`` focuses on the design plane.
+
+    ``kind`` is ``"real"`` (finite depth), ``"infinite"`` (λ = λd: a plane wave) or
+    ``"virtual"`` (λ < λd: z < 0, no real depth); ``depth_m`` is None unless ``"real"``.
+    """
+
+    wavelength_m: float
+    depth_m: float | None
+    kind: str
+
+
+def depth_for_wavelength(wavelength_m: float, lambda_d_m: float, f_m: float) -> DepthRow:
+    """z = λd·f/(λ − λd) for one wavelength, classified as real, infinite or virtual."""
+    difference = wavelength_m - lambda_d_m
+    # Relative tolerance: a wavelength within 1e-12 of λd is λd (typed values round-trip exactly).
+    if abs(difference) <= 1e-12 * lambda_d_m:
+        return DepthRow(wavelength_m, None, "infinite")
+    if difference < 0:
+        return DepthRow(wavelength_m, None, "virtual")
+    return DepthRow(wavelength_m, lambda_d_m * f_m / difference, "real")
+
+
+def wavelength_for_depth(depth_m: float, lambda_d_m: float, f_m: float) -> float:
+    """λ = λd·(1 + f/z): the wavelength a source at depth z focuses on the design plane.
+
+    ``depth_m = inf`` gives λd.
+    """
+    if not depth_m > 0:
+        raise InputError("--depth", f"{depth_m!r} m is not a positive depth", "a positive length or inf")
+    return lambda_d_m * (1.0 + f_m / depth_m)
+
+
+@dataclass(frozen=True)
+class DeltaWavelength:
+    """Δλ = λ1 − λ2 for depths z1 = ``at_depth_m`` and z2 = z1 − ``delta_z_m``."""
+
+    at_depth_m: float
+    delta_z_m: float
+    delta_wavelength_m: float
+    wavelength_at_depth_m: float
+    wavelength_at_shifted_depth_m: float
+
+
+def delta_wavelength(delta_z_m: float, at_depth_m: float, lambda_d_m: float, f_m: float) -> DeltaWavelength:
+    """Δλ = λd·f·(1/z − 1/(z − Δz)); z − Δz must stay a real (positive) depth."""
+    shifted = at_depth_m - delta_z_m
+    if not shifted > 0:
+        raise InputError(
+            "--delta-z",
+            f"z − Δz = {shifted:.6g} m is not a real depth",
+            "a depth step smaller than --at-depth",
+        )
+    inverse_z = 0.0 if math.isinf(at_depth_m) else 1.0 / at_depth_m
+    delta = lambda_d_m * f_m * (inverse_z - 1.0 / shifted)
+    return DeltaWavelength(
+        at_depth_m=at_depth_m,
+        delta_z_m=delta_z_m,
+        delta_wavelength_m=delta,
+        wavelength_at_depth_m=wavelength_for_depth(at_depth_m, lambda_d_m, f_m),
+        wavelength_at_shifted_depth_m=wavelength_for_depth(shifted, lambda_d_m, f_m),
+    )
+
+
+def shift_factor(f_m: float, depth_m: float) -> float:
+    """s = 1 + f/z: a wavelength focused from infinity is focused from depth z at λ·s."""
+    return 1.0 + f_m / depth_m

@@ -1,0 +1,105 @@
+"""`metalens bands check`: do a multi-band filter, f and z_near satisfy the split-spectrum conditions?"""
+
+from __future__ import annotations
+
+import click
+
+from metalens_cli.analysis import bands as model
+from metalens_cli.cli import render
+from metalens_cli.cli.options import BandSpec, Interval, Length, json_option, load_preset_option, pick, plot_option, preset_option
+from metalens_cli.errors import InputError
+from metalens_cli.io.units import INTERVAL_FORM, LENGTH_FORM, format_length
+
+
+@click.group()
+def bands():
+    """Multi-band filter checks."""
+
+
+def _filter_bands(preset, band_specs, filter_csv, threshold):
+    """Pass bands from --band, --filter-csv or the preset's [filter], in that order."""
+    if band_specs and filter_csv:
+        raise click.UsageError("give either --band or --filter-csv, not both")
+    if band_specs:
+        return model.bands_from_centers([c for c, _ in band_specs], [w for _, w in band_specs])
+    if filter_csv:
+        return model.bands_from_transmission(*model.read_filter_csv(filter_csv), threshold=threshold)
+    if preset is not None and preset.filter is not None:
+        return model.bands_from_centers(list(preset.filter.centers_m), list(preset.filter.widths_m), field="filter.centers")
+    where = f" (preset {preset.name} has no [filter])" if preset is not None else ""
+    raise InputError("--band", f"no filter given{where}", "--band CENTER:WIDTH (repeatable), --filter-csv FILE or --preset FILE")
+
+
+def report_json(report: model.BandsReport) -> dict:
+    return {
+        "ok": report.ok,
+        "s": report.s[0] if report.s[0] == report.s[1] else list(report.s),
+        "f_m": report.f_m,
+        "z_near_m": list(report.z_near_m),
+        "sensor_range_m": list(report.sensor_range_m),
+        "bands": [{"label": b.label, "lo_m": b.lo_m, "hi_m": b.hi_m} for b in report.bands],
+        "ignored_bands": [{"label": b.label, "lo_m": b.lo_m, "hi_m": b.hi_m} for b in report.ignored_bands],
+        "conditions": [
+            {"name": c.name, "lhs_m": c.lhs_m, "relation": c.relation, "rhs_m": c.rhs_m, "depth_m": c.depth_m, "margin_m": c.margin_m, "ok": c.ok}
+            for c in report.conditions
+        ],
+        "z_near_window_m": list(report.z_near_window_m) if report.z_near_window_m else None,
+        "f_window_m": list(report.f_window_m) if report.f_window_m else None,
+    }
+
+
+def _window_text(window) -> str:
+    return "none" if window is None else f"{format_length(window[0])} < · < {format_length(window[1])}"
+
+
+def _render(report: model.BandsReport) -> None:
+    con = render.console()
+    z_lo, z_hi = report.z_near_m
+    depth = format_length(z_lo) if z_lo == z_hi else f"{format_length(z_lo)} to {format_length(z_hi)}"
+    s = f"{report.s[0]:.5f}" if report.s[0] == report.s[1] else f"{report.s[0]:.5f} to {report.s[1]:.5f}"
+    con.print(f"Pass bands: " + ", ".join(f"{b.label} {render.nm(b.lo_m, 1)}-{render.nm(b.hi_m, 1)} nm" for b in report.bands))
+    if report.ignored_bands:
+        con.print("Outside the sensor range (ignored): " + ", ".join(b.label for b in report.ignored_bands))
+    rows = [
+        [c.name, render.nm(c.lhs_m), c.relation, render.nm(c.rhs_m), format_length(c.depth_m), f"{c.margin_m * 1e9:+.2f}", "[green]yes[/]" if c.ok else "[red]NO[/]"]
+        for c in report.conditions
+    ]
+    title = f"Split-spectrum conditions: f = {format_length(report.f_m)}, z_near = {depth}, s = 1 + f/z = {s}"
+    con.print(render.table(title, ["condition", "lhs (nm)", "", "rhs (nm)", "at z", "margin (nm)", "holds"], rows))
+    con.print(f"z_near window at this f: {_window_text(report.z_near_window_m)}")
+    con.print(f"f window at this z_near: {_window_text(report.f_window_m)}")
+    failed = [c.name for c in report.conditions if not c.ok]
+    con.print("[green]All conditions hold.[/]" if not failed else f"[red]Failing:[/] {', '.join(failed)}")
+
+
+@bands.command()
+@preset_option
+@click.option("--band", "band_specs", type=BandSpec(), multiple=True, help="Pass band CENTER:WIDTH (width = FWHM), e.g. 457nm:22nm; repeatable.")
+@click.option("--filter-csv", type=click.Path(dir_okay=False), help="Filter transmission CSV: wavelength_nm,transmission (0-1 or %).")
+@click.option("--threshold", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.5, show_default=True, help="Transmission above which a CSV filter passes.")
+@click.option("--f", "f_m", type=Length(), help="Focal length, e.g. 4mm.")
+@click.option("--z-near", "z_near", type=Interval(), help="Near (obstruction) depth, or a range that must hold throughout: 45mm or 40mm:50mm.")
+@click.option("--sensor-range", type=Interval(), help="Sensor's wavelength range [default: preset's, else 400nm:700nm].")
+@json_option
+@plot_option
+@click.pass_context
+def check(ctx, preset_path, band_specs, filter_csv, threshold, f_m, z_near, sensor_range, as_json, plot_path):
+    """Check the split-spectrum conditions (Suppl. Note 1). Exit 0: all hold; 1: one fails; 2: bad input."""
+    preset = load_preset_option(preset_path)
+    filter_bands = _filter_bands(preset, band_specs, filter_csv, threshold)
+    f_m = pick(f_m, preset, lambda p: p.lens.focal_length_m, "--f", LENGTH_FORM)
+    z_near = pick(z_near, preset, lambda p: p.scene.z_near_m, "--z-near", INTERVAL_FORM)
+    sensor_range = sensor_range or (preset.sensor.wavelength_range_m if preset else (400e-9, 700e-9))
+    report = model.check_bands(filter_bands, f_m, z_near, sensor_range)
+    if plot_path:
+        from metalens_cli.plotting.bands import plot_bands
+
+        plot_bands(plot_path, report)
+    if as_json:
+        out = report_json(report)
+        if plot_path:
+            out["plot"] = str(plot_path)
+        render.emit_json(out)
+    else:
+        _render(report)
+    ctx.exit(0 if report.ok else 1)

@@ -1,0 +1,115 @@
+"""Click parameter types for lengths with units, and the shared --preset/--json options.
+
+Each type converts to SI metres through :mod:`metalens_cli.io.units`; a bad value becomes a
+Click usage error naming the option and the accepted form (rendered as one line, exit 2).
+"""
+
+from __future__ import annotations
+
+import click
+
+from metalens_cli.errors import InputError
+from metalens_cli.io import units
+
+
+def _option_name(param: click.Parameter | None) -> str:
+    if param is None:
+        return "value"
+    return max(param.opts, key=len) if param.opts else param.name
+
+
+class _UnitType(click.ParamType):
+    """Base: call ``parse(text, field)`` and turn an :class:`InputError` into ``self.fail``."""
+
+    def parse(self, text: str, field: str):
+        raise NotImplementedError
+
+    def convert(self, value, param, ctx):
+        if not isinstance(value, str):
+            return value  # already converted (a default given in SI)
+        try:
+            return self.parse(value, _option_name(param))
+        except InputError as exc:
+            self.fail(f"{exc.message} (expected {exc.expected})" if exc.expected else exc.message, param, ctx)
+
+
+class Length(_UnitType):
+    """One length: ``4mm``; ``inf`` when ``allow_inf``."""
+
+    name = "length"
+
+    def __init__(self, allow_inf: bool = False):
+        self.allow_inf = allow_inf
+
+    def parse(self, text, field):
+        return units.parse_length(text, field, allow_inf=self.allow_inf)
+
+
+class LengthList(_UnitType):
+    """Lengths and ranges: ``45mm,inf`` or ``430:645:5nm`` → list of metres."""
+
+    name = "lengths"
+
+    def __init__(self, allow_inf: bool = False):
+        self.allow_inf = allow_inf
+
+    def parse(self, text, field):
+        return units.parse_length_list(text, field, allow_inf=self.allow_inf)
+
+
+class Interval(_UnitType):
+    """``40mm:50mm`` or one length ``45mm`` → (lo, hi) in metres."""
+
+    name = "interval"
+
+    def parse(self, text, field):
+        return units.parse_interval(text, field)
+
+
+class BandSpec(_UnitType):
+    """``CENTER:WIDTH`` with units, e.g. ``457nm:22nm`` → (centre, width) in metres."""
+
+    name = "band"
+
+    def parse(self, text, field):
+        parts = text.split(":")
+        if len(parts) != 2:
+            raise InputError(field, f"{text!r} is not CENTER:WIDTH", "CENTER:WIDTH with units, e.g. 457nm:22nm")
+        return tuple(units.parse_length(part, field) for part in parts)
+
+
+def flatten(values) -> list[float]:
+    """Join the lists of a repeatable LengthList option."""
+    return [v for group in values or () for v in group]
+
+
+preset_option = click.option(
+    "--preset",
+    "preset_path",
+    type=click.Path(dir_okay=False),
+    help="Preset TOML file; explicit options override its values.",
+)
+json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else.")
+plot_option = click.option(
+    "--plot", "plot_path", type=click.Path(dir_okay=False), help="Write a figure (PNG) to this file."
+)
+
+
+def load_preset_option(path: str | None):
+    """The preset named by --preset, or None."""
+    if path is None:
+        return None
+    from metalens_cli.io.presets import load_preset
+
+    return load_preset(path)
+
+
+def pick(explicit, preset, getter, option: str, form: str):
+    """An explicit option wins over the preset's value; neither → a one-line error naming ``option``."""
+    if explicit is not None:
+        return explicit
+    value = getter(preset) if preset is not None else None
+    if value is None:
+        where = "" if preset is None else f" (preset {preset.name} has none)"
+        raise InputError(option, f"missing{where}", f"{form}, or --preset FILE")
+    return value

@@ -1,0 +1,54 @@
+"""Rendering results: JSON on stdout, rich tables, and lazily imported plotting.
+
+Rich and matplotlib are imported only when used, so JSON pipelines start fast.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from typing import Any
+
+
+def jsonable(obj: Any) -> Any:
+    """Replace non-finite floats by None (JSON has no inf/NaN) recursively."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    return obj
+
+
+def emit_json(obj: Any) -> None:
+    """Write one JSON object and a newline to stdout."""
+    sys.stdout.write(json.dumps(jsonable(obj), allow_nan=False) + "\n")
+
+
+def console(stderr: bool = False):
+    """A rich console on stdout (results) or stderr (messages)."""
+    from rich.console import Console
+
+    return Console(stderr=stderr, highlight=False)
+
+
+TEXT_COLUMNS = {"note", "condition", "holds", "band", "key", "value"}
+
+
+def table(title: str, columns: list[str], rows: list[list[str]]):
+    """A rich table with right-aligned numeric-looking columns."""
+    from rich.table import Table
+
+    t = Table(title=title, title_justify="left")
+    for name in columns:
+        t.add_column(name, justify="left" if name in TEXT_COLUMNS else "right")
+    for row in rows:
+        t.add_row(*row)
+    return t
+
+
+def nm(value_m: float | None, digits: int = 2) -> str:
+    """Format a wavelength in nm."""
+    return "—" if value_m is None else f"{value_m * 1e9:.{digits}f}"

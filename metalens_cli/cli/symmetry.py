@@ -1,0 +1,82 @@
+"""`metalens symmetry`: wavelength ↔ depth under the depth-wavelength model."""
+
+from __future__ import annotations
+
+import click
+
+from metalens_cli.analysis import symmetry as model
+from metalens_cli.cli import render
+from metalens_cli.cli.options import Length, LengthList, flatten, json_option, load_preset_option, pick, plot_option, preset_option
+from metalens_cli.io.units import LENGTH_FORM, format_length
+
+NOTES = {
+    "infinite": "asymptote: λ = λd focuses from infinity",
+    "virtual": "no real depth: λ < λd (virtual source)",
+    "real": "",
+}
+
+
+@click.command()
+@preset_option
+@click.option("--f", "f_m", type=Length(), help="Focal length (lens-to-design-plane distance), e.g. 4mm.")
+@click.option("--lambda-d", "lambda_d_m", type=Length(), help="Design wavelength, e.g. 450nm.")
+@click.option("--wavelength", "wavelengths", type=LengthList(), multiple=True, help="Wavelengths: 530nm, 500nm,600nm or 430:645:5nm (repeatable). Default 400:700:10nm.")
+@click.option("--depth", "depths", type=LengthList(allow_inf=True), multiple=True, help="Depths z: the wavelength λd(1 + f/z) focused from there (repeatable; inf allowed).")
+@click.option("--delta-z", "delta_z_m", type=Length(), help="Depth step Δz (> 0, toward the lens) for Δλ = λd·f·(1/z − 1/(z − Δz)).")
+@click.option("--at-depth", "at_depth_m", type=Length(allow_inf=True), help="Depth z at which --delta-z is taken.")
+@click.option("--z-near", "z_near_m", type=Length(), help="Near depth drawn on the plot.")
+@json_option
+@plot_option
+def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_depth_m, z_near_m, as_json, plot_path):
+    """Depth z = λd·f/(λ − λd) at which each wavelength focuses on the design plane.
+
+    Also the inverse λ = λd(1 + f/z) for --depth, and Δλ for a depth step (--delta-z with
+    --at-depth). Values from --f/--lambda-d, or from --preset (lens.focal_length,
+    lens.design_wavelength).
+    """
+    preset = load_preset_option(preset_path)
+    f_m = pick(f_m, preset, lambda p: p.lens.focal_length_m, "--f", LENGTH_FORM)
+    lambda_d_m = pick(lambda_d_m, preset, lambda p: p.lens.design_wavelength_m, "--lambda-d", LENGTH_FORM)
+    if (delta_z_m is None) != (at_depth_m is None):
+        raise click.UsageError("--delta-z and --at-depth go together (e.g. --delta-z 5mm --at-depth 45mm)")
+
+    rows = [model.depth_for_wavelength(w, lambda_d_m, f_m) for w in (flatten(wavelengths) or model.DEFAULT_WAVELENGTHS_M)]
+    focused = [(z, model.wavelength_for_depth(z, lambda_d_m, f_m)) for z in flatten(depths)]
+    delta = None if delta_z_m is None else model.delta_wavelength(delta_z_m, at_depth_m, lambda_d_m, f_m)
+
+    if plot_path:
+        from metalens_cli.plotting.symmetry import plot_symmetry
+
+        plot_symmetry(plot_path, f_m, lambda_d_m, z_near_m=z_near_m)
+    if as_json:
+        out = {
+            "f_m": f_m,
+            "lambda_d_m": lambda_d_m,
+            "rows": [{"wavelength_m": r.wavelength_m, "depth_m": r.depth_m, "kind": r.kind} for r in rows],
+            "focused_wavelengths": [{"depth_m": z, "wavelength_m": w} for z, w in focused],
+        }
+        if delta is not None:
+            out["delta"] = {
+                "at_depth_m": delta.at_depth_m,
+                "delta_z_m": delta.delta_z_m,
+                "delta_wavelength_m": delta.delta_wavelength_m,
+                "wavelength_at_depth_m": delta.wavelength_at_depth_m,
+                "wavelength_at_shifted_depth_m": delta.wavelength_at_shifted_depth_m,
+            }
+        if plot_path:
+            out["plot"] = str(plot_path)
+        render.emit_json(out)
+        return
+
+    con = render.console()
+    title = f"Depth-wavelength symmetry: f = {format_length(f_m)}, λd = {format_length(lambda_d_m)}"
+    con.print(render.table(title, ["λ (nm)", "depth z", "note"], [[render.nm(r.wavelength_m), format_length(r.depth_m) if r.depth_m else "—", NOTES[r.kind]] for r in rows]))
+    if focused:
+        con.print(render.table("Wavelength focused from depth: λ = λd(1 + f/z)", ["depth z", "λ (nm)"], [[format_length(z), render.nm(w, 3)] for z, w in focused]))
+    if delta is not None:
+        con.print(
+            f"Δλ = λd·f·(1/z − 1/(z − Δz)) = {delta.delta_wavelength_m * 1e9:.4f} nm for z = {format_length(delta.at_depth_m)}, "
+            f"Δz = {format_length(delta.delta_z_m)} (λ: {render.nm(delta.wavelength_at_depth_m, 3)} → {render.nm(delta.wavelength_at_shifted_depth_m, 3)} nm)"
+        )
+    if plot_path:
+        render.console(stderr=True).print(f"wrote {plot_path}")

@@ -1,0 +1,283 @@
+"""Presets: TOML files describing a whole camera (lens, nanofins, filter, sensor, scene, learning).
+
+A preset is read into a tree of frozen dataclasses holding SI values (metres, fractions).
+Each dataclass field declares its TOML key and kind in its metadata, so the schema, the
+validation and the resolved view (:func:`to_dict`) come from one definition. Every error
+names the TOML key path (``lens.focal_length``) and the accepted form.
+
+Lengths are TOML strings with units (``"4mm"``); lists of lengths are arrays of such strings
+or one comma-separated string; intervals are ``"40mm:50mm"`` or a two-element array.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from metalens_cli.errors import InputError
+from metalens_cli.io import units
+
+
+def _key(toml_key: str, kind: str, *, default: Any = dataclasses.MISSING, **limits: Any) -> Any:
+    """A dataclass field read from ``toml_key`` as ``kind``, with optional ``lo``/``hi`` limits."""
+    meta = {"key": toml_key, "kind": kind, **limits}
+    if default is dataclasses.MISSING:
+        return field(metadata=meta)
+    if isinstance(default, (list, tuple)):
+        return field(default_factory=lambda: tuple(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class LensConfig:
+    """The flat lens: focal (sensor) distance, aperture diameter, and how θ is initialised."""
+
+    focal_length_m: float = _key("focal_length", "length")
+    aperture_m: float = _key("aperture", "length")
+    design: str = _key("design", "choice", choices=("learned", "hyperbolic"))
+    design_wavelength_m: float | None = _key("design_wavelength", "length", default=None)
+    parameterization: str = _key("parameterization", "choice", choices=("radial", "2d"), default="radial")
+
+
+@dataclass(frozen=True)
+class NanofinConfig:
+    """SiNx nanofin meta-atoms on a square grid; efficiency η(λ) as a table."""
+
+    pitch_m: float = _key("pitch", "length")
+    height_m: float = _key("height", "length")
+    width_m: float = _key("width", "length")
+    length_m: float = _key("length", "length")
+    efficiency_wavelengths_m: tuple[float, ...] = _key("efficiency_wavelengths", "length_list")
+    efficiency: tuple[float, ...] = _key("efficiency", "fraction_list")
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Multi-band filter: pass band i is [centre − width/2, centre + width/2] (width = FWHM)."""
+
+    centers_m: tuple[float, ...] = _key("centers", "length_list")
+    widths_m: tuple[float, ...] = _key("widths", "length_list")
+    edge_width_m: float = _key("edge_width", "length", default=2e-9)
+    peak_transmission: float = _key("peak_transmission", "fraction", default=0.9)
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Colour sensor: square pixels, window size, spectral response and range."""
+
+    pixel_pitch_m: float = _key("pixel_pitch", "length")
+    pixels: int = _key("pixels", "int", lo=1, hi=16384)
+    camera_response: str = _key("camera_response", "string", default="Nikon 5100 (NPL)")
+    wavelength_range_m: tuple[float, float] = _key("wavelength_range", "interval", default=(400e-9, 700e-9))
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Depth ranges of near obstructions and far scenes (uniformly sampled in training)."""
+
+    z_near_m: tuple[float, float] = _key("z_near", "interval")
+    z_far_m: tuple[float, float] = _key("z_far", "interval")
+
+
+@dataclass(frozen=True)
+class OptimizeConfig:
+    """End-to-end learning of θ (Suppl. Note 4): AdamW with cosine annealing."""
+
+    steps: int = _key("steps", "int", lo=0, hi=10_000_000)
+    learning_rate: float = _key("learning_rate", "float", lo=0.0)
+    t_max: int = _key("t_max", "int", lo=1, hi=10_000_000)
+    optimizer: str = _key("optimizer", "choice", choices=("adamw",), default="adamw")
+    scheduler: str = _key("scheduler", "choice", choices=("cosine", "constant"), default="cosine")
+    weight_decay: float = _key("weight_decay", "float", lo=0.0, default=0.01)
+    batch_size: int = _key("batch_size", "int", lo=1, hi=4096, default=1)
+    wavelengths_per_channel: int = _key("wavelengths_per_channel", "int", lo=1, hi=1024, default=3)
+    seed: int = _key("seed", "int", lo=0, hi=2**63 - 1, default=0)
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Weights of L1, 1 − SSIM, domain adaptation, L_bright and L_sharp."""
+
+    l1: float = _key("l1", "float", lo=0.0, default=1.0)
+    ssim: float = _key("ssim", "float", lo=0.0, default=1.0)
+    domain_adaptation: float = _key("domain_adaptation", "float", lo=0.0, default=1.0)
+    bright: float = _key("bright", "float", lo=0.0, default=1.0)
+    sharp: float = _key("sharp", "float", lo=0.0, default=1.0)
+    sharp_window: int = _key("sharp_window", "int", lo=1, hi=101, default=5)
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A resolved preset. ``filter`` is None for a camera without a multi-band filter."""
+
+    name: str
+    lens: LensConfig
+    nanofin: NanofinConfig
+    sensor: SensorConfig
+    scene: SceneConfig
+    optimize: OptimizeConfig
+    loss: LossConfig
+    filter: FilterConfig | None = None
+    description: str = ""
+    source: str | None = None
+
+
+SECTIONS: dict[str, tuple[type, bool]] = {
+    "lens": (LensConfig, True),
+    "nanofin": (NanofinConfig, True),
+    "filter": (FilterConfig, False),
+    "sensor": (SensorConfig, True),
+    "scene": (SceneConfig, True),
+    "optimize": (OptimizeConfig, True),
+    "loss": (LossConfig, False),
+}
+TOP_LEVEL_KEYS = {"name", "description"}
+
+
+def _as_str(value: Any, path: str, form: str) -> str:
+    if not isinstance(value, str):
+        raise InputError(path, f"expected a string, got {type(value).__name__}", form)
+    return value
+
+
+def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
+    """Convert one TOML value according to the field's kind and limits."""
+    kind = meta["kind"]
+    if kind == "length":
+        return units.parse_length(_as_str(value, path, units.LENGTH_FORM), path)
+    if kind == "length_list":
+        if isinstance(value, list):
+            return tuple(units.parse_length(_as_str(v, path, units.LIST_FORM), path) for v in value)
+        return tuple(units.parse_length_list(_as_str(value, path, units.LIST_FORM), path))
+    if kind == "interval":
+        if isinstance(value, list):
+            if len(value) != 2:
+                raise InputError(path, "expected two values", units.INTERVAL_FORM)
+            lo, hi = (units.parse_length(_as_str(v, path, units.INTERVAL_FORM), path, allow_inf=True) for v in value)
+            if hi < lo:
+                raise InputError(path, "upper end below lower end", units.INTERVAL_FORM)
+            return lo, hi
+        return units.parse_interval(_as_str(value, path, units.INTERVAL_FORM), path, allow_inf=True)
+    if kind == "fraction_list":
+        if not isinstance(value, list) or not value:
+            raise InputError(path, "expected a non-empty array of numbers in (0, 1]", "[0.784, 0.729]")
+        return tuple(_number(v, path, lo=0.0, hi=1.0, form="numbers in (0, 1]", open_lo=True) for v in value)
+    if kind == "fraction":
+        return _number(value, path, lo=0.0, hi=1.0, form="a number in (0, 1]", open_lo=True)
+    if kind == "float":
+        return _number(value, path, lo=meta.get("lo"), hi=meta.get("hi"), form="a number")
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(path, f"expected an integer, got {value!r}", "an integer")
+        return int(_number(value, path, lo=meta.get("lo"), hi=meta.get("hi"), form="an integer"))
+    if kind == "string":
+        return _as_str(value, path, "a string")
+    if kind == "choice":
+        choices = meta["choices"]
+        if value not in choices:
+            raise InputError(path, f"{value!r} is not allowed", "one of " + ", ".join(choices))
+        return value
+    raise AssertionError(f"unknown kind {kind}")
+
+
+def _number(value: Any, path: str, *, lo=None, hi=None, form: str, open_lo: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(path, f"expected {form}, got {value!r}", form)
+    too_low = lo is not None and (value <= lo if open_lo else value < lo)
+    too_high = hi is not None and value > hi
+    if too_low or too_high:
+        low = "-inf" if lo is None else f"{lo:g}"
+        high = "inf" if hi is None else f"{hi:g}"
+        bracket = "(" if open_lo else "["
+        raise InputError(path, f"{value!r} is out of range {bracket}{low}, {high}]", form)
+    return value
+
+
+def _build_section(cls: type, table: Any, section: str) -> Any:
+    if not isinstance(table, dict):
+        raise InputError(section, "expected a table", f"[{section}] with keys")
+    fields = {f.metadata["key"]: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        raise InputError(f"{section}.{unknown[0]}", "unknown key", "one of " + ", ".join(fields))
+    kwargs = {}
+    for key, f in fields.items():
+        path = f"{section}.{key}"
+        if key in table:
+            kwargs[f.name] = _convert(table[key], f.metadata, path)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise InputError(path, "missing", f"a value: {f.metadata['kind'].replace('_', ' ')}")
+    return cls(**kwargs)
+
+
+def _check_consistency(p: Preset) -> None:
+    """Cross-field rules that no single key can express."""
+    if p.lens.design == "hyperbolic" and p.lens.design_wavelength_m is None:
+        raise InputError("lens.design_wavelength", "missing (required when lens.design = 'hyperbolic')", units.LENGTH_FORM)
+    if len(p.nanofin.efficiency) != len(p.nanofin.efficiency_wavelengths_m):
+        raise InputError("nanofin.efficiency", "needs one value per nanofin.efficiency_wavelengths entry", "equal lengths")
+    if p.nanofin.pitch_m * 2 > p.lens.aperture_m:
+        raise InputError("nanofin.pitch", "is larger than half the aperture", "a pitch far below lens.aperture")
+    if p.filter is not None:
+        if len(p.filter.centers_m) != len(p.filter.widths_m):
+            raise InputError("filter.widths", "needs one width per filter.centers entry", "equal lengths")
+        if list(p.filter.centers_m) != sorted(p.filter.centers_m):
+            raise InputError("filter.centers", "must increase", "band centres in ascending order")
+    if math.isinf(p.scene.z_near_m[1]):
+        raise InputError("scene.z_near", "must be finite", units.INTERVAL_FORM)
+
+
+def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | None = None) -> Preset:
+    """Validate a parsed TOML document and return the resolved :class:`Preset`."""
+    allowed = TOP_LEVEL_KEYS | set(SECTIONS)
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise InputError(unknown[0], "unknown section or key", "one of " + ", ".join(sorted(allowed)))
+    sections = {}
+    for section, (cls, required) in SECTIONS.items():
+        if section in data:
+            sections[section] = _build_section(cls, data[section], section)
+        elif required:
+            raise InputError(section, "missing section", f"a [{section}] table")
+        elif section == "loss":
+            sections[section] = LossConfig()
+    preset = Preset(
+        name=_as_str(data.get("name", name), "name", "a string"),
+        description=_as_str(data.get("description", ""), "description", "a string"),
+        source=source,
+        **sections,
+    )
+    _check_consistency(preset)
+    return preset
+
+
+def load_preset(path: str | Path) -> Preset:
+    """Read and validate a preset TOML file. Errors name the file and the key path."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError("preset", f"cannot read {str(path)!r}: {exc.strerror or exc}", "a readable TOML file") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError("preset", f"{path.name} is not valid TOML: {exc}", "TOML (https://toml.io)") from None
+    try:
+        return preset_from_dict(data, name=path.stem, source=str(path))
+    except InputError as exc:
+        raise InputError(f"{path.name}: {exc.field}", exc.message, exc.expected) from None
+
+
+def to_dict(obj: Any) -> Any:
+    """The resolved preset as plain JSON-ready data: SI values, key names with units (``_m``)."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, tuple):
+        return [to_dict(v) for v in obj]
+    if isinstance(obj, float) and math.isinf(obj):
+        return None
+    return obj

@@ -1,0 +1,67 @@
+"""Parsing lengths with units into SI metres."""
+
+import math
+
+import pytest
+
+from metalens_cli.errors import InputError
+from metalens_cli.io import units
+
+
+@pytest.mark.parametrize(
+    "text, metres",
+    [("4mm", 4e-3), ("450nm", 450e-9), ("1.85um", 1.85e-6), ("1.85µm", 1.85e-6), ("1.85μm", 1.85e-6),
+     ("0.045m", 0.045), ("2.516 mm", 2.516e-3), ("1e3nm", 1e-6), ("395nm", 3.95e-7), ("1km", 1e3)],
+)
+def test_lengths(text, metres):
+    assert units.parse_length(text, "--x") == metres  # exact: scaled by exact powers of ten
+
+
+def test_inf_only_where_allowed():
+    assert units.parse_length("inf", "--depth", allow_inf=True) == math.inf
+    with pytest.raises(InputError, match="--f: infinity"):
+        units.parse_length("inf", "--f")
+
+
+@pytest.mark.parametrize("text, why", [("4", "no unit"), ("4xm", "unknown unit"), ("-4mm", "positive"),
+                                        ("0nm", "positive"), ("nan", "not a length"), ("nanmm", "not a length"), ("", "not a length")])
+def test_bad_lengths_name_the_field_and_form(text, why):
+    with pytest.raises(InputError) as info:
+        units.parse_length(text, "--lambda-d")
+    message = str(info.value)
+    assert message.startswith("--lambda-d:") and why in message and "e.g. 4mm" in message
+    assert "\n" not in message
+
+
+def test_range_is_inclusive():
+    values = units.parse_range("430:645:5nm", "--wavelengths")
+    assert len(values) == 44 and values[0] == 430e-9 and values[-1] == 645e-9
+    assert units.parse_length_list("430nm:440nm:5nm", "-w") == [430e-9, 435e-9, 440e-9]
+
+
+def test_lists_mix_values_and_ranges():
+    assert units.parse_length_list("45mm,inf", "--depths", allow_inf=True) == [0.045, math.inf]
+    assert units.parse_length_list("400nm,500:510:10nm", "-w") == [400e-9, 500e-9, 510e-9]
+
+
+def test_bad_ranges():
+    with pytest.raises(InputError, match="ends before"):
+        units.parse_range("645:430:5nm", "-w")
+    with pytest.raises(InputError, match="empty item"):
+        units.parse_length_list("45mm,,inf", "-d", allow_inf=True)
+    with pytest.raises(InputError, match="at most"):
+        units.parse_range("1:1000000:1nm", "-w")
+
+
+def test_interval():
+    assert units.parse_interval("40mm:50mm", "--z-near") == (0.04, 0.05)
+    assert units.parse_interval("40:50mm", "--z-near") == (0.04, 0.05)
+    assert units.parse_interval("45mm", "--z-near") == (0.045, 0.045)
+    with pytest.raises(InputError, match="upper end"):
+        units.parse_interval("50mm:40mm", "--z-near")
+
+
+def test_format_length():
+    assert units.format_length(4e-3) == "4 mm"
+    assert units.format_length(1.85e-6) == "1.85 µm"
+    assert units.format_length(math.inf) == "inf"
