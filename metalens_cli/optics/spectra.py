@@ -1,0 +1,423 @@
+"""Spectral sensitivity of the sensor's colour channels and wavelength sampling.
+
+S^c(λ) = CRF^c(λ) · T_filter(λ) · η(λ) for the channels c in ``CHANNELS`` = ("R", "G", "B"):
+every array of this module with a leading axis of length 3 is indexed R, G, B in that order.
+
+- CRF^c: the camera's relative spectral response (colour-science's shipped data or a CSV).
+- T_filter: the multi-band filter's transmission in 0..1 (smooth band model or a CSV).
+- η: the meta-atoms' polarisation-conversion efficiency in 0..1 (a table or a CSV).
+
+Wavelengths are SI metres at every interface; CSV files hold nanometres and are converted on
+reading. S^c is tabulated on a wavelength grid and treated as linear between grid points.
+colour-science (slow to import) and torch are imported only inside the functions that need them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from metalens_cli.errors import InputError
+
+CHANNELS = ("R", "G", "B")
+CAMERA_NAMES = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
+DEFAULT_CAMERA = "Nikon 5100 (NPL)"
+DEFAULT_EDGE_WIDTH_M = 2e-9
+"""10-90 % rise distance of each filter band edge (typical of hard-coated interference filters)."""
+
+_NM = 1e-9
+_PERCENT_THRESHOLD = 1.5
+_CSV_TOLERANCE = 0.05
+
+
+@dataclass(frozen=True)
+class SpectralSensitivity:
+    """S^c(λ) tabulated on a wavelength grid.
+
+    ``wavelengths_m``: (L,) strictly increasing, metres. ``values``: (3, L), channels R, G, B,
+    non-negative, in arbitrary units (only the shape of each channel matters to sampling).
+    """
+
+    wavelengths_m: np.ndarray
+    values: np.ndarray
+
+
+@dataclass(frozen=True)
+class ChannelWeights:
+    """Monochromatic wavelengths and the weights that mix them into the three channels.
+
+    ``wavelengths_m``: (W,) metres, the wavelengths at which to compute monochromatic PSFs.
+    ``weights``: (3, W), channels R, G, B; each row sums to 1, so ``weights @ f(wavelengths_m)``
+    estimates the S^c-weighted mean of f. Pass it to ``mix_channels``.
+    ``coverage``: (3,), the fraction of each channel's ∫S^c dλ that the wavelengths represent
+    (1 for importance samples; below 1 when a scan's range cuts off part of a channel).
+    """
+
+    wavelengths_m: np.ndarray
+    weights: np.ndarray
+    coverage: np.ndarray
+
+
+def wavelength_grid(start_m: float = 380e-9, stop_m: float = 780e-9, step_m: float = 1e-9) -> np.ndarray:
+    """Uniform grid from ``start_m`` to ``stop_m`` inclusive (metres), step rounded to fit exactly."""
+    if not (0 < start_m < stop_m and step_m > 0):
+        raise InputError("wavelengths", f"bad grid {start_m}:{stop_m}:{step_m}", "0 < start < stop, step > 0 (metres)")
+    count = max(round((stop_m - start_m) / step_m), 1) + 1
+    return np.linspace(start_m, stop_m, count)
+
+
+# ---------------------------------------------------------------------------- camera response
+
+
+def camera_response(wavelengths_m: np.ndarray, source: str | Path = DEFAULT_CAMERA) -> np.ndarray:
+    """CRF^c(λ) of a camera at ``wavelengths_m``, shape (3, L), channels R, G, B.
+
+    ``source`` is one of ``CAMERA_NAMES`` (colour-science's ``MSDS_CAMERA_SENSITIVITIES``,
+    each channel normalised to peak 1) or a CSV file with columns wavelength_nm, r, g, b
+    (header line optional). Linear interpolation; zero outside the tabulated range (no
+    measured response). Negative CSV values (measurement noise) are clipped to zero.
+    """
+    if isinstance(source, str) and source in CAMERA_NAMES:
+        table_nm, table = _colour_camera(source)
+    elif Path(source).is_file():
+        data = _read_csv(Path(source), 4, "camera")
+        table_nm, table = data[:, 0], np.clip(data[:, 1:].T, 0.0, None)
+    else:
+        raise InputError("camera", f"unknown camera {str(source)!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV file")
+    grid_nm = np.asarray(wavelengths_m, dtype=float) / _NM
+    return np.stack([np.interp(grid_nm, table_nm, row, left=0.0, right=0.0) for row in table])
+
+
+def _colour_camera(name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(wavelengths in nm, (3, L) responses R, G, B) from colour-science's shipped data."""
+    import colour  # ~2-3 s: imported only when a named camera is asked for
+
+    data = colour.MSDS_CAMERA_SENSITIVITIES[name]
+    columns = [data.labels.index(label) for label in ("red", "green", "blue")]
+    return np.asarray(data.wavelengths, dtype=float), np.asarray(data.values, dtype=float)[:, columns].T
+
+
+# ---------------------------------------------------------------------------- filter
+
+
+def bandpass_transmission(
+    wavelengths_m: np.ndarray,
+    centres_m: np.ndarray,
+    widths_m: np.ndarray,
+    *,
+    edge_width_m: float = DEFAULT_EDGE_WIDTH_M,
+    peak: float = 1.0,
+) -> np.ndarray:
+    """Transmission (L,) of a multi-band filter with smooth edges.
+
+    Each band b is a product of two logistic edges σ(t) = 1 / (1 + e^(−t)),
+
+        T_b(λ) = peak · σ((λ − c_b + h_b)/s) · σ((c_b + h_b − λ)/s) / σ(h_b/s)²,
+
+    with s = edge_width_m / (2 ln 9), so each edge rises from 10 % to 90 % over
+    ``edge_width_m``. The half-width h_b is solved in closed form so that T_b(c_b) = peak
+    and T_b(c_b ± w_b/2) = peak/2 exactly: the FWHM is ``widths_m`` and the pass band is
+    [c − w/2, c + w/2]. The filter is the sum of its bands, which must not overlap. A band
+    narrower than 2·arccosh(3)·s ≈ 0.80 · edge_width_m cannot have that FWHM and is refused.
+    """
+    centres = np.atleast_1d(np.asarray(centres_m, dtype=float))
+    widths = np.atleast_1d(np.asarray(widths_m, dtype=float))
+    _check_bands(centres, widths, edge_width_m, peak)
+    scale = edge_width_m / (2.0 * math.log(9.0))
+    grid = np.asarray(wavelengths_m, dtype=float)
+    total = np.zeros_like(grid)
+    for centre, width in zip(centres, widths):
+        x = _band_half_width(width / (2.0 * scale))
+        left = _logistic((grid - centre) / scale + x)
+        right = _logistic(x - (grid - centre) / scale)
+        total += left * right / _logistic(x) ** 2
+    return peak * total
+
+
+def _check_bands(centres: np.ndarray, widths: np.ndarray, edge_width_m: float, peak: float) -> None:
+    """Refuse malformed band lists (InputError on field ``filter``)."""
+    if centres.shape != widths.shape or centres.ndim != 1:
+        raise InputError("filter", f"{centres.size} centres but {widths.size} widths", "one width per band centre")
+    if not (np.all(np.isfinite(centres)) and np.all(centres > 0) and np.all(widths > 0)):
+        raise InputError("filter", "band centres and widths must be positive", "metres")
+    if not (edge_width_m > 0 and 0 < peak <= 1):
+        raise InputError("filter", f"edge width {edge_width_m} m, peak {peak}", "edge width > 0, 0 < peak <= 1")
+    narrowest = 2.0 * math.acosh(3.0) * edge_width_m / (2.0 * math.log(9.0))
+    if np.any(widths < narrowest):
+        raise InputError("filter", f"a band is narrower than {narrowest / _NM:.2f} nm", "FWHM >= 0.80 × edge width")
+    order = np.argsort(centres)
+    low, high = centres[order] - widths[order] / 2, centres[order] + widths[order] / 2
+    if np.any(low[1:] <= high[:-1]):
+        raise InputError("filter", "pass bands overlap", "disjoint bands [c - w/2, c + w/2]")
+
+
+def _band_half_width(u: float) -> float:
+    """x = h/s such that σ(x + u)·σ(x − u) = σ(x)²/2, for u = w/(2s) ≥ arccosh 3.
+
+    With a = e^(−x) the condition is a² + (4 − q)a + 1 = 0, q = 2 cosh u; the smaller root
+    (the band whose edges sit near ±w/2) is a = 2 / ((q − 4) + √((q − 4)² − 4)). Written with
+    q − 4 = e^u·(1 + e^(−2u) − 4e^(−u)) so that no term overflows for wide bands.
+    """
+    g = 1.0 + math.exp(-2.0 * u) - 4.0 * math.exp(-u)
+    ratio = 4.0 * math.exp(-2.0 * u) / g**2
+    return u + math.log(g) + math.log((1.0 + math.sqrt(max(1.0 - ratio, 0.0))) / 2.0)
+
+
+def _logistic(t: np.ndarray | float) -> np.ndarray | float:
+    """σ(t) = 1/(1 + e^(−t)), written with tanh so that it never overflows."""
+    return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(t)))
+
+
+def filter_from_csv(path: str | Path, wavelengths_m: np.ndarray) -> np.ndarray:
+    """Transmission (L,) from a CSV (wavelength_nm, transmission; header optional).
+
+    Transmission in 0..1, or in percent when the column's maximum exceeds 1.5. Values are
+    clipped to [0, 1] after a tolerance of 0.05 for measurement noise. Linear interpolation;
+    zero outside the tabulated range (light there is taken as blocked).
+    """
+    data = _read_csv(Path(path), 2, "filter")
+    values = _fraction(data[:, 1], "filter", Path(path))
+    return np.interp(np.asarray(wavelengths_m, dtype=float) / _NM, data[:, 0], values, left=0.0, right=0.0)
+
+
+# ---------------------------------------------------------------------------- efficiency
+
+
+def efficiency_from_table(
+    wavelengths_m: np.ndarray, table_wavelengths_m: np.ndarray, table_efficiencies: np.ndarray
+) -> np.ndarray:
+    """η(λ) (L,) by linear interpolation of a table, flat extrapolation beyond its ends.
+
+    ``table_wavelengths_m`` strictly increasing (metres), ``table_efficiencies`` fractions in
+    0..1 (the paper: 0.784, 0.729, 0.669 at 457, 530, 628 nm). One entry gives a constant.
+    """
+    table_wl = np.atleast_1d(np.asarray(table_wavelengths_m, dtype=float))
+    table_eta = np.atleast_1d(np.asarray(table_efficiencies, dtype=float))
+    if table_wl.shape != table_eta.shape or table_wl.ndim != 1 or table_wl.size == 0:
+        raise InputError("efficiency", "wavelength and efficiency lists differ in length", "one efficiency per wavelength")
+    if not (np.all(np.isfinite(table_wl)) and np.all(np.diff(table_wl) > 0)):
+        raise InputError("efficiency", "table wavelengths are not strictly increasing", "increasing metres")
+    if not (np.all(table_eta >= 0) and np.all(table_eta <= 1)):
+        raise InputError("efficiency", "efficiencies outside 0..1", "fractions, e.g. 0.784 for 78.4 %")
+    return np.interp(np.asarray(wavelengths_m, dtype=float), table_wl, table_eta)
+
+
+def efficiency_from_csv(path: str | Path, wavelengths_m: np.ndarray) -> np.ndarray:
+    """η(λ) (L,) from a CSV (wavelength_nm, efficiency as a fraction or in percent; header optional).
+
+    Percent is detected as for ``filter_from_csv``; linear interpolation, flat extrapolation.
+    """
+    data = _read_csv(Path(path), 2, "efficiency")
+    values = _fraction(data[:, 1], "efficiency", Path(path))
+    return efficiency_from_table(wavelengths_m, data[:, 0] * _NM, values)
+
+
+# ---------------------------------------------------------------------------- assembly
+
+
+def spectral_sensitivity(
+    wavelengths_m: np.ndarray,
+    crf: np.ndarray,
+    transmission: np.ndarray | None = None,
+    efficiency: np.ndarray | None = None,
+) -> SpectralSensitivity:
+    """S^c = CRF^c · T_filter · η on ``wavelengths_m`` (L,), metres.
+
+    ``crf`` (3, L) R, G, B; ``transmission`` and ``efficiency`` (L,) or None for 1 (no filter,
+    ideal conversion). Refuses a channel with no sensitivity anywhere on the grid.
+    """
+    grid = np.asarray(wavelengths_m, dtype=float)
+    if grid.ndim != 1 or grid.size < 2 or not np.all(np.diff(grid) > 0):
+        raise InputError("wavelengths", "the grid must hold at least 2 strictly increasing wavelengths", "metres")
+    values = np.array(crf, dtype=float)
+    if values.shape != (3, grid.size):
+        raise InputError("camera", f"response of shape {values.shape}", f"(3, {grid.size}), channels R, G, B")
+    for factor in (transmission, efficiency):
+        if factor is not None:
+            values = values * _on_grid(factor, grid.size)
+    for name, row in zip(CHANNELS, values):
+        if not _trapezoid(row, grid) > 0:
+            raise InputError(
+                "spectra", f"channel {name} has no sensitivity on the grid", "a filter band inside the camera's response"
+            )
+    return SpectralSensitivity(grid, values)
+
+
+def _on_grid(factor: np.ndarray, size: int) -> np.ndarray:
+    """Check one (L,) factor of S: shape and range 0..1."""
+    factor = np.asarray(factor, dtype=float)
+    if factor.shape != (size,) or not (np.all(factor >= 0) and np.all(factor <= 1)):
+        raise InputError("spectra", "a filter or efficiency curve is malformed", f"shape ({size},), values in 0..1")
+    return factor
+
+
+# ---------------------------------------------------------------------------- sampling
+
+
+def quadrature_weights(sensitivity: SpectralSensitivity, nodes_m: np.ndarray) -> ChannelWeights:
+    """Deterministic quadrature of S^c at given scan wavelengths (the same nodes for all channels).
+
+    The integrand f(λ) is taken as piecewise linear between the ``nodes_m`` (strictly
+    increasing, at least 2), so node j's weight is ∫ S^c(λ)·hat_j(λ) dλ over
+    [nodes[0], nodes[-1]], where hat_j is the linear interpolant of the j-th unit vector: the
+    trapezoidal rule weighted by S^c, exact for f linear between nodes. Weights are
+    normalised to sum to 1 per channel; the part of S^c outside the nodes' range is dropped
+    and ``coverage`` reports the fraction kept (check it: a channel cut off by a short scan
+    is no longer that channel's response). The integral is evaluated on the union of the
+    sensitivity grid and the nodes, where S^c and hat_j are both linear on every interval, so
+    the integral of their product is exact there.
+    """
+    nodes = np.atleast_1d(np.asarray(nodes_m, dtype=float))
+    if nodes.ndim != 1 or nodes.size < 2 or not np.all(np.diff(nodes) > 0):
+        raise InputError(
+            "wavelengths", "channel quadrature needs at least 2 strictly increasing wavelengths", "a scan like 430:645:5nm"
+        )
+    grid = sensitivity.wavelengths_m
+    fine = np.union1d(grid[(grid > nodes[0]) & (grid < nodes[-1])], nodes)
+    hats = np.stack([np.interp(fine, nodes, unit) for unit in np.eye(nodes.size)])
+    sens_fine = np.stack([np.interp(fine, grid, row, left=0.0, right=0.0) for row in sensitivity.values])
+    raw = _integrate_products(fine, sens_fine[:, None, :], hats[None, :, :])
+    totals = _trapezoid(sensitivity.values, grid)
+    kept = raw.sum(axis=-1)
+    for name, mass in zip(CHANNELS, kept):
+        if not mass > 0:
+            span = f"{nodes[0] / _NM:.1f}-{nodes[-1] / _NM:.1f} nm"
+            raise InputError("wavelengths", f"channel {name} has no sensitivity in {span}", "a scan covering every channel's band")
+    return ChannelWeights(nodes, raw / kept[:, None], kept / totals)
+
+
+def sample_wavelengths(
+    sensitivity: SpectralSensitivity, samples_per_channel: int, rng: int | np.random.Generator
+) -> ChannelWeights:
+    """Stratified importance sampling of λ ∝ S^c, ``samples_per_channel`` = n per channel.
+
+    For channel c and stratum k = 0..n−1, u = (k + 1 − U)/n with U ~ U[0, 1) from ``rng``
+    (a seed or a ``numpy.random.Generator``; the same seed gives the same wavelengths), and
+    λ = F_c⁻¹(u), where F_c is the CDF of S^c with S^c's mass in each grid cell spread
+    uniformly over the cell. Exactly one sample falls in each 1/n-quantile stratum, so the
+    empirical CDF is within 1/n of F_c everywhere (lower variance than independent draws).
+
+    Returns 3n wavelengths, channel-major (R's n samples in increasing order, then G's, then
+    B's), and weights (3, 3n) equal to 1/n on the channel's own samples and 0 elsewhere:
+    ``mix_channels`` then gives the Monte-Carlo estimate of each channel's PSF.
+    """
+    n = int(samples_per_channel)
+    if n != samples_per_channel or n < 1:
+        raise InputError("samples", f"{samples_per_channel!r} samples per channel", "a positive integer")
+    generator = np.random.default_rng(rng)
+    strata = np.arange(n)
+    wavelengths = np.concatenate(
+        [_inverse_cdf(sensitivity.wavelengths_m, row, (strata + 1.0 - generator.random(n)) / n) for row in sensitivity.values]
+    )
+    weights = np.kron(np.eye(3), np.full((1, n), 1.0 / n))
+    return ChannelWeights(wavelengths, weights, np.ones(3))
+
+
+def _cumulative(grid: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Normalised cumulative trapezoidal integral of ``values`` (..., L) over ``grid`` (L,)."""
+    cells = 0.5 * (values[..., 1:] + values[..., :-1]) * np.diff(grid)
+    cumulative = np.concatenate([np.zeros_like(values[..., :1]), np.cumsum(cells, axis=-1)], axis=-1)
+    return cumulative / cumulative[..., -1:]
+
+
+def _inverse_cdf(grid: np.ndarray, values: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """λ with F(λ) = u for u in (0, 1], F piecewise linear on ``grid`` (trapezoidal masses)."""
+    cdf = _cumulative(grid, values)
+    upper = np.clip(np.searchsorted(cdf, u, side="left"), 1, grid.size - 1)
+    lower = upper - 1
+    fraction = (u - cdf[lower]) / (cdf[upper] - cdf[lower])
+    return grid[lower] + np.clip(fraction, 0.0, 1.0) * (grid[upper] - grid[lower])
+
+
+def _trapezoid(values: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """∫ values dλ over ``grid`` (last axis), exact for values linear between grid points."""
+    return np.sum(0.5 * (values[..., 1:] + values[..., :-1]) * np.diff(grid), axis=-1)
+
+
+def _integrate_products(grid: np.ndarray, f: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """∫ f·g dλ over ``grid`` (last axis), exact for f and g both linear between grid points.
+
+    On [a, b]: (b − a)/6 · (2 f_a g_a + f_a g_b + f_b g_a + 2 f_b g_b).
+    """
+    fa, fb, ga, gb = f[..., :-1], f[..., 1:], g[..., :-1], g[..., 1:]
+    return np.sum(np.diff(grid) / 6.0 * (2 * fa * ga + fa * gb + fb * ga + 2 * fb * gb), axis=-1)
+
+
+# ---------------------------------------------------------------------------- mixing
+
+
+def mix_channels(psf_mono, weights):
+    """3-channel PSF (..., 3, N, N) as the weighted mix of monochromatic PSFs (..., W, N, N).
+
+    ``psf_mono`` is a torch tensor; ``weights`` (3, W), channels R, G, B (a tensor or an
+    array, e.g. ``ChannelWeights.weights``), is cast to its dtype and device. Linear and
+    differentiable in both arguments (a single einsum).
+    """
+    import torch
+
+    mix = torch.as_tensor(weights, dtype=psf_mono.dtype, device=psf_mono.device)
+    if mix.ndim != 2 or mix.shape[0] != 3 or psf_mono.ndim < 3 or psf_mono.shape[-3] != mix.shape[1]:
+        shapes = f"weights {tuple(mix.shape)} for PSFs {tuple(psf_mono.shape)}"
+        raise InputError("weights", shapes, "weights (3, W) for PSFs (..., W, N, N)")
+    return torch.einsum("...wij,cw->...cij", psf_mono, mix)
+
+
+# ---------------------------------------------------------------------------- CSV
+
+
+def _read_csv(path: Path, columns: int, field: str) -> np.ndarray:
+    """Comma-separated numbers, ``columns`` per row, first column wavelength in nm.
+
+    An optional header (the first non-blank line, if not numeric), blank lines and ``#``
+    comments are skipped. Returns (rows, columns) float64 with the wavelength still in nm,
+    after checking: at least 2 rows, all finite, wavelengths strictly increasing in 100-10000.
+    """
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(field, f"cannot read {path}: {error}", "a readable CSV file") from error
+    rows: list[list[float]] = []
+    seen_line = False
+    for number, line in enumerate(lines, 1):
+        text = line.split("#", 1)[0].strip()
+        if not text:
+            continue
+        cells = [cell.strip() for cell in text.split(",")]
+        try:
+            row = [float(cell) for cell in cells]
+        except ValueError:
+            if seen_line:
+                raise InputError(field, f"{path}:{number}: not a number in {text!r}", f"{columns} numeric columns") from None
+            seen_line = True
+            continue
+        seen_line = True
+        if len(row) != columns:
+            raise InputError(field, f"{path}:{number}: {len(row)} columns", f"{columns} columns, wavelength_nm first")
+        rows.append(row)
+    return _check_table(np.array(rows, dtype=float).reshape(-1, columns), path, field)
+
+
+def _check_table(data: np.ndarray, path: Path, field: str) -> np.ndarray:
+    """Refuse tables that are too short, non-finite or not in increasing nanometres."""
+    if data.shape[0] < 2:
+        raise InputError(field, f"{path}: fewer than 2 data rows", "a tabulated spectrum")
+    if not np.all(np.isfinite(data)):
+        raise InputError(field, f"{path}: non-finite values", "finite numbers")
+    wavelengths = data[:, 0]
+    if not np.all(np.diff(wavelengths) > 0):
+        raise InputError(field, f"{path}: wavelengths not strictly increasing", "one row per wavelength, ascending")
+    if wavelengths[0] < 100 or wavelengths[-1] > 10000:
+        raise InputError(field, f"{path}: wavelengths {wavelengths[0]:g}-{wavelengths[-1]:g} do not look like nm", "nanometres")
+    return data
+
+
+def _fraction(values: np.ndarray, field: str, path: Path) -> np.ndarray:
+    """Fractions in 0..1 from a column in 0..1 or in percent (maximum above 1.5)."""
+    if values.max() > _PERCENT_THRESHOLD:
+        values = values / 100.0
+    if values.min() < -_CSV_TOLERANCE or values.max() > 1 + _CSV_TOLERANCE:
+        raise InputError(field, f"{path}: values outside 0..1 (or 0..100 %)", "fractions or percent")
+    return np.clip(values, 0.0, 1.0)
