@@ -6,6 +6,7 @@ import click
 
 from metalens_cli.analysis import symmetry as model
 from metalens_cli.cli import render
+from metalens_cli.cli.progress import progress_bar
 from metalens_cli.cli.options import Length, LengthList, flatten, json_option, load_preset_option, pick, plot_option, preset_option
 from metalens_cli.io.units import LENGTH_FORM, format_length
 
@@ -25,14 +26,21 @@ NOTES = {
 @click.option("--delta-z", "delta_z_m", type=Length(), help="Depth step Δz (> 0, toward the lens) for Δλ = λd·f·(1/z − 1/(z − Δz)).")
 @click.option("--at-depth", "at_depth_m", type=Length(allow_inf=True), help="Depth z at which --delta-z is taken.")
 @click.option("--z-near", "z_near_m", type=Length(), help="Near depth drawn on the plot.")
+@click.option("--validate", is_flag=True, help="Check the model against the on-axis Rayleigh-Sommerfeld intensity of the hyperbolic lens (needs --aperture).")
+@click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D for --validate, e.g. 2.516mm.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
 @json_option
 @plot_option
-def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_depth_m, z_near_m, as_json, plot_path):
+def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_depth_m, z_near_m, validate, aperture_m, quiet, as_json, plot_path):
     """Depth z = λd·f/(λ − λd) at which each wavelength focuses on the design plane.
 
     Also the inverse λ = λd(1 + f/z) for --depth, and Δλ for a depth step (--delta-z with
     --at-depth). Values from --f/--lambda-d, or from --preset (lens.focal_length,
     lens.design_wavelength).
+
+    --validate computes, for the hyperbolic lens (λd, f, D), the on-axis intensity on the
+    design plane over (λ, z) and reports the depth of maximum intensity beside the model's
+    (at NA 0.3 they differ by a few percent: the model is paraxial).
     """
     preset = load_preset_option(preset_path)
     f_m = pick(f_m, preset, lambda p: p.lens.focal_length_m, "--f", LENGTH_FORM)
@@ -43,8 +51,19 @@ def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_de
     rows = [model.depth_for_wavelength(w, lambda_d_m, f_m) for w in (flatten(wavelengths) or model.DEFAULT_WAVELENGTHS_M)]
     focused = [(z, model.wavelength_for_depth(z, lambda_d_m, f_m)) for z in flatten(depths)]
     delta = None if delta_z_m is None else model.delta_wavelength(delta_z_m, at_depth_m, lambda_d_m, f_m)
+    validation = None
+    if validate:
+        aperture_m = pick(aperture_m, preset, lambda p: p.lens.aperture_m, "--aperture", LENGTH_FORM)
+        from metalens_cli.analysis.focal_map import validate_symmetry
 
-    if plot_path:
+        with progress_bar("focal-intensity map", quiet) as update:
+            validation = validate_symmetry([r.wavelength_m for r in rows], lambda_d_m, f_m, aperture_m, progress=update)
+
+    if plot_path and validation is not None:
+        from metalens_cli.plotting.focal_map import plot_focal_map
+
+        plot_focal_map(plot_path, validation, f_m, lambda_d_m, aperture_m)
+    elif plot_path:
         from metalens_cli.plotting.symmetry import plot_symmetry
 
         plot_symmetry(plot_path, f_m, lambda_d_m, z_near_m=z_near_m)
@@ -63,6 +82,8 @@ def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_de
                 "wavelength_at_depth_m": delta.wavelength_at_depth_m,
                 "wavelength_at_shifted_depth_m": delta.wavelength_at_shifted_depth_m,
             }
+        if validation is not None:
+            out["validation"] = validation_json(validation, aperture_m)
         if plot_path:
             out["plot"] = str(plot_path)
         render.emit_json(out)
@@ -78,5 +99,38 @@ def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_de
             f"Δλ = λd·f·(1/z − 1/(z − Δz)) = {delta.delta_wavelength_m * 1e9:.4f} nm for z = {format_length(delta.at_depth_m)}, "
             f"Δz = {format_length(delta.delta_z_m)} (λ: {render.nm(delta.wavelength_at_depth_m, 3)} → {render.nm(delta.wavelength_at_shifted_depth_m, 3)} nm)"
         )
+    if validation is not None:
+        _render_validation(con, validation)
     if plot_path:
         render.console(stderr=True).print(f"wrote {plot_path}")
+
+
+def validation_json(v, aperture_m: float) -> dict:
+    return {
+        "aperture_m": aperture_m,
+        "method": "on-axis Rayleigh-Sommerfeld integral, Simpson in r², Brent refinement in log z",
+        "rows": [
+            {"wavelength_m": r.wavelength_m, "model_depth_m": r.model_depth_m, "best_depth_m": r.best_depth_m, "rel_deviation": r.rel_deviation}
+            for r in v.rows
+        ],
+        "max_abs_rel_deviation": v.max_abs_rel_deviation,
+        "depth_range_m": [float(v.depths_m[0]), float(v.depths_m[-1])],
+        "quadrature_samples": v.samples,
+        "convergence_rel": v.convergence,
+        "seconds": v.seconds,
+    }
+
+
+def _render_validation(con, v) -> None:
+    rows = []
+    for r in v.rows:
+        deviation = "—" if r.rel_deviation is None else f"{100 * r.rel_deviation:+.2f} %"
+        note = "" if r.model_depth_m is not None else "λ ≤ λd: no model depth"
+        if r.best_depth_m is None:
+            note = note or "no maximum inside the depth range"
+        rows.append([render.nm(r.wavelength_m), format_length(r.model_depth_m) if r.model_depth_m else "—",
+                     format_length(r.best_depth_m) if r.best_depth_m else "—", deviation, note])
+    con.print(render.table("Validation: depth of maximum on-axis intensity at d = f (Rayleigh-Sommerfeld)", ["λ (nm)", "model z", "best z", "deviation", "note"], rows))
+    worst = v.max_abs_rel_deviation
+    con.print(f"max |deviation| = {'—' if worst is None else f'{100 * worst:.2f} %'}; quadrature {v.samples} samples, "
+              f"doubling changes best depths by ≤ {v.convergence:.1e}; {v.seconds:.1f} s")

@@ -123,3 +123,19 @@ def test_installed_entry_point_subprocess():
 def test_python_dash_m():
     proc = subprocess.run([sys.executable, "-m", "metalens_cli", "--version"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and "metalens" in proc.stdout
+
+
+def test_symmetry_validate_json(capsys, tmp_path):
+    plot = tmp_path / "map.png"
+    code, out, _ = invoke(capsys, "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate", "--aperture", "0.2mm",
+                          "--wavelength", "440nm,500nm,600nm", "--json", "--plot", plot)
+    validation = json.loads(out)["validation"]
+    assert code == 0 and plot.exists()
+    assert [set(r) for r in validation["rows"]] == [{"wavelength_m", "model_depth_m", "best_depth_m", "rel_deviation"}] * 3
+    assert validation["rows"][0]["model_depth_m"] is None
+    assert validation["max_abs_rel_deviation"] < 1e-3  # NA 0.025: paraxial
+
+
+def test_symmetry_validate_needs_aperture(capsys):
+    code, _, err = invoke(capsys, "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate")
+    assert code == 2 and "--aperture" in err
