@@ -20,13 +20,13 @@ All values in metres. Pure Python: answers instantly.
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from metalens_cli.analysis.symmetry import shift_factor
 from metalens_cli.errors import InputError
+from metalens_cli.io.tables import as_fractions, read_spectrum_csv
 
 THREE_BAND_LABELS = ("B", "G", "R")
 
@@ -103,32 +103,10 @@ def bands_from_centers(centers_m: list[float], widths_m: list[float], field: str
 
 
 def read_filter_csv(path: str | Path) -> tuple[list[float], list[float]]:
-    """Read ``wavelength_nm, transmission`` rows (header optional; transmission 0-1 or percent)."""
-    field = "--filter-csv"
-    try:
-        with open(path, newline="", encoding="utf-8") as handle:
-            rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
-    except OSError as exc:
-        raise InputError(field, f"cannot read {str(path)!r}: {exc.strerror or exc}", "a readable CSV file") from None
-    wavelengths, transmission = [], []
-    for number, row in enumerate(rows, start=1):
-        try:
-            wl, t = float(row[0]), float(row[1])
-        except (ValueError, IndexError):
-            if number == 1:
-                continue  # header
-            raise InputError(field, f"row {number} is not two numbers", "rows of wavelength_nm,transmission") from None
-        if not (math.isfinite(wl) and math.isfinite(t)) or wl <= 0 or t < 0:
-            raise InputError(field, f"row {number} has an invalid value", "positive wavelengths in nm, transmission ≥ 0")
-        wavelengths.append(wl * 1e-9)
-        transmission.append(t)
-    if len(wavelengths) < 2:
-        raise InputError(field, "needs at least two rows", "rows of wavelength_nm,transmission")
-    if any(b <= a for a, b in zip(wavelengths, wavelengths[1:])):
-        raise InputError(field, "wavelengths must increase", "rows sorted by wavelength")
-    if max(transmission) > 1.5:  # given in percent
-        transmission = [t / 100.0 for t in transmission]
-    return wavelengths, transmission
+    """Wavelengths (m) and transmission (0-1) from ``wavelength_nm, transmission`` rows
+    (header optional; transmission in 0-1 or percent)."""
+    rows = read_spectrum_csv(path, 2, "--filter-csv")
+    return [row[0] * 1e-9 for row in rows], as_fractions([row[1] for row in rows], "--filter-csv", path)
 
 
 def bands_from_transmission(

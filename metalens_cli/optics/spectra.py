@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from metalens_cli.errors import InputError
+from metalens_cli.io.tables import as_fractions, read_spectrum_csv
 
 CHANNELS = ("R", "G", "B")
 CAMERA_NAMES = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
@@ -29,8 +30,6 @@ DEFAULT_EDGE_WIDTH_M = 2e-9
 """10-90 % rise distance of each filter band edge (typical of hard-coated interference filters)."""
 
 _NM = 1e-9
-_PERCENT_THRESHOLD = 1.5
-_CSV_TOLERANCE = 0.05
 
 
 @dataclass(frozen=True)
@@ -369,55 +368,26 @@ def mix_channels(psf_mono, weights):
 
 
 def _read_csv(path: Path, columns: int, field: str) -> np.ndarray:
-    """Comma-separated numbers, ``columns`` per row, first column wavelength in nm.
-
-    An optional header (the first non-blank line, if not numeric), blank lines and ``#``
-    comments are skipped. Returns (rows, columns) float64 with the wavelength still in nm,
-    after checking: at least 2 rows, all finite, wavelengths strictly increasing in 100-10000.
-    """
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as error:
-        raise InputError(field, f"cannot read {path}: {error}", "a readable CSV file") from error
-    rows: list[list[float]] = []
-    seen_line = False
-    for number, line in enumerate(lines, 1):
-        text = line.split("#", 1)[0].strip()
-        if not text:
-            continue
-        cells = [cell.strip() for cell in text.split(",")]
-        try:
-            row = [float(cell) for cell in cells]
-        except ValueError:
-            if seen_line:
-                raise InputError(field, f"{path}:{number}: not a number in {text!r}", f"{columns} numeric columns") from None
-            seen_line = True
-            continue
-        seen_line = True
-        if len(row) != columns:
-            raise InputError(field, f"{path}:{number}: {len(row)} columns", f"{columns} columns, wavelength_nm first")
-        rows.append(row)
-    return _check_table(np.array(rows, dtype=float).reshape(-1, columns), path, field)
-
-
-def _check_table(data: np.ndarray, path: Path, field: str) -> np.ndarray:
-    """Refuse tables that are too short, non-finite or not in increasing nanometres."""
-    if data.shape[0] < 2:
-        raise InputError(field, f"{path}: fewer than 2 data rows", "a tabulated spectrum")
-    if not np.all(np.isfinite(data)):
-        raise InputError(field, f"{path}: non-finite values", "finite numbers")
-    wavelengths = data[:, 0]
-    if not np.all(np.diff(wavelengths) > 0):
-        raise InputError(field, f"{path}: wavelengths not strictly increasing", "one row per wavelength, ascending")
-    if wavelengths[0] < 100 or wavelengths[-1] > 10000:
-        raise InputError(field, f"{path}: wavelengths {wavelengths[0]:g}-{wavelengths[-1]:g} do not look like nm", "nanometres")
-    return data
+    """(rows, columns) float64, wavelength still in nm (rules: :mod:`metalens_cli.io.tables`)."""
+    return np.array(read_spectrum_csv(path, columns, field), dtype=float)
 
 
 def _fraction(values: np.ndarray, field: str, path: Path) -> np.ndarray:
     """Fractions in 0..1 from a column in 0..1 or in percent (maximum above 1.5)."""
-    if values.max() > _PERCENT_THRESHOLD:
-        values = values / 100.0
-    if values.min() < -_CSV_TOLERANCE or values.max() > 1 + _CSV_TOLERANCE:
-        raise InputError(field, f"{path}: values outside 0..1 (or 0..100 %)", "fractions or percent")
-    return np.clip(values, 0.0, 1.0)
+    return np.array(as_fractions(values.tolist(), field, path))
+
+
+def preset_sensitivity(preset, wavelengths_m: np.ndarray | None = None) -> SpectralSensitivity:
+    """S^c of a preset's camera: its camera response × its filter (if any) × the nanofin η table.
+
+    ``wavelengths_m`` defaults to a 1 nm grid over 380-780 nm.
+    """
+    grid = wavelength_grid() if wavelengths_m is None else np.asarray(wavelengths_m, dtype=float)
+    band_filter = preset.filter
+    transmission = None
+    if band_filter is not None:
+        transmission = bandpass_transmission(
+            grid, band_filter.centers_m, band_filter.widths_m, edge_width_m=band_filter.edge_width_m, peak=band_filter.peak_transmission
+        )
+    efficiency = efficiency_from_table(grid, preset.nanofin.efficiency_wavelengths_m, preset.nanofin.efficiency)
+    return spectral_sensitivity(grid, camera_response(grid, preset.sensor.camera_response), transmission, efficiency)
