@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from metalens_cli.io.atomic import atomic_write
@@ -28,3 +29,8 @@ def save_figure(fig, path: str | Path, dpi: int = 150) -> Path:
     finally:
         plt.close(fig)
     return path
+
+
+def depth_label(z_m: float) -> str:
+    """``z = ∞``, ``z = 45 mm`` or ``z = 2 m`` for titles and legends."""
+    return "z = ∞" if math.isinf(z_m) else f"z = {z_m * 1e3:g} mm" if z_m < 1 else f"z = {z_m:g} m"

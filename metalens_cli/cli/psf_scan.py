@@ -1,0 +1,137 @@
+"""`metalens psf-scan`: PSF cubes over wavelength and depth, written as EXR."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+from metalens_cli.cli import render
+from metalens_cli.cli.options import Length, LengthList, flatten, json_option, load_preset_option, plot_option, preset_option
+from metalens_cli.cli.progress import progress_bar
+from metalens_cli.errors import InputError
+
+PROPAGATORS = ("auto", "asm", "radial", "rs")
+DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
+
+
+def torch_device(name: str):
+    """A torch.device, refusing devices this machine does not have."""
+    import torch
+
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise InputError("--device", f"unknown device {name!r}", "cpu, cuda, cuda:N or mps") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device", "CUDA is not available on this machine", "cpu")
+    if device.type == "mps" and not torch.backends.mps.is_available():
+        raise InputError("--device", "MPS is not available on this machine", "cpu")
+    return device
+
+
+@click.command("psf-scan")
+@click.option("--design", "spec", required=True, help="Design spec: hyperbolic:532nm, THETA.npy, PRESET.toml or a run directory.")
+@preset_option
+@click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length).")
+@click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D.")
+@click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [hyperbolic default: 395nm].")
+@click.option("--wavelengths", type=LengthList(), multiple=True, help="Wavelengths, e.g. 430:645:5nm (default) or 457nm,530nm.")
+@click.option("--depths", type=LengthList(allow_inf=True), multiple=True, help="Source depths, e.g. 45mm,inf (default).")
+@click.option("--pixels", type=click.IntRange(1, 8192), help="Sensor window N × N [preset's, else 512].")
+@click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um].")
+@click.option("--propagator", type=click.Choice(PROPAGATORS), default="auto", show_default=True, help="auto: radial for radially symmetric designs, else asm.")
+@click.option("--dtype", type=click.Choice(("float32", "float64")), default="float32", show_default=True)
+@click.option("--device", default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps.")
+@click.option("--force", is_flag=True, help="Compute even when the sampling guard refuses the grid.")
+@click.option("--check-accuracy", is_flag=True, help="Recompute the sharpest PSF with doubled sampling and with the rs reference; report relative L2.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Output EXR file (see docs/formats.md).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@json_option
+@plot_option
+def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, pixels, pixel_pitch_m, propagator, dtype,
+             device, force, check_accuracy, output, quiet, as_json, plot_path):
+    """PSF cube over wavelength × depth of a design, with cost and accuracy, written as EXR.
+
+    Each PSF is the fraction of the power through the aperture landing on each pixel of an
+    N × N window centred on the axis (pixel N//2, N//2). With a preset (given or carried by the
+    design), R, G, B channel PSFs are mixed with the spectral sensitivity S^c.
+    """
+    import torch
+
+    from metalens_cli.io.designs import resolve_design
+    from metalens_cli.io.exr import write_psf_cube
+    from metalens_cli.io.units import parse_length_list
+    from metalens_cli.optics.scan import run_scan
+
+    preset = load_preset_option(preset_path)
+    design = resolve_design(spec, preset, f_m, aperture_m, pitch_m)
+    sensor = design.preset.sensor if design.preset is not None else None
+    pixels = pixels or (sensor.pixels if sensor else DEFAULT_PIXELS)
+    pixel_pitch_m = pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M)
+    wavelengths_m = flatten(wavelengths) or parse_length_list("430:645:5nm", "--wavelengths")
+    depths_m = flatten(depths) or [0.045, math.inf]
+    with progress_bar("psf-scan", quiet) as update:
+        scan = run_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, propagator,
+                        getattr(torch, dtype), torch_device(device), force, check_accuracy, update)
+    lens = design.lens
+    half = lens.aperture_m / 2
+    metadata = {
+        "f_m": design.focal_length_m,
+        "aperture_m": lens.aperture_m,
+        "na": half / math.hypot(half, design.focal_length_m),
+        "propagator": scan.propagator,
+        "dtype": dtype,
+        "grid": scan.grid,
+        "timing_s": scan.timing_s,
+        "accuracy": scan.accuracy,
+        "spectra": scan.spectra,
+    }
+    write_psf_cube(output, scan.psf, wavelengths_m, depths_m, pixel_pitch_m, design.describe(), rgb=scan.rgb, extra=render.jsonable(metadata))
+    if plot_path:
+        from metalens_cli.plotting.psf_scan import plot_psf_scan
+
+        bands = None
+        if design.preset is not None and design.preset.filter is not None:
+            f = design.preset.filter
+            bands = [(c - w / 2, c + w / 2) for c, w in zip(f.centers_m, f.widths_m)]
+        plot_psf_scan(plot_path, scan.psf, wavelengths_m, depths_m, pixel_pitch_m, bands)
+    err = render.console(stderr=True)
+    for warning in scan.warnings:
+        err.print(f"[yellow]warning:[/] {warning}")
+    if as_json:
+        render.emit_json({
+            "file": str(output),
+            "design": design.describe(),
+            "wavelengths_m": wavelengths_m,
+            "depths_m": depths_m,
+            "pixels": pixels,
+            "pixel_pitch_m": pixel_pitch_m,
+            **metadata,
+            "psfs": scan.metrics,
+            "warnings": scan.warnings,
+            **({"plot": str(plot_path)} if plot_path else {}),
+        })
+        return
+    _render(scan, design, output)
+
+
+def _render(scan, design, output) -> None:
+    from metalens_cli.io.units import format_length
+
+    con = render.console()
+    rows = [
+        [format_length(m["depth_m"]), render.nm(m["wavelength_m"], 1), f"{m['peak']:.4f}", f"{m['energy_in_window']:.4f}",
+         f"{m['energy_center_5x5']:.4f}", "—" if m["fwhm_m"] is None else f"{m['fwhm_m'] * 1e6:.2f}"]
+        for m in scan.metrics
+    ]
+    con.print(render.table(f"PSF scan of {design.spec} ({scan.propagator})", ["depth", "λ (nm)", "peak", "in window", "centre 5×5", "FWHM (µm)"], rows))
+    t = scan.timing_s
+    con.print(f"{len(scan.metrics)} PSFs in {t['total']:.2f} s (" + ", ".join(f"{k} {v:.2f} s" for k, v in t.items() if k != "total") + ")")
+    if scan.accuracy:
+        a = scan.accuracy
+        text = f"accuracy at {render.nm(a['wavelength_m'], 1)} nm, {format_length(a['depth_m'])}: doubled sampling rel. L2 {a['doubled_sampling_rel_l2']:.2e}"
+        if "rs_rel_l2" in a:
+            text += f", Rayleigh-Sommerfeld rel. L2 {a['rs_rel_l2']:.2e} (central {a['rs_window_pixels']}² pixels)"
+        con.print(text)
+    con.print(f"wrote {output}")

@@ -1,0 +1,137 @@
+"""Design specs: the one way every command names a lens.
+
+A spec is one of
+
+- ``hyperbolic:532nm``: the hyperbolic lens of that design wavelength (f and D from options or
+  the preset; meta-atom pitch from options, the preset, or the paper's 395 nm);
+- ``PATH.npy``: a rotation map θ in radians, 1-D radial (θ at r = k·pitch) or 2-D on the
+  meta-atom grid (axis at site (M//2, M//2)); pitch, f and D from options or the preset;
+- ``PATH.toml``: a preset whose ``lens.design`` is ``hyperbolic``;
+- a run directory (written by ``metalens optimize``) holding ``preset.toml`` and ``theta.npy``.
+
+Explicit values (CLI options) win over the preset named with ``--preset``, which wins over the
+preset a spec carries (a TOML spec or a run directory). Lengths in SI metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from metalens_cli.errors import InputError
+from metalens_cli.io import units
+from metalens_cli.io.presets import Preset, load_preset
+
+PAPER_PITCH_M = 395e-9
+SPEC_FORM = "hyperbolic:WAVELENGTH (e.g. hyperbolic:532nm), a θ .npy file, a preset .toml or a run directory"
+
+
+@dataclass(frozen=True)
+class Design:
+    """A resolved design: the lens, the lens-to-sensor distance and the preset in force (if any)."""
+
+    spec: str
+    kind: str  # "hyperbolic", "npy", "preset" or "run"
+    lens: object  # metalens_cli.optics.lens.Metalens (torch is imported only when resolving)
+    focal_length_m: float
+    preset: Preset | None
+    lambda_d_m: float | None = None
+
+    def describe(self) -> dict:
+        """JSON-ready summary for file headers and reports."""
+        return {
+            "spec": self.spec,
+            "kind": self.kind,
+            "radial": bool(self.lens.radial),
+            "lambda_d_m": self.lambda_d_m,
+            "f_m": self.focal_length_m,
+            "aperture_m": self.lens.aperture_m,
+            "pitch_m": self.lens.pitch_m,
+            "preset": None if self.preset is None else self.preset.name,
+        }
+
+
+def _value(explicit, preset: Preset | None, getter, option: str, fallback=None):
+    if explicit is not None:
+        return explicit
+    if preset is not None and getter(preset) is not None:
+        return getter(preset)
+    if fallback is not None:
+        return fallback
+    raise InputError(option, "missing for this design", f"{units.LENGTH_FORM}, or --preset FILE")
+
+
+def _geometry(preset, f_m, aperture_m, pitch_m, default_pitch=None):
+    return (
+        _value(f_m, preset, lambda p: p.lens.focal_length_m, "--f"),
+        _value(aperture_m, preset, lambda p: p.lens.aperture_m, "--aperture"),
+        _value(pitch_m, preset, lambda p: p.nanofin.pitch_m, "--pitch", default_pitch),
+    )
+
+
+def _load_theta(path: Path):
+    import numpy as np
+
+    try:
+        theta = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputError("--design", f"cannot read θ from {str(path)!r}: {exc}", "a .npy array of angles in radians") from None
+    if theta.dtype.kind not in "fiu":
+        raise InputError("--design", f"{path.name} holds {theta.dtype}, not real numbers", "a float .npy array of angles in radians")
+    return theta
+
+
+def _hyperbolic_preset_design(spec: str, kind: str, preset: Preset, explicit: Preset | None, f_m, aperture_m, pitch_m, radial):
+    from metalens_cli.optics.lens import hyperbolic
+
+    if preset.lens.design != "hyperbolic":
+        raise InputError("--design", f"preset {preset.name} describes a learned lens with no θ", "its run directory from metalens optimize, or a θ .npy")
+    in_force = explicit or preset
+    f, aperture, pitch = _geometry(in_force, f_m, aperture_m, pitch_m)
+    lam = preset.lens.design_wavelength_m
+    return Design(spec, kind, hyperbolic(lam, f, aperture, pitch, radial=radial), f, in_force, lam)
+
+
+def resolve_design(
+    spec: str,
+    preset: Preset | None = None,
+    f_m: float | None = None,
+    aperture_m: float | None = None,
+    pitch_m: float | None = None,
+    radial: bool = True,
+) -> Design:
+    """Turn a design spec into a :class:`Design`; ``preset`` is the one given with --preset.
+
+    ``radial`` chooses the radial profile for hyperbolic lenses (False: the 2-D map).
+    Errors are :class:`InputError` naming ``--design`` (or the missing option).
+    """
+    text = str(spec).strip()
+    if text.startswith("hyperbolic:"):
+        from metalens_cli.optics.lens import hyperbolic
+
+        lam = units.parse_length(text.split(":", 1)[1], "--design")
+        f, aperture, pitch = _geometry(preset, f_m, aperture_m, pitch_m, PAPER_PITCH_M)
+        return Design(text, "hyperbolic", hyperbolic(lam, f, aperture, pitch, radial=radial), f, preset, lam)
+    path = Path(text)
+    if path.is_dir():
+        run_preset, theta_path = path / "preset.toml", path / "theta.npy"
+        if not (run_preset.is_file() and theta_path.is_file()):
+            raise InputError("--design", f"{text!r} is not a run directory (needs preset.toml and theta.npy)", SPEC_FORM)
+        carried = load_preset(run_preset)
+        in_force = preset or carried
+        return _array_design(text, "run", theta_path, in_force, f_m, aperture_m, pitch_m)
+    if not path.exists():
+        raise InputError("--design", f"{text!r} is neither a known design nor an existing file", SPEC_FORM)
+    if path.suffix == ".npy":
+        return _array_design(text, "npy", path, preset, f_m, aperture_m, pitch_m)
+    if path.suffix == ".toml":
+        return _hyperbolic_preset_design(text, "preset", load_preset(path), preset, f_m, aperture_m, pitch_m, radial)
+    raise InputError("--design", f"{text!r} has an unknown kind", SPEC_FORM)
+
+
+def _array_design(spec: str, kind: str, path: Path, preset, f_m, aperture_m, pitch_m) -> Design:
+    from metalens_cli.optics.lens import from_array
+
+    f, aperture, pitch = _geometry(preset, f_m, aperture_m, pitch_m)
+    lens = from_array(_load_theta(path), pitch, aperture, focal_length_m=f)
+    return Design(spec, kind, lens, f, preset)

@@ -1,0 +1,150 @@
+"""Geometric-phase (Pancharatnam-Berry) metalens: a map of nanofin rotations θ and its phase.
+
+Conventions, used everywhere in the package:
+
+- Fields are complex amplitudes with time dependence exp(+i(kz − ωt)): a wave travelling towards
+  +z gains phase +k·z, a spherical wave diverging from a point gains +k·R.
+- θ is the in-plane rotation of a nanofin, measured counter-clockwise from the +x axis to the
+  nanofin's width side, in radians. The cross-polarised light leaving the lens carries phase
+  φ = 2θ (the sign of circular handedness is fixed so that this holds), the same at every wavelength.
+- A converging lens has φ decreasing away from the axis: the hyperbolic lens focusing a plane wave
+  of wavelength λd at distance f has φ(r) = −(2π/λd)·(√(r² + f²) − f) ≤ 0.
+- The lens lies in the plane z = 0, light travels towards +z, the sensor is at z = distance > 0.
+- The meta-atoms sit on a square grid of pitch p with one site on the optical axis. The pupil is a
+  circle of diameter D: sites (or points) with r ≤ D/2 transmit, all others are opaque.
+
+Two forms: a radial profile θ(r) sampled at r_k = k·p (k = 0..K), unwrapped and interpolated
+linearly in between; or a 2-D map θ[i, j] on the grid, row i along y, column j along x, the axis at
+site (M//2, M//2) of an M × M array. All lengths are SI metres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from metalens_cli.errors import InputError
+
+
+@dataclass(frozen=True)
+class Metalens:
+    """Rotation map θ (rad, 1-D radial or 2-D square), meta-atom pitch and pupil diameter (m).
+
+    ``focal_length_m`` is the design distance to the sensor when known (hyperbolic builder).
+    """
+
+    theta: torch.Tensor
+    pitch_m: float
+    aperture_m: float
+    focal_length_m: float | None = None
+
+    @property
+    def radial(self) -> bool:
+        """True when θ is a radial profile θ(r)."""
+        return self.theta.ndim == 1
+
+    @property
+    def radius_m(self) -> float:
+        """Pupil radius D/2 (m)."""
+        return self.aperture_m / 2
+
+    @property
+    def grid_size(self) -> int:
+        """M of the M × M meta-atom grid (for a radial lens: the smallest odd M holding the pupil)."""
+        if self.radial:
+            return 2 * math.floor(self.radius_m / self.pitch_m + 1e-9) + 1
+        return self.theta.shape[0]
+
+    def phase_at_radius(self, r: torch.Tensor) -> torch.Tensor:
+        """φ = 2θ at radii ``r`` (m) from the radial profile, linear between samples (rad).
+
+        Radii beyond the last sample take the last value (they lie outside the pupil).
+        Differentiable with respect to θ.
+        """
+        if not self.radial:
+            raise InputError("design", "a 2-D rotation map has no radial profile", "a radial lens")
+        theta = self.theta.to(r.dtype)
+        pos = (r / self.pitch_m).clamp(0, theta.shape[0] - 1)
+        k0 = pos.floor().long().clamp(max=theta.shape[0] - 2)
+        t = pos - k0
+        return 2 * (theta[k0] * (1 - t) + theta[k0 + 1] * t)
+
+    def grid_phase(self, dtype: torch.dtype = torch.float64,
+                   quadrant: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """φ (rad) and the radius r (m) of every site of the M × M meta-atom grid, axis at site
+        (M//2, M//2); the pupil is r ≤ D/2. A radial lens is sampled at each site's radius;
+        ``quadrant`` (radial lens only) returns the sites at offsets i, j ≥ 0 only."""
+        m = self.grid_size
+        first = m // 2 if quadrant else 0
+        coords = (torch.arange(first, m, dtype=dtype) - m // 2) * self.pitch_m
+        r = torch.hypot(coords[:, None], coords[None, :])
+        if self.radial:
+            return self.phase_at_radius(r), r
+        if quadrant:
+            raise InputError("design", "a 2-D rotation map has no symmetric quadrant", "a radial lens")
+        return 2 * self.theta.to(dtype), r
+
+
+def hyperbolic_phase(r: np.ndarray | torch.Tensor, lambda_d_m: float, focal_length_m: float):
+    """φ(r) = −(2π/λd)(√(r² + f²) − f) written as −(2π/λd)·r²/(√(r² + f²) + f) (no cancellation)."""
+    sqrt = torch.sqrt if isinstance(r, torch.Tensor) else np.sqrt
+    return -(2 * math.pi / lambda_d_m) * r**2 / (sqrt(r**2 + focal_length_m**2) + focal_length_m)
+
+
+def hyperbolic(lambda_d_m: float, focal_length_m: float, aperture_m: float, pitch_m: float,
+               radial: bool = True) -> Metalens:
+    """Hyperbolic lens focusing a plane wave of wavelength λd at distance f (all in m).
+
+    θ = φ/2, radial profile sampled at k·pitch up to the pupil edge, or the 2-D map on the
+    smallest odd grid holding the pupil.
+    """
+    _check_positive(lambda_d_m=lambda_d_m, f_m=focal_length_m, aperture_m=aperture_m, pitch_m=pitch_m)
+    if radial:
+        k = math.ceil(aperture_m / 2 / pitch_m - 1e-9) + 1
+        r = np.arange(k + 1) * pitch_m
+    else:
+        half = math.floor(aperture_m / 2 / pitch_m + 1e-9)
+        c = np.arange(-half, half + 1) * pitch_m
+        r = np.hypot(c[:, None], c[None, :])
+    theta = hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2
+    return Metalens(torch.from_numpy(theta), pitch_m, aperture_m, focal_length_m)
+
+
+def from_array(theta: np.ndarray, pitch_m: float, aperture_m: float,
+               focal_length_m: float | None = None) -> Metalens:
+    """Lens from a θ array (rad): 1-D radial samples at k·pitch, or a square 2-D map.
+
+    The 1-D profile must reach the pupil edge (K·pitch ≥ D/2); the 2-D map must hold every site
+    within D/2 of its centre site (M//2, M//2). θ must be finite.
+    """
+    _check_positive(pitch_m=pitch_m, aperture_m=aperture_m)
+    theta = np.asarray(theta, dtype=np.float64)
+    if not np.all(np.isfinite(theta)):
+        raise InputError("design", "θ contains NaN or infinite values", "finite angles in radians")
+    half = math.floor(aperture_m / 2 / pitch_m + 1e-9)
+    if theta.ndim == 1:
+        need = math.ceil(aperture_m / 2 / pitch_m - 1e-9) + 1
+        if theta.shape[0] < max(need, 2):
+            raise InputError("design", f"radial θ has {theta.shape[0]} samples but pitch "
+                             f"{pitch_m:g} m and aperture {aperture_m:g} m need {max(need, 2)}",
+                             "samples at r = k·pitch, k = 0..K with K·pitch ≥ D/2")
+    elif theta.ndim == 2:
+        m = theta.shape[0]
+        if theta.shape[1] != m:
+            raise InputError("design", f"2-D θ must be square, got shape {theta.shape}", "M × M")
+        if m - 1 - m // 2 < half:
+            raise InputError("design", f"2-D θ of size {m} cannot hold the pupil: pitch {pitch_m:g} m "
+                             f"and aperture {aperture_m:g} m need at least {2 * half + 1} sites",
+                             "an M × M map with the axis at site (M//2, M//2)")
+    else:
+        raise InputError("design", f"θ must be 1-D or 2-D, got {theta.ndim}-D", "a radial or 2-D map")
+    return Metalens(torch.from_numpy(theta), float(pitch_m), float(aperture_m), focal_length_m)
+
+
+def _check_positive(**values: float) -> None:
+    for name, value in values.items():
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(name, f"must be a positive length, got {value!r}", "> 0 m")

@@ -1,0 +1,303 @@
+"""Scalar propagators from the lens plane (z = 0) to a plane at distance d > 0 (SI metres).
+
+Pure functions of tensors and floats; the only state is the explicit caches passed in and out
+(transfer functions, Hankel kernels). Field convention exp(+i(kz − ωt)); all three propagators are
+exact within scalar diffraction theory (no Fresnel approximation):
+
+- ``asm_*``: band-limited angular spectrum (Matsushima & Shimobaba 2009) on a square 2-D grid,
+  H(u, v) = exp(i·2π·d·√(1/λ² − u² − v²)) restricted to |u|, |v| ≤ u_lim.
+- ``hankel_*``/``radial_propagate``: the same transfer function for rotationally symmetric fields
+  in Hankel form, via the quasi-discrete Hankel transform of order 0 (Guizar-Sicairos &
+  Gutiérrez-Vega 2004), evaluated only at the output radii asked for.
+- ``rayleigh_sommerfeld``: direct first Rayleigh-Sommerfeld integral with the exact kernel, over
+  any quadrature of the input plane: the slow reference, sharing no code with the two above.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.special as sps
+import torch
+
+# --------------------------------------------------------------------------------------- FFT sizes
+
+
+def fft_size(n: int) -> int:
+    """Smallest m ≥ n of the form 2^a·3^b·5^c·7^d with b ≤ 3 and c, d ≤ 1 (fast FFT lengths)."""
+    best = 1 << max(int(n - 1).bit_length(), 0)
+    for odd in (1, 3, 5, 7, 9, 15, 21, 27, 35, 45, 63, 105, 135, 189, 315, 945):
+        m = odd
+        while m < n:
+            m *= 2
+        best = min(best, m)
+    return best
+
+
+# ------------------------------------------------------------------------------ angular spectrum
+
+
+def bandlimit_frequency(wavelength_m: float, distance_m: float, extent_m: float) -> float:
+    """Matsushima-Shimobaba limit u_lim = 1/(λ·√((2·d/S)² + 1)) (cycles/m) for a padded grid of
+    side S (m): frequencies beyond it would travel more than S/2 sideways and wrap around."""
+    return 1.0 / (wavelength_m * math.hypot(2 * distance_m / extent_m, 1.0))
+
+
+@dataclass
+class AsmGrid:
+    """Padded FFT grid of the 2-D angular spectrum: ``size`` samples of ``pitch_m`` per side,
+    input array of ``input_size`` samples with the axis at its index input_size//2, and the
+    output window: positions (i − half)·pitch/upsample for i = 0..2·half (m)."""
+
+    size: int
+    pitch_m: float
+    input_size: int
+    window_half: int
+    upsample: int = 2
+
+    @property
+    def extent_m(self) -> float:
+        return self.size * self.pitch_m
+
+    def window_coords(self, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+        """Output sample positions along x (and y) in m."""
+        n = torch.arange(-self.window_half, self.window_half + 1, dtype=dtype)
+        return n * (self.pitch_m / self.upsample)
+
+
+def _band_halfwidth(size: int, pitch_m: float, u_lim: float) -> int:
+    """Largest K with K/(size·pitch) ≤ u_lim: the kept frequencies are k = −K..K."""
+    return min(math.floor(u_lim * size * pitch_m), (size - 1) // 2)
+
+
+def asm_transfer(grid: AsmGrid, wavelength_m: float, distance_m: float,
+                 dtype: torch.dtype = torch.complex64, device: str | torch.device = "cpu"):
+    """Band-limited transfer function on the kept band and the band's half-width K.
+
+    Returns (H, K): H[a, b] = exp(i·2π·d·√(1/λ² − v_a² − u_b²)) with u_b = (b − K)/(size·pitch)
+    (frequencies −K..K in increasing order, same along both axes), zero where evanescent.
+    Computed on one quadrant in float64 and mirrored. Reusable for every field on ``grid``.
+    """
+    u_lim = bandlimit_frequency(wavelength_m, distance_m, grid.extent_m)
+    k_max = _band_halfwidth(grid.size, grid.pitch_m, u_lim)
+    u = torch.arange(k_max + 1, dtype=torch.float64, device=device) / grid.extent_m
+    arg = 1.0 / wavelength_m**2 - u[:, None] ** 2 - u[None, :] ** 2
+    phase = torch.remainder(2 * math.pi * distance_m * torch.sqrt(arg.clamp(min=0)), 2 * math.pi)
+    real_dtype = torch.float32 if dtype == torch.complex64 else torch.float64
+    quadrant = torch.polar((arg > 0).to(real_dtype), phase.to(real_dtype))
+    return mirror_quadrant(quadrant), k_max
+
+
+def mirror_quadrant(q: torch.Tensor) -> torch.Tensor:
+    """Full (2n−1)² array, even in both axes, from its quadrant q[..., i, j] at offsets i, j ≥ 0."""
+    q = torch.cat([q.flip(-1)[..., :-1], q], dim=-1)
+    return torch.cat([q.flip(-2)[..., :-1, :], q], dim=-2)
+
+
+@dataclass
+class TransferCache:
+    """Transfer functions keyed on (λ, d, grid size, pitch, dtype, device); reuse across calls."""
+
+    store: dict = field(default_factory=dict)
+
+    def get(self, grid: AsmGrid, wavelength_m: float, distance_m: float, dtype, device):
+        key = (float(wavelength_m), float(distance_m), grid.size, grid.pitch_m, dtype, str(device))
+        if key not in self.store:
+            self.store[key] = asm_transfer(grid, wavelength_m, distance_m, dtype, device)
+        return self.store[key]
+
+
+def _band_fft(x: torch.Tensor, size: int, k_max: int) -> torch.Tensor:
+    """DFT of length ``size`` (zero padded) along the last axis, keeping frequencies −K..K in
+    increasing order; returned transposed in its last two axes, contiguous."""
+    spec = torch.fft.fft(x, n=size, dim=-1)
+    band = torch.cat([spec[..., size - k_max:], spec[..., :k_max + 1]], dim=-1)
+    return band.transpose(-1, -2).contiguous()
+
+
+def _window_ifft(band: torch.Tensor, size: int, k_max: int, start: int, count: int) -> torch.Tensor:
+    """Inverse DFT of length ``size`` along the last axis of coefficients for k = −K..K,
+    at outputs x = start..start+count−1 (mod size), transposed in the last two axes.
+
+    The band is fed as k + K = 0..2K (zero padding at the end, native to the FFT) and the
+    resulting shift is undone by the ramp exp(−i·2π·K·x/size) on the kept outputs only.
+    """
+    out = torch.fft.ifft(band, n=size, dim=-1)
+    x = torch.remainder(torch.arange(start, start + count, device=band.device), size)
+    turns = torch.remainder(k_max * x, size).to(band.real.dtype)     # exact integer phase
+    ramp = torch.polar(torch.ones_like(turns), turns * (-2 * math.pi / size))
+    out = out.index_select(-1, x) * ramp
+    return out.transpose(-1, -2).contiguous()
+
+
+def asm_propagate(field: torch.Tensor, grid: AsmGrid, transfer) -> torch.Tensor:
+    """Propagate ``field`` (..., n, n) on ``grid`` with ``transfer`` = (H, K) from
+    ``asm_transfer``; returns the complex field on the output window (..., w, w), w = 2·half + 1,
+    sampled ``grid.upsample`` times finer than the input.
+
+    Zero padding, band selection, upsampling (zero padding of the spectrum) and the window crop
+    happen inside 1-D passes along the last axis, so no padded full-size 2-D array is formed.
+    """
+    h, k_max = transfer
+    spec = _band_fft(_band_fft(field, grid.size, k_max), grid.size, k_max) * h
+    n_up = grid.size * grid.upsample
+    start = (grid.input_size // 2) * grid.upsample - grid.window_half
+    count = 2 * grid.window_half + 1
+    out = _window_ifft(_window_ifft(spec, n_up, k_max, start, count), n_up, k_max, start, count)
+    return out * grid.upsample**2
+
+
+def asm_propagate_plain(field: torch.Tensor, pitch_m: float, wavelength_m: float,
+                        distance_m: float, band_limit: bool = True) -> torch.Tensor:
+    """Reference ASM on the field's own (already padded) periodic grid, same size out.
+
+    ``band_limit=False`` is the plain angular spectrum method, prone to wrap-around aliasing.
+    """
+    size = field.shape[-1]
+    u = torch.fft.fftfreq(size, d=pitch_m, dtype=torch.float64)
+    arg = 1.0 / wavelength_m**2 - u[:, None] ** 2 - u[None, :] ** 2
+    h = torch.polar((arg > 0).double(), 2 * math.pi * distance_m * torch.sqrt(arg.clamp(min=0)))
+    if band_limit:
+        u_lim = bandlimit_frequency(wavelength_m, distance_m, size * pitch_m)
+        h = h * ((u[:, None].abs() <= u_lim) & (u[None, :].abs() <= u_lim))
+    return torch.fft.ifft2(torch.fft.fft2(field) * h.to(field.dtype))
+
+
+# ------------------------------------------------------------------------------ Hankel (radial)
+
+
+def bessel_j0_zeros(n: int) -> np.ndarray:
+    """First n positive zeros of J0 (McMahon's expansion refined by Newton steps), float64."""
+    beta = (np.arange(1, n + 1) - 0.25) * np.pi
+    j = beta + 1 / (8 * beta) - 31 / (384 * beta**3) + 3779 / (15360 * beta**5)
+    for _ in range(3):
+        j = j + sps.j0(j) / sps.j1(j)
+    return j
+
+
+def gauss_legendre_panels(length_m: float, n_nodes: int, per_panel: int = 16):
+    """Nodes and weights (m) of composite Gauss-Legendre quadrature on [0, length_m]."""
+    x, w = np.polynomial.legendre.leggauss(per_panel)
+    edges = np.linspace(0.0, length_m, max(1, math.ceil(n_nodes / per_panel)) + 1)
+    half = (edges[1:] - edges[:-1])[:, None] / 2
+    return ((edges[:-1, None] + half) + half * x).ravel(), (half * w).ravel()
+
+
+@dataclass(frozen=True)
+class HankelKernel:
+    """Hankel transform of order 0 of a field that vanishes beyond the pupil radius a (m).
+
+    Spectrum at the quasi-discrete Hankel frequencies ν_m = j_m/(2πR), m < n, of a support
+    radius R ≥ a (j_m: zeros of J0), computed from Gauss-Legendre nodes r_q on [0, a] so that the
+    hard pupil edge is integrated exactly: F(ν_m) = Σ_q J0(2πν_m r_q)·w_q·f(r_q), w_q = 2πr_q·dr_q
+    (``weight``, also the quadrature of ∫|f|² dA). Inverse at any ρ ≤ R by the Fourier-Bessel
+    series f(ρ) = Σ_m J0(2πν_m ρ)·c_m·F(ν_m), c_m = 1/(πR²·J1(j_m)²) (Guizar-Sicairos &
+    Gutiérrez-Vega 2004). Depends on neither λ nor z.
+    """
+
+    radius_m: float
+    aperture_radius_m: float
+    r: torch.Tensor
+    weight: torch.Tensor
+    nu: torch.Tensor
+    coef_out: torch.Tensor
+    forward: torch.Tensor
+
+
+_HANKEL_CACHE: dict = {}
+
+
+def hankel_kernel(n: int, radius_m: float, aperture_radius_m: float, n_nodes: int,
+                  dtype: torch.dtype = torch.float64,
+                  device: str | torch.device = "cpu") -> HankelKernel:
+    """The cached kernel for (n frequencies, R, a, n_nodes, dtype, device)."""
+    key = ("kernel", n, float(radius_m), float(aperture_radius_m), n_nodes, dtype, str(device))
+    if key not in _HANKEL_CACHE:
+        j = bessel_j0_zeros(n)
+        nu = j / (2 * math.pi * radius_m)
+        r, dr = gauss_legendre_panels(aperture_radius_m, n_nodes)
+        forward = torch.special.bessel_j0(torch.from_numpy((2 * math.pi * nu)[:, None] * r[None, :]))
+        _HANKEL_CACHE[key] = HankelKernel(
+            radius_m=float(radius_m),
+            aperture_radius_m=float(aperture_radius_m),
+            r=torch.from_numpy(r).to(device, dtype),
+            weight=torch.from_numpy(2 * math.pi * r * dr).to(device, dtype),
+            nu=torch.from_numpy(nu).to(device, dtype),
+            coef_out=torch.from_numpy(1 / (math.pi * radius_m**2 * sps.j1(j) ** 2)).to(device, dtype),
+            forward=forward.to(device, dtype),
+        )
+    return _HANKEL_CACHE[key]
+
+
+def hankel_output_matrix(kernel: HankelKernel, radii_m: torch.Tensor) -> torch.Tensor:
+    """Cached (len(radii) × n) matrix J0(2πν_m ρ)·c_m: the inverse transform at ``radii_m``."""
+    key = ("out", id(kernel), radii_m.shape[0], float(radii_m[0]), float(radii_m[-1]))
+    if key not in _HANKEL_CACHE:
+        arg = (2 * math.pi) * radii_m.double().cpu()[:, None] * kernel.nu.double().cpu()[None, :]
+        mat = torch.special.bessel_j0(arg) * kernel.coef_out.double().cpu()
+        _HANKEL_CACHE[key] = mat.to(kernel.r.device, kernel.r.dtype)
+    return _HANKEL_CACHE[key]
+
+
+def clear_caches() -> None:
+    """Drop every cached Hankel kernel and output matrix."""
+    _HANKEL_CACHE.clear()
+
+
+def _real_matmul(mat: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+    """mat (a × b, real) @ z (b × c, complex) as one real product."""
+    zr = torch.view_as_real(z).reshape(z.shape[0], -1)
+    return torch.view_as_complex((mat @ zr).reshape(mat.shape[0], -1, 2).contiguous())
+
+
+def radial_transfer(kernel: HankelKernel, wavelengths_m: torch.Tensor, distance_m: float,
+                    sin_limit: float | torch.Tensor) -> torch.Tensor:
+    """H(ν_m, λ) = exp(i·2π·d·√(1/λ² − ν_m²)) for ν_m ≤ sin_limit/λ, else 0; shape (n, len(λ)).
+    ``sin_limit``: one value or one per wavelength.
+
+    The limit plays the role of Matsushima's band limit: waves at larger angles would leave the
+    support radius R and come back (the Fourier-Bessel series reflects them at R).
+    """
+    nu = kernel.nu.double()[:, None]
+    lam = wavelengths_m.double().to(nu.device)[None, :]
+    arg = (1.0 / lam**2 - nu**2).clamp(min=0)
+    phase = torch.remainder(2 * math.pi * distance_m * torch.sqrt(arg), 2 * math.pi)
+    limit = torch.as_tensor(sin_limit, dtype=torch.float64, device=nu.device)
+    amp = (nu * lam <= limit).to(kernel.r.dtype)
+    return torch.polar(amp, phase.to(kernel.r.dtype))
+
+
+def radial_propagate(field_r: torch.Tensor, kernel: HankelKernel, transfer: torch.Tensor,
+                     out_matrix: torch.Tensor) -> torch.Tensor:
+    """Propagate radial fields (Q, B) sampled at the nodes ``kernel.r`` with ``transfer`` (n, B)
+    from ``radial_transfer``; returns the fields at the radii of ``out_matrix`` (rows), (J, B).
+    All columns (wavelengths × depths) go through one matrix product per stage."""
+    spec = _real_matmul(kernel.forward, field_r * kernel.weight[:, None])
+    return _real_matmul(out_matrix, spec * transfer)
+
+
+# ------------------------------------------------------------------------- Rayleigh-Sommerfeld
+
+
+def rayleigh_sommerfeld(points_xy: torch.Tensor, values: torch.Tensor, wavelength_m: float,
+                        distance_m: float, out_xy: torch.Tensor, chunk: int = 1 << 22) -> torch.Tensor:
+    """First Rayleigh-Sommerfeld solution by direct summation (exact kernel).
+
+    U(P) = Σ_q values_q · (1/2π)·(d/r)·(1/r − ik)·exp(ikr)/r, r = |P − Q_q| with P at height d.
+    ``points_xy`` (Q, 2) input nodes in m, ``values`` (Q,) complex field × quadrature weight (m²),
+    ``out_xy`` (P, 2) output points in m. Computed in chunks of ``chunk`` node-point pairs.
+    """
+    k = 2 * math.pi / wavelength_m
+    out = []
+    step = max(1, chunk // max(points_xy.shape[0], 1))
+    for start in range(0, out_xy.shape[0], step):
+        p = out_xy[start:start + step]
+        dx = p[:, None, 0] - points_xy[None, :, 0]
+        dy = p[:, None, 1] - points_xy[None, :, 1]
+        r = torch.sqrt(dx**2 + dy**2 + distance_m**2)
+        kernel = (distance_m / (2 * math.pi)) / r**2 * torch.complex(1 / r, -k * torch.ones_like(r))
+        kernel = kernel * torch.polar(torch.ones_like(r), torch.remainder(k * r, 2 * math.pi))
+        out.append(kernel @ values)
+    return torch.cat(out)

@@ -1,0 +1,175 @@
+"""Sampling plans for the propagators, derived from the geometry, and the guard that refuses
+grids that would alias or wrap around (``SamplingError``; ``force=True`` proceeds anyway).
+
+The local spatial frequency of the field leaving the lens, f(r) = |d(φ_lens + φ_source)/dr|/2π
+(cycles/m), sets every sample count: the meta-atom grid resolves it only if f ≤ 1/(2p); the
+propagators keep frequencies up to sin(θ_lim)/λ with sin(θ_lim) = λ·f_max + margin, and their
+support is large enough that waves up to θ_lim cannot wrap (asm) or reflect (radial) into the
+sensor window. ``oversample`` scales margins and sample densities (2 = the doubled-sampling check).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from metalens_cli.errors import SamplingError
+from metalens_cli.optics.lens import Metalens
+from metalens_cli.optics.propagate import AsmGrid, fft_size
+from metalens_cli.optics.sensor import radial_sensor_radii
+from metalens_cli.optics.source import source_frequency
+
+MAX_FFT_SIZE = 32768
+MAX_HANKEL_SIZE = 40000
+ANGLE_MARGIN = 0.1   # sin-angle kept beyond the field's steepest ray (edge diffraction), × oversample
+
+
+def window_radius(n_pixels: int, pixel_pitch_m: float) -> float:
+    """Distance (m) from the axis to the farthest window corner."""
+    return math.hypot(n_pixels // 2 + 0.5, n_pixels // 2 + 0.5) * pixel_pitch_m
+
+
+def lens_frequency(lens: Metalens) -> tuple[float, float]:
+    """Largest local frequency (cycles/m) of the lens phase inside the pupil and its radius (m).
+
+    Radial: from consecutive samples; 2-D: the larger of the x and y steps between neighbouring
+    sites, phase steps wrapped to (−π, π] (a map given modulo π in θ is fine).
+    """
+    theta = lens.theta.detach().double().cpu().numpy()
+    p = lens.pitch_m
+    if lens.radial:
+        r = (np.arange(theta.shape[0] - 1) + 0.5) * p
+        step = np.abs(np.diff(2 * theta))[r <= lens.radius_m + p]
+        k = int(np.argmax(step))
+        return float(step[k] / (2 * math.pi * p)), float(r[k])
+    m = theta.shape[0]
+    c = (np.arange(m) - m // 2) * p
+    inside = np.hypot(c[:, None], c[None, :]) <= lens.radius_m
+    worst, at = 0.0, 0.0
+    for axis in (0, 1):
+        step = np.abs(np.angle(np.exp(2j * np.diff(theta, axis=axis))))
+        both = inside[1:, :] & inside[:-1, :] if axis == 0 else inside[:, 1:] & inside[:, :-1]
+        step = np.where(both, step, 0.0)
+        if step.max() > worst:
+            i, j = np.unravel_index(np.argmax(step), step.shape)
+            worst, at = float(step[i, j]), float(np.hypot(c[i], c[j]))
+    return worst / (2 * math.pi * p), at
+
+
+def field_frequency(lens: Metalens, wavelengths_m, depths_m) -> float:
+    """Upper bound (cycles/m) of the local frequency of lens + source phase over the pupil."""
+    f_lens, _ = lens_frequency(lens)
+    f_src = max(source_frequency(lens.radius_m, min(wavelengths_m), z) for z in depths_m)
+    return f_lens + f_src
+
+
+def check_lens_sampling(lens: Metalens, wavelengths_m, depths_m, force: bool) -> float:
+    """Refuse when the meta-atom grid cannot resolve lens + source phase (f > 1/(2p)).
+
+    Returns the field's maximum local frequency (cycles/m), rounded up to a step of 2^(1/16)
+    so that the plans built from it do not move with small changes of θ (exact gradients).
+    """
+    f_lens, r_lens = lens_frequency(lens)
+    f_max = field_frequency(lens, wavelengths_m, depths_m)
+    nyquist = 1 / (2 * lens.pitch_m)
+    if f_max > nyquist and not force:
+        z_min = min(depths_m)
+        raise SamplingError(
+            f"the field leaving the lens reaches {f_max * 1e-3:.4g} cycles/mm (lens phase "
+            f"{f_lens * 1e-3:.4g} cycles/mm at r = {r_lens * 1e3:.4g} mm, source at z = {z_min:g} m "
+            f"adds the rest) but the meta-atom pitch {lens.pitch_m:g} m resolves only "
+            f"{nyquist * 1e-3:.4g} cycles/mm: needs a pitch ≤ {1 / (2 * f_max):.4g} m or a "
+            "shallower lens phase / more distant source (force=True to proceed)")
+    return 2.0 ** (math.ceil(16 * math.log2(max(f_max, 1.0))) / 16)
+
+
+@dataclass(frozen=True)
+class RadialPlan:
+    """Hankel-path sampling: support radius R (m), frequency count, Gauss nodes on the pupil,
+    sin of the band-limit angle at the longest λ (each λ keeps sin_limit(λ)/λ), and the output
+    radial step (m) with its sample count."""
+
+    radius_m: float
+    n_freq: int
+    n_nodes: int
+    sin_limit: float
+    step_m: float
+    n_radii: int
+
+
+def sin_limit(f_max: float, wavelengths_m, oversample: float) -> float:
+    """sin of the band-limit angle: the field's steepest ray at the longest λ plus the margin."""
+    return min(0.99, max(wavelengths_m) * f_max + ANGLE_MARGIN * oversample)
+
+
+def frequency_limit(f_max: float, wavelengths_m, oversample: float) -> float:
+    """Largest kept spatial frequency (cycles/m) over the wavelengths: max_λ sin_limit(λ)/λ."""
+    return max(sin_limit(f_max, [lam], oversample) / lam for lam in wavelengths_m)
+
+
+def plan_radial(lens: Metalens, wavelengths_m, depths_m, distance_m: float, n_pixels: int,
+                pixel_pitch_m: float, f_max: float, oversample: float = 1.0) -> RadialPlan:
+    """Sampling for ``radial_propagate`` from the geometry (see the module docstring).
+
+    The angle margin is doubled here (the radial path is cheap). R = (a + ρ_w + d·tan θ_lim)/2 keeps waves up to θ_lim from reflecting at R into the window of
+    radius ρ_w; n_freq = 2R·ν_max with ν_max = max_λ sin θ_lim(λ)/λ; Gauss nodes 3 per cycle of the
+    forward integrand; output step 1/(8·ν_max): the intensity, band-limited to 2·ν_max, is
+    sampled 4× above Nyquist for the cubic pixel integration.
+    """
+    a, rho_w = lens.radius_m, window_radius(n_pixels, pixel_pitch_m)
+    sin_lim = sin_limit(f_max, wavelengths_m, 2 * oversample)
+    tan_lim = sin_lim / math.sqrt(1 - sin_lim**2)
+    radius = max((a + rho_w + distance_m * tan_lim) / 2, 1.05 * max(a, rho_w))
+    nu_max = frequency_limit(f_max, wavelengths_m, 2 * oversample)
+    n_freq = math.ceil(2 * radius * nu_max * 1.05 * math.sqrt(oversample))
+    n_nodes = 16 * math.ceil(3 * (f_max + nu_max) * a * oversample / 16)
+    step = 1 / (8 * nu_max * oversample)
+    plan = RadialPlan(radius, n_freq, n_nodes, sin_lim, step,
+                      radial_sensor_radii(step, n_pixels, pixel_pitch_m))
+    if n_freq > MAX_HANKEL_SIZE:
+        raise SamplingError(f"the radial propagator would need {n_freq} Hankel samples over "
+                            f"R = {radius:g} m (limit {MAX_HANKEL_SIZE}); shrink the aperture, "
+                            "the sensor window or the distance")
+    return plan
+
+
+def plan_asm(lens: Metalens, wavelengths_m, distance_m: float, n_pixels: int,
+             pixel_pitch_m: float, f_max: float, oversample: float = 1.0,
+             upsample: int = 2) -> AsmGrid:
+    """Padded grid for ``asm_propagate`` on the meta-atom grid (pitch p).
+
+    Side S ≥ 2a + W keeps the Matsushima limit (lateral travel ≤ S/2) from wrapping light from
+    the pupil into the window of width W; S ≥ 2·d·tan θ_lim keeps the limit above the field's
+    steepest ray plus margin. The FFT length is the next fast size.
+    """
+    p, a = lens.pitch_m, lens.radius_m
+    m = lens.grid_size
+    width = 2 * (n_pixels // 2 + 0.5) * pixel_pitch_m
+    sin_lim = sin_limit(f_max, wavelengths_m, oversample)
+    need = max(2 * a + width, 2 * distance_m * sin_lim / math.sqrt(1 - sin_lim**2), m * p)
+    size = fft_size(math.ceil(need / p))
+    if size > MAX_FFT_SIZE:
+        raise SamplingError(f"the angular spectrum needs a {size}² grid at pitch {p:g} m "
+                            f"(side {need:g} m; limit {MAX_FFT_SIZE}²); use the radial propagator "
+                            "for a radially symmetric design or a smaller window/distance")
+    h = p / upsample
+    half = math.ceil((width / 2) / h) + 3
+    return AsmGrid(size=size, pitch_m=p, input_size=m, window_half=half, upsample=upsample)
+
+
+def plan_rs(lens: Metalens, wavelengths_m, distance_m: float, rho_max_m: float, f_max: float,
+            oversample: float = 1.0) -> tuple[int, int]:
+    """Quadrature of the direct Rayleigh-Sommerfeld integral over the pupil of a radial lens:
+    (Gauss-Legendre nodes in r on [0, a], trapezoid nodes in the azimuth over [0, π]).
+
+    4 nodes per cycle of the integrand in r (lens + source + kernel) and, in the azimuth,
+    enough trapezoid nodes for exp(i·k·ρ·r'·cos φ/r) (≈ 0.7·k·ρ·a/d + 32).
+    """
+    a, lam = lens.radius_m, min(wavelengths_m)
+    kernel_freq = (a + rho_max_m) / math.hypot(a + rho_max_m, distance_m) / lam
+    n_r = 16 * math.ceil(4 * (f_max + kernel_freq) * a * oversample / 16)
+    beta = 2 * math.pi / lam * rho_max_m * a / distance_m
+    n_phi = math.ceil((0.7 * beta + 32) * oversample)
+    return n_r, n_phi

@@ -1,0 +1,172 @@
+"""Physics of the PSF simulator: diffraction limit, energy, chromatic focal shift, agreement
+between the three propagators, band limiting, the sampling guard and gradients."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from numpy.testing import assert_allclose
+from scipy.special import j0, j1
+
+from metalens_cli.errors import SamplingError
+from metalens_cli.optics import lens as L
+from metalens_cli.optics import propagate as prop
+from metalens_cli.optics.psf import compute_psf
+
+# Low-NA lens (NA 0.05, Fresnel number 25): paraxial diffraction theory holds to O(NA²) ≈ 3e-3.
+LAM, F, D = 500e-9, 5e-3, 0.5e-3
+
+
+def on_axis_field(lens, wavelength, distances, radii):
+    """Field of a plane wave through ``lens`` at ``radii`` for several distances (radial path),
+    normalised so that |E|² integrates to the power through the pupil = 1."""
+    a = lens.radius_m
+    kernel = prop.hankel_kernel(3000, 2.5 * a, a, 4096)
+    field = torch.polar(torch.ones_like(kernel.r), lens.phase_at_radius(kernel.r))[:, None]
+    power = (kernel.weight * field[:, 0].abs() ** 2).sum()
+    out = prop.hankel_output_matrix(kernel, torch.as_tensor(radii, dtype=torch.float64))
+    rows = [prop.radial_propagate(field, kernel, prop.radial_transfer(
+        kernel, torch.tensor([wavelength]), d, 0.3), out)[:, 0] for d in distances]
+    return torch.stack(rows) / power.sqrt()
+
+
+def test_airy_pattern_at_low_na():
+    lens = L.hyperbolic(LAM, F, D, 395e-9)
+    rho = np.linspace(0, 20e-6, 2001)
+    intensity = (on_axis_field(lens, LAM, [F], rho)[0].abs() ** 2).numpy()
+    v = 2 * math.pi * (D / 2) * rho / (LAM * F)
+    with np.errstate(invalid="ignore"):
+        airy = np.where(v > 0, (2 * j1(v) / v) ** 2, 1.0) * math.pi * (D / 2) ** 2 / (LAM * F) ** 2
+    # profile and peak within 1 % of the peak: O(NA²) = 2.5e-3 non-paraxial corrections
+    assert_allclose(intensity, airy, rtol=0, atol=1e-2 * airy[0])
+    # first zero at 1.22 λf/D·√(1 + (D/2f)²) (exact NA): 0.5 % allows the residual paraxiality
+    near = (rho > 4e-6) & (rho < 8e-6)
+    first_zero = rho[near][np.argmin(intensity[near])]
+    assert_allclose(first_zero, 1.22 * LAM * F / D, rtol=5e-3)
+    # encircled energy 1 − J0²(v) − J1²(v) at the first three rings (trapezoid on 10 nm steps)
+    ee = np.concatenate([[0], np.cumsum(np.diff(rho) * 0.5 * np.diff(2 * np.pi * rho * intensity)
+                                        + np.diff(rho) * (2 * np.pi * rho * intensity)[:-1])])
+    for zero in (3.8317, 7.0156, 10.1735):
+        i = np.searchsorted(v, zero)
+        assert_allclose(ee[i], 1 - j0(v[i]) ** 2 - j1(v[i]) ** 2, atol=5e-3)
+
+
+def test_airy_peak_pixel():
+    lens = L.hyperbolic(LAM, F, D, 395e-9)
+    pitch = 2e-6
+    psf = compute_psf(lens, [LAM], [math.inf], 9, pitch, dtype=torch.float64).psf[0, 0]
+    # central pixel of the Airy pattern by a 400² midpoint rule (error < 1e-5)
+    x = (np.arange(400) + 0.5) / 400 * pitch - pitch / 2
+    v = 2 * math.pi * (D / 2) * np.hypot(x[:, None], x[None, :]) / (LAM * F)
+    airy = (2 * j1(v) / v) ** 2 * math.pi * (D / 2) ** 2 / (LAM * F) ** 2
+    assert_allclose(psf[4, 4].item(), airy.mean() * pitch**2, rtol=1e-2)   # O(NA²) as above
+
+
+@pytest.mark.parametrize("propagator", ["radial", "asm"])
+@pytest.mark.parametrize("wavelength", [532e-9, 450e-9])
+def test_energy_conservation(propagator, wavelength):
+    lens = L.hyperbolic(532e-9, 200e-6, 100e-6, 395e-9)      # NA 0.24
+    psf = compute_psf(lens, [wavelength], [math.inf, 0.01], 101, 1e-6, propagator=propagator,
+                      dtype=torch.float64).psf
+    # the 101 µm window holds the focus or the geometric blur (≤ 16 µm); what misses is the
+    # edge-diffracted light beyond ±50 µm, measured 0.9 % (bound 1.5 %), and nothing is created.
+    total = psf.sum((-2, -1))
+    assert torch.all(total <= 1 + 1e-9)
+    assert_allclose(total.numpy(), 1.0, atol=1.5e-2)
+
+
+def test_best_focus_moves_as_f_lambda_d_over_lambda():
+    lens = L.hyperbolic(LAM, F, D, 395e-9)
+    for wavelength in (450e-9, 560e-9, 620e-9):
+        expected = F * LAM / wavelength
+        d = expected * np.linspace(0.97, 1.03, 121)
+        axial = (on_axis_field(lens, wavelength, d, [0.0])[:, 0].abs() ** 2).numpy()
+        i = int(np.argmax(axial))
+        c = np.polyfit(d[i - 3:i + 4], axial[i - 3:i + 4], 2)
+        best = -c[1] / (2 * c[0])
+        # the focal shift of Fresnel number 25 (≈ 12/(π²N²) = 0.2 %) plus residual aberration
+        assert_allclose(best, expected, rtol=5e-3)
+
+
+def test_radial_matches_2d_asm_on_small_lens():
+    lens = L.hyperbolic(532e-9, 100e-6, 60e-6, 395e-9)        # NA 0.29, 153² sites
+    kw = dict(pixels=33, pixel_pitch_m=1e-6, dtype=torch.float64)
+    for wavelength, depth in [(532e-9, math.inf), (480e-9, 0.002)]:
+        radial = compute_psf(lens, [wavelength], [depth], propagator="radial", **kw).psf
+        asm = compute_psf(lens, [wavelength], [depth], propagator="asm", **kw).psf
+        # the 2-D grid models the pupil edge as a staircase of 395 nm sites; measured 1e-3 and
+        # 3.5e-3 (halving with the pitch), so 6e-3 relative L2
+        err = ((radial - asm).norm() / radial.norm()).item()
+        assert err < 6e-3, err
+
+
+@pytest.mark.parametrize("wavelength,depth", [(532e-9, math.inf), (580e-9, 0.045)])
+def test_rs_matches_radial_on_paper_lens(wavelength, depth):
+    lens = L.hyperbolic(532e-9, 4e-3, 2.516e-3, 395e-9)
+    kw = dict(pixels=5, pixel_pitch_m=1.85e-6, dtype=torch.float64)
+    rs = compute_psf(lens, [wavelength], [depth], propagator="rs", **kw).psf
+    radial = compute_psf(lens, [wavelength], [depth], propagator="radial", **kw).psf
+    # the issue's accuracy target (relative L2 ≤ 1e-3) on the central 5 × 5 pixels (sharp focus)
+    err = ((radial - rs).norm() / rs.norm()).item()
+    assert err < 1e-3, err
+
+
+def test_band_limit_removes_aliasing_of_random_phase():
+    n, pitch, lam, d = 128, 0.5e-6, 0.5e-6, 300e-6
+    gen = torch.Generator().manual_seed(0)
+    phase = 2 * math.pi * torch.rand(n, n, generator=gen, dtype=torch.float64)
+    field = torch.polar(torch.ones_like(phase), phase)
+
+    def padded(size):
+        out = torch.zeros(size, size, dtype=torch.complex128)
+        out[:n, :n] = field
+        return out
+
+    # reference: 16× padding, where the band limit (sin θ ≤ 0.8) keeps every ray that matters
+    ref = prop.asm_propagate_plain(padded(16 * n), pitch, lam, d)[:n, :n]
+    plain = prop.asm_propagate_plain(padded(2 * n), pitch, lam, d, band_limit=False)[:n, :n]
+    limited = prop.asm_propagate_plain(padded(2 * n), pitch, lam, d)[:n, :n]
+
+    def err(x):
+        return ((x.abs() ** 2 - ref.abs() ** 2).norm() / (ref.abs() ** 2).norm()).item()
+
+    # plain ASM wraps the steep rays of the random phase back in (measured ~1.5); the
+    # band-limited one only loses them (measured ~0.7): require a factor 1.5 between them
+    assert err(limited) * 1.5 < err(plain), (err(limited), err(plain))
+
+
+def test_sampling_guard_refuses_undersampled_lens():
+    lens = L.hyperbolic(532e-9, 100e-6, 200e-6, 395e-9)       # NA 0.71: 1.33 > 1.27 cycles/µm
+    with pytest.raises(SamplingError, match="needs a pitch"):
+        compute_psf(lens, [532e-9], [math.inf], 5, 1e-6)
+    with pytest.raises(SamplingError, match="needs a pitch"):  # a source 50 µm away: chirp
+        compute_psf(L.hyperbolic(532e-9, 1e-3, 200e-6, 395e-9), [450e-9], [50e-6], 5, 1e-6)
+    psf = compute_psf(lens, [532e-9], [math.inf], 5, 1e-6, force=True).psf
+    assert torch.isfinite(psf).all()
+
+
+def test_gradients_reach_theta():
+    base = L.hyperbolic(532e-9, 20e-6, 8e-6, 0.4e-6)
+
+    def central_power(theta):
+        lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
+        psf = compute_psf(lens, [532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6,
+                          dtype=torch.float64).psf
+        return psf[..., 1, :]
+
+    theta = base.theta.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(central_power, (theta,), eps=1e-6, atol=1e-7, rtol=1e-4)
+
+
+def test_gradients_reach_theta_2d_asm():
+    base = L.hyperbolic(532e-9, 20e-6, 4e-6, 0.4e-6, radial=False)    # 11 × 11 sites
+
+    def central_power(theta):
+        lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
+        return compute_psf(lens, [532e-9], [1e-3], 3, 0.5e-6, propagator="asm",
+                           dtype=torch.float64).psf
+
+    theta = base.theta.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(central_power, (theta,), eps=1e-6, atol=1e-7, rtol=1e-4,
+                                    fast_mode=True)
