@@ -43,6 +43,9 @@ COMMANDS = {
     "symmetry": ("symmetry", "Depth-wavelength symmetry: the depth each wavelength focuses from, and back."),
     "bands": ("bands", "Multi-band filter checks (bands check)."),
     "preset": ("preset", "Inspect presets (preset show)."),
+    "export-gds": ("export_gds", "Nanofin layout of a design as GDSII or OASIS for e-beam lithography."),
+    "psf-scan": ("psf_scan", "PSF cubes over wavelength and depth of a design, written as EXR."),
+    "mtf": ("mtf", "MTFs of a PSF cube (EXR) or the slanted-edge SFR of an image."),
 }
 
 
