@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Length, json_option, load_preset_option, pick, preset_option
+from metalens_cli.cli.options import Length, design_options, json_option, load_preset_option, pick
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.io import units
 
@@ -39,11 +39,7 @@ class AnglesSpec(click.ParamType):
 
 
 @click.command("export-gds")
-@click.option("--design", "spec", required=True, help="Design spec: hyperbolic:532nm, THETA.npy, PRESET.toml or a run directory.")
-@preset_option
-@click.option("--f", "f_m", type=Length(), help="Focal length (needed to build a hyperbolic design).")
-@click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D: fins are kept within D/2.")
-@click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [preset's; hyperbolic default 395nm].")
+@design_options
 @click.option("--width", "width_m", type=Length(), help="Nanofin width (the side at angle θ) [preset's].")
 @click.option("--length", "length_m", type=Length(), help="Nanofin length [preset's].")
 @click.option("--layer", type=LayerSpec(), default="1/0", show_default=True, help="GDS layer/datatype.")

@@ -89,6 +89,24 @@ preset_option = click.option(
     type=click.Path(dir_okay=False),
     help="Preset TOML file; explicit options override its values.",
 )
+DESIGN_HELP = "Design spec: hyperbolic:532nm, THETA.npy, PRESET.toml or a run directory."
+
+
+def design_options(command):
+    """--design SPEC, --preset and the geometry options every design-taking command shares
+    (passed as ``spec``, ``preset_path``, ``f_m``, ``aperture_m``, ``pitch_m``)."""
+    options = [
+        click.option("--design", "spec", required=True, help=DESIGN_HELP),
+        preset_option,
+        click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length)."),
+        click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D."),
+        click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [preset's; hyperbolic default 395nm]."),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else.")
 plot_option = click.option(
     "--plot", "plot_path", type=click.Path(dir_okay=False), help="Write a figure (PNG) to this file."

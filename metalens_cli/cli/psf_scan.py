@@ -7,7 +7,7 @@ import math
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Length, LengthList, flatten, json_option, load_preset_option, plot_option, preset_option
+from metalens_cli.cli.options import Length, LengthList, design_options, flatten, json_option, load_preset_option, plot_option
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.errors import InputError
 
@@ -31,11 +31,7 @@ def torch_device(name: str):
 
 
 @click.command("psf-scan")
-@click.option("--design", "spec", required=True, help="Design spec: hyperbolic:532nm, THETA.npy, PRESET.toml or a run directory.")
-@preset_option
-@click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length).")
-@click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D.")
-@click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [hyperbolic default: 395nm].")
+@design_options
 @click.option("--wavelengths", type=LengthList(), multiple=True, help="Wavelengths, e.g. 430:645:5nm (default) or 457nm,530nm.")
 @click.option("--depths", type=LengthList(allow_inf=True), multiple=True, help="Source depths, e.g. 45mm,inf (default).")
 @click.option("--pixels", type=click.IntRange(1, 8192), help="Sensor window N × N [preset's, else 512].")
