@@ -109,8 +109,13 @@ def convolve(image: torch.Tensor, psf) -> torch.Tensor:
     a :class:`PsfSpectrum`; C broadcasts (a 1-channel mask with a 3-channel PSF gives 3)."""
     h, w = image.shape[-2:]
     spec = _spectrum(psf, (h, w))
-    out = torch.fft.irfft2(torch.fft.rfft2(image, s=spec.fft_shape) * spec.spectrum, s=spec.fft_shape)
-    return out[..., :h, :w]
+    return _inverse_kept(torch.fft.rfft2(image, s=spec.fft_shape) * spec.spectrum, spec.fft_shape, h, w)
+
+
+def _inverse_kept(spectrum: torch.Tensor, fft_shape: tuple[int, int], h: int, w: int) -> torch.Tensor:
+    """irfft2 restricted to the kept h × w corner: the row transforms run only for the h kept rows."""
+    rows = torch.fft.ifft(spectrum, dim=-2)[..., :h, :]
+    return torch.fft.irfft(rows, n=fft_shape[1], dim=-1)[..., :w]
 
 
 def circular_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
@@ -169,7 +174,7 @@ def form_image(
     products = torch.cat(
         [f_near[..., :channels, :, :] * near.spectrum, f_near[..., channels:, :, :] * near.spectrum, f_far * far.spectrum], dim=-3
     )
-    planes = torch.fft.irfft2(products, s=s)[..., :h, :w]
+    planes = _inverse_kept(products, s, h, w)
     near_obs, alpha, far_clean = planes.split(channels, dim=-3)
     if alpha_gain is not None:
         if not alpha_gain > 0:

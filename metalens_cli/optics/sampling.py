@@ -81,7 +81,7 @@ def check_lens_sampling(lens: Metalens, wavelengths_m, depths_m, force: bool) ->
             f"{f_lens * 1e-3:.4g} cycles/mm at r = {r_lens * 1e3:.4g} mm, source at z = {z_min:g} m "
             f"adds the rest) but the meta-atom pitch {lens.pitch_m:g} m resolves only "
             f"{nyquist * 1e-3:.4g} cycles/mm: needs a pitch ≤ {1 / (2 * f_max):.4g} m or a "
-            "shallower lens phase / more distant source (force=True to proceed)")
+            "shallower lens phase / more distant source (--force, or force=True from Python, to proceed)")
     return 2.0 ** (math.ceil(16 * math.log2(max(f_max, 1.0))) / 16)
 
 

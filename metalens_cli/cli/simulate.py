@@ -1,0 +1,165 @@
+"""`metalens simulate`: captures of clean images through a design with a near obstruction."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+from metalens_cli.cli import render
+from metalens_cli.cli.options import Interval, Length, LengthList, flatten, json_option, load_preset_option, preset_option
+from metalens_cli.errors import InputError
+
+DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
+
+
+def design_options(f):
+    """Options shared by simulate and evaluate: geometry, sensor, depths, PSF sampling, device."""
+    options = [
+        preset_option,
+        click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length)."),
+        click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D."),
+        click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [hyperbolic default: 395nm]."),
+        click.option("--images", default="builtin", show_default=True, help="Folder of PNG/JPEG/TIFF/EXR images, one file, or builtin."),
+        click.option("--limit", type=click.IntRange(1), help="Use at most this many images."),
+        click.option("--z-near", "z_near_m", type=Interval(), help="Obstruction depth or interval, e.g. 45mm or 40mm:50mm [preset's, else 40mm:50mm]."),
+        click.option("--z-far", "z_far_m", type=Interval(), help="Scene depth or interval, e.g. 1m or 1m:20m [preset's, else 1m:20m]."),
+        click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of depths, obstructions and noise."),
+        click.option("--pixels", type=click.IntRange(16, 8192), help="Sensor (and PSF window) N × N [preset's, else 512]."),
+        click.option("--psf-pixels", type=click.IntRange(3, 8192), help="PSF window size [the sensor's]."),
+        click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um]."),
+        click.option("--wavelengths", type=LengthList(), multiple=True, help="PSF wavelengths mixed into R, G, B [400:700:5nm]."),
+        click.option("--psf-normalization", type=click.Choice(("aperture", "window")), default="aperture", show_default=True,
+                     help="aperture: PSFs as fractions of the aperture power; window: each PSF sums to 1."),
+        click.option("--alpha-gain", type=click.FloatRange(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."),
+        click.option("--photons", type=click.FloatRange(0), help="Full-well electrons for shot noise (0/absent: none)."),
+        click.option("--read-noise", type=click.FloatRange(0), default=0.0, help="Read-noise σ as a fraction of full scale."),
+        click.option("--device", default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps."),
+    ]
+    for option in reversed(options):
+        f = option(f)
+    return f
+
+
+def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
+          pixel_pitch_m, wavelengths, device):
+    """Resolve designs, sensor, depths, wavelengths and images (shared by simulate and evaluate)."""
+    from metalens_cli.cli.psf_scan import torch_device
+    from metalens_cli.imaging.images import load_images
+    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, DEFAULT_Z_FAR_M, DEFAULT_Z_NEAR_M, draw_depths
+    from metalens_cli.io.designs import resolve_design
+    from metalens_cli.io.units import parse_length_list
+
+    preset = load_preset_option(preset_path)
+    designs = [resolve_design(spec, preset, f_m, aperture_m, pitch_m) for spec in spec_list]
+    in_force = preset or designs[0].preset
+    sensor = in_force.sensor if in_force is not None else None
+    scene = in_force.scene if in_force is not None else None
+    pixels = pixels or (sensor.pixels if sensor else DEFAULT_PIXELS)
+    pixel_pitch_m = pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M)
+    z_near = z_near_m or (scene.z_near_m if scene else DEFAULT_Z_NEAR_M)
+    z_far = z_far_m or (scene.z_far_m if scene else DEFAULT_Z_FAR_M)
+    near, far = draw_depths(z_near, z_far, seed)
+    if not near < far:
+        raise InputError("--z-near", f"obstruction at {near} m is not in front of the scene at {far} m", "z-near below z-far")
+    waves = flatten(wavelengths) or parse_length_list(DEFAULT_WAVELENGTHS, "--wavelengths")
+    clean = load_images(images, (pixels, pixels), limit)
+    return {"designs": designs, "pixels": pixels, "psf_pixels": psf_pixels or pixels, "pixel_pitch_m": pixel_pitch_m,
+            "z_near_m": near, "z_far_m": far, "z_near_interval_m": list(z_near), "z_far_interval_m": list(z_far),
+            "wavelengths_m": waves, "images": clean, "device": torch_device(device)}
+
+
+@click.command("simulate")
+@click.argument("spec", metavar="DESIGN")
+@design_options
+@click.option("--obstruction", default="dirt", show_default=True, help="dirt, fence, drops, rain or file:PATH.png.")
+@click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Output folder (created).")
+@json_option
+def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
+             pixel_pitch_m, wavelengths, psf_normalization, alpha_gain, photons, read_noise, device, obstruction, output, as_json):
+    """Simulated captures of clean images through DESIGN with a near obstruction.
+
+    Writes, per image, the clean scene and the unobstructed and obstructed captures (PNG for
+    viewing, linear EXR), the obstruction and α maps, a contact sheet and simulate.json.
+    """
+    from metalens_cli.imaging.obstructions import parse_obstructions
+    from metalens_cli.imaging.pipeline import channel_psfs, simulate_captures
+
+    start = time.perf_counter()
+    (kind,) = _single(parse_obstructions(obstruction))
+    s = setup([spec], preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
+              pixel_pitch_m, wavelengths, device)
+    design = s["designs"][0]
+    psfs = channel_psfs(design, s["z_near_m"], s["z_far_m"], s["wavelengths_m"], s["psf_pixels"], s["pixel_pitch_m"],
+                        psf_normalization, device=s["device"])
+    captures = simulate_captures(s["images"], kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed,
+                                 alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
+    out = Path(output)
+    out.mkdir(parents=True, exist_ok=True)
+    files = write_captures(out, captures)
+    from metalens_cli.plotting.imaging import contact_sheet
+
+    files.append(str(contact_sheet(out / "contact_sheet.png", captures)))
+    report = render.jsonable({
+        "design": design.describe(),
+        "obstruction": kind,
+        "seed": seed,
+        "z_near_m": s["z_near_m"], "z_far_m": s["z_far_m"],
+        "z_near_interval_m": s["z_near_interval_m"], "z_far_interval_m": s["z_far_interval_m"],
+        "pixels": s["pixels"], "psf_pixels": s["psf_pixels"], "pixel_pitch_m": s["pixel_pitch_m"],
+        "wavelengths_m": s["wavelengths_m"], "psf_normalization": psf_normalization,
+        "alpha_gain": alpha_gain, "photons": photons, "read_noise": read_noise,
+        "psf_energy": {"near": dict(zip("RGB", psfs.energy_near)), "far": dict(zip("RGB", psfs.energy_far))},
+        "spectral_coverage": dict(zip("RGB", psfs.coverage)),
+        "images": [{"name": c.name, "obstruction_coverage": c.obstruction.coverage, "alpha_coverage": c.alpha_coverage,
+                    "obstruction_settings": c.obstruction.settings, "seconds": c.seconds} for c in captures],
+        "timing_s": {"psf": psfs.seconds, "captures": sum(c.seconds for c in captures), "total": time.perf_counter() - start},
+        "files": files,
+    })
+    import json
+
+    from metalens_cli.io.atomic import atomic_write
+
+    with atomic_write(out / "simulate.json") as temporary:
+        temporary.write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    if as_json:
+        render.emit_json(report)
+        return
+    con = render.console()
+    rows = [[i["name"], f"{100 * i['obstruction_coverage']:.1f}", f"{100 * i['alpha_coverage']:.1f}", f"{i['seconds']:.2f}"]
+            for i in report["images"]]
+    con.print(render.table(f"simulate {design.spec}: {kind} at {s['z_near_m'] * 1e3:.1f} mm, scene at {s['z_far_m']:.2f} m",
+                           ["image", "obstruction %", "α %", "s"], rows))
+    con.print("PSF energy in window (R, G, B): near " + ", ".join(f"{e:.3f}" for e in psfs.energy_near)
+              + "; far " + ", ".join(f"{e:.3f}" for e in psfs.energy_far))
+    con.print(f"wrote {len(files) + 1} files to {out}")
+
+
+def _single(specs):
+    if len(specs) != 1:
+        raise InputError("--obstruction", f"{len(specs)} obstructions", "one obstruction for simulate (evaluate takes a list)")
+    return specs
+
+
+def write_captures(out: Path, captures) -> list[str]:
+    """PNG (sRGB) and linear EXR of clean, unobstructed and obstructed; obstruction and α maps."""
+    import numpy as np
+
+    from metalens_cli.imaging.images import linear_to_srgb
+    from metalens_cli.io.image_files import write_exr_rgb, write_png
+
+    files = []
+    for c in captures:
+        grey = np.full_like(c.clean, 0.5)
+        composite = c.obstruction.rgb * c.obstruction.mask + grey * (1 - c.obstruction.mask)
+        for label, image in (("clean", c.clean), ("unobstructed", c.unobstructed), ("obstructed", c.obstructed)):
+            write_png(out / f"{c.name}_{label}.png", linear_to_srgb(image))
+            write_exr_rgb(out / f"{c.name}_{label}.exr", image)
+            files += [str(out / f"{c.name}_{label}.png"), str(out / f"{c.name}_{label}.exr")]
+        write_png(out / f"{c.name}_obstruction.png", linear_to_srgb(composite))
+        write_png(out / f"{c.name}_alpha.png", np.clip(c.alpha, 0, 1))
+        write_exr_rgb(out / f"{c.name}_obstruction_mask.exr", c.obstruction.mask)
+        write_exr_rgb(out / f"{c.name}_alpha.exr", c.alpha)
+        files += [str(out / f"{c.name}_{x}") for x in ("obstruction.png", "alpha.png", "obstruction_mask.exr", "alpha.exr")]
+    return files

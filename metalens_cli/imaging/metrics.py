@@ -1,0 +1,82 @@
+"""Image metrics: PSNR, SSIM and the global gain/bias photometric match (Suppl. Note 11).
+
+Torch functions on (..., C, H, W) images with values nominally in 0..1 (``data_range`` 1);
+differentiable (SSIM is used as a loss by ``optimize``). Means are over channels and pixels.
+LPIPS needs network weights that this package does not ship: :func:`lpips_note` says so.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+
+import torch
+
+from metalens_cli.errors import InputError
+
+SSIM_WINDOW, SSIM_SIGMA, SSIM_K1, SSIM_K2 = 11, 1.5, 0.01, 0.03  # Wang et al. 2004
+
+
+def psnr(estimate: torch.Tensor, reference: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
+    """10·log10(range² / MSE) in dB, per leading batch entry (over the last three axes)."""
+    mse = ((estimate - reference) ** 2).mean(dim=(-3, -2, -1))
+    return 10 * torch.log10(data_range**2 / mse)
+
+
+def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=torch.float64, device="cpu") -> torch.Tensor:
+    """Normalised 1-D Gaussian of ``size`` taps."""
+    x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    return g / g.sum()
+
+
+def _filter(x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+    """Separable 'valid' Gaussian filtering of (B, C, H, W), each channel on its own."""
+    c = x.shape[1]
+    x = torch.nn.functional.conv2d(x, g.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
+    return torch.nn.functional.conv2d(x, g.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
+
+
+def ssim(estimate: torch.Tensor, reference: torch.Tensor, data_range: float = 1.0, window: int = SSIM_WINDOW,
+         sigma: float = SSIM_SIGMA) -> torch.Tensor:
+    """Mean SSIM (Wang et al. 2004: Gaussian window 11 taps, σ 1.5, K1 0.01, K2 0.03), over
+    'valid' window positions (no padding) and channels; one value per leading batch entry."""
+    if estimate.shape != reference.shape or estimate.ndim < 3:
+        raise InputError("images", f"shapes {tuple(estimate.shape)} and {tuple(reference.shape)}", "equal (..., C, H, W) shapes")
+    if min(estimate.shape[-2:]) < window:
+        raise InputError("images", f"{tuple(estimate.shape[-2:])} pixels", f"images at least {window} × {window}")
+    lead = estimate.shape[:-3]
+    x = estimate.reshape(-1, *estimate.shape[-3:])
+    y = reference.reshape(-1, *reference.shape[-3:]).to(x.dtype)
+    g = gaussian_window(window, sigma, x.dtype, x.device)
+    c1, c2 = (SSIM_K1 * data_range) ** 2, (SSIM_K2 * data_range) ** 2
+    mx, my = _filter(x, g), _filter(y, g)
+    sxx = _filter(x * x, g) - mx * mx
+    syy = _filter(y * y, g) - my * my
+    sxy = _filter(x * y, g) - mx * my
+    s = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+    return s.mean(dim=(-3, -2, -1)).reshape(lead)
+
+
+def photometric_match(estimate: torch.Tensor, reference: torch.Tensor):
+    """The global gain a and bias b minimising ‖a·estimate + b − reference‖² over all pixels and
+    channels (per leading batch entry); returns (a·estimate + b, a, b)."""
+    dims = (-3, -2, -1)
+    mx, my = estimate.mean(dim=dims, keepdim=True), reference.mean(dim=dims, keepdim=True)
+    dx, dy = estimate - mx, reference - my
+    var = (dx * dx).mean(dim=dims, keepdim=True)
+    gain = (dx * dy).mean(dim=dims, keepdim=True) / var.clamp_min(torch.finfo(var.dtype).tiny)
+    bias = my - gain * mx
+    return gain * estimate + bias, gain.reshape(estimate.shape[:-3]), bias.reshape(estimate.shape[:-3])
+
+
+def lpips_note() -> str | None:
+    """None when LPIPS can run offline; else the one-line reason it is skipped."""
+    if importlib.util.find_spec("lpips") is None:
+        return "LPIPS skipped: the lpips package and its network weights are not installed (no download is attempted)"
+    return "LPIPS skipped: computing it would need its network weights to be fetched; not attempted offline"
+
+
+def finite_db(value: float) -> float | None:
+    """PSNR for reports: None for a perfect match (infinite dB)."""
+    return value if math.isfinite(value) else None
