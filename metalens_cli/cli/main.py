@@ -43,9 +43,12 @@ COMMANDS = {
     "symmetry": ("symmetry", "Depth-wavelength symmetry: the depth each wavelength focuses from, and back."),
     "bands": ("bands", "Multi-band filter checks (bands check)."),
     "preset": ("preset", "Inspect presets (preset show)."),
+    "obstruction": ("obstruction", "Obstruction generators (obstruction preview)."),
     "export-gds": ("export_gds", "Nanofin layout of a design as GDSII or OASIS for e-beam lithography."),
     "psf-scan": ("psf_scan", "PSF cubes over wavelength and depth of a design, written as EXR."),
     "mtf": ("mtf", "MTFs of a PSF cube (EXR) or the slanted-edge SFR of an image."),
+    "simulate": ("simulate", "Simulated captures of images through a design with a near obstruction."),
+    "evaluate": ("evaluate", "PSNR/SSIM of obstructed and unobstructed captures, design against design."),
 }
 
 

@@ -92,19 +92,26 @@ preset_option = click.option(
 DESIGN_HELP = "Design spec: hyperbolic:532nm, THETA.npy, PRESET.toml or a run directory."
 
 
-def design_options(command):
-    """--design SPEC, --preset and the geometry options every design-taking command shares
-    (passed as ``spec``, ``preset_path``, ``f_m``, ``aperture_m``, ``pitch_m``)."""
-    options = [
-        click.option("--design", "spec", required=True, help=DESIGN_HELP),
+def apply_options(command, options: list):
+    """Decorate ``command`` with ``options`` so that they appear in --help in list order."""
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def geometry_options(command):
+    """--preset and the lens geometry overrides (``preset_path``, ``f_m``, ``aperture_m``, ``pitch_m``)."""
+    return apply_options(command, [
         preset_option,
         click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length)."),
         click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D."),
         click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [preset's; hyperbolic default 395nm]."),
-    ]
-    for option in reversed(options):
-        command = option(command)
-    return command
+    ])
+
+
+def design_options(command):
+    """--design SPEC (``spec``) followed by :func:`geometry_options`."""
+    return click.option("--design", "spec", required=True, help=DESIGN_HELP)(geometry_options(command))
 
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else.")

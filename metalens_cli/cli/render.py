@@ -34,7 +34,7 @@ def console(stderr: bool = False):
     return Console(stderr=stderr, highlight=False)
 
 
-TEXT_COLUMNS = {"note", "condition", "holds", "band", "key", "value"}
+TEXT_COLUMNS = {"note", "condition", "holds", "band", "key", "value", "design", "obstruction", "kind"}
 
 
 def table(title: str, columns: list[str], rows: list[list[str]]):

@@ -8,19 +8,15 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Interval, Length, LengthList, flatten, json_option, load_preset_option, preset_option
+from metalens_cli.cli.options import Interval, Length, LengthList, apply_options, flatten, geometry_options, json_option, load_preset_option
 from metalens_cli.errors import InputError
 
 DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
 
 
-def design_options(f):
+def capture_options(f):
     """Options shared by simulate and evaluate: geometry, sensor, depths, PSF sampling, device."""
     options = [
-        preset_option,
-        click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length)."),
-        click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D."),
-        click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [hyperbolic default: 395nm]."),
         click.option("--images", default="builtin", show_default=True, help="Folder of PNG/JPEG/TIFF/EXR images, one file, or builtin."),
         click.option("--limit", type=click.IntRange(1), help="Use at most this many images."),
         click.option("--z-near", "z_near_m", type=Interval(), help="Obstruction depth or interval, e.g. 45mm or 40mm:50mm [preset's, else 40mm:50mm]."),
@@ -37,9 +33,7 @@ def design_options(f):
         click.option("--read-noise", type=click.FloatRange(0), default=0.0, help="Read-noise σ as a fraction of full scale."),
         click.option("--device", default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps."),
     ]
-    for option in reversed(options):
-        f = option(f)
-    return f
+    return geometry_options(apply_options(f, options))
 
 
 def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
@@ -67,12 +61,13 @@ def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, images, limit, z_nea
     clean = load_images(images, (pixels, pixels), limit)
     return {"designs": designs, "pixels": pixels, "psf_pixels": psf_pixels or pixels, "pixel_pitch_m": pixel_pitch_m,
             "z_near_m": near, "z_far_m": far, "z_near_interval_m": list(z_near), "z_far_interval_m": list(z_far),
-            "wavelengths_m": waves, "images": clean, "device": torch_device(device)}
+            "wavelengths_m": waves, "images": clean, "device": torch_device(device),
+            "obstruction_params": in_force.obstruction if in_force is not None else None}
 
 
 @click.command("simulate")
 @click.argument("spec", metavar="DESIGN")
-@design_options
+@capture_options
 @click.option("--obstruction", default="dirt", show_default=True, help="dirt, fence, drops, rain or file:PATH.png.")
 @click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Output folder (created).")
 @json_option
@@ -94,7 +89,7 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
     psfs = channel_psfs(design, s["z_near_m"], s["z_far_m"], s["wavelengths_m"], s["psf_pixels"], s["pixel_pitch_m"],
                         psf_normalization, device=s["device"])
     captures = simulate_captures(s["images"], kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed,
-                                 alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
+                                 params=s["obstruction_params"], alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     files = write_captures(out, captures)

@@ -6,8 +6,8 @@ numpy. Generators are seeded (the same seed gives the same obstruction) and dept
 feature of ``s`` metres on the cover glass at depth ``z`` spans s·f/z/pitch pixels on the
 sensor (:func:`pixels_from_metres`). Rain needs the clean image, which its drops refract.
 
-Default sizes (``ObstructionParams``) are for the paper's camera (f = 4 mm, 1.85 µm pixels,
-z ≈ 45 mm: 1 mm on the glass ≈ 48 pixels, the 512-pixel sensor sees ≈ 10.7 mm of glass).
+Parameters come from a preset's ``[obstruction]`` section (:class:`ObstructionConfig`, whose defaults are for the paper's camera (f = 4 mm, 1.85 µm pixels,
+z ≈ 45 mm: 1 mm on the glass ≈ 48 pixels, the 512-pixel sensor sees ≈ 10.7 mm of glass)).
 """
 
 from __future__ import annotations
@@ -19,27 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from metalens_cli.errors import InputError
+from metalens_cli.io.presets import ObstructionConfig
 
 KINDS = ("dirt", "fence", "drops", "rain")
 FORM = "dirt, fence, drops, rain or file:PATH.png"
-
-
-@dataclass(frozen=True)
-class ObstructionParams:
-    """Sizes in metres on the cover glass; coverages as fractions of the sensor area."""
-
-    dirt_scale_m: float = 1.5e-3  # size of the largest Perlin cell
-    dirt_octaves: int = 5
-    dirt_coverage: tuple[float, float] = (0.15, 0.35)
-    dirt_edge: float = 0.04  # soft-edge width in noise units (noise spans about -1..1)
-    fence_pitch_m: float = 3e-3
-    fence_width_m: float = 0.3e-3
-    fence_angle_deg: float = 45.0
-    drop_radius_m: tuple[float, float] = (0.2e-3, 0.8e-3)
-    drop_coverage: tuple[float, float] = (0.05, 0.15)
-    drop_opacity: float = 0.85
-    rain_radius_m: tuple[float, float] = (0.3e-3, 1.2e-3)
-    rain_coverage: tuple[float, float] = (0.10, 0.25)
 
 
 @dataclass(frozen=True)
@@ -112,7 +95,7 @@ def _soft_threshold(noise: np.ndarray, coverage: float, edge: float) -> np.ndarr
     return _smoothstep((noise - 0.5 * (lo + hi)) / edge + 0.5)
 
 
-def dirt(shape, scale_px: float, rng: np.random.Generator, p: ObstructionParams) -> tuple[np.ndarray, np.ndarray, dict]:
+def dirt(shape, scale_px: float, rng: np.random.Generator, p: ObstructionConfig) -> tuple[np.ndarray, np.ndarray, dict]:
     """Brownish dirt: fractal Perlin noise thresholded to a coverage drawn in ``p.dirt_coverage``."""
     target = rng.uniform(*p.dirt_coverage)
     noise = fractal_noise(shape, scale_px, p.dirt_octaves, rng)
@@ -155,7 +138,7 @@ def _disks(shape, radius_px: tuple[float, float], coverage: float, rng: np.rando
     return disks, mask
 
 
-def drops(shape, radius_px, rng, p: ObstructionParams):
+def drops(shape, radius_px, rng, p: ObstructionConfig):
     """Semi-opaque red blood drops, darker at the centre, covering a fraction in ``p.drop_coverage``."""
     target = rng.uniform(*p.drop_coverage)
     disks, mask = _disks(shape, radius_px, target, rng)
@@ -163,7 +146,7 @@ def drops(shape, radius_px, rng, p: ObstructionParams):
     return rgb, mask * p.drop_opacity, {"target_coverage": target, "drops": len(disks), "opacity": p.drop_opacity}
 
 
-def rain(shape, radius_px, clean: np.ndarray, rng, p: ObstructionParams):
+def rain(shape, radius_px, clean: np.ndarray, rng, p: ObstructionConfig):
     """Clear raindrops: each drop shows the background refracted (inverted and minified, as a
     ball lens does) and slightly brightened at the rim; mask = the drops' footprint."""
     target = rng.uniform(*p.rain_coverage)
@@ -202,7 +185,7 @@ def make_obstruction(
     focal_length_m: float,
     pixel_pitch_m: float,
     seed: int | np.random.Generator,
-    params: ObstructionParams | None = None,
+    params: ObstructionConfig | None = None,
     clean: np.ndarray | None = None,
 ) -> Obstruction:
     """Generate obstruction ``spec`` (``dirt``, ``fence``, ``drops``, ``rain`` or ``file:PATH``) for
@@ -210,7 +193,7 @@ def make_obstruction(
 
     ``clean`` (3, H, W) linear is needed by ``rain``. Same seed → the same obstruction.
     """
-    p = params or ObstructionParams()
+    p = params or ObstructionConfig()
     rng = np.random.default_rng(seed)
     if not (depth_m > 0 and math.isfinite(depth_m)):
         raise InputError("--z-near", f"{depth_m!r}", "a finite positive depth")
@@ -252,4 +235,4 @@ def parse_obstructions(text: str) -> list[str]:
     return specs
 
 
-__all__ = ["KINDS", "Obstruction", "ObstructionParams", "make_obstruction", "parse_obstructions", "pixels_from_metres"]
+__all__ = ["KINDS", "Obstruction", "make_obstruction", "parse_obstructions", "pixels_from_metres"]

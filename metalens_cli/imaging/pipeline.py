@@ -13,7 +13,8 @@ import numpy as np
 import torch
 
 from metalens_cli.imaging.formation import form_image, add_noise, psf_spectrum, normalize_psf
-from metalens_cli.imaging.obstructions import Obstruction, ObstructionParams, make_obstruction
+from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
+from metalens_cli.io.presets import ObstructionConfig
 
 DEFAULT_Z_NEAR_M = (0.040, 0.050)  # PHYSICS.md, Suppl. Note 4
 DEFAULT_Z_FAR_M = (1.0, 20.0)
@@ -83,7 +84,7 @@ class SimulatedCapture:
 
 
 def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_length_m: float, pixel_pitch_m: float,
-                      seed: int, params: ObstructionParams | None = None, alpha_gain: float | None = None,
+                      seed: int, params: ObstructionConfig | None = None, alpha_gain: float | None = None,
                       photons: float | None = None, read_noise: float = 0.0) -> list[SimulatedCapture]:
     """For each clean image: an obstruction (seed + image index), the unobstructed capture
     P_far ∗ I_clean and the obstructed capture; noise (if any) seeded the same way."""

@@ -111,6 +111,27 @@ class LossConfig:
 
 
 @dataclass(frozen=True)
+class ObstructionConfig:
+    """Obstruction generators: sizes on the cover glass (m), coverages as fractions of the sensor.
+
+    Defaults suit the paper's camera (f = 4 mm, 1.85 µm pixels, z_near ≈ 45 mm).
+    """
+
+    dirt_scale_m: float = _key("dirt_scale", "length", default=1.5e-3)  # largest Perlin cell
+    dirt_octaves: int = _key("dirt_octaves", "int", lo=1, hi=10, default=5)
+    dirt_coverage: tuple[float, float] = _key("dirt_coverage", "fraction_pair", default=(0.15, 0.35))
+    dirt_edge: float = _key("dirt_edge", "float", lo=0.0, hi=1.0, default=0.04)  # soft edge, noise units
+    fence_pitch_m: float = _key("fence_pitch", "length", default=3e-3)
+    fence_width_m: float = _key("fence_width", "length", default=0.3e-3)
+    fence_angle_deg: float = _key("fence_angle_deg", "float", lo=-180.0, hi=180.0, default=45.0)
+    drop_radius_m: tuple[float, float] = _key("drop_radius", "interval", default=(0.2e-3, 0.8e-3))
+    drop_coverage: tuple[float, float] = _key("drop_coverage", "fraction_pair", default=(0.05, 0.15))
+    drop_opacity: float = _key("drop_opacity", "fraction", default=0.85)
+    rain_radius_m: tuple[float, float] = _key("rain_radius", "interval", default=(0.3e-3, 1.2e-3))
+    rain_coverage: tuple[float, float] = _key("rain_coverage", "fraction_pair", default=(0.10, 0.25))
+
+
+@dataclass(frozen=True)
 class Preset:
     """A resolved preset. ``filter`` is None for a camera without a multi-band filter."""
 
@@ -122,6 +143,7 @@ class Preset:
     optimize: OptimizeConfig
     loss: LossConfig
     filter: FilterConfig | None = None
+    obstruction: ObstructionConfig = field(default_factory=ObstructionConfig)
     description: str = ""
     source: str | None = None
 
@@ -134,7 +156,9 @@ SECTIONS: dict[str, tuple[type, bool]] = {
     "scene": (SceneConfig, True),
     "optimize": (OptimizeConfig, True),
     "loss": (LossConfig, False),
+    "obstruction": (ObstructionConfig, False),
 }
+OPTIONAL_DEFAULTS = {"loss": LossConfig, "obstruction": ObstructionConfig}
 TOP_LEVEL_KEYS = {"name", "description"}
 
 
@@ -162,6 +186,13 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
                 raise InputError(path, "upper end below lower end", units.INTERVAL_FORM)
             return lo, hi
         return units.parse_interval(_as_str(value, path, units.INTERVAL_FORM), path, allow_inf=True)
+    if kind == "fraction_pair":
+        if not isinstance(value, list) or len(value) != 2:
+            raise InputError(path, "expected two numbers [lo, hi] in [0, 1]", "[0.15, 0.35]")
+        lo, hi = (_number(v, path, lo=0.0, hi=1.0, form="numbers in [0, 1]") for v in value)
+        if hi < lo:
+            raise InputError(path, "upper end below lower end", "[lo, hi] with lo ≤ hi")
+        return lo, hi
     if kind == "fraction_list":
         if not isinstance(value, list) or not value:
             raise InputError(path, "expected a non-empty array of numbers in (0, 1]", "[0.784, 0.729]")
@@ -243,8 +274,8 @@ def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | N
             sections[section] = _build_section(cls, data[section], section)
         elif required:
             raise InputError(section, "missing section", f"a [{section}] table")
-        elif section == "loss":
-            sections[section] = LossConfig()
+        elif section in OPTIONAL_DEFAULTS:
+            sections[section] = OPTIONAL_DEFAULTS[section]()
     preset = Preset(
         name=_as_str(data.get("name", name), "name", "a string"),
         description=_as_str(data.get("description", ""), "description", "a string"),

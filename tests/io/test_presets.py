@@ -61,3 +61,14 @@ def test_file_errors_name_the_file(tmp_path):
         load_preset(bad)
     with pytest.raises(InputError, match="cannot read"):
         load_preset(tmp_path / "missing.toml")
+
+
+def test_obstruction_section_optional_and_validated():
+    data = _paper_dict()
+    assert preset_from_dict(data).obstruction.dirt_coverage == (0.15, 0.35)
+    data.pop("obstruction")
+    assert preset_from_dict(data).obstruction.fence_pitch_m == 3e-3  # defaults when absent
+    data["obstruction"] = {"dirt_coverage": [0.5, 0.2]}
+    with pytest.raises(InputError) as info:
+        preset_from_dict(data)
+    assert info.value.field == "obstruction.dirt_coverage"

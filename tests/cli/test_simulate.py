@@ -1,0 +1,82 @@
+"""simulate and evaluate end to end on a small lens and 48-pixel images."""
+
+import json
+
+import numpy as np
+import pytest
+
+from metalens_cli.cli.main import run
+
+SMALL = ["--f", "4mm", "--aperture", "0.3mm", "--pixels", "48", "--wavelengths", "420:680:20nm", "--z-near", "45mm", "--z-far", "1m"]
+
+
+def invoke(capsys, *args):
+    code = run([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def photo_dir(tmp_path_factory):
+    import cv2
+
+    folder = tmp_path_factory.mktemp("photos")
+    rng = np.random.default_rng(0)
+    cv2.imwrite(str(folder / "a.png"), (rng.random((60, 80, 3)) * 255).astype(np.uint8))
+    cv2.imwrite(str(folder / "b.jpg"), np.full((50, 50, 3), 128, np.uint8))
+    return folder
+
+
+def test_simulate_writes_outputs(capsys, tmp_path, photo_dir):
+    out = tmp_path / "sim"
+    code, stdout, _ = invoke(capsys, "simulate", "hyperbolic:532nm", *SMALL, "--images", photo_dir, "--obstruction", "fence", "-o", out, "--json")
+    assert code == 0
+    report = json.loads(stdout)
+    assert report == json.loads((out / "simulate.json").read_text())
+    assert [i["name"] for i in report["images"]] == ["a", "b"]
+    assert set(report["psf_energy"]["near"]) == {"R", "G", "B"} and 0.5 < report["psf_energy"]["far"]["G"] <= 1.0
+    for name in ("a_clean.png", "a_obstructed.exr", "a_unobstructed.png", "a_alpha.png", "a_obstruction.png", "contact_sheet.png"):
+        assert (out / name).stat().st_size > 0
+    assert 0 < report["images"][0]["alpha_coverage"] < 1
+
+
+def test_evaluate_json_csv_plot(capsys, tmp_path, photo_dir):
+    csv, plot = tmp_path / "e.csv", tmp_path / "e.png"
+    code, stdout, stderr = invoke(capsys, "evaluate", "hyperbolic:532nm", "hyperbolic:630nm", *SMALL, "--images", photo_dir,
+                                  "--obstruction", "dirt,drops", "--json", "--csv", csv, "--plot", plot)
+    assert code == 0 and plot.stat().st_size > 0
+    report = json.loads(stdout)
+    assert len(report["rows"]) == 2 * 2 * 2
+    for row in report["rows"]:
+        assert set(row) == {"design", "obstruction", "condition", "psnr_db", "ssim"}
+        assert row["condition"] in ("unobstructed", "obstructed") and row["psnr_db"] > 0 and -1 <= row["ssim"] <= 1
+    assert csv.read_text().splitlines()[0] == "design,obstruction,condition,psnr_db,ssim"
+    assert "LPIPS" in stderr
+
+
+def test_evaluate_table(capsys):
+    code, stdout, _ = invoke(capsys, "evaluate", "hyperbolic:532nm", *SMALL, "--obstruction", "rain", "--limit", "1")
+    assert code == 0 and "Δ PSNR" in stdout
+
+
+@pytest.mark.parametrize("args", [
+    ["simulate", "hyperbolic:532nm", *SMALL, "--obstruction", "mud", "-o", "x"],
+    ["evaluate", "hyperbolic:532nm", *SMALL, "--images", "/nonexistent"],
+    ["evaluate", "nonsense", *SMALL],
+    ["simulate", "hyperbolic:532nm", *SMALL, "--z-near", "2m", "-o", "x"],
+])
+def test_bad_input_one_line_exit_2(capsys, args):
+    code, stdout, stderr = invoke(capsys, *args)
+    assert code == 2 and stdout == ""
+    assert len(stderr.strip().splitlines()) == 1 and stderr.startswith("metalens: error:")
+
+
+def test_obstruction_preview_sheet(capsys, tmp_path):
+    sheet = tmp_path / "sheet.png"
+    code = run(["obstruction", "preview", "--kinds", "dirt,fence", "--z-near", "40mm,50mm", "--pixels", "64",
+                "--pixel-pitch", "14.8um", "-o", str(sheet), "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 0 and sheet.read_bytes()[:4] == b"\x89PNG"
+    assert [(o["kind"], o["depth_m"]) for o in report["obstructions"]] == [("dirt", 0.04), ("fence", 0.04), ("dirt", 0.05), ("fence", 0.05)]
+    dirt = [o["coverage"] for o in report["obstructions"] if o["kind"] == "dirt"]
+    assert all(0.15 <= c <= 0.35 for c in dirt)  # the default configured coverage range
