@@ -53,14 +53,19 @@ class NanofinConfig:
     length_m: float = _key("length", "length")
     efficiency_wavelengths_m: tuple[float, ...] = _key("efficiency_wavelengths", "length_list")
     efficiency: tuple[float, ...] = _key("efficiency", "fraction_list")
+    efficiency_csv: str | None = _key("efficiency_csv", "path", default=None)  # replaces the table
 
 
 @dataclass(frozen=True)
 class FilterConfig:
-    """Multi-band filter: pass band i is [centre − width/2, centre + width/2] (width = FWHM)."""
+    """Multi-band filter: pass band i is [centre − width/2, centre + width/2] (width = FWHM) with
+    logistic edges (10-90 % rise ``edge_width``), or a measured transmission ``csv``
+    (wavelength_nm, transmission; pass bands where it exceeds ``threshold``)."""
 
-    centers_m: tuple[float, ...] = _key("centers", "length_list")
-    widths_m: tuple[float, ...] = _key("widths", "length_list")
+    centers_m: tuple[float, ...] = _key("centers", "length_list", default=())
+    widths_m: tuple[float, ...] = _key("widths", "length_list", default=())
+    csv: str | None = _key("csv", "path", default=None)
+    threshold: float = _key("threshold", "fraction", default=0.5)
     edge_width_m: float = _key("edge_width", "length", default=2e-9)
     peak_transmission: float = _key("peak_transmission", "fraction", default=0.9)
 
@@ -71,7 +76,7 @@ class SensorConfig:
 
     pixel_pitch_m: float = _key("pixel_pitch", "length")
     pixels: int = _key("pixels", "int", lo=1, hi=16384)
-    camera_response: str = _key("camera_response", "string", default="Nikon 5100 (NPL)")
+    camera_response: str = _key("camera_response", "string", default="Nikon 5100 (NPL)")  # name or CSV path
     wavelength_range_m: tuple[float, float] = _key("wavelength_range", "interval", default=(400e-9, 700e-9))
 
 
@@ -205,8 +210,8 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
         if isinstance(value, bool) or not isinstance(value, int):
             raise InputError(path, f"expected an integer, got {value!r}", "an integer")
         return int(_number(value, path, lo=meta.get("lo"), hi=meta.get("hi"), form="an integer"))
-    if kind == "string":
-        return _as_str(value, path, "a string")
+    if kind in ("string", "path"):
+        return _as_str(value, path, "a string" if kind == "string" else "a file path (relative to the preset)")
     if kind == "choice":
         choices = meta["choices"]
         if value not in choices:
@@ -254,6 +259,10 @@ def _check_consistency(p: Preset) -> None:
     if p.nanofin.pitch_m * 2 > p.lens.aperture_m:
         raise InputError("nanofin.pitch", "is larger than half the aperture", "a pitch far below lens.aperture")
     if p.filter is not None:
+        if p.filter.csv is None and not p.filter.centers_m:
+            raise InputError("filter.centers", "missing", "band centres and widths, or filter.csv")
+        if p.filter.csv is not None and p.filter.centers_m:
+            raise InputError("filter.csv", "given together with filter.centers", "either bands or a CSV")
         if len(p.filter.centers_m) != len(p.filter.widths_m):
             raise InputError("filter.widths", "needs one width per filter.centers entry", "equal lengths")
         if list(p.filter.centers_m) != sorted(p.filter.centers_m):
@@ -298,9 +307,30 @@ def load_preset(path: str | Path) -> Preset:
     except tomllib.TOMLDecodeError as exc:
         raise InputError("preset", f"{path.name} is not valid TOML: {exc}", "TOML (https://toml.io)") from None
     try:
-        return preset_from_dict(data, name=path.stem, source=str(path))
+        preset = preset_from_dict(data, name=path.stem, source=str(path))
     except InputError as exc:
         raise InputError(f"{path.name}: {exc.field}", exc.message, exc.expected) from None
+    return _resolve_paths(preset, path.parent)
+
+
+def _resolve_paths(preset: Preset, folder: Path) -> Preset:
+    """File paths in a preset are relative to the preset's folder; refuse missing files."""
+    def resolved(value: str | None, key: str) -> str | None:
+        if value is None:
+            return None
+        full = (folder / value).resolve()
+        if not full.is_file():
+            raise InputError(key, f"no such file {str(full)!r}", "a CSV path relative to the preset")
+        return str(full)
+
+    nanofin = dataclasses.replace(preset.nanofin, efficiency_csv=resolved(preset.nanofin.efficiency_csv, "nanofin.efficiency_csv"))
+    band_filter = preset.filter
+    if band_filter is not None:
+        band_filter = dataclasses.replace(band_filter, csv=resolved(band_filter.csv, "filter.csv"))
+    sensor = preset.sensor
+    if sensor.camera_response.lower().endswith(".csv"):
+        sensor = dataclasses.replace(sensor, camera_response=resolved(sensor.camera_response, "sensor.camera_response"))
+    return dataclasses.replace(preset, nanofin=nanofin, filter=band_filter, sensor=sensor)
 
 
 def to_dict(obj: Any) -> Any:

@@ -72,3 +72,36 @@ def test_obstruction_section_optional_and_validated():
     with pytest.raises(InputError) as info:
         preset_from_dict(data)
     assert info.value.field == "obstruction.dirt_coverage"
+
+
+def test_filter_and_efficiency_from_csv_relative_to_preset(tmp_path):
+    import numpy as np
+
+    from metalens_cli.analysis.bands import bands_from_transmission, read_filter_csv
+    from metalens_cli.optics.spectra import preset_sensitivity
+
+    nm = np.arange(380, 781)
+    inside = ((nm >= 446) & (nm <= 468)) | ((nm >= 520) & (nm <= 540)) | ((nm >= 614) & (nm <= 642))
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "filter.csv").write_text("wavelength_nm,T\n" + "\n".join(f"{w},{90 if i else 0}" for w, i in zip(nm, inside)))
+    (tmp_path / "data" / "eta.csv").write_text("\n".join(f"{w},0.7" for w in nm))
+    text = (PRESETS / "split-spectrum.toml").read_text()
+    text = text.replace('centers = ["457nm", "530nm", "628nm"]\nwidths = ["22nm", "20nm", "28nm"]    # FWHM', 'csv = "data/filter.csv"')
+    text = text.replace("efficiency = [0.784, 0.729, 0.669]", 'efficiency = [0.784, 0.729, 0.669]\nefficiency_csv = "data/eta.csv"')
+    (tmp_path / "csv.toml").write_text(text)
+    preset = load_preset(tmp_path / "csv.toml")
+    assert preset.filter.csv == str((tmp_path / "data" / "filter.csv").resolve())
+    bands = bands_from_transmission(*read_filter_csv(preset.filter.csv))
+    # 0 → 0.9 between 445 and 446 nm crosses 0.5 at 445 + 0.5/0.9 nm
+    assert [round(b.lo_m * 1e9, 3) for b in bands] == [445.556, 519.556, 613.556]
+    s = preset_sensitivity(preset)
+    outside = (s.wavelengths_m > 480e-9) & (s.wavelengths_m < 505e-9)
+    assert np.all(s.values[:, outside] == 0)  # the CSV filter blocks between bands
+
+
+def test_missing_csv_named(tmp_path):
+    text = (PRESETS / "split-spectrum.toml").read_text().replace(
+        'centers = ["457nm", "530nm", "628nm"]\nwidths = ["22nm", "20nm", "28nm"]    # FWHM', 'csv = "nope.csv"')
+    (tmp_path / "p.toml").write_text(text)
+    with pytest.raises(InputError, match="filter.csv: no such file"):
+        load_preset(tmp_path / "p.toml")
