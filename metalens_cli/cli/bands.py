@@ -59,7 +59,7 @@ def _render(report: model.BandsReport) -> None:
     z_lo, z_hi = report.z_near_m
     depth = format_length(z_lo) if z_lo == z_hi else f"{format_length(z_lo)} to {format_length(z_hi)}"
     s = f"{report.s[0]:.5f}" if report.s[0] == report.s[1] else f"{report.s[0]:.5f} to {report.s[1]:.5f}"
-    con.print(f"Pass bands: " + ", ".join(f"{b.label} {render.nm(b.lo_m, 1)}-{render.nm(b.hi_m, 1)} nm" for b in report.bands))
+    con.print("Pass bands: " + ", ".join(f"{b.label} {render.nm(b.lo_m, 1)}-{render.nm(b.hi_m, 1)} nm" for b in report.bands))
     if report.ignored_bands:
         con.print("Outside the sensor range (ignored): " + ", ".join(b.label for b in report.ignored_bands))
     rows = [

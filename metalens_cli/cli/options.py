@@ -138,3 +138,18 @@ def pick(explicit, preset, getter, option: str, form: str):
         where = "" if preset is None else f" (preset {preset.name} has none)"
         raise InputError(option, f"missing{where}", f"{form}, or --preset FILE")
     return value
+
+
+def torch_device(name: str):
+    """A torch.device, refusing devices this machine does not have."""
+    import torch
+
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise InputError("--device", f"unknown device {name!r}", "cpu, cuda, cuda:N or mps") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device", "CUDA is not available on this machine", "cpu")
+    if device.type == "mps" and not torch.backends.mps.is_available():
+        raise InputError("--device", "MPS is not available on this machine", "cpu")
+    return device

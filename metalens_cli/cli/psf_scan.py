@@ -7,27 +7,11 @@ import math
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Length, LengthList, design_options, flatten, json_option, load_preset_option, plot_option
+from metalens_cli.cli.options import Length, LengthList, design_options, flatten, json_option, load_preset_option, plot_option, torch_device
 from metalens_cli.cli.progress import progress_bar
-from metalens_cli.errors import InputError
 
 PROPAGATORS = ("auto", "asm", "radial", "rs")
 DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
-
-
-def torch_device(name: str):
-    """A torch.device, refusing devices this machine does not have."""
-    import torch
-
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise InputError("--device", f"unknown device {name!r}", "cpu, cuda, cuda:N or mps") from None
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise InputError("--device", "CUDA is not available on this machine", "cpu")
-    if device.type == "mps" and not torch.backends.mps.is_available():
-        raise InputError("--device", "MPS is not available on this machine", "cpu")
-    return device
 
 
 @click.command("psf-scan")

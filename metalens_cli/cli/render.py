@@ -28,10 +28,12 @@ def emit_json(obj: Any) -> None:
 
 
 def console(stderr: bool = False):
-    """A rich console on stdout (results) or stderr (messages)."""
+    """A rich console on stdout (results) or stderr (messages); 120 columns when piped, so
+    tables are not truncated to the 80-column default in logs and CI."""
     from rich.console import Console
 
-    return Console(stderr=stderr, highlight=False)
+    stream = sys.stderr if stderr else sys.stdout
+    return Console(stderr=stderr, highlight=False, width=None if stream.isatty() else 120)
 
 
 TEXT_COLUMNS = {"note", "condition", "holds", "band", "key", "value", "design", "obstruction", "kind"}

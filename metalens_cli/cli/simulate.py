@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Interval, Length, LengthList, apply_options, flatten, geometry_options, json_option, load_preset_option
+from metalens_cli.cli.options import Interval, Length, LengthList, apply_options, flatten, geometry_options, json_option, load_preset_option, torch_device
 from metalens_cli.errors import InputError
 
 DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
@@ -39,7 +39,6 @@ def capture_options(f):
 def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
           pixel_pitch_m, wavelengths, device):
     """Resolve designs, sensor, depths, wavelengths and images (shared by simulate and evaluate)."""
-    from metalens_cli.cli.psf_scan import torch_device
     from metalens_cli.imaging.images import load_images
     from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, DEFAULT_Z_FAR_M, DEFAULT_Z_NEAR_M, draw_depths
     from metalens_cli.io.designs import resolve_design
