@@ -19,7 +19,13 @@ def _option_name(param: click.Parameter | None) -> str:
 
 
 class _UnitType(click.ParamType):
-    """Base: call ``parse(text, field)`` and turn an :class:`InputError` into ``self.fail``."""
+    """Base: call ``parse(text, field)`` and turn an :class:`InputError` into ``self.fail``.
+
+    ``allow_inf`` lets the length types accept ``inf``.
+    """
+
+    def __init__(self, allow_inf: bool = False):
+        self.allow_inf = allow_inf
 
     def parse(self, text: str, field: str):
         raise NotImplementedError
@@ -38,9 +44,6 @@ class Length(_UnitType):
 
     name = "length"
 
-    def __init__(self, allow_inf: bool = False):
-        self.allow_inf = allow_inf
-
     def parse(self, text, field):
         return units.parse_length(text, field, allow_inf=self.allow_inf)
 
@@ -49,9 +52,6 @@ class LengthList(_UnitType):
     """Lengths and ranges: ``45mm,inf`` or ``430:645:5nm`` → list of metres."""
 
     name = "lengths"
-
-    def __init__(self, allow_inf: bool = False):
-        self.allow_inf = allow_inf
 
     def parse(self, text, field):
         return units.parse_length_list(text, field, allow_inf=self.allow_inf)
