@@ -9,7 +9,7 @@ Cases: exact rotations as GDSII and as OASIS, 128 quantised levels as GDSII, `--
 exact GDSII (KLayout reading it back), and the straightforward route: one gdstk.Polygon per fin
 (vertices from the same numpy code), added to one cell and written with gdstk.Library.write_gds.
 
-Usage: python benchmarks/bench_gds.py [--aperture 2.516mm] [--scratch /tmp] [--out benchmarks/gds.md]
+Usage: python benchmarks/bench_gds.py [--aperture 2.516mm] [--scratch /tmp] (writes its section of docs/benchmarks.md)
 """
 
 from __future__ import annotations
@@ -23,6 +23,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from report import write_section
 
 DESIGN = ["--design", "hyperbolic:532nm", "--f", "4mm", "--pitch", "395nm", "--width", "305nm", "--length", "125nm"]
 CASES = {
@@ -112,7 +114,7 @@ def table(results: dict, aperture: str, load: tuple) -> str:
     """The Markdown report."""
     base = results["gdstk"]
     lines = [
-        "# Layout export of the paper's lens (`metalens export-gds`)",
+        "## Layout export of the paper's lens (`metalens export-gds`)",
         "",
         f"Command: `python benchmarks/bench_gds.py --aperture {aperture}`; {os.cpu_count()} CPUs, Python "
         f"{platform.python_version()}; load average before the run {load[0]:.2f} (other work shares this machine).",
@@ -139,7 +141,6 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--aperture", default="2.516mm")
     parser.add_argument("--scratch", default="/tmp/metalens-bench-gds")
-    parser.add_argument("--out", default=str(Path(__file__).with_name("gds.md")))
     parser.add_argument("--case", help=argparse.SUPPRESS)
     args = parser.parse_args()
     scratch = Path(args.scratch)
@@ -156,8 +157,7 @@ def main() -> None:
         print(f"{name}: {results[name]['seconds']:.1f} s, {results[name]['peak_gib']:.2f} GiB", file=sys.stderr, flush=True)
     for path in scratch.iterdir():
         path.unlink()
-    Path(args.out).write_text(table(results, args.aperture, load), encoding="utf-8")
-    print(f"wrote {args.out}", file=sys.stderr)
+    print(f"wrote {write_section('gds', table(results, args.aperture, load))}", file=sys.stderr)
 
 
 if __name__ == "__main__":

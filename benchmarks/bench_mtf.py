@@ -1,4 +1,4 @@
-"""Time the MTFs of an 88-channel 512² PSF cube (2 depths × 44 wavelengths): writes benchmarks/mtf.md.
+"""Time the MTFs of an 88-channel 512² PSF cube (2 depths × 44 wavelengths): writes its section of docs/benchmarks.md.
 
 Run: python benchmarks/bench_mtf.py [--repeat 5]
 The cube holds Gaussians (σ 1-5 px); the MTF's cost does not depend on the PSFs' shape. Timed:
@@ -20,6 +20,8 @@ import numpy as np
 
 from metalens_cli.analysis.mtf import cube_mtf, diffraction_limited_mtf, psf_mtf, radial_grid
 from metalens_cli.io.exr import PsfCube, read_psf_cube, write_psf_cube
+
+from report import write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 N, PITCH = 512, 1.85e-6
@@ -49,7 +51,6 @@ def timed(function, repeat: int) -> tuple[list[float], list[float]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--output", type=Path, default=ROOT / "benchmarks" / "mtf.md")
     args = parser.parse_args()
     psf = gaussian_cube()
     cube = PsfCube(psf, None, WAVELENGTHS, DEPTHS, {"pixel_pitch_m": PITCH, "na": 0.3})
@@ -68,7 +69,7 @@ def main() -> None:
         load = os.getloadavg()[0]
         rows = [(name, *timed(function, args.repeat)) for name, function in cases.items()]
     lines = [
-        "# MTF of a PSF cube",
+        "## MTF of a PSF cube",
         "",
         f"Command: `python benchmarks/bench_mtf.py --repeat {args.repeat}`; {os.cpu_count()} CPUs (1-min load "
         f"average {load:.1f} when started: other work shares them), Python {platform.python_version()}, numpy "
@@ -79,7 +80,7 @@ def main() -> None:
         "|---|---|---|---|",
         *[f"| {name} | {statistics.median(wall):.3f} | {min(wall):.3f} | {statistics.median(cpu):.3f} |" for name, wall, cpu in rows],
     ]
-    args.output.write_text("\n".join(lines) + "\n")
+    write_section("mtf", "\n".join(lines))
     print("\n".join(lines))
 
 

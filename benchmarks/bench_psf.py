@@ -7,7 +7,7 @@ Errors are relative L2 norms against the direct Rayleigh-Sommerfeld reference on
 33 × 33 pixels (the full 512² window is out of reach for rs), and for whole windows against the
 radial path at doubled sampling.
 
-Usage: python benchmarks/bench_psf.py [--out docs/benchmarks.md]
+Usage: python benchmarks/bench_psf.py  (writes its section of docs/benchmarks.md)
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ import resource
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 import torch
+from report import write_section
 
 LENS = dict(lambda_d_m=532e-9, focal_length_m=4e-3, aperture_m=2.516e-3, pitch_m=395e-9)
 PIXELS, PITCH, SUB = 512, 1.85e-6, 16
@@ -76,8 +76,7 @@ def centre(psf: torch.Tensor) -> torch.Tensor:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="docs/benchmarks.md")
-    out = Path(parser.parse_args().out)
+    parser.parse_args()
     lines, log = [], lambda s: print(s, file=sys.stderr, flush=True)
 
     refs = {}
@@ -103,7 +102,7 @@ def main() -> None:
     asm_vs_fine = rel_l2(asm_psf, single["radial", 2.0, CASES[0][2]][1])
 
     lines += [
-        "# PSF propagator benchmarks", "",
+        "## PSF propagators", "",
         "Produced by `python benchmarks/bench_psf.py` (writes this file). Machine: "
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, torch "
         f"{torch.__version__}, {torch.get_num_threads()} threads.", "",
@@ -114,7 +113,7 @@ def main() -> None:
         "(`ru_maxrss`, including ~0.4 GiB of Python + torch). Error: relative L2 against direct "
         "Rayleigh-Sommerfeld integration on the central 33 × 33 pixels (full-window rs is out of "
         "reach: 30-50 s for these 33² pixels alone).", "",
-        "## One PSF", "",
+        "### One PSF", "",
         "| propagator | sampling | case | cold s | warm s | peak GiB | rel. L2 vs rs | grid |",
         "|---|---|---|---|---|---|---|---|",
     ]
@@ -130,7 +129,7 @@ def main() -> None:
     lines += ["", "rs reference cost (33 × 33 pixels, float64): " + ", ".join(
         f"{name}: {st['cold_s']:.0f} s" for name, (_, st) in refs.items()), ""]
     lines += [
-        "## Targets", "",
+        "### Targets", "",
         f"- Full scan 430:645:5 nm (44) × {{45 mm, ∞}} = 88 PSFs of 512², radial path: "
         f"**{scan['warm_s']:.2f} s warm**, {scan['cold_s']:.2f} s cold "
         f"(stages, cold: " + ", ".join(f"{k} {v:.2f} s" for k, v in scan["timing_s"].items())
@@ -144,9 +143,8 @@ def main() -> None:
         f"doubled sampling over the whole window {asm_vs_fine:.1e}. Target ≤ 6 s at ≤ 4 GiB.",
         "",
     ]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines))
-    log(f"wrote {out}")
+    path = write_section("psf", "\n".join(lines))
+    log(f"wrote {path}")
 
 
 if __name__ == "__main__":

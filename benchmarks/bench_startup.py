@@ -1,4 +1,4 @@
-"""Wall time of closed-form commands (they must not import torch): writes benchmarks/startup.md.
+"""Wall time of closed-form commands (they must not import torch): writes its section of docs/benchmarks.md.
 
 Run: python benchmarks/bench_startup.py [--repeat 7]
 Uses the `metalens` console script next to the running interpreter.
@@ -14,6 +14,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from report import write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = [
@@ -37,11 +39,10 @@ def time_command(exe: str, args: list[str], repeat: int) -> list[float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeat", type=int, default=7)
-    parser.add_argument("--output", type=Path, default=ROOT / "benchmarks" / "startup.md")
     args = parser.parse_args()
     exe = str(Path(sys.executable).with_name("metalens"))
     lines = [
-        "# Startup time of closed-form commands",
+        "## Startup time of closed-form commands",
         "",
         f"Command: `python benchmarks/bench_startup.py --repeat {args.repeat}`; "
         f"{os.cpu_count()} CPUs, Python {platform.python_version()}. Target: < 0.3 s wall.",
@@ -52,7 +53,7 @@ def main() -> None:
     for command in COMMANDS:
         times = time_command(exe, command, args.repeat)
         lines.append(f"| `metalens {' '.join(command)}` | {statistics.median(times):.3f} | {min(times):.3f} |")
-    args.output.write_text("\n".join(lines) + "\n")
+    write_section("startup", "\n".join(lines))
     print("\n".join(lines))
 
 
