@@ -27,30 +27,12 @@ from dataclasses import dataclass
 import torch
 
 from metalens_cli.errors import InputError
-
-
-def fast_size(n: int) -> int:
-    """The smallest integer ≥ n whose prime factors are 2, 3, 5 and 7 (cheap FFT lengths)."""
-    best = 1 << max(int(n) - 1, 0).bit_length()
-    p7 = 1
-    while p7 < best:
-        p5 = p7
-        while p5 < best:
-            p3 = p5
-            while p3 < best:
-                p2 = p3
-                while p2 < n:
-                    p2 *= 2
-                best = min(best, p2)
-                p3 *= 3
-            p5 *= 5
-        p7 *= 7
-    return best
+from metalens_cli.optics.propagate import fft_size
 
 
 def padded_shape(image_hw: tuple[int, int], psf_n: tuple[int, int]) -> tuple[int, int]:
     """FFT size per axis for a linear "same" convolution of an H × W image with an N × N PSF."""
-    return tuple(fast_size(h + (n + 1) // 2) for h, n in zip(image_hw, psf_n))
+    return tuple(fft_size(h + (n + 1) // 2) for h, n in zip(image_hw, psf_n))
 
 
 @dataclass(frozen=True)
@@ -88,7 +70,7 @@ def psf_spectrum(psf: torch.Tensor, image_hw: tuple[int, int]) -> PsfSpectrum:
         raise InputError("psf", f"shape {tuple(psf.shape)}", "(..., C, N, N) PSFs")
     n0, n1 = psf.shape[-2:]
     shape = padded_shape(tuple(image_hw), (n0, n1))
-    if n0 > shape[0] or n1 > shape[1]:  # cannot happen with fast_size ≥ H + ⌈N/2⌉ ≥ N, kept as a guard
+    if n0 > shape[0] or n1 > shape[1]:  # cannot happen with fft_size ≥ H + ⌈N/2⌉ ≥ N, kept as a guard
         raise InputError("psf", "larger than its padded transform", "a PSF window smaller than twice the image")
     padded = psf.new_zeros(*psf.shape[:-2], *shape)
     padded[..., :n0, :n1] = psf

@@ -26,13 +26,21 @@ import torch
 
 
 def fft_size(n: int) -> int:
-    """Smallest m ≥ n of the form 2^a·3^b·5^c·7^d with b ≤ 3 and c, d ≤ 1 (fast FFT lengths)."""
-    best = 1 << max(int(n - 1).bit_length(), 0)
-    for odd in (1, 3, 5, 7, 9, 15, 21, 27, 35, 45, 63, 105, 135, 189, 315, 945):
-        m = odd
-        while m < n:
-            m *= 2
-        best = min(best, m)
+    """The smallest integer ≥ n whose prime factors are 2, 3, 5 and 7 (cheap FFT lengths)."""
+    best = 1 << max(int(n) - 1, 0).bit_length()
+    p7 = 1
+    while p7 < best:
+        p5 = p7
+        while p5 < best:
+            p3 = p5
+            while p3 < best:
+                p2 = p3
+                while p2 < n:
+                    p2 *= 2
+                best = min(best, p2)
+                p3 *= 3
+            p5 *= 5
+        p7 *= 7
     return best
 
 

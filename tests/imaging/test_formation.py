@@ -5,7 +5,8 @@ import pytest
 import scipy.signal
 import torch
 
-from metalens_cli.imaging.formation import add_noise, circular_convolve, convolve, fast_size, form_image, psf_spectrum
+from metalens_cli.imaging.formation import add_noise, circular_convolve, convolve, form_image, psf_spectrum
+from metalens_cli.optics.propagate import fft_size
 
 rng = np.random.default_rng(0)
 
@@ -14,16 +15,16 @@ def t(a):
     return torch.as_tensor(a, dtype=torch.float64)
 
 
-def test_fast_size_is_smooth_and_minimal():
+def test_fft_size_is_smooth_and_minimal():
     for n in (1, 7, 97, 768, 769, 1023):
-        m = fast_size(n)
+        m = fft_size(n)
         assert m >= n
         k = m
         for p in (2, 3, 5, 7):
             while k % p == 0:
                 k //= p
         assert k == 1
-    assert fast_size(769) == 784 and fast_size(1023) == 1024
+    assert fft_size(769) == 784 and fft_size(1023) == 1024
 
 
 @pytest.mark.parametrize("n", [9, 8, 31])
