@@ -49,6 +49,7 @@ COMMANDS = {
     "mtf": ("mtf", "MTFs of a PSF cube (EXR) or the slanted-edge SFR of an image."),
     "simulate": ("simulate", "Simulated captures of images through a design with a near obstruction."),
     "evaluate": ("evaluate", "PSNR/SSIM of obstructed and unobstructed captures, design against design."),
+    "optimize": ("optimize", "Learn the rotation map end to end from a preset into a run directory."),
 }
 
 

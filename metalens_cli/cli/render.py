@@ -6,20 +6,10 @@ Rich and matplotlib are imported only when used, so JSON pipelines start fast.
 from __future__ import annotations
 
 import json
-import math
 import sys
 from typing import Any
 
-
-def jsonable(obj: Any) -> Any:
-    """Replace non-finite floats by None (JSON has no inf/NaN) recursively."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    return obj
+from metalens_cli.io.json_files import jsonable
 
 
 def emit_json(obj: Any) -> None:

@@ -1,1 +1,1 @@
-"""Losses and the optimisation loop."""
+"""Learning the rotation map: parameterisations, losses, the optimisation loop and run directories."""

@@ -2,12 +2,12 @@
 
 Torch functions on (..., C, H, W) images with values nominally in 0..1 (``data_range`` 1);
 differentiable (SSIM is used as a loss by ``optimize``). Means are over channels and pixels.
-LPIPS needs network weights that this package does not ship: :func:`lpips_note` says so.
+LPIPS (:mod:`metalens_cli.imaging.lpips`) needs network weights that this package does not ship;
+:func:`lpips_note` says why it is skipped when they are not present locally.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import math
 
 import torch
@@ -70,11 +70,12 @@ def photometric_match(estimate: torch.Tensor, reference: torch.Tensor):
     return gain * estimate + bias, gain.reshape(estimate.shape[:-3]), bias.reshape(estimate.shape[:-3])
 
 
-def lpips_note() -> str | None:
-    """None when LPIPS can run offline; else the one-line reason it is skipped."""
-    if importlib.util.find_spec("lpips") is None:
-        return "LPIPS skipped: the lpips package and its network weights are not installed (no download is attempted)"
-    return "LPIPS skipped: computing it would need its network weights to be fetched; not attempted offline"
+def lpips_note(directory=None) -> str | None:
+    """None when LPIPS weights are present locally; else the one-line reason it is skipped
+    (see :func:`metalens_cli.imaging.lpips.find_lpips_weights`)."""
+    from metalens_cli.imaging.lpips import find_lpips_weights
+
+    return find_lpips_weights(directory)[1]
 
 
 def finite_db(value: float) -> float | None:

@@ -113,9 +113,10 @@ def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_le
     return captures
 
 
-def score(estimate_linear: np.ndarray, clean_linear: np.ndarray) -> dict:
+def score(estimate_linear: np.ndarray, clean_linear: np.ndarray, lpips_model=None) -> dict:
     """PSNR (dB) and SSIM of a capture against the clean image after the global gain/bias
-    match (Suppl. Note 11), computed on sRGB-encoded images clipped to 0..1 (display values)."""
+    match (Suppl. Note 11), computed on sRGB-encoded images clipped to 0..1 (display values);
+    also ``lpips`` on the same images when ``lpips_model`` (:class:`~metalens_cli.imaging.lpips.Lpips`) is given."""
     from metalens_cli.imaging.images import linear_to_srgb
     from metalens_cli.imaging.metrics import photometric_match, psnr, ssim
 
@@ -124,4 +125,10 @@ def score(estimate_linear: np.ndarray, clean_linear: np.ndarray) -> dict:
     matched, gain, bias = photometric_match(estimate, clean)
     x = torch.as_tensor(linear_to_srgb(matched.numpy()), dtype=torch.float64)
     y = torch.as_tensor(linear_to_srgb(clean.numpy()), dtype=torch.float64)
-    return {"psnr_db": float(psnr(x, y)), "ssim": float(ssim(x, y)), "gain": float(gain), "bias": float(bias)}
+    out = {"psnr_db": float(psnr(x, y)), "ssim": float(ssim(x, y)), "gain": float(gain), "bias": float(bias)}
+    if lpips_model is not None:
+        from metalens_cli.imaging.lpips import lpips_distance
+
+        with torch.no_grad():
+            out["lpips"] = float(lpips_distance(lpips_model, x, y))
+    return out

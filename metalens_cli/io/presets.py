@@ -101,6 +101,12 @@ class OptimizeConfig:
     batch_size: int = _key("batch_size", "int", lo=1, hi=4096, default=1)
     wavelengths_per_channel: int = _key("wavelengths_per_channel", "int", lo=1, hi=1024, default=3)
     seed: int = _key("seed", "int", lo=0, hi=2**63 - 1, default=0)
+    init: str = _key("init", "choice", choices=("hyperbolic", "random"), default="hyperbolic")
+    design_grid: int = _key("design_grid", "int", lo=0, hi=100_000, default=0)  # radial samples / 2-D side; 0 = per meta-atom
+    obstructions: tuple[str, ...] = _key("obstructions", "string_list", default=("dirt",))
+    images: str | None = _key("images", "folder", default=None)  # training images; none: procedural scenes
+    checkpoint_every: int = _key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
+    sample_every: int = _key("sample_every", "int", lo=1, hi=10_000_000, default=100)
 
 
 @dataclass(frozen=True)
@@ -113,6 +119,7 @@ class LossConfig:
     bright: float = _key("bright", "float", lo=0.0, default=1.0)
     sharp: float = _key("sharp", "float", lo=0.0, default=1.0)
     sharp_window: int = _key("sharp_window", "int", lo=1, hi=101, default=5)
+    domain_adaptation_weights: str | None = _key("domain_adaptation_weights", "path", default=None)  # DeepLabv3+ checkpoint
 
 
 @dataclass(frozen=True)
@@ -210,8 +217,13 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
         if isinstance(value, bool) or not isinstance(value, int):
             raise InputError(path, f"expected an integer, got {value!r}", "an integer")
         return int(_number(value, path, lo=meta.get("lo"), hi=meta.get("hi"), form="an integer"))
-    if kind in ("string", "path"):
-        return _as_str(value, path, "a string" if kind == "string" else "a file path (relative to the preset)")
+    if kind in ("string", "path", "folder"):
+        forms = {"string": "a string", "path": "a file path (relative to the preset)", "folder": "a folder (relative to the preset)"}
+        return _as_str(value, path, forms[kind])
+    if kind == "string_list":
+        if not isinstance(value, list) or not value:
+            raise InputError(path, "expected a non-empty array of strings", '["dirt", "fence"]')
+        return tuple(_as_str(v, path, "a string") for v in value)
     if kind == "choice":
         choices = meta["choices"]
         if value not in choices:
@@ -269,6 +281,11 @@ def _check_consistency(p: Preset) -> None:
             raise InputError("filter.centers", "must increase", "band centres in ascending order")
     if math.isinf(p.scene.z_near_m[1]):
         raise InputError("scene.z_near", "must be finite", units.INTERVAL_FORM)
+    if not p.scene.z_near_m[1] < p.scene.z_far_m[0]:
+        raise InputError("scene.z_far", "must lie beyond scene.z_near", "z_far's lower end above z_near's upper end")
+    for kind in p.optimize.obstructions:
+        if kind not in ("dirt", "fence", "drops", "rain") and not kind.startswith("file:"):
+            raise InputError("optimize.obstructions", f"unknown obstruction {kind!r}", "dirt, fence, drops, rain or file:PATH.png")
 
 
 def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | None = None) -> Preset:
@@ -330,7 +347,55 @@ def _resolve_paths(preset: Preset, folder: Path) -> Preset:
     sensor = preset.sensor
     if sensor.camera_response.lower().endswith(".csv"):
         sensor = dataclasses.replace(sensor, camera_response=resolved(sensor.camera_response, "sensor.camera_response"))
-    return dataclasses.replace(preset, nanofin=nanofin, filter=band_filter, sensor=sensor)
+    loss = dataclasses.replace(preset.loss, domain_adaptation_weights=resolved(preset.loss.domain_adaptation_weights,
+                                                                               "loss.domain_adaptation_weights"))
+    optimize = preset.optimize
+    if optimize.images is not None:
+        folder_path = (folder / optimize.images).resolve()
+        if not folder_path.is_dir():
+            raise InputError("optimize.images", f"no such folder {str(folder_path)!r}", "a folder of images relative to the preset")
+        optimize = dataclasses.replace(optimize, images=str(folder_path))
+    return dataclasses.replace(preset, nanofin=nanofin, filter=band_filter, sensor=sensor, loss=loss, optimize=optimize)
+
+
+def to_toml(preset: Preset, **overrides: dict[str, Any]) -> str:
+    """The resolved preset as TOML that :func:`load_preset` reads back to an equal preset:
+    lengths written in metres with full precision, paths absolute. ``overrides`` maps a section
+    name to {field name: value} replacing the preset's values (e.g. ``optimize={"steps": 10}``)."""
+    lines = [f"name = {_toml_value(preset.name)}", f"description = {_toml_value(preset.description)}"]
+    for section in SECTIONS:
+        config = getattr(preset, section)
+        if config is None:
+            continue
+        config = dataclasses.replace(config, **overrides.get(section, {}))
+        lines += ["", f"[{section}]"]
+        for f in dataclasses.fields(config):
+            value = getattr(config, f.name)
+            if value is not None:
+                lines.append(f"{f.metadata['key']} = {_toml_field(value, f.metadata['kind'])}")
+    return "\n".join(lines) + "\n"
+
+
+def _toml_field(value: Any, kind: str) -> str:
+    def length(v: float) -> str:
+        return '"inf"' if math.isinf(v) else f'"{v!r}m"'
+
+    if kind == "length":
+        return length(value)
+    if kind in ("length_list", "interval"):
+        return "[" + ", ".join(length(v) for v in value) + "]"
+    return _toml_value(value)
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    text = str(value).replace("\\", "\\\\").replace('"', '\\"')
+    return f'"{text}"'
 
 
 def to_dict(obj: Any) -> Any:

@@ -16,6 +16,7 @@ exact within scalar diffraction theory (no Fresnel approximation):
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -214,7 +215,19 @@ class HankelKernel:
     forward: torch.Tensor
 
 
-_HANKEL_CACHE: dict = {}
+HANKEL_CACHE_ENTRIES = 8
+_HANKEL_CACHE: OrderedDict = OrderedDict()
+
+
+def _cached(key, build):
+    """LRU cache of kernels and output matrices (an optimiser whose plan moves does not pile them up)."""
+    if key in _HANKEL_CACHE:
+        _HANKEL_CACHE.move_to_end(key)
+    else:
+        _HANKEL_CACHE[key] = build()
+        while len(_HANKEL_CACHE) > HANKEL_CACHE_ENTRIES:
+            _HANKEL_CACHE.popitem(last=False)
+    return _HANKEL_CACHE[key]
 
 
 def hankel_kernel(n: int, radius_m: float, aperture_radius_m: float, n_nodes: int,
@@ -222,12 +235,13 @@ def hankel_kernel(n: int, radius_m: float, aperture_radius_m: float, n_nodes: in
                   device: str | torch.device = "cpu") -> HankelKernel:
     """The cached kernel for (n frequencies, R, a, n_nodes, dtype, device)."""
     key = ("kernel", n, float(radius_m), float(aperture_radius_m), n_nodes, dtype, str(device))
-    if key not in _HANKEL_CACHE:
+
+    def build() -> HankelKernel:
         j = bessel_j0_zeros(n)
         nu = j / (2 * math.pi * radius_m)
         r, dr = gauss_legendre_panels(aperture_radius_m, n_nodes)
         forward = torch.special.bessel_j0(torch.from_numpy((2 * math.pi * nu)[:, None] * r[None, :]))
-        _HANKEL_CACHE[key] = HankelKernel(
+        return HankelKernel(
             radius_m=float(radius_m),
             aperture_radius_m=float(aperture_radius_m),
             r=torch.from_numpy(r).to(device, dtype),
@@ -236,17 +250,21 @@ def hankel_kernel(n: int, radius_m: float, aperture_radius_m: float, n_nodes: in
             coef_out=torch.from_numpy(1 / (math.pi * radius_m**2 * sps.j1(j) ** 2)).to(device, dtype),
             forward=forward.to(device, dtype),
         )
-    return _HANKEL_CACHE[key]
+
+    return _cached(key, build)
 
 
 def hankel_output_matrix(kernel: HankelKernel, radii_m: torch.Tensor) -> torch.Tensor:
     """Cached (len(radii) × n) matrix J0(2πν_m ρ)·c_m: the inverse transform at ``radii_m``."""
-    key = ("out", id(kernel), radii_m.shape[0], float(radii_m[0]), float(radii_m[-1]))
-    if key not in _HANKEL_CACHE:
+    key = ("out", kernel.radius_m, kernel.nu.shape[0], kernel.r.dtype, str(kernel.r.device),
+           radii_m.shape[0], float(radii_m[0]), float(radii_m[-1]))
+
+    def build() -> torch.Tensor:
         arg = (2 * math.pi) * radii_m.double().cpu()[:, None] * kernel.nu.double().cpu()[None, :]
         mat = torch.special.bessel_j0(arg) * kernel.coef_out.double().cpu()
-        _HANKEL_CACHE[key] = mat.to(kernel.r.device, kernel.r.dtype)
-    return _HANKEL_CACHE[key]
+        return mat.to(kernel.r.device, kernel.r.dtype)
+
+    return _cached(key, build)
 
 
 def clear_caches() -> None:

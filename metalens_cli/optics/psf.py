@@ -54,7 +54,8 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
                 distance_m: float | None = None, propagator: str = "auto",
                 dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu",
                 force: bool = False, oversample: float = 1.0,
-                transfer_cache: prop.TransferCache | None = None) -> PsfResult:
+                transfer_cache: prop.TransferCache | None = None,
+                plan_wavelengths_m=None, plan_depths_m=None, plan_frequency: float | None = None) -> PsfResult:
     """Sensor PSFs for every (depth, wavelength); see the module docstring for the layout.
 
     distance_m: lens-to-sensor distance (m), defaults to ``lens.focal_length_m``.
@@ -62,6 +63,11 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
     dtype: real dtype of the computation (float32 or float64); oversample: scales every sample
     density and margin (2 for an accuracy check); force: proceed past the sampling guard.
     transfer_cache: reuse asm transfer functions across calls.
+    plan_wavelengths_m, plan_depths_m: the sampling plan (and the guard) also covers these, so
+    that calls whose wavelengths and depths vary inside them (an optimiser's random draws) share
+    one plan and its cached kernels; the PSFs are only computed at ``wavelengths_m``/``depths_m``.
+    plan_frequency: plan for a field frequency (cycles/m) of at least this much, so that a lens
+    that changes a little between calls keeps the plan (headroom for an optimiser).
     """
     clock = _Clock()
     lams = [float(x) for x in torch.as_tensor(wavelengths_m, dtype=torch.float64).reshape(-1)]
@@ -73,10 +79,12 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
     if propagator == "radial" and not lens.radial:
         raise InputError("propagator", "the radial propagator needs a radially symmetric design",
                          "asm or rs for a 2-D rotation map")
-    f_max = sampling.check_lens_sampling(lens, lams, zs, force)
+    plan_lams = lams + [float(x) for x in np.ravel(plan_wavelengths_m if plan_wavelengths_m is not None else [])]
+    plan_zs = zs + [float(x) for x in np.ravel(plan_depths_m if plan_depths_m is not None else [])]
+    f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, force), plan_frequency or 0.0)
     run = {"radial": _radial_psf, "asm": _asm_psf, "rs": _rs_psf}[propagator]
     psf, grid = run(lens, lams, zs, d, pixels, pixel_pitch_m, f_max, dtype, torch.device(device),
-                    oversample, clock, transfer_cache)
+                    oversample, clock, transfer_cache, plan_lams)
     clock.lap("sensor")
     return PsfResult(psf, tuple(lams), tuple(zs), pixel_pitch_m, d, propagator, grid, clock.times)
 
@@ -116,8 +124,8 @@ def _pupil_field(phase_lens: torch.Tensor, r: torch.Tensor, lam: float, z: float
     return torch.polar(source_amplitude(r, z).to(dtype), phase.to(dtype))
 
 
-def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _):
-    plan = sampling.plan_radial(lens, lams, zs, d, pixels, pitch, f_max, oversample)
+def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _, plan_lams):
+    plan = sampling.plan_radial(lens, plan_lams, zs, d, pixels, pitch, f_max, oversample)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes,
                                 dtype, device)
     radii = torch.arange(plan.n_radii, dtype=torch.float64) * plan.step_m
@@ -141,8 +149,8 @@ def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversamp
     return psf.reshape(len(zs), len(lams), pixels, pixels), grid
 
 
-def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, cache):
-    grid = sampling.plan_asm(lens, lams, d, pixels, pitch, f_max, oversample)
+def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, cache, plan_lams):
+    grid = sampling.plan_asm(lens, plan_lams, d, pixels, pitch, f_max, oversample)
     cache = cache if cache is not None else prop.TransferCache()
     # float32 phase: ≤ 3e-4 rad error at 2300 rad; radial lens: one quadrant, then mirrored
     phase_lens, r = lens.grid_phase(dtype, quadrant=lens.radial)
@@ -174,7 +182,7 @@ def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample,
     return torch.stack(out).reshape(len(zs), len(lams), pixels, pixels), info
 
 
-def _rs_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _):
+def _rs_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _, __):
     """Direct Rayleigh-Sommerfeld reference in float64 (slow; small windows)."""
     if lens.radial:
         return _rs_radial(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, clock)

@@ -1,0 +1,73 @@
+"""Data-parallel training with torch.distributed, as started by ``torchrun``.
+
+Every rank computes the same PSFs (same seed, same step) and its share of the global image
+batch; gradients are summed over ranks, each rank's loss being pre-scaled by its share, so the
+update equals a single process's on the whole batch up to floating-point summation order.
+Backend: gloo on CPU, NCCL on CUDA. Without torchrun (WORLD_SIZE unset or 1) nothing is set up.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True)
+class Context:
+    """This process's rank among ``world`` processes and the device it computes on."""
+
+    rank: int
+    world: int
+    device: torch.device
+    owns_group: bool
+
+    @property
+    def is_main(self) -> bool:
+        """Rank 0 writes the run directory and reports progress."""
+        return self.rank == 0
+
+    def shard(self, count: int) -> list[int]:
+        """The indices of a global batch of ``count`` that this rank computes (round robin)."""
+        return list(range(self.rank, count, self.world))
+
+
+def setup(device: torch.device) -> Context:
+    """Join the process group torchrun describes (env WORLD_SIZE, RANK, LOCAL_RANK, MASTER_*)."""
+    import torch.distributed as dist
+
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return Context(0, 1, device, False)
+    if device.type == "cuda":
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        torch.cuda.set_device(device)
+    owns = not dist.is_initialized()
+    if owns:
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    return Context(dist.get_rank(), dist.get_world_size(), device, owns)
+
+
+def all_reduce_sum(tensor: torch.Tensor, ctx: Context) -> torch.Tensor:
+    """Sum ``tensor`` over ranks in place (no-op for one process); returns it."""
+    if ctx.world > 1:
+        import torch.distributed as dist
+
+        dist.all_reduce(tensor, op=dist.ReduceOp.SUM)
+    return tensor
+
+
+def barrier(ctx: Context) -> None:
+    if ctx.world > 1:
+        import torch.distributed as dist
+
+        dist.barrier()
+
+
+def teardown(ctx: Context) -> None:
+    """Leave the process group if :func:`setup` created it."""
+    if ctx.owns_group:
+        import torch.distributed as dist
+
+        dist.destroy_process_group()

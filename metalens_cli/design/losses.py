@@ -1,0 +1,64 @@
+"""Training losses of Suppl. Note 4, as pure torch functions (differentiable, batched).
+
+L = w_l1·L1 + w_ssim·(1 − SSIM) + w_da·L_DA  (image terms, capture against clean scene)
+  + w_bright·L_bright + w_sharp·L_sharp         (PSF terms, far PSF)
+
+The paper writes L_bright = 3N/ΣP − 1 and L_sharp = N/Σ_{|i|,|j|≤2} P(x_c+i, y_c+j) − 1 for a
+3-channel far PSF P scaled so that ΣP = 3N when no light leaves the N-pixel sensor. Our PSFs are
+fractions of the aperture power (each channel sums to 1 when nothing is lost), i.e. P/N, so
+the N cancels: L_bright = 3/ΣP − 1 (0 when every channel keeps all its light) and
+L_sharp = 1/Σ_window P − 1 over the central w × w pixels of all channels (w = 5 in the paper).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from metalens_cli.imaging.metrics import ssim
+
+
+def l1_loss(captured: torch.Tensor, clean: torch.Tensor) -> torch.Tensor:
+    """Mean absolute difference per batch entry of (..., 3, H, W) images."""
+    return (captured - clean).abs().mean(dim=(-3, -2, -1))
+
+
+def ssim_loss(captured: torch.Tensor, clean: torch.Tensor) -> torch.Tensor:
+    """1 − SSIM per batch entry (Gaussian window 11, σ 1.5; images in 0..1)."""
+    return 1 - ssim(captured, clean)
+
+
+def bright_loss(psf_far: torch.Tensor) -> torch.Tensor:
+    """3/ΣP − 1 for a (..., 3, N, N) far PSF in fractions of the aperture power."""
+    return psf_far.shape[-3] / psf_far.sum(dim=(-3, -2, -1)) - 1
+
+
+def sharp_loss(psf_far: torch.Tensor, window: int = 5) -> torch.Tensor:
+    """1/Σ P − 1 over the central ``window`` × ``window`` pixels (axis at N//2) of every channel."""
+    n0, n1 = psf_far.shape[-2:]
+    lo0, lo1 = n0 // 2 - window // 2, n1 // 2 - window // 2
+    core = psf_far[..., lo0:lo0 + window, lo1:lo1 + window]
+    return 1 / core.sum(dim=(-3, -2, -1)) - 1
+
+
+def training_loss(captured: torch.Tensor, clean: torch.Tensor, psf_far: torch.Tensor, weights, features=None,
+                  image_share: float = 1.0, psf_share: float = 1.0) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """Weighted total and its parts (each a scalar: image terms averaged over the batch).
+
+    ``weights``: a ``LossConfig``. ``features``: a DeepLabv3+ feature extractor for L_DA, or None.
+    ``image_share``/``psf_share`` scale the image and PSF terms in the total only (data-parallel
+    ranks: the local fraction of the global batch, and 1/world size), never the reported parts.
+    """
+    parts = {"l1": l1_loss(captured, clean).mean(), "ssim": ssim_loss(captured, clean).mean()}
+    if features is not None:
+        from metalens_cli.design.features import feature_l1
+
+        parts["domain_adaptation"] = feature_l1(features, captured, clean)
+    image = weights.l1 * parts["l1"] + weights.ssim * parts["ssim"]
+    if "domain_adaptation" in parts:
+        image = image + weights.domain_adaptation * parts["domain_adaptation"]
+    parts["bright"] = bright_loss(psf_far)
+    parts["sharp"] = sharp_loss(psf_far, weights.sharp_window)
+    psf = weights.bright * parts["bright"] + weights.sharp * parts["sharp"]
+    total = image_share * image + psf_share * psf
+    parts["total"] = image + psf
+    return total, parts

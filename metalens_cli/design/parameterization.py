@@ -1,0 +1,113 @@
+"""What the optimiser learns: the rotation map θ as a radial profile or a 2-D map.
+
+- ``RadialTheta``: θ(r_k) at r_k = k·p (p: meta-atom pitch), k = 0..K, the lens's own radial form
+  (``Metalens.theta`` 1-D): one parameter per meta-atom ring, or G design samples spread evenly
+  over r_0..r_K and interpolated linearly to the rings (G < K + 1: a smoother, cheaper design).
+- ``GridTheta``: θ on a G × G design grid spanning the M × M meta-atom grid (axis at the centre
+  site of both), bilinearly upsampled to the meta-atom grid (G = M: one parameter per site).
+
+Both are ``torch.nn.Module``s whose ``lens()`` builds a differentiable :class:`Metalens`;
+θ in radians, lengths in SI metres. Initialisation: ``hyperbolic`` (the lens focusing λd at f)
+or ``random`` (a seeded smooth random aspheric profile, see :func:`random_radial_theta`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from metalens_cli.errors import InputError
+from metalens_cli.optics.lens import Metalens, hyperbolic_phase
+
+RANDOM_ORDER = 4  # polynomial order in (r/a)² of the random initial profile
+
+
+class RadialTheta(torch.nn.Module):
+    """θ at G design samples (rad) spanning the rings r_0..r_K, linear in between (G = K + 1: one per ring)."""
+
+    def __init__(self, theta: np.ndarray, rings: int, pitch_m: float, aperture_m: float, focal_length_m: float):
+        super().__init__()
+        self.theta = torch.nn.Parameter(torch.as_tensor(np.asarray(theta), dtype=torch.float64))
+        self.rings = rings
+        self.pitch_m, self.aperture_m, self.focal_length_m = pitch_m, aperture_m, focal_length_m
+
+    def full_theta(self) -> torch.Tensor:
+        if self.theta.shape[0] == self.rings:
+            return self.theta
+        up = torch.nn.functional.interpolate(self.theta[None, None], size=self.rings, mode="linear", align_corners=True)
+        return up[0, 0]
+
+    def lens(self) -> Metalens:
+        return Metalens(self.full_theta(), self.pitch_m, self.aperture_m, self.focal_length_m)
+
+
+class GridTheta(torch.nn.Module):
+    """θ on a G × G design grid, bilinearly upsampled (corners aligned) to the M × M meta-atom grid."""
+
+    def __init__(self, theta: np.ndarray, grid_size: int, pitch_m: float, aperture_m: float, focal_length_m: float):
+        super().__init__()
+        self.theta = torch.nn.Parameter(torch.as_tensor(np.asarray(theta), dtype=torch.float64))
+        self.grid_size = grid_size
+        self.pitch_m, self.aperture_m, self.focal_length_m = pitch_m, aperture_m, focal_length_m
+
+    def full_theta(self) -> torch.Tensor:
+        if self.theta.shape[-1] == self.grid_size:
+            return self.theta
+        up = torch.nn.functional.interpolate(self.theta[None, None], size=(self.grid_size,) * 2, mode="bilinear",
+                                             align_corners=True)
+        return up[0, 0]
+
+    def lens(self) -> Metalens:
+        return Metalens(self.full_theta(), self.pitch_m, self.aperture_m, self.focal_length_m)
+
+
+def radial_radii(pitch_m: float, aperture_m: float) -> np.ndarray:
+    """r_k = k·p for k = 0..K, K the first index with K·p ≥ D/2 (as ``optics.lens.hyperbolic``)."""
+    return np.arange(math.ceil(aperture_m / 2 / pitch_m - 1e-9) + 2) * pitch_m
+
+
+def random_radial_theta(r: np.ndarray, aperture_m: float, peak_frequency: float, seed: int) -> np.ndarray:
+    """A seeded smooth random profile: θ = Σ_{n=1..4} c_n·(r/a)^{2n} with c ~ N(0, 1), scaled so
+    that its largest local phase frequency |dφ/dr|/2π over the pupil equals ``peak_frequency``
+    (cycles/m; the hyperbolic lens's NA/λd gives a random lens as steep as the baseline)."""
+    rng = np.random.default_rng([seed, 99])
+    a = aperture_m / 2
+    c = rng.standard_normal(RANDOM_ORDER)
+    u = np.minimum(r / a, 1.0)
+    theta = sum(cn * u ** (2 * (n + 1)) for n, cn in enumerate(c))
+    fine = np.linspace(0, 1, 4097)
+    slope = np.abs(sum(cn * 2 * (n + 1) * fine ** (2 * n + 1) for n, cn in enumerate(c))).max() / a  # dθ/dr
+    return theta * (math.pi * peak_frequency / slope)  # |dφ/dr| = 2|dθ/dr| = 2π·peak
+
+
+def initial_parameterization(parameterization: str, init: str, lambda_d_m: float, focal_length_m: float,
+                             aperture_m: float, pitch_m: float, design_grid: int = 0, seed: int = 0):
+    """The module to optimise: ``radial`` or ``2d``, initialised ``hyperbolic`` (λd, f) or ``random``.
+    ``design_grid``: radial, the number of design samples along the radius; 2-D, the side of the
+    design grid; 0 = one parameter per meta-atom ring or site."""
+    if init not in ("hyperbolic", "random"):
+        raise InputError("optimize.init", f"unknown initialisation {init!r}", "hyperbolic or random")
+    na = math.sin(math.atan(aperture_m / 2 / focal_length_m))
+    if parameterization == "radial":
+        rings = radial_radii(pitch_m, aperture_m)
+        g = rings.size if design_grid in (0, rings.size) else design_grid
+        if g < 2 or g > rings.size:
+            raise InputError("optimize.design_grid", f"{design_grid} radial samples for {rings.size} rings", f"0 or 2..{rings.size}")
+        r = np.linspace(0.0, rings[-1], g)
+        theta = (hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2 if init == "hyperbolic"
+                 else random_radial_theta(r, aperture_m, na / lambda_d_m, seed))
+        return RadialTheta(theta, rings.size, pitch_m, aperture_m, focal_length_m)
+    if parameterization != "2d":
+        raise InputError("lens.parameterization", f"unknown {parameterization!r}", "radial or 2d")
+    half = math.floor(aperture_m / 2 / pitch_m + 1e-9)
+    m = 2 * half + 1
+    g = m if design_grid in (0, m) else design_grid
+    if g < 3 or g > m or g % 2 == 0:
+        raise InputError("optimize.design_grid", f"{design_grid} for a {m} × {m} meta-atom grid", f"0 or an odd size 3..{m}")
+    c = np.linspace(-half, half, g) * pitch_m
+    r = np.hypot(c[:, None], c[None, :])
+    theta = (hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2 if init == "hyperbolic"
+             else random_radial_theta(r, aperture_m, na / lambda_d_m, seed))
+    return GridTheta(theta, m, pitch_m, aperture_m, focal_length_m)

@@ -1,0 +1,88 @@
+"""The results of a finished run: θ files, the PSF cube, loss files, figures and ``run.json``."""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+
+import numpy as np
+import torch
+
+from metalens_cli import __version__
+from metalens_cli.analysis.psf_metrics import central_energy
+from metalens_cli.io.designs import Design
+from metalens_cli.io.exr import write_psf_cube
+from metalens_cli.io.json_files import jsonable, write_json
+from metalens_cli.io.presets import to_dict
+from metalens_cli.optics.lens import Metalens
+from metalens_cli.optics.scan import run_scan
+
+PSF_STEP_M = 5e-9
+FINAL_WINDOW = 50  # steps averaged into the final loss
+
+
+def psf_depths(preset) -> list[float]:
+    """Depths of psf.exr: the centre of the near interval and infinity (the paper's measured PSFs)."""
+    return [sum(preset.scene.z_near_m) / 2, math.inf]
+
+
+def psf_wavelengths(preset) -> list[float]:
+    lo, hi = preset.sensor.wavelength_range_m
+    count = int(round((hi - lo) / PSF_STEP_M)) + 1
+    return list(np.linspace(lo, hi, count))
+
+
+def channel_energies(rgb: np.ndarray, window: int) -> dict:
+    """Per depth and channel: energy in the window and in its central w × w pixels."""
+    return {"energy_in_window": rgb.sum(axis=(-2, -1)).tolist(), f"energy_center_{window}x{window}": central_energy(rgb, window).tolist()}
+
+
+def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[str], world: int, device: str,
+                  threads: int, validation: dict) -> dict:
+    from metalens_cli.plotting.optimize import loss_figure, theta_figure
+
+    start = time.perf_counter()
+    theta = summary.theta
+    pitch = preset.nanofin.pitch_m
+    run.write_theta(theta, pitch)
+    lens = Metalens(torch.from_numpy(theta), pitch, preset.lens.aperture_m, preset.lens.focal_length_m)
+    design = Design(str(run.path), "run", lens, preset.lens.focal_length_m, preset)
+    waves, depths = psf_wavelengths(preset), psf_depths(preset)
+    scan = run_scan(design, waves, depths, preset.sensor.pixels, preset.sensor.pixel_pitch_m)
+    window = preset.loss.sharp_window
+    psf_report = {"depths_m": depths, "channels": ["R", "G", "B"], **channel_energies(scan.rgb, window),
+                  "grid": scan.grid, "seconds": scan.timing_s.get("total")}
+    write_psf_cube(run.path / "psf.exr", scan.psf, waves, depths, preset.sensor.pixel_pitch_m, design.describe(), rgb=scan.rgb,
+                   extra=jsonable({"f_m": preset.lens.focal_length_m, "aperture_m": preset.lens.aperture_m, "grid": scan.grid,
+                                   "timing_s": scan.timing_s, "spectra": scan.spectra}))
+    run.write_loss_csv(summary.history)
+    if summary.history:
+        loss_figure(run.path / "loss.png", summary.history)
+    initial = None
+    if theta.ndim == 1:
+        from metalens_cli.design.training import build_model
+
+        initial = build_model(preset).full_theta().detach().numpy()
+    theta_figure(run.path / "theta.png", theta, pitch, initial)
+    tail = summary.history[-FINAL_WINDOW:]
+    final = {k: statistics.fmean(r[k] for r in tail) for k in ("total", "l1", "ssim", "bright", "sharp")} if tail else {}
+    seconds = [r["seconds"] for r in summary.history[summary.resumed_from:]]
+    report = {
+        "metalens_version": __version__,
+        "preset": to_dict(preset),
+        "settings": {"steps": summary.steps, "seed": preset.optimize.seed, "device": device, "world_size": world, "threads": threads,
+                     "parameterization": preset.lens.parameterization, "init": preset.optimize.init,
+                     "theta_shape": list(theta.shape), "resumed_from_step": summary.resumed_from},
+        "cost": {"seconds_per_step_median": summary.seconds_per_step, "seconds_per_step_mean": statistics.fmean(seconds) if seconds else None,
+                 "seconds_training": sum(seconds), "seconds_by_stage": timing, "seconds_results": None},
+        "accuracy": {"psf_grid": grid, "psf_exr_grid": scan.grid,
+                     "note": "PSF sampling plans follow the sampling guard; see docs/benchmarks.md for measured errors"},
+        "final_loss": final,
+        "validation_loss": validation,
+        "psf": psf_report,
+        "notes": notes,
+    }
+    report["cost"]["seconds_results"] = time.perf_counter() - start
+    write_json(run.path / "run.json", report)
+    return report

@@ -1,0 +1,338 @@
+"""End-to-end learning of the rotation map θ (the paper's Eq. 4, Suppl. Note 4).
+
+Each step s draws everything it needs from (seed, s) alone, so that a resumed run repeats an
+uninterrupted one exactly and every data-parallel rank agrees on the shared draws:
+
+1. z_near, z_far uniform in the preset's scene intervals;
+2. per channel, ``wavelengths_per_channel`` wavelengths by stratified importance sampling of S^c;
+3. monochromatic PSFs at both depths in one differentiable ``compute_psf`` call, mixed into
+   R, G, B (one sampling plan for the whole run, so kernels are built once);
+4. a batch of clean scenes with generated obstructions at z_near, rendered by the image
+   formation of ``imaging.formation``;
+5. loss (``design.losses``), backward, gradient sum over ranks, AdamW and the LR schedule.
+
+The core never prints: progress goes to the ``on_step`` callback. Ctrl-C (KeyboardInterrupt)
+writes a checkpoint of the last completed step and raises :class:`TrainingInterrupted`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from metalens_cli.design import distributed
+from metalens_cli.design.losses import training_loss
+from metalens_cli.design.parameterization import initial_parameterization
+from metalens_cli.design.rundir import RunDirectory
+from metalens_cli.design.scenes import training_scene
+from metalens_cli.errors import InputError, MetalensError
+from metalens_cli.imaging.formation import form_image
+from metalens_cli.imaging.obstructions import make_obstruction
+from metalens_cli.io.presets import to_toml
+from metalens_cli.optics.psf import compute_psf
+from metalens_cli.optics.sampling import check_lens_sampling
+from metalens_cli.optics.spectra import mix_channels, preset_sensitivity, sample_wavelengths
+
+DEFAULT_LAMBDA_D_M = 532e-9
+PLAN_HEADROOM = 1.25
+
+
+class TrainingInterrupted(MetalensError):
+    """Ctrl-C during training: a checkpoint of ``step`` completed steps was written."""
+
+    def __init__(self, step: int, checkpoint: Path | None):
+        self.step, self.checkpoint = step, checkpoint
+        super().__init__(f"interrupted after step {step}; checkpoint {checkpoint}")
+
+
+@dataclass
+class RunSummary:
+    """What ``train`` returns (rank 0 also wrote it into ``run.json``)."""
+
+    run_dir: Path
+    steps: int
+    resumed_from: int
+    history: list[dict]
+    seconds_per_step: float | None
+    theta: np.ndarray
+    report: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class StepDraw:
+    """The random draws of one step (shared by every rank)."""
+
+    z_near_m: float
+    z_far_m: float
+    wavelengths_m: np.ndarray
+    weights: np.ndarray
+
+
+def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
+    rng = np.random.default_rng([seed, step, 3])
+    z_near = float(rng.uniform(*preset.scene.z_near_m))
+    lo, hi = preset.scene.z_far_m
+    z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
+    sample = sample_wavelengths(sensitivity, preset.optimize.wavelengths_per_channel, rng)
+    return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights)
+
+
+def _lambda_d(preset) -> float:
+    return preset.lens.design_wavelength_m or DEFAULT_LAMBDA_D_M
+
+
+def build_model(preset):
+    o = preset.optimize
+    return initial_parameterization(preset.lens.parameterization, "hyperbolic" if preset.lens.design == "hyperbolic" else o.init,
+                                    _lambda_d(preset), preset.lens.focal_length_m, preset.lens.aperture_m, preset.nanofin.pitch_m,
+                                    o.design_grid, o.seed)
+
+
+def _scheduler(optimizer, o):
+    if o.scheduler == "cosine":
+        return torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=o.t_max)
+    return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda _: 1.0)
+
+
+def plan_range(preset) -> tuple[list[float], list[float]]:
+    """Wavelengths and depths the run's sampling plan covers: the sensor range, the nearest depth."""
+    return list(preset.sensor.wavelength_range_m), [preset.scene.z_near_m[0]]
+
+
+def plan_frequency(preset) -> float:
+    """The run's planned field frequency (cycles/m): the initial design's, plus ``PLAN_HEADROOM``,
+    so that kernels are rebuilt only if the learned lens steepens beyond it."""
+    plan_l, plan_z = plan_range(preset)
+    return PLAN_HEADROOM * check_lens_sampling(build_model(preset).lens(), plan_l, plan_z, force=False)
+
+
+def step_psfs(lens, preset, draw: StepDraw, device, timing: dict | None = None,
+              frequency: float | None = None) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(3, N, N) near and far PSFs for one step's draw, differentiable in θ; and the grid used."""
+    plan_l, plan_z = plan_range(preset)
+    result = compute_psf(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], preset.sensor.pixels,
+                         preset.sensor.pixel_pitch_m, preset.lens.focal_length_m, "auto", torch.float32, device,
+                         plan_wavelengths_m=plan_l, plan_depths_m=plan_z, plan_frequency=frequency)
+    if timing is not None:
+        for stage, seconds in result.timing_s.items():
+            timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
+    rgb = mix_channels(result.psf, draw.weights)
+    return rgb[0], rgb[1], result.grid
+
+
+def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, device):
+    """Clean scenes, obstruction colours and masks (B, C, H, W) for the batch entries ``indices``."""
+    n = preset.sensor.pixels
+    kinds = preset.optimize.obstructions
+    cleans, colours, masks = [], [], []
+    for index in indices:
+        clean = training_scene((n, n), seed, step, index, pool)
+        kind = kinds[np.random.default_rng([seed, step, index, 13]).integers(len(kinds))]
+        obstruction = make_obstruction(kind, (n, n), z_near_m, preset.lens.focal_length_m, preset.sensor.pixel_pitch_m,
+                                       [seed, step, index, 17], preset.obstruction, clean=clean)
+        cleans.append(clean), colours.append(obstruction.rgb), masks.append(obstruction.mask)
+    as_tensor = lambda arrays: torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device)  # noqa: E731
+    return as_tensor(cleans), as_tensor(colours), as_tensor(masks)
+
+
+def _features(preset, notes: list[str]):
+    if preset.loss.domain_adaptation <= 0:
+        return None
+    from metalens_cli.design.features import find_deeplab_weights, load_feature_extractor
+
+    path, note = find_deeplab_weights(preset.loss.domain_adaptation_weights)
+    if path is None:
+        notes.append(note)
+        return None
+    return load_feature_extractor(path)
+
+
+def train(preset, run_dir: str | Path, *, steps: int | None = None, seed: int | None = None, device: str | torch.device = "cpu",
+          resume: bool = False, on_step: Callable[[int, int, dict], None] | None = None) -> RunSummary:
+    """Learn θ for ``preset`` into ``run_dir`` (see ``design.rundir`` for its files).
+
+    ``steps``/``seed`` override the preset's; ``resume`` continues from the newest checkpoint in
+    ``run_dir`` with the preset saved there (``steps`` may extend it). Under torchrun the run is
+    data-parallel and only rank 0 writes. ``on_step(done, total, row)`` reports each step.
+    """
+    ctx = distributed.setup(torch.device(device))
+    try:
+        return _train(preset, RunDirectory(run_dir), steps, seed, ctx, resume, on_step)
+    finally:
+        distributed.teardown(ctx)
+
+
+def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunSummary:
+    checkpoint = None
+    if resume:
+        if not run.preset_path.is_file():
+            raise InputError("--resume", f"{str(run.path)!r} holds no run to resume", "a run directory written by metalens optimize")
+        preset = run.load_preset()
+        checkpoint = run.latest_checkpoint()
+    overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
+    preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **overrides))
+    o = preset.optimize
+    if ctx.is_main and not resume:
+        run.create(preset)
+    elif ctx.is_main and overrides:
+        run.write_text("preset.toml", to_toml(preset))
+    distributed.barrier(ctx)
+    model = build_model(preset).to(ctx.device)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=o.learning_rate, weight_decay=o.weight_decay)
+    scheduler = _scheduler(optimizer, o)
+    history: list[dict] = []
+    start = 0
+    if checkpoint is not None:
+        model.load_state_dict(checkpoint["model"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        scheduler.load_state_dict(checkpoint["scheduler"])
+        history, start = checkpoint["history"], checkpoint["step"]
+    notes: list[str] = []
+    features = _features(preset, notes)
+    sensitivity = preset_sensitivity(preset)
+    pool = _image_pool(preset)
+    shard = ctx.shard(o.batch_size)
+    frequency = plan_frequency(preset)
+    timing: dict[str, float] = {}
+    grid: dict = {}
+    step = start
+    try:
+        for step in range(start, o.steps):
+            t0 = time.perf_counter()
+            row, grid = _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, shard, step, ctx, timing,
+                                  frequency)
+            row["seconds"] = time.perf_counter() - t0
+            history.append(row)
+            if on_step is not None and ctx.is_main:
+                on_step(step + 1, o.steps, row)
+            if ctx.is_main and (step + 1) % o.checkpoint_every == 0:
+                run.save_checkpoint(_state(model, optimizer, scheduler, history, step + 1))
+                run.write_loss_csv(history)
+            if ctx.is_main and (step + 1) % o.sample_every == 0:
+                _write_sample(run, model, preset, sensitivity, pool, step, ctx.device, frequency)
+    except KeyboardInterrupt:
+        done = len(history)
+        path = run.save_checkpoint(_state(model, optimizer, scheduler, history, done)) if ctx.is_main else None
+        if ctx.is_main:
+            run.write_loss_csv(history)
+        raise TrainingInterrupted(done, path) from None
+    theta = model.full_theta().detach().cpu().numpy()
+    summary = RunSummary(run.path, o.steps, start, history, _seconds_per_step(history[start:]), theta)
+    if ctx.is_main:
+        if o.steps > start:
+            run.save_checkpoint(_state(model, optimizer, scheduler, history, o.steps))
+        validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, frequency),
+                      "final": validation_loss(model, preset, 4, ctx.device, frequency)}
+        summary.report = _finish(run, preset, model, summary, grid, timing, notes, ctx, validation)
+    return summary
+
+
+def _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, shard, step, ctx, timing,
+                                  frequency):
+    o = preset.optimize
+    draw = draw_step(preset, sensitivity, o.seed, step)
+    optimizer.zero_grad(set_to_none=True)
+    t = time.perf_counter()
+    near, far, grid = step_psfs(model.lens(), preset, draw, ctx.device, timing, frequency)
+    t = _lap(timing, "psf", t)
+    clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, pool, ctx.device)
+    t = _lap(timing, "scenes", t)
+    capture = form_image(clean, colour, mask, near, far).image
+    share = len(shard) / o.batch_size
+    loss, parts = training_loss(capture, clean, far, preset.loss, features, image_share=share, psf_share=1 / ctx.world)
+    t = _lap(timing, "formation_loss", t)
+    loss.backward()
+    t = _lap(timing, "backward", t)
+    names = sorted(parts)
+    image_terms = {"l1", "ssim", "domain_adaptation", "total"}
+    reported = torch.stack([parts[k].detach() * (share if k in image_terms else 1 / ctx.world) for k in names]).double()
+    if ctx.world > 1:
+        for p in model.parameters():
+            distributed.all_reduce_sum(p.grad, ctx)
+        distributed.all_reduce_sum(reported, ctx)
+        # 'total' mixes shares; recompute it from the reduced parts below
+    optimizer.step()
+    scheduler.step()
+    _lap(timing, "update", t)
+    values = dict(zip(names, reported.tolist()))
+    w = preset.loss
+    values["total"] = (w.l1 * values["l1"] + w.ssim * values["ssim"] + w.domain_adaptation * values.get("domain_adaptation", 0.0)
+                       + w.bright * values["bright"] + w.sharp * values["sharp"])
+    row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m}
+    return row, grid
+
+
+VALIDATION_STEP = 10**9  # draws for the fixed validation loss start here, far from any training step
+
+
+def validation_loss(model, preset, draws: int = 4, device="cpu", frequency: float | None = None) -> float:
+    """Mean weighted loss (without L_DA) over ``draws`` fixed draws that training never uses:
+    the same number before and after training measures progress without sampling noise."""
+    sensitivity = preset_sensitivity(preset)
+    o = preset.optimize
+    pool = _image_pool(preset)
+    totals = []
+    with torch.no_grad():
+        for k in range(draws):
+            step = VALIDATION_STEP + k
+            draw = draw_step(preset, sensitivity, o.seed, step)
+            near, far, _ = step_psfs(model.lens(), preset, draw, device, frequency=frequency)
+            clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, device)
+            capture = form_image(clean, colour, mask, near, far).image
+            totals.append(float(training_loss(capture, clean, far, preset.loss)[0]))
+    return sum(totals) / len(totals)
+
+
+def _lap(timing: dict, name: str, t: float) -> float:
+    now = time.perf_counter()
+    timing[name] = timing.get(name, 0.0) + now - t
+    return now
+
+
+def _state(model, optimizer, scheduler, history, step) -> dict:
+    return {"step": step, "model": model.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+            "history": history, "rng": "stateless: every draw is a function of (seed, step)"}
+
+
+def _seconds_per_step(rows: list[dict]) -> float | None:
+    return statistics.median(r["seconds"] for r in rows) if rows else None
+
+
+def _image_pool(preset):
+    if preset.optimize.images is None:
+        return None
+    from metalens_cli.imaging.images import load_images
+
+    n = preset.sensor.pixels
+    return [image.linear for image in load_images(preset.optimize.images, (2 * n, 2 * n))]
+
+
+def _write_sample(run: RunDirectory, model, preset, sensitivity, pool, step, device, frequency) -> None:
+    from metalens_cli.imaging.images import linear_to_srgb
+    from metalens_cli.io.image_files import write_png
+
+    o = preset.optimize
+    draw = draw_step(preset, sensitivity, o.seed, step)
+    with torch.no_grad():
+        near, far, _ = step_psfs(model.lens(), preset, draw, device, frequency=frequency)
+        clean, colour, mask = step_batch(preset, o.seed, step, [0], draw.z_near_m, pool, device)
+        capture = form_image(clean, colour, mask, near, far).image
+    grey = colour * mask + 0.5 * (1 - mask)
+    row = torch.cat([clean[0], grey[0], capture[0]], dim=-1).cpu().numpy()
+    write_png(run.path / "samples" / f"step_{step + 1:06d}.png", linear_to_srgb(np.clip(row, 0, 1)))
+
+
+def _finish(run: RunDirectory, preset, model, summary: RunSummary, grid: dict, timing: dict, notes: list[str], ctx,
+            validation: dict) -> dict:
+    """theta, psf.exr, loss.csv/png, theta.png and run.json."""
+    from metalens_cli.design.report import write_results
+
+    return write_results(run, preset, summary, grid, timing, notes, ctx.world, str(ctx.device), torch.get_num_threads(), validation)

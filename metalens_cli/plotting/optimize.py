@@ -1,0 +1,57 @@
+"""Figures of an optimisation run: loss curves and the learned rotation map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from metalens_cli.plotting.common import new_figure, save_figure
+
+PARTS = ("total", "l1", "ssim", "domain_adaptation", "bright", "sharp")
+
+
+def loss_figure(path: str | Path, history: list[dict]) -> Path:
+    """Loss parts against step (log scale where positive), with a running mean of the total."""
+    fig, ax = new_figure(figsize=(7, 4))
+    steps = np.array([row["step"] for row in history])
+    for name in PARTS:
+        values = np.array([row.get(name, np.nan) for row in history], dtype=float)
+        if np.all(np.isnan(values)):
+            continue
+        ax.plot(steps, values, lw=0.8 if name != "total" else 0.5, alpha=1.0 if name != "total" else 0.4, label=name)
+        if name == "total" and len(values) >= 10:
+            k = max(len(values) // 20, 5)
+            smooth = np.convolve(values, np.ones(k) / k, mode="valid")
+            ax.plot(steps[k - 1:], smooth, color="k", lw=1.5, label=f"total ({k}-step mean)")
+    ax.set_xlabel("step")
+    ax.set_ylabel("loss")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    return save_figure(fig, path)
+
+
+def theta_figure(path: str | Path, theta: np.ndarray, pitch_m: float, initial: np.ndarray | None = None) -> Path:
+    """Radial profile φ(r) = 2θ (unwrapped, and wrapped to 0..2π) or the 2-D map of 2θ mod 2π."""
+    if theta.ndim == 1:
+        fig, axes = new_figure(1, 2, figsize=(10, 3.5))
+        r_mm = np.arange(theta.size) * pitch_m * 1e3
+        if initial is not None:
+            axes[0].plot(r_mm, 2 * initial, lw=0.8, color="0.6", label="initial")
+        axes[0].plot(r_mm, 2 * theta, lw=0.8, label="learned")
+        axes[0].set_ylabel("φ = 2θ (rad)")
+        axes[0].legend(fontsize=7)
+        axes[1].plot(r_mm, np.mod(2 * theta, 2 * np.pi), lw=0.3)
+        axes[1].set_ylabel("φ mod 2π")
+        for ax in axes:
+            ax.set_xlabel("r (mm)")
+            ax.grid(alpha=0.3)
+    else:
+        fig, ax = new_figure(figsize=(5, 4.5))
+        step = max(theta.shape[0] // 1024, 1)
+        half = theta.shape[0] // 2 * pitch_m * 1e3
+        im = ax.imshow(np.mod(2 * theta[::step, ::step], 2 * np.pi), cmap="twilight", extent=(-half, half, -half, half), origin="lower")
+        fig.colorbar(im, ax=ax, label="φ mod 2π (rad)")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+    return save_figure(fig, path)
