@@ -24,43 +24,38 @@ from metalens_cli.optics.lens import Metalens, hyperbolic_phase
 RANDOM_ORDER = 4  # polynomial order in (r/a)² of the random initial profile
 
 
-class RadialTheta(torch.nn.Module):
-    """θ at G design samples (rad) spanning the rings r_0..r_K, linear in between (G = K + 1: one per ring)."""
+class _Theta(torch.nn.Module):
+    """θ design samples (rad) as one parameter, upsampled to the lens's rings or sites by ``_upsample``."""
 
-    def __init__(self, theta: np.ndarray, rings: int, pitch_m: float, aperture_m: float, focal_length_m: float):
+    def __init__(self, theta: np.ndarray, size: int, pitch_m: float, aperture_m: float, focal_length_m: float):
         super().__init__()
         self.theta = torch.nn.Parameter(torch.as_tensor(np.asarray(theta), dtype=torch.float64))
-        self.rings = rings
+        self.size = size
         self.pitch_m, self.aperture_m, self.focal_length_m = pitch_m, aperture_m, focal_length_m
 
     def full_theta(self) -> torch.Tensor:
-        if self.theta.shape[0] == self.rings:
+        """θ on the lens's own sampling: K + 1 rings (radial) or M × M sites (2-D)."""
+        if self.theta.shape[-1] == self.size:
             return self.theta
-        up = torch.nn.functional.interpolate(self.theta[None, None], size=self.rings, mode="linear", align_corners=True)
-        return up[0, 0]
+        return self._upsample()
 
     def lens(self) -> Metalens:
         return Metalens(self.full_theta(), self.pitch_m, self.aperture_m, self.focal_length_m)
 
 
-class GridTheta(torch.nn.Module):
+class RadialTheta(_Theta):
+    """θ at G design samples spanning the rings r_0..r_K, linear in between (G = K + 1: one per ring)."""
+
+    def _upsample(self) -> torch.Tensor:
+        return torch.nn.functional.interpolate(self.theta[None, None], size=self.size, mode="linear", align_corners=True)[0, 0]
+
+
+class GridTheta(_Theta):
     """θ on a G × G design grid, bilinearly upsampled (corners aligned) to the M × M meta-atom grid."""
 
-    def __init__(self, theta: np.ndarray, grid_size: int, pitch_m: float, aperture_m: float, focal_length_m: float):
-        super().__init__()
-        self.theta = torch.nn.Parameter(torch.as_tensor(np.asarray(theta), dtype=torch.float64))
-        self.grid_size = grid_size
-        self.pitch_m, self.aperture_m, self.focal_length_m = pitch_m, aperture_m, focal_length_m
-
-    def full_theta(self) -> torch.Tensor:
-        if self.theta.shape[-1] == self.grid_size:
-            return self.theta
-        up = torch.nn.functional.interpolate(self.theta[None, None], size=(self.grid_size,) * 2, mode="bilinear",
-                                             align_corners=True)
+    def _upsample(self) -> torch.Tensor:
+        up = torch.nn.functional.interpolate(self.theta[None, None], size=(self.size,) * 2, mode="bilinear", align_corners=True)
         return up[0, 0]
-
-    def lens(self) -> Metalens:
-        return Metalens(self.full_theta(), self.pitch_m, self.aperture_m, self.focal_length_m)
 
 
 def radial_radii(pitch_m: float, aperture_m: float) -> np.ndarray:

@@ -207,8 +207,8 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     try:
         for step in range(start, o.steps):
             t0 = time.perf_counter()
-            row, grid = _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, shard, step, ctx, timing,
-                                  frequency)
+            row, grid, sample = _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, shard, step, ctx,
+                                          timing, frequency)
             row["seconds"] = time.perf_counter() - t0
             history.append(row)
             if on_step is not None and ctx.is_main:
@@ -217,7 +217,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
                 run.save_checkpoint(_state(model, optimizer, scheduler, history, step + 1))
                 run.write_loss_csv(history)
             if ctx.is_main and (step + 1) % o.sample_every == 0:
-                _write_sample(run, model, preset, sensitivity, pool, step, ctx.device, frequency)
+                _write_sample(run, sample, step)
     except KeyboardInterrupt:
         done = len(history)
         path = run.save_checkpoint(_state(model, optimizer, scheduler, history, done)) if ctx.is_main else None
@@ -235,8 +235,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     return summary
 
 
-def _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, shard, step, ctx, timing,
-                                  frequency):
+def _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, shard, step, ctx, timing, frequency):
     o = preset.optimize
     draw = draw_step(preset, sensitivity, o.seed, step)
     optimizer.zero_grad(set_to_none=True)
@@ -246,6 +245,8 @@ def _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, 
     clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, pool, ctx.device)
     t = _lap(timing, "scenes", t)
     capture = form_image(clean, colour, mask, near, far).image
+    grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
+    sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
     share = len(shard) / o.batch_size
     loss, parts = training_loss(capture, clean, far, preset.loss, features, image_share=share, psf_share=1 / ctx.world)
     t = _lap(timing, "formation_loss", t)
@@ -267,7 +268,7 @@ def _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, 
     values["total"] = (w.l1 * values["l1"] + w.ssim * values["ssim"] + w.domain_adaptation * values.get("domain_adaptation", 0.0)
                        + w.bright * values["bright"] + w.sharp * values["sharp"])
     row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m}
-    return row, grid
+    return row, grid, sample
 
 
 VALIDATION_STEP = 10**9  # draws for the fixed validation loss start here, far from any training step
@@ -315,19 +316,12 @@ def _image_pool(preset):
     return [image.linear for image in load_images(preset.optimize.images, (2 * n, 2 * n))]
 
 
-def _write_sample(run: RunDirectory, model, preset, sensitivity, pool, step, device, frequency) -> None:
+def _write_sample(run: RunDirectory, sample: torch.Tensor, step: int) -> None:
+    """clean | obstruction over grey | capture of the step's first scene, sRGB PNG."""
     from metalens_cli.imaging.images import linear_to_srgb
     from metalens_cli.io.image_files import write_png
 
-    o = preset.optimize
-    draw = draw_step(preset, sensitivity, o.seed, step)
-    with torch.no_grad():
-        near, far, _ = step_psfs(model.lens(), preset, draw, device, frequency=frequency)
-        clean, colour, mask = step_batch(preset, o.seed, step, [0], draw.z_near_m, pool, device)
-        capture = form_image(clean, colour, mask, near, far).image
-    grey = colour * mask + 0.5 * (1 - mask)
-    row = torch.cat([clean[0], grey[0], capture[0]], dim=-1).cpu().numpy()
-    write_png(run.path / "samples" / f"step_{step + 1:06d}.png", linear_to_srgb(np.clip(row, 0, 1)))
+    write_png(run.path / "samples" / f"step_{step + 1:06d}.png", linear_to_srgb(np.clip(sample.cpu().numpy(), 0, 1)))
 
 
 def _finish(run: RunDirectory, preset, model, summary: RunSummary, grid: dict, timing: dict, notes: list[str], ctx,
