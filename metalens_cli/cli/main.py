@@ -13,6 +13,7 @@ import click
 
 from metalens_cli import __version__
 from metalens_cli.errors import MetalensError
+from metalens_cli.runtime import retain_freed_memory
 
 
 class LazyGroup(click.Group):
@@ -80,5 +81,7 @@ def run(argv: list[str] | None = None) -> int:
 
 
 def cli() -> None:
-    """Console-script entry point."""
+    """Console-script entry point: the process is ours, so keep freed FFT work arrays (see
+    :mod:`metalens_cli.runtime`), then run."""
+    retain_freed_memory()
     sys.exit(run(sys.argv[1:]))
