@@ -97,7 +97,7 @@ class OptimizeConfig:
     t_max: int = _key("t_max", "int", lo=1, hi=10_000_000)
     optimizer: str = _key("optimizer", "choice", choices=("adamw",), default="adamw")
     scheduler: str = _key("scheduler", "choice", choices=("cosine", "constant"), default="cosine")
-    weight_decay: float = _key("weight_decay", "float", lo=0.0, default=0.01)
+    weight_decay: float = _key("weight_decay", "float", lo=0.0, default=0.0)  # AdamW decay of the unwrapped θ
     batch_size: int = _key("batch_size", "int", lo=1, hi=4096, default=1)
     wavelengths_per_channel: int = _key("wavelengths_per_channel", "int", lo=1, hi=1024, default=3)
     seed: int = _key("seed", "int", lo=0, hi=2**63 - 1, default=0)
@@ -119,6 +119,7 @@ class LossConfig:
     bright: float = _key("bright", "float", lo=0.0, default=1.0)
     sharp: float = _key("sharp", "float", lo=0.0, default=1.0)
     sharp_window: int = _key("sharp_window", "int", lo=1, hi=101, default=5)
+    sharp_mode: str = _key("sharp_mode", "choice", choices=("total", "per_channel"), default="total")  # see design.losses
     domain_adaptation_weights: str | None = _key("domain_adaptation_weights", "path", default=None)  # DeepLabv3+ checkpoint
 
 
