@@ -170,6 +170,57 @@ def train(preset, run_dir: str | Path, *, steps: int | None = None, seed: int | 
         distributed.teardown(ctx)
 
 
+@dataclass
+class _Session:
+    """What every step needs: the model, its optimiser and schedule, spectra, scenes and plan."""
+
+    model: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    scheduler: object
+    sensitivity: object
+    features: object
+    pool: list | None
+    shard: list[int]
+    frequency: float
+    notes: list[str]
+
+
+def _session(preset, ctx) -> _Session:
+    o = preset.optimize
+    model = build_model(preset).to(ctx.device)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=o.learning_rate, weight_decay=o.weight_decay)
+    notes: list[str] = []
+    return _Session(model, optimizer, _scheduler(optimizer, o), preset_sensitivity(preset), _features(preset, notes),
+                    _image_pool(preset), ctx.shard(o.batch_size), plan_frequency(preset), notes)
+
+
+def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> dict:
+    """Run ``steps`` training steps of ``preset`` without a run directory and report their cost:
+    seconds per step (median over the steps after the first, which builds the kernels), seconds by
+    stage, the first step's seconds, the number of θ parameters and, on CUDA, the peak memory (bytes)."""
+    ctx = distributed.setup(torch.device(device))
+    try:
+        session = _session(preset, ctx)
+        if ctx.device.type == "cuda":
+            torch.cuda.reset_peak_memory_stats(ctx.device)
+        timing: dict[str, float] = {}
+        seconds = []
+        for step in range(steps):
+            t0 = time.perf_counter()
+            _one_step(session, preset, step, ctx, timing)
+            if ctx.device.type == "cuda":
+                torch.cuda.synchronize(ctx.device)
+            seconds.append(time.perf_counter() - t0)
+        report = {"steps": steps, "first_step_s": seconds[0], "seconds_per_step": statistics.median(seconds[1:] or seconds),
+                  "seconds_by_stage": timing, "parameters": sum(p.numel() for p in session.model.parameters()),
+                  "device": str(ctx.device), "threads": torch.get_num_threads()}
+        if ctx.device.type == "cuda":
+            report["peak_memory_bytes"] = torch.cuda.max_memory_allocated(ctx.device)
+        return report
+    finally:
+        distributed.teardown(ctx)
+
+
 def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunSummary:
     checkpoint = None
     if resume:
@@ -185,9 +236,8 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     elif ctx.is_main and overrides:
         run.write_text("preset.toml", to_toml(preset))
     distributed.barrier(ctx)
-    model = build_model(preset).to(ctx.device)
-    optimizer = torch.optim.AdamW(model.parameters(), lr=o.learning_rate, weight_decay=o.weight_decay)
-    scheduler = _scheduler(optimizer, o)
+    session = _session(preset, ctx)
+    model, optimizer, scheduler = session.model, session.optimizer, session.scheduler
     history: list[dict] = []
     start = 0
     if checkpoint is not None:
@@ -195,20 +245,13 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
         optimizer.load_state_dict(checkpoint["optimizer"])
         scheduler.load_state_dict(checkpoint["scheduler"])
         history, start = checkpoint["history"], checkpoint["step"]
-    notes: list[str] = []
-    features = _features(preset, notes)
-    sensitivity = preset_sensitivity(preset)
-    pool = _image_pool(preset)
-    shard = ctx.shard(o.batch_size)
-    frequency = plan_frequency(preset)
     timing: dict[str, float] = {}
     grid: dict = {}
     step = start
     try:
         for step in range(start, o.steps):
             t0 = time.perf_counter()
-            row, grid, sample = _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, shard, step, ctx,
-                                          timing, frequency)
+            row, grid, sample = _one_step(session, preset, step, ctx, timing)
             row["seconds"] = time.perf_counter() - t0
             history.append(row)
             if on_step is not None and ctx.is_main:
@@ -229,26 +272,28 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     if ctx.is_main:
         if o.steps > start:
             run.save_checkpoint(_state(model, optimizer, scheduler, history, o.steps))
-        validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, frequency),
-                      "final": validation_loss(model, preset, 4, ctx.device, frequency)}
-        summary.report = _finish(run, preset, model, summary, grid, timing, notes, ctx, validation)
+        validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
+                      "final": validation_loss(model, preset, 4, ctx.device, session.frequency)}
+        summary.report = _finish(run, preset, model, summary, grid, timing, session.notes, ctx, validation)
     return summary
 
 
-def _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, shard, step, ctx, timing, frequency):
+def _one_step(session: _Session, preset, step, ctx, timing):
     o = preset.optimize
-    draw = draw_step(preset, sensitivity, o.seed, step)
+    model, optimizer, shard = session.model, session.optimizer, session.shard
+    draw = draw_step(preset, session.sensitivity, o.seed, step)
     optimizer.zero_grad(set_to_none=True)
     t = time.perf_counter()
-    near, far, grid = step_psfs(model.lens(), preset, draw, ctx.device, timing, frequency)
+    near, far, grid = step_psfs(model.lens(), preset, draw, ctx.device, timing, session.frequency)
     t = _lap(timing, "psf", t)
-    clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, pool, ctx.device)
+    clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, ctx.device)
     t = _lap(timing, "scenes", t)
     capture = form_image(clean, colour, mask, near, far).image
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
     sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
     share = len(shard) / o.batch_size
-    loss, parts = training_loss(capture, clean, far, preset.loss, features, image_share=share, psf_share=1 / ctx.world)
+    loss, parts = training_loss(capture, clean, far, preset.loss, session.features, image_share=share,
+                                 psf_share=1 / ctx.world)
     t = _lap(timing, "formation_loss", t)
     loss.backward()
     t = _lap(timing, "backward", t)
@@ -261,7 +306,7 @@ def _one_step(model, optimizer, scheduler, preset, sensitivity, features, pool, 
         distributed.all_reduce_sum(reported, ctx)
         # 'total' mixes shares; recompute it from the reduced parts below
     optimizer.step()
-    scheduler.step()
+    session.scheduler.step()
     _lap(timing, "update", t)
     values = dict(zip(names, reported.tolist()))
     w = preset.loss

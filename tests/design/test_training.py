@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from metalens_cli.design.training import TrainingInterrupted, build_model, train, validation_loss
+from metalens_cli.design.training import TrainingInterrupted, build_model, time_steps, train, validation_loss
 from metalens_cli.io.designs import resolve_design
 from metalens_cli.io.presets import load_preset
 
@@ -30,6 +30,15 @@ def test_training_lowers_the_validation_loss(tiny, tmp_path):
     before, after = summary.report["validation_loss"]["initial"], summary.report["validation_loss"]["final"]
     assert after < before - 1e-3
     assert len(summary.history) == 12 and all(np.isfinite(row["total"]) for row in summary.history)
+
+
+def test_time_steps_reports_cost_and_writes_nothing(tiny, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    report = time_steps(tiny, steps=2)
+    assert report["steps"] == 2 and report["parameters"] == build_model(tiny).theta.numel()
+    assert 0 < report["seconds_per_step"] and 0 < report["first_step_s"]
+    assert {"psf", "scenes", "formation_loss", "backward", "update"} <= set(report["seconds_by_stage"])
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_run_directory_contents(tiny, tmp_path):
