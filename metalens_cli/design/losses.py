@@ -7,13 +7,15 @@ The paper writes L_bright = 3N/ΣP − 1 and L_sharp = N/Σ_{|i|,|j|≤2} P(x_c+
 3-channel far PSF P scaled so that ΣP = 3N when no light leaves the N-pixel sensor. Our PSFs are
 fractions of the aperture power (each channel sums to 1 when nothing is lost), i.e. P/N, so
 the N cancels: L_bright = 3/ΣP − 1 (0 when every channel keeps all its light) and
-L_sharp = 1/Σ_window P − 1 over the central w × w pixels of all channels (w = 5 in the paper).
+L_sharp = 1/Σ_window P − 1 over the central w × w pixels of all channels (w = 5 in the paper);
+``loss.sharp_mode = "per_channel"`` averages 1/E_c − 1 over the channels instead (see ``sharp_loss``).
 """
 
 from __future__ import annotations
 
 import torch
 
+from metalens_cli.errors import InputError
 from metalens_cli.imaging.metrics import ssim
 
 
@@ -32,12 +34,21 @@ def bright_loss(psf_far: torch.Tensor) -> torch.Tensor:
     return psf_far.shape[-3] / psf_far.sum(dim=(-3, -2, -1)) - 1
 
 
-def sharp_loss(psf_far: torch.Tensor, window: int = 5) -> torch.Tensor:
-    """1/Σ P − 1 over the central ``window`` × ``window`` pixels (axis at N//2) of every channel."""
+def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total") -> torch.Tensor:
+    """Energy E_c in the central ``window`` × ``window`` pixels (axis at N//2) of each channel c.
+
+    ``total`` (the paper's): 1/Σ_c E_c − 1, which rewards the channels' sum, so the cheapest
+    channel can take all the gain. ``per_channel``: mean_c (1/E_c) − 1 (0 when every channel keeps
+    all its light in the window), whose gradient is largest for the weakest channel.
+    """
     n0, n1 = psf_far.shape[-2:]
     lo0, lo1 = n0 // 2 - window // 2, n1 // 2 - window // 2
-    core = psf_far[..., lo0:lo0 + window, lo1:lo1 + window]
-    return 1 / core.sum(dim=(-3, -2, -1)) - 1
+    core = psf_far[..., lo0:lo0 + window, lo1:lo1 + window].sum(dim=(-2, -1))
+    if mode == "total":
+        return 1 / core.sum(dim=-1) - 1
+    if mode == "per_channel":
+        return (1 / core).mean(dim=-1) - 1
+    raise InputError("loss.sharp_mode", f"unknown mode {mode!r}", "total or per_channel")
 
 
 def training_loss(captured: torch.Tensor, clean: torch.Tensor, psf_far: torch.Tensor, weights, features=None,
@@ -57,7 +68,7 @@ def training_loss(captured: torch.Tensor, clean: torch.Tensor, psf_far: torch.Te
     if "domain_adaptation" in parts:
         image = image + weights.domain_adaptation * parts["domain_adaptation"]
     parts["bright"] = bright_loss(psf_far)
-    parts["sharp"] = sharp_loss(psf_far, weights.sharp_window)
+    parts["sharp"] = sharp_loss(psf_far, weights.sharp_window, weights.sharp_mode)
     psf = weights.bright * parts["bright"] + weights.sharp * parts["sharp"]
     total = image_share * image + psf_share * psf
     parts["total"] = image + psf

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from numpy.testing import assert_allclose
 
 from metalens_cli.design.losses import bright_loss, l1_loss, sharp_loss, ssim_loss, training_loss
 from metalens_cli.design.parameterization import initial_parameterization, random_radial_theta
@@ -78,6 +79,19 @@ def test_bright_and_sharp_losses_closed_forms():
     psf[:, 7, 9] = 0.5
     assert float(sharp_loss(psf, 5)) == pytest.approx(1 / 1.5 - 1)
     assert float(sharp_loss(psf, 7)) == pytest.approx(1 / 4.5 - 1)
+
+
+def test_per_channel_sharp_loss_weighs_the_weakest_channel():
+    # E = (1, 0.5, 0.25): total 1/1.75 − 1; per channel mean(1, 2, 4) − 1 = 4/3
+    psf = _delta_psf() * torch.tensor([1.0, 0.5, 0.25], dtype=torch.float64)[:, None, None]
+    assert float(sharp_loss(psf)) == pytest.approx(1 / 1.75 - 1)
+    assert float(sharp_loss(psf, mode="per_channel")) == pytest.approx(4 / 3)
+    assert float(sharp_loss(_delta_psf(), mode="per_channel")) == pytest.approx(0.0, abs=1e-15)
+    energy = torch.tensor([1.0, 0.5, 0.25], dtype=torch.float64, requires_grad=True)
+    sharp_loss(_delta_psf() * energy[:, None, None], mode="per_channel").backward()
+    assert_allclose(energy.grad.numpy(), -1 / (3 * np.array([1.0, 0.5, 0.25]) ** 2))  # d(1/E)/dE = −1/E², /3 channels
+    with pytest.raises(InputError, match="loss.sharp_mode"):
+        sharp_loss(psf, mode="max")
 
 
 def test_image_losses_vanish_for_identical_images_and_grow_with_noise():
