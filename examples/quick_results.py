@@ -115,6 +115,7 @@ def write(path: Path, reports, tables, energies, bands, seeds) -> None:
         lines.append(f"| {LABELS[name]} | {r['settings']['steps']} | {threads} | {per_step:.3f} |" if per_step
                      else f"| {LABELS[name]} | 0 | {threads} | — |")
         lines[-1] += f" {r['cost'].get('seconds_training', 0) / 60:.1f} min | {before_after} |"
+    lines += ["", "Threads and s/step are as each run's `run.json` recorded them; the two learned runs here were made side by side on the one 2-core machine, one torch thread each, so they took longer than a run alone: alone with 2 threads a quick step takes 0.22 s, 2000 steps about 7.3 min (`python benchmarks/bench_optimize.py`, docs/benchmarks.md)."]
     verdict_a = []
     for pixels, table in tables.items():
         lines += ["", f"## (a) Raw captures of the held-out images, {pixels} × {pixels} sensor", "",
