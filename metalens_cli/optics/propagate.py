@@ -107,14 +107,21 @@ def mirror_quadrant(q: torch.Tensor) -> torch.Tensor:
 
 @dataclass
 class TransferCache:
-    """Transfer functions keyed on (λ, d, grid size, pitch, dtype, device); reuse across calls."""
+    """The ``capacity`` most recently used transfer functions, keyed on (λ, d, grid size, pitch,
+    dtype, device). One is (2K+1)² complex, 2.6 GB at the paper's training grid, so only a few are
+    kept: callers go wavelength by wavelength and reuse each one for every depth."""
 
-    store: dict = field(default_factory=dict)
+    capacity: int = 1
+    store: OrderedDict = field(default_factory=OrderedDict)
 
     def get(self, grid: AsmGrid, wavelength_m: float, distance_m: float, dtype, device):
         key = (float(wavelength_m), float(distance_m), grid.size, grid.pitch_m, dtype, str(device))
-        if key not in self.store:
-            self.store[key] = asm_transfer(grid, wavelength_m, distance_m, dtype, device)
+        if key in self.store:
+            self.store.move_to_end(key)
+            return self.store[key]
+        while len(self.store) >= self.capacity:
+            self.store.popitem(last=False)   # free the oldest before building the next
+        self.store[key] = asm_transfer(grid, wavelength_m, distance_m, dtype, device)
         return self.store[key]
 
 

@@ -54,7 +54,6 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
                 distance_m: float | None = None, propagator: str = "auto",
                 dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu",
                 force: bool = False, oversample: float = 1.0,
-                transfer_cache: prop.TransferCache | None = None,
                 plan_wavelengths_m=None, plan_depths_m=None, plan_frequency: float | None = None) -> PsfResult:
     """Sensor PSFs for every (depth, wavelength); see the module docstring for the layout.
 
@@ -62,7 +61,6 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
     propagator: "auto" (radial for a radial lens, else asm), "asm", "radial" or "rs".
     dtype: real dtype of the computation (float32 or float64); oversample: scales every sample
     density and margin (2 for an accuracy check); force: proceed past the sampling guard.
-    transfer_cache: reuse asm transfer functions across calls.
     plan_wavelengths_m, plan_depths_m: the sampling plan (and the guard) also covers these, so
     that calls whose wavelengths and depths vary inside them (an optimiser's random draws) share
     one plan and its cached kernels; the PSFs are only computed at ``wavelengths_m``/``depths_m``.
@@ -84,7 +82,7 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, force), plan_frequency or 0.0)
     run = {"radial": _radial_psf, "asm": _asm_psf, "rs": _rs_psf}[propagator]
     psf, grid = run(lens, lams, zs, d, pixels, pixel_pitch_m, f_max, dtype, torch.device(device),
-                    oversample, clock, transfer_cache, plan_lams)
+                    oversample, clock, plan_lams)
     clock.lap("sensor")
     return PsfResult(psf, tuple(lams), tuple(zs), pixel_pitch_m, d, propagator, grid, clock.times)
 
@@ -124,7 +122,7 @@ def _pupil_field(phase_lens: torch.Tensor, r: torch.Tensor, lam: float, z: float
     return torch.polar(source_amplitude(r, z).to(dtype), phase.to(dtype))
 
 
-def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _, plan_lams):
+def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, plan_lams):
     plan = sampling.plan_radial(lens, plan_lams, zs, d, pixels, pitch, f_max, oversample)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes,
                                 dtype, device)
@@ -149,47 +147,49 @@ def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversamp
     return psf.reshape(len(zs), len(lams), pixels, pixels), grid
 
 
-def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, cache, plan_lams):
-    """One PSF at a time. When θ needs a gradient, each PSF is activation-checkpointed: its
-    intermediates (a few GB per field at the paper's size) are recomputed in the backward pass
-    instead of being held for all PSFs at once, so memory stays that of one PSF."""
-    grid = sampling.plan_asm(lens, plan_lams, d, pixels, pitch, f_max, oversample)
-    cache = cache if cache is not None else prop.TransferCache()
+def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _):
+    """One PSF at a time, wavelength by wavelength so that each transfer function is built once
+    and shared by the depths. Each wavelength gets its own padded grid: the wrap-free side grows
+    with the steepest ray, λ·f_max, so blue light needs about half the area of red. When θ needs a
+    gradient, each PSF is activation-checkpointed: its intermediates (several GB at the paper's
+    size) and its transfer function are rebuilt in the backward pass instead of being held for all
+    PSFs at once, so memory stays that of one PSF."""
+    grids = {lam: sampling.plan_asm(lens, [lam], d, pixels, pitch, f_max, oversample) for lam in lams}
+    cache = prop.TransferCache()
     # float32 phase: ≤ 3e-4 rad error at 2300 rad; radial lens: one quadrant, then mirrored
     phase_lens, r = lens.grid_phase(dtype, quadrant=lens.radial)
     phase_lens, r = phase_lens.to(device), r.to(device)
     mask = r <= lens.radius_m
-    mat = torch.from_numpy(grid_pixel_matrix(grid.window_coords().numpy(), pixels, pitch))
-    mat = mat.to(device, dtype)
+    grid = grids[lams[0]]   # the output window (pitch/upsample, half-width) is the same for every λ
+    mat = torch.from_numpy(grid_pixel_matrix(grid.window_coords().numpy(), pixels, pitch)).to(device, dtype)
     clock.lap("kernels")
     checkpointed = torch.is_grad_enabled() and phase_lens.requires_grad
-    out = []
-    for z in zs:
-        for lam in lams:
-            transfer = cache.get(grid, lam, d, _complex(dtype), device)
-            clock.lap("transfer")
-            args = (phase_lens, r, mask, lam, z, dtype, lens.radial, grid, transfer, mat, lens.pitch_m)
+    out = {}
+    for j, lam in enumerate(lams):
+        for i, z in enumerate(zs):
+            args = (phase_lens, r, mask, lam, z, dtype, lens.radial, grids[lam], cache, d, mat, lens.pitch_m)
             if checkpointed:
-                out.append(torch.utils.checkpoint.checkpoint(_asm_sensor_psf, *args, use_reentrant=False))
+                out[i, j] = torch.utils.checkpoint.checkpoint(_asm_sensor_psf, *args, use_reentrant=False)
             else:
-                out.append(_asm_sensor_psf(*args))
+                out[i, j] = _asm_sensor_psf(*args)
             clock.lap("propagate")
-    info = {"kind": "asm", "fft_size": grid.size, "pitch_m": grid.pitch_m,
+    info = {"kind": "asm", "fft_size": max(g.size for g in grids.values()), "pitch_m": grid.pitch_m,
             "input_size": grid.input_size, "window_samples": 2 * grid.window_half + 1,
             "window_step_m": grid.pitch_m / grid.upsample, "checkpointed": checkpointed}
-    return torch.stack(out).reshape(len(zs), len(lams), pixels, pixels), info
+    psf = torch.stack([out[i, j] for i in range(len(zs)) for j in range(len(lams))])
+    return psf.reshape(len(zs), len(lams), pixels, pixels), info
 
 
-def _asm_sensor_psf(phase_lens, r, mask, lam, z, dtype, radial, grid, transfer, mat, site_pitch_m):
+def _asm_sensor_psf(phase_lens, r, mask, lam, z, dtype, radial, grid, cache, d, mat, site_pitch_m):
     """Pupil field at (λ, z), propagated to the window, pixel-integrated, over the pupil power."""
     field = _pupil_field(phase_lens, r, lam, z, dtype) * mask
     field = prop.mirror_quadrant(field) if radial else field
     power = field.abs().pow(2).sum() * site_pitch_m**2
-    window = prop.asm_propagate(field, grid, transfer)
+    window = prop.asm_propagate(field, grid, cache.get(grid, lam, d, _complex(dtype), field.device))
     return mat @ window.abs().pow(2) @ mat.T / power
 
 
-def _rs_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _, __):
+def _rs_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _):
     """Direct Rayleigh-Sommerfeld reference in float64 (slow; small windows)."""
     if lens.radial:
         return _rs_radial(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, clock)

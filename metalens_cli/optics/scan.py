@@ -18,7 +18,6 @@ import torch
 
 from metalens_cli.analysis.psf_metrics import summarize
 from metalens_cli.io.designs import Design
-from metalens_cli.optics import propagate as prop
 from metalens_cli.optics.psf import compute_psf
 
 COVERAGE_WARNING = 0.99
@@ -75,16 +74,15 @@ def run_scan(
     progress: Callable[[int, int], None] | None = None,
 ) -> ScanResult:
     """Compute the cube. The radial path runs as one batch; 2-D paths go one wavelength at a
-    time (sharing a transfer-function cache) so that ``progress(done, total)`` can report."""
+    time so that ``progress(done, total)`` can report."""
     start = time.perf_counter()
     timing: dict[str, float] = {}
     batched = propagator == "radial" or (propagator == "auto" and design.lens.radial)
     groups = [wavelengths_m] if batched else [[w] for w in wavelengths_m]
-    cache = prop.TransferCache()
     parts, result = [], None
     for done, group in enumerate(groups, start=1):
         result = compute_psf(design.lens, group, depths_m, pixels, pixel_pitch_m, design.focal_length_m,
-                             propagator, dtype, device, force, transfer_cache=cache)
+                             propagator, dtype, device, force)
         parts.append(result.psf.detach().to("cpu", torch.float32))
         for stage, seconds in result.timing_s.items():
             timing[stage] = timing.get(stage, 0.0) + seconds

@@ -160,13 +160,25 @@ def test_gradients_reach_theta():
 
 
 def test_gradients_reach_theta_2d_asm():
+    """Through the checkpointed path: 2 λ × 2 depths, so the backward pass rebuilds each PSF and
+    its transfer function (cache of one) in reverse order."""
     base = L.hyperbolic(532e-9, 20e-6, 4e-6, 0.4e-6, radial=False)    # 11 × 11 sites
 
     def central_power(theta):
         lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
-        return compute_psf(lens, [532e-9], [1e-3], 3, 0.5e-6, propagator="asm",
+        return compute_psf(lens, [532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6, propagator="asm",
                            dtype=torch.float64).psf
 
     theta = base.theta.clone().requires_grad_(True)
     assert torch.autograd.gradcheck(central_power, (theta,), eps=1e-6, atol=1e-7, rtol=1e-4,
                                     fast_mode=True)
+
+
+def test_transfer_cache_keeps_only_the_most_recent():
+    grid = prop.AsmGrid(size=64, pitch_m=0.4e-6, input_size=11, window_half=4, upsample=2)
+    cache = prop.TransferCache(capacity=2)
+    first = cache.get(grid, 500e-9, 20e-6, torch.complex64, "cpu")
+    assert cache.get(grid, 500e-9, 20e-6, torch.complex64, "cpu")[0] is first[0]
+    cache.get(grid, 600e-9, 20e-6, torch.complex64, "cpu")
+    cache.get(grid, 700e-9, 20e-6, torch.complex64, "cpu")
+    assert len(cache.store) == 2 and [k[0] for k in cache.store] == [600e-9, 700e-9]
