@@ -1,6 +1,6 @@
 """Reproduce docs/results.md: the quick presets against both baselines, through the CLI alone.
 
-    python examples/quick_results.py [--runs runs] [--seeds 5] [--reuse]
+    python examples/quick_results.py [--runs runs] [--seeds 3] [--reuse]
 
 1. ``metalens optimize`` trains presets/quick-split-spectrum.toml and presets/quick-broadband.toml
    (same code, same schedule; the broadband baseline has no filter) and writes the hyperbolic
@@ -10,8 +10,11 @@
    paper's full 512 × 512 sensor, for ``--seeds`` draws of depths and obstructions.
 3. ``metalens psf-scan`` measures, per pass band of the tri-band filter, the fraction of power in
    the central 5 × 5 pixels of the far (∞) and near (45 mm) PSFs of both learned designs.
+4. The cost of a training step at the paper's resolution, radial and 2-D, is copied from the
+   ``optimize-cpu`` section of docs/benchmarks.md (``python benchmarks/bench_optimize.py`` writes
+   it; this script does not re-run it).
 
-Every number and every verdict in the written file comes from these commands' JSON output.
+Every other number and every verdict in the written file comes from the commands' JSON output.
 ``--reuse`` keeps run directories that already hold a finished run.
 """
 
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shlex
 import statistics
 import subprocess
@@ -32,6 +36,7 @@ LABELS = {"quick-split-spectrum": "learned split-spectrum", "quick-broadband": "
           "hyperbolic-532": "hyperbolic 532 nm"}
 OBSTRUCTIONS = "dirt,fence,drops"
 NEAR_DEPTH = "45mm"
+BENCHMARKS = ROOT / "docs" / "benchmarks.md"
 
 
 def metalens(*args: str) -> dict:
@@ -115,7 +120,7 @@ def write(path: Path, reports, tables, energies, bands, seeds) -> None:
         lines.append(f"| {LABELS[name]} | {r['settings']['steps']} | {threads} | {per_step:.3f} |" if per_step
                      else f"| {LABELS[name]} | 0 | {threads} | — |")
         lines[-1] += f" {r['cost'].get('seconds_training', 0) / 60:.1f} min | {before_after} |"
-    lines += ["", "Threads and s/step are as each run's `run.json` recorded them; the two learned runs here were made side by side on the one 2-core machine, one torch thread each, so they took longer than a run alone: alone with 2 threads a quick step takes 0.22 s, 2000 steps about 7.3 min (`python benchmarks/bench_optimize.py`, docs/benchmarks.md)."]
+    lines += ["", "Threads and s/step are as each run's `run.json` recorded them; the two learned runs here were made side by side on the one 2-core machine, one torch thread each, so they took longer than a run alone (see (c) for a step with 2 threads)."]
     verdict_a = []
     for pixels, table in tables.items():
         lines += ["", f"## (a) Raw captures of the held-out images, {pixels} × {pixels} sensor", "",
@@ -140,6 +145,7 @@ def write(path: Path, reports, tables, energies, bands, seeds) -> None:
         lines.append(f"| {band} ({lo * 1e9:.0f}-{hi * 1e9:.0f} nm) | {e[DESIGNS[0], 'far']:.4f} | {e[DESIGNS[1], 'far']:.4f} | "
                      f"{e[DESIGNS[0], 'near']:.4f} | {e[DESIGNS[1], 'near']:.4f} |")
         verdict_b.append((band, e[DESIGNS[0], "far"] > e[DESIGNS[1], "far"], e[DESIGNS[0], "near"] < e[DESIGNS[1], "near"]))
+    lines += ["", "## (c) Seconds per training step", "", step_benchmark()]
     lines += ["", "## Verdicts", ""]
     for pixels, kind, ok, margin in verdict_a:
         lines.append(f"- (a) {pixels}², {kind}: split-spectrum obstructed PSNR {'beats' if ok else 'does NOT beat'} both baselines "
@@ -150,10 +156,19 @@ def write(path: Path, reports, tables, energies, bands, seeds) -> None:
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
+def step_benchmark() -> str:
+    """The ``optimize-cpu`` section of docs/benchmarks.md without its heading, or how to make it."""
+    text = BENCHMARKS.read_text(encoding="utf-8") if BENCHMARKS.is_file() else ""
+    found = re.search(r"<!-- bench:optimize-cpu -->\n## [^\n]*\n(.*?)\n<!-- /bench:optimize-cpu -->", text, re.S)
+    if found is None:
+        return "Not measured yet: run `python benchmarks/bench_optimize.py`, then this script again."
+    return ("Copied from docs/benchmarks.md (written by `python benchmarks/bench_optimize.py`).\n" + found.group(1).rstrip())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, default=ROOT / "runs")
-    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--pixels", type=int, nargs="+", default=[128, 512])
     parser.add_argument("--reuse", action="store_true")
     parser.add_argument("--output", type=Path, default=ROOT / "docs" / "results.md")
