@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -125,44 +126,126 @@ class TransferCache:
         return self.store[key]
 
 
+BLOCK_BYTES = 1 << 24
+"""Rows of a 1-D FFT pass are transformed this many bytes of output at a time, each block
+written into the pass's output: the transient memory of a pass is one block, not a full array."""
+
+
+def _blocks(rows: int, length: int, itemsize: int) -> list[slice]:
+    step = max(1, BLOCK_BYTES // (length * itemsize))
+    return [slice(a, min(a + step, rows)) for a in range(0, rows, step)]
+
+
 def _band_fft(x: torch.Tensor, size: int, k_max: int) -> torch.Tensor:
     """DFT of length ``size`` (zero padded) along the last axis, keeping frequencies −K..K in
-    increasing order; returned transposed in its last two axes, contiguous."""
-    spec = torch.fft.fft(x, n=size, dim=-1)
-    band = torch.cat([spec[..., size - k_max:], spec[..., :k_max + 1]], dim=-1)
-    return band.transpose(-1, -2).contiguous()
+    increasing order; returned transposed in its last two axes: (..., r, n) → (..., 2K+1, r)."""
+    out = x.new_empty(*x.shape[:-2], 2 * k_max + 1, x.shape[-2])
+    for rows in _blocks(x.shape[-2], size, x.element_size()):
+        spec = torch.fft.fft(x[..., rows, :], n=size, dim=-1)
+        out[..., :k_max, rows] = spec[..., size - k_max:].transpose(-1, -2)
+        out[..., k_max:, rows] = spec[..., :k_max + 1].transpose(-1, -2)
+    return out
+
+
+def _band_fft_adjoint(y: torch.Tensor, size: int, k_max: int, n: int) -> torch.Tensor:
+    """Adjoint of ``_band_fft``: (..., 2K+1, r) → (..., r, n), x_j = Σ_k y_k·exp(+i·2π·k·j/size)."""
+    rows_total = y.shape[-1]
+    out = y.new_empty(*y.shape[:-2], rows_total, n)
+    yt = y.transpose(-1, -2)
+    for rows in _blocks(rows_total, size, y.element_size()):
+        full = y.new_zeros(*y.shape[:-2], rows.stop - rows.start, size)
+        full[..., :k_max + 1] = yt[..., rows, k_max:]
+        full[..., size - k_max:] = yt[..., rows, :k_max]
+        out[..., rows, :] = torch.fft.ifft(full, dim=-1, norm="forward")[..., :n]
+    return out
+
+
+def _turns(k: torch.Tensor, x: torch.Tensor | int, size: int, sign: float, dtype) -> torch.Tensor:
+    """exp(sign·i·2π·k·x/size) with k·x reduced mod size in integers (exact phase)."""
+    turns = torch.remainder(k * x, size).to(dtype)
+    return torch.polar(torch.ones_like(turns), turns * (sign * 2 * math.pi / size))
 
 
 def _window_ifft(band: torch.Tensor, size: int, k_max: int, start: int, count: int) -> torch.Tensor:
     """Inverse DFT of length ``size`` along the last axis of coefficients for k = −K..K,
-    at outputs x = start..start+count−1 (mod size), transposed in the last two axes.
+    at outputs x = start..start+count−1 (mod size), transposed: (..., r, 2K+1) → (..., count, r).
 
     The band is fed as k + K = 0..2K (zero padding at the end, native to the FFT) and the
     resulting shift is undone by the ramp exp(−i·2π·K·x/size) on the kept outputs only.
     """
-    out = torch.fft.ifft(band, n=size, dim=-1)
     x = torch.remainder(torch.arange(start, start + count, device=band.device), size)
-    turns = torch.remainder(k_max * x, size).to(band.real.dtype)     # exact integer phase
-    ramp = torch.polar(torch.ones_like(turns), turns * (-2 * math.pi / size))
-    out = out.index_select(-1, x) * ramp
-    return out.transpose(-1, -2).contiguous()
+    ramp = _turns(torch.tensor(k_max, device=band.device), x, size, -1.0, band.real.dtype)
+    out = band.new_empty(*band.shape[:-2], count, band.shape[-2])
+    for rows in _blocks(band.shape[-2], size, band.element_size()):
+        kept = torch.fft.ifft(band[..., rows, :], n=size, dim=-1).index_select(-1, x) * ramp
+        out[..., :, rows] = kept.transpose(-1, -2)
+    return out
 
 
-def asm_propagate(field: torch.Tensor, grid: AsmGrid, transfer) -> torch.Tensor:
-    """Propagate ``field`` (..., n, n) on ``grid`` with ``transfer`` = (H, K) from
-    ``asm_transfer``; returns the complex field on the output window (..., w, w), w = 2·half + 1,
-    sampled ``grid.upsample`` times finer than the input.
+def _window_ifft_adjoint(window: torch.Tensor, size: int, k_max: int, start: int) -> torch.Tensor:
+    """Adjoint of ``_window_ifft``: (..., count, r) → (..., r, 2K+1),
+    b_k = (1/size)·Σ_x w_x·exp(−i·2π·k·(start + x)/size) for k = −K..K."""
+    count, rows_total = window.shape[-2:]
+    dev, real = window.device, window.real.dtype
+    pre = _turns(torch.arange(count, device=dev), k_max, size, 1.0, real)          # exp(+i2πKx/size)
+    post = _turns(torch.arange(-k_max, k_max + 1, device=dev), start, size, -1.0, real) / size
+    g = window.transpose(-1, -2)
+    out = window.new_empty(*window.shape[:-2], rows_total, 2 * k_max + 1)
+    for rows in _blocks(rows_total, size, window.element_size()):
+        out[..., rows, :] = torch.fft.fft(g[..., rows, :] * pre, n=size, dim=-1)[..., :2 * k_max + 1] * post
+    return out
 
-    Zero padding, band selection, upsampling (zero padding of the spectrum) and the window crop
-    happen inside 1-D passes along the last axis, so no padded full-size 2-D array is formed.
-    """
-    h, k_max = transfer
-    spec = _band_fft(_band_fft(field, grid.size, k_max), grid.size, k_max) * h
+
+def _asm_apply(field: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_max: int) -> torch.Tensor:
     n_up = grid.size * grid.upsample
     start = (grid.input_size // 2) * grid.upsample - grid.window_half
     count = 2 * grid.window_half + 1
+    spec = _band_fft(_band_fft(field, grid.size, k_max), grid.size, k_max).mul_(h)
     out = _window_ifft(_window_ifft(spec, n_up, k_max, start, count), n_up, k_max, start, count)
-    return out * grid.upsample**2
+    return out.mul_(grid.upsample**2)
+
+
+def _asm_adjoint(window: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_max: int) -> torch.Tensor:
+    n_up = grid.size * grid.upsample
+    start = (grid.input_size // 2) * grid.upsample - grid.window_half
+    spec = _window_ifft_adjoint(_window_ifft_adjoint(window, n_up, k_max, start), n_up, k_max, start)
+    spec = spec.mul_(h.conj())
+    field = _band_fft_adjoint(_band_fft_adjoint(spec, grid.size, k_max, grid.input_size), grid.size, k_max, grid.input_size)
+    return field.mul_(grid.upsample**2)
+
+
+class _AsmPropagate(torch.autograd.Function):
+    """The propagation is linear in the field: its gradient is the adjoint propagation of the
+    output gradient, so nothing is saved between the passes (the transfer function is fetched
+    again through ``transfer``)."""
+
+    @staticmethod
+    def forward(ctx, field, grid, transfer):
+        ctx.grid, ctx.transfer = grid, transfer
+        return _asm_apply(field, grid, *transfer())
+
+    @staticmethod
+    def backward(ctx, grad):
+        return _asm_adjoint(grad, ctx.grid, *ctx.transfer()), None, None
+
+
+def asm_propagate(field: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tuple]) -> torch.Tensor:
+    """Propagate ``field`` (..., n, n) on ``grid``; returns the complex field on the output
+    window (..., w, w), w = 2·half + 1, sampled ``grid.upsample`` times finer than the input.
+
+    ``transfer()`` returns (H, K) from ``asm_transfer`` (e.g. through a ``TransferCache``); it is
+    called in the forward pass and again in the backward pass, which runs the adjoint
+    propagation, so H need not be held in between. Zero padding, band selection, upsampling
+    (zero padding of the spectrum) and the window crop happen inside 1-D passes along the last
+    axis, a block of rows at a time, so no padded full-size 2-D array is formed.
+    """
+    return _AsmPropagate.apply(field, grid, transfer)
+
+
+def asm_propagate_adjoint(window: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tuple]) -> torch.Tensor:
+    """Adjoint (conjugate transpose) of ``asm_propagate``: window field (..., w, w) → input
+    field (..., n, n), with ⟨asm_propagate(x), y⟩ = ⟨x, asm_propagate_adjoint(y)⟩."""
+    return _asm_adjoint(window, grid, *transfer())
 
 
 def asm_propagate_plain(field: torch.Tensor, pitch_m: float, wavelength_m: float,
