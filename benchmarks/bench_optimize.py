@@ -4,8 +4,8 @@ meta-atom ring) and the 2-D θ(x, y) (one per meta-atom site, 6369² as in the p
 
 Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 3] [--steps-2d 1]
 [--parameterization radial 2d]. Rewrites its section of docs/benchmarks.md (one per device type).
-A 2-D step at this size takes over ten minutes and about 12 GiB on 2 CPU cores; its PSFs and their
-transfer functions are rebuilt in the backward pass, so memory stays that of one PSF (see
+A 2-D step at this size takes minutes and several GiB on 2 CPU cores; its backward pass runs the
+adjoint propagation, so each PSF holds only its window field between the passes (see
 ``optics.psf``).
 """
 
