@@ -71,6 +71,20 @@ class AsmGrid:
     def extent_m(self) -> float:
         return self.size * self.pitch_m
 
+    @property
+    def upsampled_size(self) -> int:
+        """Length of the finer (output) grid's inverse transforms."""
+        return self.size * self.upsample
+
+    @property
+    def window_start(self) -> int:
+        """Index of the window's first sample on the finer grid (axis at (input_size//2)·upsample)."""
+        return (self.input_size // 2) * self.upsample - self.window_half
+
+    @property
+    def window_samples(self) -> int:
+        return 2 * self.window_half + 1
+
     def window_coords(self, dtype: torch.dtype = torch.float64) -> torch.Tensor:
         """Output sample positions along x (and y) in m."""
         n = torch.arange(-self.window_half, self.window_half + 1, dtype=dtype)
@@ -197,17 +211,14 @@ def _window_ifft_adjoint(window: torch.Tensor, size: int, k_max: int, start: int
 
 
 def _asm_apply(field: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_max: int) -> torch.Tensor:
-    n_up = grid.size * grid.upsample
-    start = (grid.input_size // 2) * grid.upsample - grid.window_half
-    count = 2 * grid.window_half + 1
+    n_up, start, count = grid.upsampled_size, grid.window_start, grid.window_samples
     spec = _band_fft(_band_fft(field, grid.size, k_max), grid.size, k_max).mul_(h)
     out = _window_ifft(_window_ifft(spec, n_up, k_max, start, count), n_up, k_max, start, count)
     return out.mul_(grid.upsample**2)
 
 
 def _asm_adjoint(window: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_max: int) -> torch.Tensor:
-    n_up = grid.size * grid.upsample
-    start = (grid.input_size // 2) * grid.upsample - grid.window_half
+    n_up, start = grid.upsampled_size, grid.window_start
     spec = _window_ifft_adjoint(_window_ifft_adjoint(window, n_up, k_max, start), n_up, k_max, start)
     spec = spec.mul_(h.conj())
     field = _band_fft_adjoint(_band_fft_adjoint(spec, grid.size, k_max, grid.input_size), grid.size, k_max, grid.input_size)

@@ -176,7 +176,7 @@ def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample,
             out[i, j] = _call(checkpointed, _pixel_psf, window, mat, power)
             clock.lap("propagate")
     info = {"kind": "asm", "fft_size": max(g.size for g in grids.values()), "pitch_m": grid.pitch_m,
-            "input_size": grid.input_size, "window_samples": 2 * grid.window_half + 1,
+            "input_size": grid.input_size, "window_samples": grid.window_samples,
             "window_step_m": grid.pitch_m / grid.upsample, "checkpointed": checkpointed}
     psf = torch.stack([out[i, j] for i in range(len(zs)) for j in range(len(lams))])
     return psf.reshape(len(zs), len(lams), pixels, pixels), info
