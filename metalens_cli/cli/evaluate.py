@@ -1,95 +1,116 @@
 """`metalens evaluate`: PSNR/SSIM (and LPIPS when its weights are present) of unobstructed and
-obstructed captures, design against design."""
+obstructed captures, design against design, with bootstrap confidence intervals."""
 
 from __future__ import annotations
 
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import json_option, plot_option
+from metalens_cli.cli.options import SeedList, json_option, plot_option
+from metalens_cli.cli.progress import progress_bar
 from metalens_cli.cli.simulate import capture_options, setup
+
+MATCH_METHODS = ("luminance", "lstsq")  # imaging.metrics.MATCH_METHODS (not imported: it pulls in torch)
+LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 
 
 @click.command("evaluate")
 @click.argument("specs", metavar="DESIGN...", nargs=-1, required=True)
 @capture_options
+@click.option("--seed", "seeds", type=SeedList(), default="0", show_default=True,
+              help="Seeds of depths, obstructions and noise: 0, 0,1,2 or 0:2; units are images × seeds.")
 @click.option("--obstruction", default="dirt,fence", show_default=True, help="Comma-separated: dirt, fence, drops, rain, file:PATH.png.")
-@click.option("--csv", "csv_path", type=click.Path(dir_okay=False), help="Write the rows as CSV.")
+@click.option("--match", type=click.Choice(MATCH_METHODS), default="luminance", show_default=True,
+              help="Photometric match before the metrics: luminance mean/std (the paper's) or least squares.")
+@click.option("--csv", "csv_path", type=click.Path(dir_okay=False), help="Write the rows (means and CIs) as CSV.")
 @click.option("--lpips-weights", "lpips_weights", type=click.Path(exists=True, file_okay=False),
               help="Directory with alexnet-owt-7be5be79.pth and lpips's v0.1 alex.pth "
                    "(without it: $METALENS_LPIPS_WEIGHTS, then torch hub's checkpoints with an installed lpips; "
                    "none found: LPIPS is skipped with a note; nothing is downloaded).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
 @json_option
 @plot_option
-def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
-             pixel_pitch_m, wavelengths, psf_normalization, alpha_gain, photons, read_noise, device, obstruction, csv_path,
-             lpips_weights, as_json, plot_path):
+def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
+             pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seeds, obstruction, match,
+             csv_path, lpips_weights, quiet, as_json, plot_path):
     """Unobstructed and obstructed captures of each DESIGN against the clean images.
 
-    PSNR and SSIM after the global gain/bias match (Suppl. Note 11), on sRGB-encoded images,
-    averaged over the images; Δ = obstructed − unobstructed. The same seed gives every design
-    the same depths, obstructions and noise. LPIPS (v0.1, AlexNet; lower is closer) on the same
-    images when its weights are found locally (nothing is downloaded), else skipped with a note.
+    Every design sees the same units (image, seed). Per cell: the mean over units with a 95 %
+    bootstrap confidence interval; Δ = Obs. − Unobs. per unit (LPIPS: Unobs. − Obs.; negative is
+    a degradation); paired differences between designs on the same units. PSNR and SSIM after
+    the photometric match (Suppl. Note 11), on sRGB-encoded images. LPIPS (v0.1, AlexNet) when
+    its weights are found locally (nothing is downloaded), else skipped with a note.
     """
+    from metalens_cli.imaging.evaluation import EvaluationSettings, evaluate as run_evaluation, metric_names
     from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
     from metalens_cli.imaging.obstructions import parse_obstructions
-    from metalens_cli.imaging.pipeline import channel_psfs, score, simulate_captures
 
     kinds = parse_obstructions(obstruction)
     lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
     lpips_model = Lpips.from_files(lpips_paths.alexnet, lpips_paths.lin) if lpips_paths else None
-    metrics = ("psnr_db", "ssim", "lpips") if lpips_model is not None else ("psnr_db", "ssim")
-    s = setup(list(specs), preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
-              pixel_pitch_m, wavelengths, device)
-    rows, deltas, panels = [], [], {}
-    for design in s["designs"]:
-        psfs = channel_psfs(design, s["z_near_m"], s["z_far_m"], s["wavelengths_m"], s["psf_pixels"], s["pixel_pitch_m"],
-                            psf_normalization, device=s["device"])
-        panels[design.spec] = []
-        for kind in kinds:
-            captures = simulate_captures(s["images"], kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed,
-                                         params=s["obstruction_params"], alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
-            means = {}
-            for condition in ("unobstructed", "obstructed"):
-                scores = [score(getattr(c, condition), c.clean, lpips_model) for c in captures]
-                means[condition] = {k: sum(x[k] for x in scores) / len(scores) for k in metrics}
-                rows.append({"design": design.spec, "obstruction": kind, "condition": condition, **means[condition]})
-            deltas.append({"design": design.spec, "obstruction": kind,
-                           "delta_psnr_db": means["obstructed"]["psnr_db"] - means["unobstructed"]["psnr_db"],
-                           "delta_ssim": means["obstructed"]["ssim"] - means["unobstructed"]["ssim"],
-                           **({"delta_lpips": means["obstructed"]["lpips"] - means["unobstructed"]["lpips"]}
-                              if lpips_model is not None else {})})
-            first = captures[0]
-            if not panels[design.spec]:
-                panels[design.spec] += [("clean", first.clean), ("unobstructed", first.unobstructed)]
-            panels[design.spec].append((f"obstructed: {kind}", first.obstructed))
+    metrics = metric_names(lpips_model)
+    s = setup(list(specs), preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device)
+    settings = EvaluationSettings(s["pixels"], s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]),
+                                  s["wavelengths_m"], images, limit, s["obstruction_params"], formation, match, alpha_gain,
+                                  photons, read_noise, psf_pixels, s["device"])
+    with progress_bar("evaluate", quiet) as update:
+        result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update)
     notes = [n for n in (lpips_skip,) if n]
     err = render.console(stderr=True)
     for note in notes:
         err.print(f"note: {note}")
+    for warning in result.warnings:
+        err.print(f"warning: {warning}")
     if csv_path:
-        _write_csv(csv_path, rows, metrics)
+        _write_csv(csv_path, result.rows, metrics)
     if plot_path:
         from metalens_cli.plotting.imaging import comparison_figure
 
-        comparison_figure(plot_path, [d.spec for d in s["designs"]], panels)
+        comparison_figure(plot_path, [d.spec for d in s["designs"]], result.panels)
     if as_json:
-        render.emit_json({"rows": rows, "deltas": deltas, "images": [i.name for i in s["images"]],
-                          "z_near_m": s["z_near_m"], "z_far_m": s["z_far_m"], "seed": seed, "notes": notes,
+        render.emit_json({"rows": result.rows, "deltas": result.deltas, "comparisons": result.comparisons,
+                          "units": result.units, "psfs": result.psfs, "images": result.images, "seeds": seeds,
+                          "formation": formation, "photometric_match": match, "confidence": 0.95,
+                          "notes": notes, "warnings": result.warnings,
                           **({"csv": str(csv_path)} if csv_path else {}), **({"plot": str(plot_path)} if plot_path else {})})
         return
-    table_rows = []
-    for d in deltas:
-        u = next(r for r in rows if r["design"] == d["design"] and r["obstruction"] == d["obstruction"] and r["condition"] == "unobstructed")
-        o = next(r for r in rows if r["design"] == d["design"] and r["obstruction"] == d["obstruction"] and r["condition"] == "obstructed")
-        table_rows.append([d["design"], d["obstruction"], f"{u['psnr_db']:.2f}", f"{o['psnr_db']:.2f}", f"{d['delta_psnr_db']:+.2f}",
-                           f"{u['ssim']:.3f}", f"{o['ssim']:.3f}", f"{d['delta_ssim']:+.3f}"]
-                          + ([f"{u['lpips']:.3f}", f"{o['lpips']:.3f}", f"{d['delta_lpips']:+.3f}"] if lpips_model is not None else []))
     con = render.console()
-    con.print(render.table(f"Raw captures vs clean ({len(s['images'])} images; obstruction at {s['z_near_m'] * 1e3:.1f} mm, scene at {s['z_far_m']:.2f} m)",
-                           ["design", "obstruction", "PSNR unobstr.", "PSNR obstr.", "Δ PSNR", "SSIM unobstr.", "SSIM obstr.", "Δ SSIM"]
-                           + (["LPIPS unobstr.", "LPIPS obstr.", "Δ LPIPS"] if lpips_model is not None else []),
-                           table_rows))
+    n = result.rows[0]["n"] if result.rows else 0
+    con.print(render.table(f"Raw captures vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units",
+                           ["design", "condition"] + [f"{k} {_short(m)}" for k in kinds for m in metrics], _table_rows(result, kinds, metrics)))
+    pairs = [c for c in result.comparisons if c["metric"] == "psnr_db" and c["condition"] in ("obstructed", "delta")]
+    if pairs:
+        con.print(render.table("Paired PSNR differences (design − versus, same units), dB [95 % CI]",
+                               ["design", "versus", "obstruction", "condition", "difference"],
+                               [[c["design"], c["versus"], c["obstruction"], LABELS[c["condition"]], _ci(c["difference"], c["ci"], 2)]
+                                for c in pairs]))
+
+
+def _short(metric: str) -> str:
+    return {"psnr_db": "PSNR", "ssim": "SSIM", "lpips": "LPIPS"}[metric]
+
+
+def _ci(mean: float, ci, digits: int) -> str:
+    return f"{mean:+.{digits}f} [{ci[0]:+.{digits}f}, {ci[1]:+.{digits}f}]" if mean < 0 or ci[0] < 0 else \
+        f"{mean:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
+
+
+def _table_rows(result, kinds, metrics) -> list[list[str]]:
+    """The paper's Suppl. table layout: per design, rows Unobs., Obs., Δ; columns per obstruction and metric."""
+    digits = {"psnr_db": 2, "ssim": 3, "lpips": 3}
+    table = []
+    for design in dict.fromkeys(r["design"] for r in result.rows):
+        for condition in ("unobstructed", "obstructed", "delta"):
+            cells = []
+            for kind in kinds:
+                if condition == "delta":
+                    d = next(x for x in result.deltas if x["design"] == design and x["obstruction"] == kind)
+                    cells += [_ci(d[f"delta_{m}"], d[f"delta_{m}_ci"], digits[m]) for m in metrics]
+                else:
+                    r = next(x for x in result.rows if x["design"] == design and x["obstruction"] == kind and x["condition"] == condition)
+                    cells += [_ci(r[m], r[f"{m}_ci"], digits[m]) for m in metrics]
+            table.append([design if condition == "unobstructed" else "", f"Raw {LABELS[condition]}", *cells])
+    return table
 
 
 def _write_csv(path, rows, metrics=("psnr_db", "ssim")) -> None:
@@ -98,9 +119,12 @@ def _write_csv(path, rows, metrics=("psnr_db", "ssim")) -> None:
 
     from metalens_cli.io.atomic import atomic_write
 
+    columns = ["design", "obstruction", "condition", "n"] + [c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")]
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=["design", "obstruction", "condition", *metrics], lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
-    writer.writerows(rows)
+    for row in rows:
+        writer.writerow({**{k: row[k] for k in ("design", "obstruction", "condition", "n")},
+                         **{c: v for m in metrics for c, v in ((m, row[m]), (f"{m}_lo", row[f"{m}_ci"][0]), (f"{m}_hi", row[f"{m}_ci"][1]))}})
     with atomic_write(path) as temporary:
         temporary.write_text(buffer.getvalue(), encoding="utf-8")

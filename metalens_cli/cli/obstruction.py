@@ -41,7 +41,7 @@ def preview(preset_path, kinds, depths, f_m, pixels, pixel_pitch_m, seed, output
     pixel_pitch_m = pixel_pitch_m or (preset.sensor.pixel_pitch_m if preset else 1.85e-6)
     depths_m = flatten(depths) or (sorted(set(preset.scene.z_near_m)) if preset else [0.045])
     params = preset.obstruction if preset else None
-    clean = builtin_images((pixels, pixels))[0].linear  # rain refracts a scene
+    clean = builtin_images((pixels, pixels), count=1)[0].linear  # rain refracts a scene
     rows = []
     for depth in depths_m:
         made = [make_obstruction(kind, (pixels, pixels), depth, f_m, pixel_pitch_m, seed, params, clean=clean)

@@ -78,6 +78,26 @@ class BandSpec(_UnitType):
         return tuple(units.parse_length(part, field) for part in parts)
 
 
+class SeedList(click.ParamType):
+    """``0``, ``0,1,2`` or an inclusive range ``0:2`` → list of non-negative integers."""
+
+    name = "seeds"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, list):
+            return value
+        seeds = []
+        try:
+            for part in str(value).split(","):
+                lo, _, hi = part.strip().partition(":")
+                seeds += list(range(int(lo), int(hi or lo) + 1))
+        except ValueError:
+            seeds = []
+        if not seeds or min(seeds) < 0 or len(seeds) > 1000:
+            self.fail(f"{value!r} (expected seeds like 0, 0,1,2 or 0:2)", param, ctx)
+        return seeds
+
+
 def flatten(values) -> list[float]:
     """Join the lists of a repeatable LengthList option."""
     return [v for group in values or () for v in group]

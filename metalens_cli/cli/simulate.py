@@ -11,6 +11,8 @@ from metalens_cli.cli import render
 from metalens_cli.cli.options import Interval, Length, LengthList, apply_options, flatten, geometry_options, json_option, load_preset_option, torch_device
 from metalens_cli.errors import InputError
 
+FORMATIONS = ("physical", "paper")  # imaging.formation.FORMATIONS (not imported: it pulls in torch)
+
 DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
 
 
@@ -21,13 +23,13 @@ def capture_options(f):
         click.option("--limit", type=click.IntRange(1), help="Use at most this many images."),
         click.option("--z-near", "z_near_m", type=Interval(), help="Obstruction depth or interval, e.g. 45mm or 40mm:50mm [preset's, else 40mm:50mm]."),
         click.option("--z-far", "z_far_m", type=Interval(), help="Scene depth or interval, e.g. 1m or 1m:20m [preset's, else 1m:20m]."),
-        click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of depths, obstructions and noise."),
-        click.option("--pixels", type=click.IntRange(16, 8192), help="Sensor (and PSF window) N × N [preset's, else 512]."),
-        click.option("--psf-pixels", type=click.IntRange(3, 8192), help="PSF window size [the sensor's]."),
+        click.option("--pixels", type=click.IntRange(16, 8192), help="Sensor N × N [preset's, else 512]."),
+        click.option("--psf-pixels", type=click.IntRange(3, 8192),
+                     help="Force one PSF window size for both depths [from the optics: the window that holds the light]."),
         click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um]."),
         click.option("--wavelengths", type=LengthList(), multiple=True, help="PSF wavelengths mixed into R, G, B [400:700:5nm]."),
-        click.option("--psf-normalization", type=click.Choice(("aperture", "window")), default="aperture", show_default=True,
-                     help="aperture: PSFs as fractions of the aperture power; window: each PSF sums to 1."),
+        click.option("--formation", type=click.Choice(FORMATIONS), default="physical", show_default=True,
+                     help="physical: obstruction light P̂_near ∗ (m ⊙ I_obs); paper: the paper's α ⊙ (P̂_near ∗ I_obs)."),
         click.option("--alpha-gain", type=click.FloatRange(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."),
         click.option("--photons", type=click.FloatRange(0), help="Full-well electrons for shot noise (0/absent: none)."),
         click.option("--read-noise", type=click.FloatRange(0), default=0.0, help="Read-noise σ as a fraction of full scale."),
@@ -36,11 +38,9 @@ def capture_options(f):
     return geometry_options(apply_options(f, options))
 
 
-def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
-          pixel_pitch_m, wavelengths, device):
-    """Resolve designs, sensor, depths, wavelengths and images (shared by simulate and evaluate)."""
-    from metalens_cli.imaging.images import load_images
-    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, DEFAULT_Z_FAR_M, DEFAULT_Z_NEAR_M, draw_depths
+def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device):
+    """Resolve designs, sensor, depth intervals and wavelengths (shared by simulate and evaluate)."""
+    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, DEFAULT_Z_FAR_M, DEFAULT_Z_NEAR_M
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.io.units import parse_length_list
 
@@ -49,66 +49,65 @@ def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, images, limit, z_nea
     in_force = preset or designs[0].preset
     sensor = in_force.sensor if in_force is not None else None
     scene = in_force.scene if in_force is not None else None
-    pixels = pixels or (sensor.pixels if sensor else DEFAULT_PIXELS)
-    pixel_pitch_m = pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M)
     z_near = z_near_m or (scene.z_near_m if scene else DEFAULT_Z_NEAR_M)
     z_far = z_far_m or (scene.z_far_m if scene else DEFAULT_Z_FAR_M)
-    near, far = draw_depths(z_near, z_far, seed)
-    if not near < far:
-        raise InputError("--z-near", f"obstruction at {near} m is not in front of the scene at {far} m", "z-near below z-far")
     waves = flatten(wavelengths) or parse_length_list(DEFAULT_WAVELENGTHS, "--wavelengths")
-    clean = load_images(images, (pixels, pixels), limit)
-    return {"designs": designs, "pixels": pixels, "psf_pixels": psf_pixels or pixels, "pixel_pitch_m": pixel_pitch_m,
-            "z_near_m": near, "z_far_m": far, "z_near_interval_m": list(z_near), "z_far_interval_m": list(z_far),
-            "wavelengths_m": waves, "images": clean, "device": torch_device(device),
+    return {"designs": designs, "pixels": pixels or (sensor.pixels if sensor else DEFAULT_PIXELS),
+            "pixel_pitch_m": pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M),
+            "z_near_interval_m": list(z_near), "z_far_interval_m": list(z_far),
+            "wavelengths_m": waves, "device": torch_device(device),
             "obstruction_params": in_force.obstruction if in_force is not None else None}
 
 
 @click.command("simulate")
 @click.argument("spec", metavar="DESIGN")
 @capture_options
+@click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of depths, obstructions and noise.")
 @click.option("--obstruction", default="dirt", show_default=True, help="dirt, fence, drops, rain or file:PATH.png.")
 @click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Output folder (created).")
 @json_option
-def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
-             pixel_pitch_m, wavelengths, psf_normalization, alpha_gain, photons, read_noise, device, obstruction, output, as_json):
+def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
+             pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seed, obstruction, output, as_json):
     """Simulated captures of clean images through DESIGN with a near obstruction.
 
     Writes, per image, the clean scene and the unobstructed and obstructed captures (PNG for
     viewing, linear EXR), the obstruction and α maps, a contact sheet and simulate.json.
     """
+    from metalens_cli.imaging.images import load_images
     from metalens_cli.imaging.obstructions import parse_obstructions
-    from metalens_cli.imaging.pipeline import channel_psfs, simulate_captures
+    from metalens_cli.imaging.pipeline import channel_psfs, draw_depths, simulate_captures
 
     start = time.perf_counter()
     (kind,) = _single(parse_obstructions(obstruction))
-    s = setup([spec], preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, seed, pixels, psf_pixels,
-              pixel_pitch_m, wavelengths, device)
+    s = setup([spec], preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device)
     design = s["designs"][0]
-    psfs = channel_psfs(design, s["z_near_m"], s["z_far_m"], s["wavelengths_m"], s["psf_pixels"], s["pixel_pitch_m"],
-                        psf_normalization, device=s["device"])
-    captures = simulate_captures(s["images"], kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed,
-                                 params=s["obstruction_params"], alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
+    z_near, z_far = draw_depths(s["z_near_interval_m"], s["z_far_interval_m"], seed)
+    psfs = channel_psfs(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], device=s["device"], window=psf_pixels)
+    clean = load_images(images, (s["pixels"], s["pixels"]), limit, psfs.margin)
+    captures = simulate_captures(clean, kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed, params=s["obstruction_params"],
+                                 formation=formation, alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     files = write_captures(out, captures)
     from metalens_cli.plotting.imaging import contact_sheet
 
     files.append(str(contact_sheet(out / "contact_sheet.png", captures)))
+    warnings = psfs.warnings()
     report = render.jsonable({
         "design": design.describe(),
         "obstruction": kind,
         "seed": seed,
-        "z_near_m": s["z_near_m"], "z_far_m": s["z_far_m"],
+        "z_near_m": z_near, "z_far_m": z_far,
         "z_near_interval_m": s["z_near_interval_m"], "z_far_interval_m": s["z_far_interval_m"],
-        "pixels": s["pixels"], "psf_pixels": s["psf_pixels"], "pixel_pitch_m": s["pixel_pitch_m"],
-        "wavelengths_m": s["wavelengths_m"], "psf_normalization": psf_normalization,
+        "pixels": s["pixels"], "pixel_pitch_m": s["pixel_pitch_m"], "canvas_margin_px": psfs.margin,
+        "wavelengths_m": s["wavelengths_m"], "formation": formation,
         "alpha_gain": alpha_gain, "photons": photons, "read_noise": read_noise,
-        "psf_energy": {"near": dict(zip("RGB", psfs.energy_near)), "far": dict(zip("RGB", psfs.energy_far))},
+        **psfs.report(),
         "spectral_coverage": dict(zip("RGB", psfs.coverage)),
         "images": [{"name": c.name, "obstruction_coverage": c.obstruction.coverage, "alpha_coverage": c.alpha_coverage,
                     "obstruction_settings": c.obstruction.settings, "seconds": c.seconds} for c in captures],
         "timing_s": {"psf": psfs.seconds, "captures": sum(c.seconds for c in captures), "total": time.perf_counter() - start},
+        "warnings": warnings,
         "files": files,
     })
     import json
@@ -117,17 +116,25 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
 
     with atomic_write(out / "simulate.json") as temporary:
         temporary.write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    err = render.console(stderr=True)
+    for warning in warnings:
+        err.print(f"warning: {warning}")
     if as_json:
         render.emit_json(report)
         return
     con = render.console()
     rows = [[i["name"], f"{100 * i['obstruction_coverage']:.1f}", f"{100 * i['alpha_coverage']:.1f}", f"{i['seconds']:.2f}"]
             for i in report["images"]]
-    con.print(render.table(f"simulate {design.spec}: {kind} at {s['z_near_m'] * 1e3:.1f} mm, scene at {s['z_far_m']:.2f} m",
+    con.print(render.table(f"simulate {design.spec}: {kind} at {z_near * 1e3:.1f} mm, scene at {z_far:.2f} m",
                            ["image", "obstruction %", "α %", "s"], rows))
-    con.print("PSF energy in window (R, G, B): near " + ", ".join(f"{e:.3f}" for e in psfs.energy_near)
-              + "; far " + ", ".join(f"{e:.3f}" for e in psfs.energy_far))
+    con.print(kept_line(psfs))
     con.print(f"wrote {len(files) + 1} files to {out}")
+
+
+def kept_line(psfs) -> str:
+    """One line: PSF windows and the fraction of the light each kept, per channel."""
+    return (f"PSF windows near {psfs.near.shape[-1]} px, far {psfs.far.shape[-1]} px; light kept (R, G, B): near "
+            + ", ".join(f"{e:.4f}" for e in psfs.kept_near) + "; far " + ", ".join(f"{e:.4f}" for e in psfs.kept_far))
 
 
 def _single(specs):
@@ -146,14 +153,15 @@ def write_captures(out: Path, captures) -> list[str]:
     files = []
     for c in captures:
         grey = np.full_like(c.clean, 0.5)
-        composite = c.obstruction.rgb * c.obstruction.mask + grey * (1 - c.obstruction.mask)
+        mask = c.obstruction.sensor_mask
+        composite = c.obstruction.sensor_rgb * mask + grey * (1 - mask)
         for label, image in (("clean", c.clean), ("unobstructed", c.unobstructed), ("obstructed", c.obstructed)):
             write_png(out / f"{c.name}_{label}.png", linear_to_srgb(image))
             write_exr_rgb(out / f"{c.name}_{label}.exr", image)
             files += [str(out / f"{c.name}_{label}.png"), str(out / f"{c.name}_{label}.exr")]
         write_png(out / f"{c.name}_obstruction.png", linear_to_srgb(composite))
         write_png(out / f"{c.name}_alpha.png", np.clip(c.alpha, 0, 1))
-        write_exr_rgb(out / f"{c.name}_obstruction_mask.exr", c.obstruction.mask)
+        write_exr_rgb(out / f"{c.name}_obstruction_mask.exr", mask)
         write_exr_rgb(out / f"{c.name}_alpha.exr", c.alpha)
         files += [str(out / f"{c.name}_{x}") for x in ("obstruction.png", "alpha.png", "obstruction_mask.exr", "alpha.exr")]
     return files

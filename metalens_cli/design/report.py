@@ -11,6 +11,7 @@ import torch
 
 from metalens_cli import __version__
 from metalens_cli.analysis.psf_metrics import central_energy
+from metalens_cli.imaging.pipeline import KEPT_WARNING
 from metalens_cli.io.designs import Design
 from metalens_cli.io.exr import write_psf_cube
 from metalens_cli.io.json_files import jsonable, write_json
@@ -38,8 +39,15 @@ def channel_energies(rgb: np.ndarray, window: int) -> dict:
     return {"energy_in_window": rgb.sum(axis=(-2, -1)).tolist(), f"energy_center_{window}x{window}": central_energy(rgb, window).tolist()}
 
 
+def kept_summary(history: list[dict]) -> dict:
+    """Per depth and channel, the least and mean fraction of the light the step windows kept."""
+    keys = sorted({k for row in history for k in row if k.startswith("kept_")})
+    return {k[5:]: {"min": min(r[k] for r in history if k in r), "mean": statistics.fmean(r[k] for r in history if k in r)}
+            for k in keys}
+
+
 def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[str], world: int, device: str,
-                  threads: int, validation: dict) -> dict:
+                  threads: int, validation: dict, windows: dict) -> dict:
     from metalens_cli.plotting.optimize import loss_figure, theta_figure
 
     start = time.perf_counter()
@@ -65,6 +73,7 @@ def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[st
 
         initial = build_model(preset).full_theta().detach().numpy()
     theta_figure(run.path / "theta.png", theta, pitch, initial)
+    kept = kept_summary(summary.history)
     tail = summary.history[-FINAL_WINDOW:]
     final = {k: statistics.fmean(r[k] for r in tail) for k in ("total", "l1", "ssim", "bright", "sharp")} if tail else {}
     seconds = [r["seconds"] for r in summary.history[summary.resumed_from:]]
@@ -81,7 +90,9 @@ def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[st
         "final_loss": final,
         "validation_loss": validation,
         "psf": psf_report,
-        "notes": notes,
+        "psf_windows": {**windows, "kept": kept},
+        "notes": notes + [f"the {name.replace('_', ' ')} PSF window kept as little as {v['min']:.3f} of the light in a step (< {KEPT_WARNING})"
+                          for name, v in kept.items() if v["min"] < KEPT_WARNING],
     }
     report["cost"]["seconds_results"] = time.perf_counter() - start
     write_json(run.path / "run.json", report)

@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from metalens_cli.imaging.obstructions import fractal_noise
+from metalens_cli.imaging.noise import fractal_noise
 
 
 def procedural_scene(shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
     """One random linear-RGB scene (3, H, W) in 0.02..1."""
     h, w = shape
-    y, x = np.mgrid[0:h, 0:w] / max(h, w)
-    base = rng.uniform(0.1, 0.6, size=(3, 1, 1))
+    y, x = (np.mgrid[0:h, 0:w] / max(h, w)).astype(np.float32)
+    base = rng.uniform(0.1, 0.6, size=(3, 1, 1)).astype(np.float32)
     noise = np.stack([fractal_noise((h, w), max(h, w) / rng.uniform(2, 8), 4, rng) for _ in range(3)])
     image = base + rng.uniform(0.1, 0.4) * noise
     for _ in range(rng.integers(3, 9)):
@@ -35,7 +35,7 @@ def procedural_scene(shape: tuple[int, int], rng: np.random.Generator) -> np.nda
             angle, period = rng.uniform(0, np.pi), rng.uniform(2.0, 12.0) / max(h, w)
             bars = np.sin(2 * np.pi * (x * np.cos(angle) + y * np.sin(angle)) / period) > 0
             inside = bars & (np.hypot(x - cx, y - cy) < size)
-        image = np.where(inside[None], colour, image)
+        image[:, inside] = colour[:, :, 0]
     return np.clip(image, 0.02, 1.0).astype(np.float32)
 
 

@@ -22,6 +22,7 @@ import math
 import statistics
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,9 +34,12 @@ from metalens_cli.design.losses import training_loss
 from metalens_cli.design.parameterization import initial_parameterization
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.scenes import training_scene
+from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.errors import InputError, MetalensError
-from metalens_cli.imaging.formation import form_image
+from metalens_cli.imaging.formation import canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
+from metalens_cli.imaging.pipeline import crop_window
+from metalens_cli.optics.blur import kept_fraction, psf_window
 from metalens_cli.io.presets import to_toml
 from metalens_cli.optics.psf import compute_psf
 from metalens_cli.optics.sampling import check_lens_sampling
@@ -43,6 +47,7 @@ from metalens_cli.optics.spectra import mix_channels, preset_sensitivity, sample
 
 DEFAULT_LAMBDA_D_M = 532e-9
 PLAN_HEADROOM = 1.25
+WINDOW_SENSITIVITY = 1e-3  # wavelengths whose S^c exceeds this fraction of the peak size the windows
 
 
 class TrainingInterrupted(MetalensError):
@@ -114,33 +119,68 @@ def plan_frequency(preset) -> float:
     return PLAN_HEADROOM * check_lens_sampling(build_model(preset).lens(), plan_l, plan_z, force=False)
 
 
-def step_psfs(lens, preset, draw: StepDraw, device, timing: dict | None = None,
+@dataclass(frozen=True)
+class Windows:
+    """The run's PSF windows (odd sides, pixels) at the near and far depths, and the canvas
+    margin (pixels) they need around the sensor."""
+
+    near: int
+    far: int
+
+    @property
+    def margin(self) -> int:
+        return canvas_margin(self.near, self.far)
+
+
+def plan_windows(preset, sensitivity) -> Windows:
+    """Windows that hold the initial design's light (``optics.blur``) at every wavelength the
+    channels respond to and both ends of each depth interval, times ``PLAN_HEADROOM`` for the
+    lens to change; each step reports what its windows kept."""
+    grid = sensitivity.wavelengths_m
+    support = grid[sensitivity.values.max(axis=0) > WINDOW_SENSITIVITY * sensitivity.values.max()]
+    waves = list(support[:: max(1, len(support) // 32)]) + [support[-1]]
+    lens, d, pitch = build_model(preset).lens(), preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
+    near, far = preset.scene.z_near_m, preset.scene.z_far_m
+    return Windows(psf_window(lens, waves, list(near), d, pitch, PLAN_HEADROOM), psf_window(lens, waves, list(far), d, pitch, PLAN_HEADROOM))
+
+
+def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None,
               frequency: float | None = None) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """(3, N, N) near and far PSFs for one step's draw, differentiable in θ; and the grid used."""
+    """(3, N, N) near and far PSFs for one step's draw in their windows, differentiable in θ; and
+    the grid used."""
     plan_l, plan_z = plan_range(preset)
-    result = compute_psf(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], preset.sensor.pixels,
+    result = compute_psf(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], max(windows.near, windows.far),
                          preset.sensor.pixel_pitch_m, preset.lens.focal_length_m, "auto", torch.float32, device,
                          plan_wavelengths_m=plan_l, plan_depths_m=plan_z, plan_frequency=frequency)
     if timing is not None:
         for stage, seconds in result.timing_s.items():
             timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
     rgb = mix_channels(result.psf, draw.weights)
-    return rgb[0], rgb[1], result.grid
+    return crop_window(rgb[0], windows.near), crop_window(rgb[1], windows.far), result.grid
 
 
-def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, device):
-    """Clean scenes, obstruction colours and masks (B, C, H, W) for the batch entries ``indices``."""
+def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
+    """Clean scenes, obstruction colours and masks (B, C, H + 2M, W + 2M) on the canvas of
+    ``margin`` M for the batch entries ``indices``, generated on a thread pool (numpy releases the
+    GIL; every entry draws from its own (seed, step, index) streams, so the order does not matter)."""
     n = preset.sensor.pixels
     kinds = preset.optimize.obstructions
-    cleans, colours, masks = [], [], []
-    for index in indices:
-        clean = training_scene((n, n), seed, step, index, pool)
+
+    def entry(index):
+        clean = training_scene((n + 2 * margin, n + 2 * margin), seed, step, index, pool)
         kind = kinds[np.random.default_rng([seed, step, index, 13]).integers(len(kinds))]
         obstruction = make_obstruction(kind, (n, n), z_near_m, preset.lens.focal_length_m, preset.sensor.pixel_pitch_m,
-                                       [seed, step, index, 17], preset.obstruction, clean=clean)
-        cleans.append(clean), colours.append(obstruction.rgb), masks.append(obstruction.mask)
-    as_tensor = lambda arrays: torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device)  # noqa: E731
-    return as_tensor(cleans), as_tensor(colours), as_tensor(masks)
+                                       [seed, step, index, 17], preset.obstruction, clean=clean, margin=margin)
+        return clean, obstruction.rgb, obstruction.mask
+
+    with ThreadPoolExecutor(max_workers=max(1, min(len(indices), torch.get_num_threads()))) as workers:
+        entries = list(workers.map(entry, indices))
+    return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
+
+
+def sensor_psf(psf: torch.Tensor, preset) -> torch.Tensor:
+    """The part of a far PSF on the sensor (the paper's L_bright and L_sharp see N sensor pixels)."""
+    return crop_window(psf, min(preset.sensor.pixels, psf.shape[-1]))
 
 
 def _features(preset, notes: list[str]):
@@ -182,6 +222,7 @@ class _Session:
     pool: list | None
     shard: list[int]
     frequency: float
+    windows: Windows
     notes: list[str]
 
 
@@ -190,8 +231,10 @@ def _session(preset, ctx) -> _Session:
     model = build_model(preset).to(ctx.device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=o.learning_rate, weight_decay=o.weight_decay)
     notes: list[str] = []
-    return _Session(model, optimizer, _scheduler(optimizer, o), preset_sensitivity(preset), _features(preset, notes),
-                    _image_pool(preset), ctx.shard(o.batch_size), plan_frequency(preset), notes)
+    sensitivity = preset_sensitivity(preset)
+    windows = plan_windows(preset, sensitivity)
+    return _Session(model, optimizer, _scheduler(optimizer, o), sensitivity, _features(preset, notes),
+                    _image_pool(preset, windows.margin), ctx.shard(o.batch_size), plan_frequency(preset), windows, notes)
 
 
 def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> dict:
@@ -274,7 +317,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
             run.save_checkpoint(_state(model, optimizer, scheduler, history, o.steps))
         validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
                       "final": validation_loss(model, preset, 4, ctx.device, session.frequency)}
-        summary.report = _finish(run, preset, model, summary, grid, timing, session.notes, ctx, validation)
+        summary.report = _finish(run, preset, model, summary, grid, timing, session.notes, ctx, validation, session.windows)
     return summary
 
 
@@ -284,15 +327,17 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     draw = draw_step(preset, session.sensitivity, o.seed, step)
     optimizer.zero_grad(set_to_none=True)
     t = time.perf_counter()
-    near, far, grid = step_psfs(model.lens(), preset, draw, ctx.device, timing, session.frequency)
+    windows = session.windows
+    near, far, grid = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
     t = _lap(timing, "psf", t)
-    clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, ctx.device)
+    clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, windows.margin, ctx.device)
     t = _lap(timing, "scenes", t)
-    capture = form_image(clean, colour, mask, near, far).image
+    capture = form_image(clean, colour, mask, near, far, windows.margin).obstructed
+    clean, colour, mask = (sensor_crop(x, windows.margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
     sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
     share = len(shard) / o.batch_size
-    loss, parts = training_loss(capture, clean, far, preset.loss, session.features, image_share=share,
+    loss, parts = training_loss(capture, clean, sensor_psf(far, preset), preset.loss, session.features, image_share=share,
                                  psf_share=1 / ctx.world)
     t = _lap(timing, "formation_loss", t)
     loss.backward()
@@ -312,7 +357,8 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     w = preset.loss
     values["total"] = (w.l1 * values["l1"] + w.ssim * values["ssim"] + w.domain_adaptation * values.get("domain_adaptation", 0.0)
                        + w.bright * values["bright"] + w.sharp * values["sharp"])
-    row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m}
+    kept = {f"kept_{depth}_{c}": float(k) for depth, psf in (("near", near), ("far", far)) for c, k in zip("RGB", kept_fraction(psf))}
+    row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m, **kept}
     return row, grid, sample
 
 
@@ -324,16 +370,17 @@ def validation_loss(model, preset, draws: int = 4, device="cpu", frequency: floa
     the same number before and after training measures progress without sampling noise."""
     sensitivity = preset_sensitivity(preset)
     o = preset.optimize
-    pool = _image_pool(preset)
+    windows = plan_windows(preset, sensitivity)
+    pool = _image_pool(preset, windows.margin)
     totals = []
     with torch.no_grad():
         for k in range(draws):
             step = VALIDATION_STEP + k
             draw = draw_step(preset, sensitivity, o.seed, step)
-            near, far, _ = step_psfs(model.lens(), preset, draw, device, frequency=frequency)
-            clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, device)
-            capture = form_image(clean, colour, mask, near, far).image
-            totals.append(float(training_loss(capture, clean, far, preset.loss)[0]))
+            near, far, _ = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
+            clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, windows.margin, device)
+            capture = form_image(clean, colour, mask, near, far, windows.margin).obstructed
+            totals.append(float(training_loss(capture, sensor_crop(clean, windows.margin), sensor_psf(far, preset), preset.loss)[0]))
     return sum(totals) / len(totals)
 
 
@@ -352,13 +399,14 @@ def _seconds_per_step(rows: list[dict]) -> float | None:
     return statistics.median(r["seconds"] for r in rows) if rows else None
 
 
-def _image_pool(preset):
+def _image_pool(preset, margin: int):
+    """Training photographs at twice the canvas size (random crops are resized down to it)."""
     if preset.optimize.images is None:
         return None
     from metalens_cli.imaging.images import load_images
 
-    n = preset.sensor.pixels
-    return [image.linear for image in load_images(preset.optimize.images, (2 * n, 2 * n))]
+    n = 2 * (preset.sensor.pixels + 2 * margin)
+    return [image.linear for image in load_images(preset.optimize.images, (n, n))]
 
 
 def _write_sample(run: RunDirectory, sample: torch.Tensor, step: int) -> None:
@@ -370,8 +418,9 @@ def _write_sample(run: RunDirectory, sample: torch.Tensor, step: int) -> None:
 
 
 def _finish(run: RunDirectory, preset, model, summary: RunSummary, grid: dict, timing: dict, notes: list[str], ctx,
-            validation: dict) -> dict:
+            validation: dict, windows: Windows) -> dict:
     """theta, psf.exr, loss.csv/png, theta.png and run.json."""
     from metalens_cli.design.report import write_results
 
-    return write_results(run, preset, summary, grid, timing, notes, ctx.world, str(ctx.device), torch.get_num_threads(), validation)
+    return write_results(run, preset, summary, grid, timing, notes, ctx.world, str(ctx.device), torch.get_num_threads(), validation,
+                         {"near_px": windows.near, "far_px": windows.far, "canvas_margin_px": windows.margin, "headroom": PLAN_HEADROOM})

@@ -1,23 +1,28 @@
-"""Image formation through a split-spectrum lens with a near obstruction (Suppl. Note 4).
+"""Image formation through a lens with a near obstruction (Suppl. Note 4), on a canvas.
 
-    I = α ⊙ (P_near ∗ I_obs) + (1 − α) ⊙ (P_far ∗ I_clean),   α = m ∗ P_near,
+Two forms, channel-wise with the R, G, B PSFs, α = m ∗ P̂_near:
 
-channel-wise, where m is the obstruction's coverage (1{I_obs ≠ 0} for a hard obstruction; a
-soft edge or a semi-opaque drop gives values in 0..1) and P are the 3-channel (R, G, B) PSFs.
+- ``physical`` (default): I = P̂_near ∗ (m ⊙ I_obs) + (1 − α) ⊙ (P̂_far ∗ I_clean)
+- ``paper`` (the paper's literal form): I = α ⊙ (P̂_near ∗ I_obs) + (1 − α) ⊙ (P̂_far ∗ I_clean)
 
-Conventions (every function here is pure torch: batched, differentiable, on any device):
+m is the obstruction's coverage in 0..1 and I_obs its radiance (0 where nothing is). α is the
+fraction of the cone of light from a far scene point that the cover blocks, so P̂ is the PSF
+normalised to unit sum (its window holds the light: see ``optics.blur``): full opaque coverage
+gives α = 1 and no far light. The obstruction's own light in the physical form is premultiplied
+(it emits only where it is). The two forms agree where m is 0 or 1 over a whole near blur; they
+differ at partial coverage (soft edges, semi-opaque drops, wires thinner than the blur), where
+the paper's form spreads the obstruction's full colour with weight α instead of blurring only
+the light it emits.
 
-- Images are (..., 3, H, W) linear radiance; masks (..., 1, H, W) or (..., 3, H, W).
-- PSFs are (..., 3, N, N) with the optical axis at pixel (N//2, N//2), as written by
-  ``compute_psf`` / ``mix_channels``: fractions of the aperture power, so a uniform scene keeps
-  its brightness up to the light that falls outside the N × N window (``normalize_psf`` with
-  ``mode="window"`` rescales each PSF to sum 1 instead).
-- Convolution is linear (zero padding, no wrap-around): the output is the H × W part of the
-  full convolution aligned with the input ("same"). The FFT size per axis is the smallest
-  2·3·5·7-smooth number ≥ H + ⌈N/2⌉, the least for which circular wrap-around never reaches
-  the kept pixels.
-- ``psf_spectrum`` precomputes a PSF's transform once for a given image size; pass the
-  result wherever a PSF is accepted to reuse it (an optimiser recomputes it each step).
+Canvas convention (every function here is pure torch: batched, differentiable, any device):
+
+- Inputs are canvases (..., C, H + 2M, W + 2M): the sensor's H × W field with a margin of M
+  pixels of scene (or obstruction) on every side; the output is the central H × W crop. Each
+  PSF needs M ≥ N//2 of its N × N window (the axis at pixel (N//2, N//2)), so that no kept pixel
+  sees past the canvas; a larger margin is trimmed to what each PSF needs.
+- Each convolution is circular on an FFT grid L ≥ its (trimmed) canvas, L the next
+  2·3·5·7-smooth size: wrap-around reaches only the margin, never the kept pixels.
+- Images are linear radiance; masks (..., 1, H, W) or (..., 3, H, W).
 """
 
 from __future__ import annotations
@@ -29,104 +34,114 @@ import torch
 from metalens_cli.errors import InputError
 from metalens_cli.optics.propagate import fft_size
 
+FORMATIONS = ("physical", "paper")
 
-def padded_shape(image_hw: tuple[int, int], psf_n: tuple[int, int]) -> tuple[int, int]:
-    """FFT size per axis for a linear "same" convolution of an H × W image with an N × N PSF."""
-    return tuple(fft_size(h + (n + 1) // 2) for h, n in zip(image_hw, psf_n))
+
+def canvas_margin(*psf_sizes: int) -> int:
+    """Margin M (pixels) a canvas needs around the sensor for PSF windows of these sides."""
+    return max(n // 2 for n in psf_sizes)
+
+
+def unit_sum(psf: torch.Tensor) -> torch.Tensor:
+    """P̂ = P / ΣP over each N × N window (differentiable)."""
+    return psf / psf.sum(dim=(-2, -1), keepdim=True).clamp_min(torch.finfo(psf.dtype).tiny)
 
 
 @dataclass(frozen=True)
-class PsfSpectrum:
-    """rfft2 of a PSF placed for linear convolution of ``image_hw`` images.
+class PsfTransform:
+    """rfft2 of a unit-sum PSF placed for ``sensor_hw`` images on a canvas of ``margin`` pixels.
 
-    ``spectrum``: (..., C, L0, L1 // 2 + 1) complex; ``fft_shape`` (L0, L1); ``energy``:
-    (..., C) sum of the PSF over its window (what a uniform scene keeps).
+    ``spectrum`` (..., C, L0, L1 // 2 + 1) complex on the FFT grid ``fft_shape`` (L0, L1).
     """
 
     spectrum: torch.Tensor
-    image_hw: tuple[int, int]
+    sensor_hw: tuple[int, int]
+    margin: int
     fft_shape: tuple[int, int]
-    energy: torch.Tensor
 
 
-def normalize_psf(psf: torch.Tensor, mode: str = "aperture") -> torch.Tensor:
-    """``aperture``: unchanged (fractions of the aperture power; light outside the window is lost).
-    ``window``: each PSF divided by its sum over the window (a uniform scene keeps exactly its
-    brightness). Differentiable."""
-    if mode == "aperture":
-        return psf
-    if mode == "window":
-        return psf / psf.sum(dim=(-2, -1), keepdim=True).clamp_min(torch.finfo(psf.dtype).tiny)
-    raise InputError("psf normalization", f"unknown mode {mode!r}", "aperture or window")
+def psf_transform(psf: torch.Tensor, sensor_hw: tuple[int, int]) -> PsfTransform:
+    """Normalise ``psf`` (..., C, N0, N1) to unit sum and transform it for H × W sensor images.
 
-
-def psf_spectrum(psf: torch.Tensor, image_hw: tuple[int, int]) -> PsfSpectrum:
-    """Precompute the transform of ``psf`` (..., C, N0, N1) for images of size ``image_hw``.
-
-    The PSF's axis pixel (N0//2, N1//2) goes to index (0, 0) of the padded array, so the
-    convolution neither shifts the image nor wraps around (see the module docstring).
+    The axis pixel (N0//2, N1//2) goes to index (0, 0) of the FFT grid (wrapped), so the
+    convolution does not shift the image. Precompute once per PSF and reuse.
     """
     if psf.ndim < 3:
         raise InputError("psf", f"shape {tuple(psf.shape)}", "(..., C, N, N) PSFs")
+    margin = canvas_margin(*psf.shape[-2:])
+    shape = tuple(fft_size(n + 2 * margin) for n in sensor_hw)
+    return PsfTransform(torch.fft.rfft2(_placed(unit_sum(psf), shape)), tuple(sensor_hw), margin, shape)
+
+
+def _placed(psf: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """``psf`` zero-padded to ``shape`` with its axis pixel (N0//2, N1//2) moved to (0, 0)."""
     n0, n1 = psf.shape[-2:]
-    shape = padded_shape(tuple(image_hw), (n0, n1))
-    if n0 > shape[0] or n1 > shape[1]:  # cannot happen with fft_size ≥ H + ⌈N/2⌉ ≥ N, kept as a guard
-        raise InputError("psf", "larger than its padded transform", "a PSF window smaller than twice the image")
     padded = psf.new_zeros(*psf.shape[:-2], *shape)
     padded[..., :n0, :n1] = psf
-    padded = torch.roll(padded, shifts=(-(n0 // 2), -(n1 // 2)), dims=(-2, -1))
-    return PsfSpectrum(torch.fft.rfft2(padded), tuple(image_hw), shape, psf.sum(dim=(-2, -1)))
+    return torch.roll(padded, shifts=(-(n0 // 2), -(n1 // 2)), dims=(-2, -1))
 
 
-def _spectrum(psf, image_hw) -> PsfSpectrum:
-    if isinstance(psf, PsfSpectrum):
-        if psf.image_hw != tuple(image_hw):
-            raise InputError("psf", f"spectrum prepared for {psf.image_hw}, image is {tuple(image_hw)}", "psf_spectrum(psf, image size)")
+def _transform(psf, sensor_hw) -> PsfTransform:
+    if isinstance(psf, PsfTransform):
+        if psf.sensor_hw != tuple(sensor_hw):
+            raise InputError("psf", f"transform made for {psf.sensor_hw} images, sensor is {tuple(sensor_hw)}",
+                             "psf_transform(psf, sensor size)")
         return psf
-    return psf_spectrum(psf, image_hw)
+    return psf_transform(psf, sensor_hw)
 
 
-def convolve(image: torch.Tensor, psf) -> torch.Tensor:
-    """Linear ("same") convolution of ``image`` (..., C, H, W) with ``psf`` (..., C, N, N) or
-    a :class:`PsfSpectrum`; C broadcasts (a 1-channel mask with a 3-channel PSF gives 3)."""
-    h, w = image.shape[-2:]
-    spec = _spectrum(psf, (h, w))
-    return _inverse_kept(torch.fft.rfft2(image, s=spec.fft_shape) * spec.spectrum, spec.fft_shape, h, w)
+def _sensor_hw(canvas: torch.Tensor, margin: int) -> tuple[int, int]:
+    h, w = (n - 2 * margin for n in canvas.shape[-2:])
+    if h < 1 or w < 1:
+        raise InputError("canvas", f"{tuple(canvas.shape[-2:])} pixels with margin {margin}", "a canvas larger than twice its margin")
+    return h, w
 
 
-def _inverse_kept(spectrum: torch.Tensor, fft_shape: tuple[int, int], h: int, w: int) -> torch.Tensor:
-    """irfft2 restricted to the kept h × w corner: the row transforms run only for the h kept rows."""
-    rows = torch.fft.ifft(spectrum, dim=-2)[..., :h, :]
-    return torch.fft.irfft(rows, n=fft_shape[1], dim=-1)[..., :w]
+def _canvas_spectrum(canvas: torch.Tensor, margin: int, psf: PsfTransform) -> torch.Tensor:
+    """rfft2 of ``canvas`` trimmed to the margin ``psf`` needs, on its FFT grid."""
+    if margin < psf.margin:
+        raise InputError("canvas margin", f"{margin} pixels, the PSF window needs {psf.margin}",
+                         "a canvas extending past the sensor by N//2 of the PSF window on every side")
+    trim = margin - psf.margin
+    h, w = psf.sensor_hw
+    if trim:
+        canvas = canvas[..., trim:trim + h + 2 * psf.margin, trim:trim + w + 2 * psf.margin]
+    return torch.fft.rfft2(canvas, s=psf.fft_shape)
 
 
-def circular_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
-    """Circular convolution on the image's own grid (wraps around): for comparison only."""
-    h, w = image.shape[-2:]
-    n0, n1 = psf.shape[-2:]
-    padded = psf.new_zeros(*psf.shape[:-2], h, w)
-    padded[..., :n0, :n1] = psf
-    padded = torch.roll(padded, shifts=(-(n0 // 2), -(n1 // 2)), dims=(-2, -1))
-    return torch.fft.irfft2(torch.fft.rfft2(image) * torch.fft.rfft2(padded), s=(h, w))
+def _kept(product: torch.Tensor, psf: PsfTransform) -> torch.Tensor:
+    """Inverse transform of ``product`` restricted to the sensor crop (rows first: only the kept rows)."""
+    h, w = psf.sensor_hw
+    rows = torch.fft.ifft(product, dim=-2)[..., psf.margin:psf.margin + h, :]
+    return torch.fft.irfft(rows, n=psf.fft_shape[1], dim=-1)[..., psf.margin:psf.margin + w]
 
 
-def alpha_map(mask: torch.Tensor, psf_near, alpha_gain: float | None = None) -> torch.Tensor:
-    """α = m ∗ P_near; with ``alpha_gain`` g, the gain-and-clamp variant min(g·α, 1) of Shi et al."""
-    alpha = convolve(mask, psf_near)
+def convolve(canvas: torch.Tensor, psf, margin: int) -> torch.Tensor:
+    """The sensor crop of ``canvas`` (..., C, H + 2M, W + 2M) convolved with the unit-sum ``psf``
+    (..., C, N, N) or a :class:`PsfTransform`; C broadcasts (a 1-channel mask with 3 PSFs gives 3)."""
+    psf = _transform(psf, _sensor_hw(canvas, margin))
+    return _kept(_canvas_spectrum(canvas, margin, psf) * psf.spectrum, psf)
+
+
+def coverage_alpha(blurred_coverage: torch.Tensor, alpha_gain: float | None = None) -> torch.Tensor:
+    """α from m ∗ P̂_near, clamped to 0..1 (round-off); with ``alpha_gain`` g the gain-and-clamp
+    variant min(g·α, 1) of Shi et al."""
     if alpha_gain is not None:
         if not alpha_gain > 0:
             raise InputError("--alpha-gain", f"{alpha_gain!r}", "a positive gain")
-        alpha = torch.clamp(alpha_gain * alpha, max=1.0)
-    return alpha
+        blurred_coverage = alpha_gain * blurred_coverage
+    return blurred_coverage.clamp(0.0, 1.0)
 
 
 @dataclass
 class Capture:
-    """The result of :func:`form_image`: the obstructed capture and its parts, (..., 3, H, W)."""
+    """What :func:`form_image` returns, each (..., 3, H, W) on the sensor: the ``obstructed``
+    capture, the ``unobstructed`` one (P̂_far ∗ I_clean), the obstruction term as it enters the
+    capture (``obstruction_light``) and ``alpha``."""
 
-    image: torch.Tensor
+    obstructed: torch.Tensor
     unobstructed: torch.Tensor
-    obstruction: torch.Tensor
+    obstruction_light: torch.Tensor
     alpha: torch.Tensor
 
 
@@ -136,34 +151,31 @@ def form_image(
     mask: torch.Tensor,
     psf_near,
     psf_far,
+    margin: int,
+    formation: str = "physical",
     alpha_gain: float | None = None,
 ) -> Capture:
-    """I = α ⊙ (P_near ∗ I_obs) + (1 − α) ⊙ (P_far ∗ I_clean), α = m ∗ P_near.
+    """The capture of a scene behind a near obstruction; see the module docstring for both forms.
 
-    ``clean`` and ``obstruction`` (..., 3, H, W) linear; ``mask`` m (..., 1 or 3, H, W) in 0..1;
-    PSFs (..., 3, N, N) or :class:`PsfSpectrum` (precomputed, reused). Transforms are
-    batched: one rfft2 of [I_obs, m] and one of I_clean, one irfft2 of all nine planes.
+    ``clean``, ``obstruction`` (..., 3, H + 2M, W + 2M) linear and ``mask`` m (..., 1 or 3, same)
+    in 0..1 are canvases with margin ``margin`` = M; PSFs (..., 3, N, N) (any normalisation: each
+    is divided by its sum) or :class:`PsfTransform` (precomputed, reused).
     """
-    h, w = clean.shape[-2:]
-    near, far = _spectrum(psf_near, (h, w)), _spectrum(psf_far, (h, w))
-    if near.fft_shape != far.fft_shape:
-        raise InputError("psf", "near and far PSF windows differ in size", "PSFs of one window size")
-    s = near.fft_shape
+    if formation not in FORMATIONS:
+        raise InputError("formation", f"unknown form {formation!r}", " or ".join(FORMATIONS))
+    sensor = _sensor_hw(clean, margin)
+    near, far = _transform(psf_near, sensor), _transform(psf_far, sensor)
+    mask = mask.to(obstruction.dtype)
     channels = obstruction.shape[-3]
-    stacked = torch.cat([obstruction, mask.to(obstruction.dtype)], dim=-3)
-    f_near = torch.fft.rfft2(stacked, s=s)
-    f_far = torch.fft.rfft2(clean, s=s)
-    products = torch.cat(
-        [f_near[..., :channels, :, :] * near.spectrum, f_near[..., channels:, :, :] * near.spectrum, f_far * far.spectrum], dim=-3
-    )
-    planes = _inverse_kept(products, s, h, w)
-    near_obs, alpha, far_clean = planes.split(channels, dim=-3)
-    if alpha_gain is not None:
-        if not alpha_gain > 0:
-            raise InputError("--alpha-gain", f"{alpha_gain!r}", "a positive gain")
-        alpha = torch.clamp(alpha_gain * alpha, max=1.0)
-    image = alpha * near_obs + (1 - alpha) * far_clean
-    return Capture(image, far_clean, near_obs, alpha)
+    emitted = obstruction * mask if formation == "physical" else obstruction
+    # one batched transform of [I_obs or m ⊙ I_obs, m]; the mask's spectrum meets each channel's PSF
+    f = _canvas_spectrum(torch.cat([emitted, mask], dim=-3), margin, near)
+    planes = _kept(torch.cat([f[..., :channels, :, :] * near.spectrum, f[..., channels:, :, :] * near.spectrum], dim=-3), near)
+    near_light, blurred_mask = planes.split(channels, dim=-3)
+    alpha = coverage_alpha(blurred_mask, alpha_gain)
+    unobstructed = _kept(_canvas_spectrum(clean, margin, far) * far.spectrum, far)
+    obstruction_light = near_light if formation == "physical" else alpha * near_light
+    return Capture(obstruction_light + (1 - alpha) * unobstructed, unobstructed, obstruction_light, alpha)
 
 
 def add_noise(
@@ -191,9 +203,3 @@ def add_noise(
     variance = variance + read_noise**2
     noise = torch.randn(image.shape, generator=generator, dtype=image.dtype, device=image.device)
     return image + torch.sqrt(variance) * noise
-
-
-def kept_energy(psf: torch.Tensor) -> list[float]:
-    """Per-PSF sums over the window (what a uniform scene keeps), as floats for reports."""
-    return [float(v) for v in psf.detach().sum(dim=(-2, -1)).reshape(-1)]
-

@@ -3,9 +3,9 @@
 Arrays are float (C, H, W) in 0..1 (EXR: linear, unclipped). 8/16-bit files are sRGB-encoded
 and decoded to linear light with colour-science (imported lazily: it takes seconds).
 
-Built-in source (``builtin``, no download): the photograph ``grace_hopper.jpg`` shipped in
-matplotlib's sample data, when the installed matplotlib has it, followed by two procedural
-textures generated here (a colour checker with fine bars, and smooth colour noise with edges).
+Built-in source (``builtin``, no download): the photographs shipped in matplotlib's sample data,
+when the installed matplotlib has them, then seeded colour dead-leaves charts (the texture chart
+of ISO 19567-2, with natural-image statistics) up to ``BUILTIN_COUNT`` images.
 """
 
 from __future__ import annotations
@@ -16,17 +16,27 @@ from pathlib import Path
 import numpy as np
 
 from metalens_cli.errors import InputError
+from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
 
 SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 BUILTIN = "builtin"
+BUILTIN_COUNT = 24                                            # photographs + dead-leaves charts
+PHOTOGRAPHS = ("grace_hopper.jpg", "Minduka_Present_Blue_Pack.png")  # in matplotlib's sample data
 
 
 @dataclass(frozen=True)
 class CleanImage:
-    """A clean scene: ``name`` (file stem), ``linear`` (3, H, W) float32 linear RGB."""
+    """A clean scene: ``name`` (file stem), ``linear`` (3, H + 2M, W + 2M) float32 linear RGB on
+    a canvas of ``margin`` M pixels around the sensor's field."""
 
     name: str
     linear: np.ndarray
+    margin: int = 0
+
+    @property
+    def sensor(self) -> np.ndarray:
+        """The sensor's field (3, H, W)."""
+        return sensor_crop(self.linear, self.margin)
 
 
 def srgb_to_linear(values: np.ndarray) -> np.ndarray:
@@ -65,65 +75,39 @@ def read_image(path: Path, keep_alpha: bool = False) -> tuple[np.ndarray, bool]:
     return np.transpose(image[:, :, channels], (2, 0, 1)), has_alpha and keep_alpha
 
 
-def fit_to_sensor(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Scale (C, H, W) so it covers ``shape`` (area resampling), then centre-crop to it."""
-    import cv2
+def builtin_images(shape: tuple[int, int], margin: int = 0, count: int = BUILTIN_COUNT) -> list[CleanImage]:
+    """``count`` evaluation scenes: the photographs matplotlib ships (see ``PHOTOGRAPHS``), then
+    seeded colour dead-leaves charts (``dead_leaves_NN``, seed NN), on the canvas of ``margin``."""
+    from metalens_cli.imaging.dead_leaves import dead_leaves
 
-    h, w = shape
-    _, ih, iw = image.shape
-    scale = max(h / ih, w / iw)
-    nh, nw = max(h, round(ih * scale)), max(w, round(iw * scale))
-    hwc = np.ascontiguousarray(np.transpose(image, (1, 2, 0)))
-    interpolation = cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC
-    resized = cv2.resize(hwc, (nw, nh), interpolation=interpolation)
-    if resized.ndim == 2:
-        resized = resized[:, :, None]
-    top, left = (nh - h) // 2, (nw - w) // 2
-    return np.transpose(resized[top : top + h, left : left + w], (2, 0, 1)).astype(np.float32)
-
-
-def procedural_images(shape: tuple[int, int]) -> list[CleanImage]:
-    """Two deterministic test scenes in linear RGB: colour patches with fine bars, and colour noise."""
-    h, w = shape
-    y, x = np.mgrid[0:h, 0:w] / max(h, w)
-    patches = np.stack([(np.floor(x * 6) % 3) / 2, (np.floor(y * 6) % 3) / 2, ((np.floor(x * 6) + np.floor(y * 6)) % 4) / 3])
-    bars = 0.5 + 0.5 * np.sign(np.sin(2 * np.pi * x * (4 + 60 * y)))
-    checker = 0.05 + 0.85 * np.where(y > 0.75, bars[None].repeat(3, 0), patches)
-    rng = np.random.default_rng(2024)
-    from metalens_cli.imaging.obstructions import fractal_noise
-
-    cell = max(h, w) / 4
-    noise = np.stack([fractal_noise((h, w), cell, 4, rng) for _ in range(3)])
-    disk = (np.hypot(x - 0.5, y - 0.5) < 0.25).astype(float)
-    smooth = np.clip(0.45 + 0.35 * noise + 0.25 * disk[None] * np.array([1.0, -0.3, -0.5])[:, None, None], 0.02, 1.0)
-    return [CleanImage("checker", checker.astype(np.float32)), CleanImage("noise", smooth.astype(np.float32))]
-
-
-def builtin_images(shape: tuple[int, int]) -> list[CleanImage]:
-    """matplotlib's grace_hopper.jpg (if shipped), then the procedural scenes; see the module docstring."""
     images = []
-    try:
-        from matplotlib import cbook
+    for name in PHOTOGRAPHS:
+        try:
+            from matplotlib import cbook
 
-        path = Path(cbook.get_sample_data("grace_hopper.jpg", asfileobj=False))
-    except (ImportError, OSError, ValueError):
-        path = None
-    if path is not None and path.is_file():
-        images.append(_load(path, shape))
-    return images + procedural_images(shape)
+            path = Path(cbook.get_sample_data(name, asfileobj=False))
+        except (ImportError, OSError, ValueError):
+            continue
+        if path.is_file():
+            images.append(_load(path, shape, margin))
+    canvas = (shape[0] + 2 * margin, shape[1] + 2 * margin)
+    for k in range(max(count - len(images), 0)):
+        images.append(CleanImage(f"dead_leaves_{k:02d}", dead_leaves(canvas, k, sensor_shape=tuple(shape)), margin))
+    return images[:count]
 
 
-def _load(path: Path, shape) -> CleanImage:
+def _load(path: Path, shape, margin: int) -> CleanImage:
     image, _ = read_image(path)
-    image = fit_to_sensor(image[:3], shape)
+    image = fit_to_canvas(image[:3], shape, margin)
     linear = image if path.suffix.lower() == ".exr" else srgb_to_linear(image)
-    return CleanImage(path.stem, np.asarray(linear, dtype=np.float32))
+    return CleanImage(path.stem, np.asarray(linear, dtype=np.float32), margin)
 
 
-def load_images(source: str | Path | None, shape: tuple[int, int], limit: int | None = None) -> list[CleanImage]:
-    """Clean images for an H × W sensor from a folder (sorted by name), one file, or ``builtin``/None."""
+def load_images(source: str | Path | None, shape: tuple[int, int], limit: int | None = None, margin: int = 0) -> list[CleanImage]:
+    """Clean images for an H × W sensor on a canvas of ``margin`` pixels (``imaging.canvas``):
+    a folder (sorted by name), one file, or ``builtin``/None (:func:`builtin_images`)."""
     if source is None or str(source) == BUILTIN:
-        images = builtin_images(shape)
+        images = builtin_images(shape, margin)
     else:
         path = Path(source)
         if path.is_file():
@@ -134,5 +118,5 @@ def load_images(source: str | Path | None, shape: tuple[int, int], limit: int | 
             raise InputError("--images", f"no such folder {str(source)!r}", f"a folder of {', '.join(SUFFIXES)} images, or builtin")
         if not files:
             raise InputError("--images", f"{str(source)!r} holds no images", f"files ending in {', '.join(SUFFIXES)}")
-        images = [_load(p, shape) for p in files[: limit or None]]
+        images = [_load(p, shape, margin) for p in files[: limit or None]]
     return images[: limit or None]

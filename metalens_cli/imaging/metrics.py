@@ -2,6 +2,10 @@
 
 Torch functions on (..., C, H, W) images with values nominally in 0..1 (``data_range`` 1);
 differentiable (SSIM is used as a loss by ``optimize``). Means are over channels and pixels.
+The photometric match maps an estimate onto its reference with one gain a and bias b per image,
+the same for every channel: by default (``luminance``, the paper's) from the mean and standard
+deviation of the Rec. 709 luminance Y = 0.2126 R + 0.7152 G + 0.0722 B of linear RGB; or
+(``lstsq``) by least squares over all pixels and channels.
 LPIPS (:mod:`metalens_cli.imaging.lpips`) needs network weights that this package does not ship;
 :func:`lpips_note` says why it is skipped when they are not present locally.
 """
@@ -15,6 +19,8 @@ import torch
 from metalens_cli.errors import InputError
 
 SSIM_WINDOW, SSIM_SIGMA, SSIM_K1, SSIM_K2 = 11, 1.5, 0.01, 0.03  # Wang et al. 2004
+LUMA_709 = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear R, G, B
+MATCH_METHODS = ("luminance", "lstsq")
 
 
 def psnr(estimate: torch.Tensor, reference: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
@@ -58,14 +64,34 @@ def ssim(estimate: torch.Tensor, reference: torch.Tensor, data_range: float = 1.
     return s.mean(dim=(-3, -2, -1)).reshape(lead)
 
 
-def photometric_match(estimate: torch.Tensor, reference: torch.Tensor):
-    """The global gain a and bias b minimising ‖a·estimate + b − reference‖² over all pixels and
-    channels (per leading batch entry); returns (a·estimate + b, a, b)."""
+def photometric_match(estimate: torch.Tensor, reference: torch.Tensor, method: str = "luminance"):
+    """A global gain a and bias b per leading batch entry; returns (a·estimate + b, a, b), with a
+    and b of shape ``estimate.shape[:-3]``, applied to every channel.
+
+    ``luminance`` (Suppl. Note 11; RGB images): a = σ_Y(reference)/σ_Y(estimate) and
+    b = μ_Y(reference) − a·μ_Y(estimate) over the pixels of Y = 0.2126 R + 0.7152 G + 0.0722 B;
+    a flat estimate (σ_Y ≤ 64 ε·max |Y|, round-off) gets a = 0, b = μ_Y(reference). ``lstsq``: a and b minimising
+    ‖a·estimate + b − reference‖² over all pixels and channels.
+    """
     dims = (-3, -2, -1)
-    mx, my = estimate.mean(dim=dims, keepdim=True), reference.mean(dim=dims, keepdim=True)
-    dx, dy = estimate - mx, reference - my
-    var = (dx * dx).mean(dim=dims, keepdim=True)
-    gain = (dx * dy).mean(dim=dims, keepdim=True) / var.clamp_min(torch.finfo(var.dtype).tiny)
+    if method == "lstsq":
+        mx, my = estimate.mean(dim=dims, keepdim=True), reference.mean(dim=dims, keepdim=True)
+        dx, dy = estimate - mx, reference - my
+        var = (dx * dx).mean(dim=dims, keepdim=True)
+        gain = (dx * dy).mean(dim=dims, keepdim=True) / var.clamp_min(torch.finfo(var.dtype).tiny)
+    elif method == "luminance":
+        if estimate.shape[-3] != 3 or reference.shape[-3] != 3:
+            raise InputError("photometric match", f"{estimate.shape[-3]} and {reference.shape[-3]} channels",
+                             "RGB images (3 channels) for the luminance match")
+        w = torch.tensor(LUMA_709, dtype=estimate.dtype, device=estimate.device).view(3, 1, 1)
+        ye, yr = (estimate * w).sum(-3, keepdim=True), (reference * w).sum(-3, keepdim=True)
+        mx, my = ye.mean(dim=dims, keepdim=True), yr.mean(dim=dims, keepdim=True)
+        sx = ((ye - mx) ** 2).mean(dim=dims, keepdim=True).sqrt()
+        sy = ((yr - my) ** 2).mean(dim=dims, keepdim=True).sqrt()
+        flat = sx <= 64 * torch.finfo(sx.dtype).eps * ye.abs().amax(dim=dims, keepdim=True)  # to round-off
+        gain = torch.where(flat, torch.zeros_like(sy), sy / torch.where(flat, torch.ones_like(sx), sx))
+    else:
+        raise InputError("photometric match", repr(method), " or ".join(MATCH_METHODS))
     bias = my - gain * mx
     return gain * estimate + bias, gain.reshape(estimate.shape[:-3]), bias.reshape(estimate.shape[:-3])
 

@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from metalens_cli.imaging.formation import form_image, add_noise, psf_spectrum, normalize_psf
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
 from metalens_cli.io.presets import ObstructionConfig
 
@@ -21,24 +22,47 @@ DEFAULT_Z_FAR_M = (1.0, 20.0)
 DEFAULT_WAVELENGTHS = "400:700:5nm"
 
 
+KEPT_WARNING = 0.99  # warn when a PSF window holds less of the light than this
+
+
 @dataclass
 class ChannelPsfs:
-    """R, G, B PSFs (torch, (3, N, N)) at the near and far depths, and their window energies."""
+    """R, G, B PSFs (torch, (3, N, N), fractions of the aperture power) at the near and far
+    depths, each in the window its light needs (``optics.blur``), and what the windows kept."""
 
     near: torch.Tensor
     far: torch.Tensor
     z_near_m: float
     z_far_m: float
-    energy_near: list[float]
-    energy_far: list[float]
+    kept_near: list[float]
+    kept_far: list[float]
     coverage: list[float]
     seconds: float
+
+    @property
+    def margin(self) -> int:
+        """Canvas margin (pixels) these PSFs need around the sensor."""
+        return canvas_margin(self.near.shape[-1], self.far.shape[-1])
+
+    def report(self) -> dict:
+        """JSON-ready windows and kept fractions per depth and channel."""
+        return {"psf_window_px": {"near": self.near.shape[-1], "far": self.far.shape[-1]},
+                "psf_energy": {"near": dict(zip("RGB", self.kept_near)), "far": dict(zip("RGB", self.kept_far))}}
+
+    def warnings(self) -> list[str]:
+        """One line per (depth, channel) whose window kept less than ``KEPT_WARNING`` of the light."""
+        return [f"{depth} PSF window ({psfs.shape[-1]} px) keeps {k:.3f} of the {c} light (< {KEPT_WARNING})"
+                for depth, psfs, kept in (("near", self.near, self.kept_near), ("far", self.far, self.kept_far))
+                for c, k in zip("RGB", kept) if k < KEPT_WARNING]
 
 
 def draw_depths(z_near_m: tuple[float, float], z_far_m: tuple[float, float], seed: int) -> tuple[float, float]:
     """One near and one far depth, uniform in their intervals (a single length: that length)."""
     rng = np.random.default_rng([seed, 1])
-    return float(rng.uniform(*z_near_m)), float(rng.uniform(*z_far_m))
+    near, far = float(rng.uniform(*z_near_m)), float(rng.uniform(*z_far_m))
+    if not near < far:
+        raise InputError("--z-near", f"obstruction at {near} m is not in front of the scene at {far} m", "z-near below z-far")
+    return near, far
 
 
 def channel_weights(design, wavelengths_m):
@@ -53,20 +77,34 @@ def channel_weights(design, wavelengths_m):
     return quadrature_weights(sensitivity, np.asarray(wavelengths_m, dtype=float))
 
 
-def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixels: int, pixel_pitch_m: float,
-                 normalization: str = "aperture", dtype=torch.float32, device="cpu") -> ChannelPsfs:
-    """Monochromatic PSFs at both depths in one ``compute_psf`` call, mixed into R, G, B."""
+def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_pitch_m: float,
+                 dtype=torch.float32, device="cpu", window: int | None = None) -> ChannelPsfs:
+    """Monochromatic PSFs at both depths mixed into R, G, B, each depth in the window that holds
+    its light at every wavelength with weight (``optics.blur.psf_window``): one ``compute_psf``
+    call in the larger window, the other depth cropped to its own. ``window`` forces one N × N
+    window for both (the kept fractions then tell what it loses)."""
+    from metalens_cli.optics.blur import kept_fraction, psf_window
     from metalens_cli.optics.psf import compute_psf
     from metalens_cli.optics.spectra import mix_channels
 
     start = time.perf_counter()
     weights = channel_weights(design, wavelengths_m)
-    result = compute_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], pixels, pixel_pitch_m,
-                         design.focal_length_m, "auto", dtype, device)
-    rgb = normalize_psf(mix_channels(result.psf, weights.weights), normalization)
-    energy = rgb.detach().sum(dim=(-2, -1)).cpu().tolist()
-    return ChannelPsfs(rgb[0], rgb[1], z_near_m, z_far_m, energy[0], energy[1], [float(c) for c in weights.coverage],
+    used = [lam for lam, w in zip(wavelengths_m, weights.weights.max(axis=0)) if w > 0]
+    d = design.focal_length_m
+    windows = [window or psf_window(design.lens, used, [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)]
+    result = compute_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, d, "auto", dtype, device)
+    rgb = mix_channels(result.psf, weights.weights)
+    near, far = (crop_window(rgb[i], n) for i, n in enumerate(windows))
+    kept = [kept_fraction(p).cpu().tolist() for p in (near, far)]
+    return ChannelPsfs(near, far, z_near_m, z_far_m, kept[0], kept[1], [float(c) for c in weights.coverage],
                        time.perf_counter() - start)
+
+
+def crop_window(psf: torch.Tensor, n: int) -> torch.Tensor:
+    """The n × n pixels (n ≤ N) of (..., N, N) PSFs around the axis pixel N//2, which becomes
+    pixel n//2 (the window convention of ``optics.sensor``)."""
+    lo = psf.shape[-1] // 2 - n // 2
+    return psf[..., lo:lo + n, lo:lo + n]
 
 
 @dataclass
@@ -84,45 +122,49 @@ class SimulatedCapture:
 
 
 def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_length_m: float, pixel_pitch_m: float,
-                      seed: int, params: ObstructionConfig | None = None, alpha_gain: float | None = None,
-                      photons: float | None = None, read_noise: float = 0.0) -> list[SimulatedCapture]:
-    """For each clean image: an obstruction (seed + image index), the unobstructed capture
-    P_far ∗ I_clean and the obstructed capture; noise (if any) seeded the same way."""
+                      seed: int, params: ObstructionConfig | None = None, formation: str = "physical",
+                      alpha_gain: float | None = None, photons: float | None = None,
+                      read_noise: float = 0.0) -> list[SimulatedCapture]:
+    """For each clean image (on a canvas whose margin covers ``psfs.margin``): an obstruction on
+    the same canvas (seed + image index), the unobstructed capture P̂_far ∗ I_clean and the
+    obstructed capture (``imaging.formation``); noise (if any) seeded the same way."""
     captures = []
-    spectra = None
+    transforms = None
+    dev, dt = psfs.near.device, psfs.near.dtype
     for index, image in enumerate(images):
         start = time.perf_counter()
-        shape = image.linear.shape[-2:]
-        obstruction = make_obstruction(obstruction_spec, shape, psfs.z_near_m, focal_length_m, pixel_pitch_m,
-                                       [seed, index], params, clean=image.linear)
-        dev, dt = psfs.near.device, psfs.near.dtype
-        if spectra is None or spectra[0].image_hw != tuple(shape):
-            spectra = (psf_spectrum(psfs.near, tuple(shape)), psf_spectrum(psfs.far, tuple(shape)))
+        sensor = image.sensor.shape[-2:]
+        obstruction = make_obstruction(obstruction_spec, sensor, psfs.z_near_m, focal_length_m, pixel_pitch_m,
+                                       [seed, index], params, clean=image.linear, margin=image.margin)
+        if transforms is None or transforms[0].sensor_hw != tuple(sensor):
+            transforms = (psf_transform(psfs.near, tuple(sensor)), psf_transform(psfs.far, tuple(sensor)))
         with torch.no_grad():
             capture = form_image(torch.as_tensor(image.linear, dtype=dt, device=dev),
                                  torch.as_tensor(obstruction.rgb, dtype=dt, device=dev),
-                                 torch.as_tensor(obstruction.mask, dtype=dt, device=dev), spectra[0], spectra[1], alpha_gain)
-            obstructed, unobstructed = capture.image, capture.unobstructed
+                                 torch.as_tensor(obstruction.mask, dtype=dt, device=dev), *transforms, image.margin,
+                                 formation, alpha_gain)
+            obstructed, unobstructed = capture.obstructed, capture.unobstructed
             if photons or read_noise:
                 obstructed = add_noise(obstructed, photons, read_noise, seed * 1000 + 2 * index)
                 unobstructed = add_noise(unobstructed, photons, read_noise, seed * 1000 + 2 * index + 1)
         alpha = capture.alpha.cpu().numpy().astype(np.float32)
-        captures.append(SimulatedCapture(image.name, image.linear, obstruction, unobstructed.cpu().numpy().astype(np.float32),
+        captures.append(SimulatedCapture(image.name, image.sensor, obstruction, unobstructed.cpu().numpy().astype(np.float32),
                                          obstructed.cpu().numpy().astype(np.float32), alpha, time.perf_counter() - start,
                                          float(alpha.mean())))
     return captures
 
 
-def score(estimate_linear: np.ndarray, clean_linear: np.ndarray, lpips_model=None) -> dict:
+def score(estimate_linear: np.ndarray, clean_linear: np.ndarray, lpips_model=None, match: str = "luminance") -> dict:
     """PSNR (dB) and SSIM of a capture against the clean image after the global gain/bias
-    match (Suppl. Note 11), computed on sRGB-encoded images clipped to 0..1 (display values);
-    also ``lpips`` on the same images when ``lpips_model`` (:class:`~metalens_cli.imaging.lpips.Lpips`) is given."""
+    match (``match``: the paper's luminance mean/std match of Suppl. Note 11, or least squares),
+    computed on sRGB-encoded images clipped to 0..1 (display values); also ``lpips`` on the
+    same images when ``lpips_model`` (:class:`~metalens_cli.imaging.lpips.Lpips`) is given."""
     from metalens_cli.imaging.images import linear_to_srgb
     from metalens_cli.imaging.metrics import photometric_match, psnr, ssim
 
     estimate = torch.as_tensor(estimate_linear, dtype=torch.float64)
     clean = torch.as_tensor(clean_linear, dtype=torch.float64)
-    matched, gain, bias = photometric_match(estimate, clean)
+    matched, gain, bias = photometric_match(estimate, clean, match)
     x = torch.as_tensor(linear_to_srgb(matched.numpy()), dtype=torch.float64)
     y = torch.as_tensor(linear_to_srgb(clean.numpy()), dtype=torch.float64)
     out = {"psnr_db": float(psnr(x, y)), "ssim": float(ssim(x, y)), "gain": float(gain), "bias": float(bias)}

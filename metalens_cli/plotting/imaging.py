@@ -20,8 +20,8 @@ def _show(ax, image, title):
 
 def _over_grey(obstruction) -> np.ndarray:
     """The obstruction composited over mid grey (where the mask is 0 nothing is drawn)."""
-    grey = np.full_like(obstruction.rgb, 0.5)
-    return obstruction.rgb * obstruction.mask + grey * (1 - obstruction.mask)
+    rgb, mask = obstruction.sensor_rgb, obstruction.sensor_mask
+    return rgb * mask + 0.5 * (1 - mask)
 
 
 def obstruction_sheet(path: str | Path, rows: list[tuple[str, list]]) -> Path:

@@ -34,7 +34,9 @@ def test_simulate_writes_outputs(capsys, tmp_path, photo_dir):
     report = json.loads(stdout)
     assert report == json.loads((out / "simulate.json").read_text())
     assert [i["name"] for i in report["images"]] == ["a", "b"]
-    assert set(report["psf_energy"]["near"]) == {"R", "G", "B"} and 0.5 < report["psf_energy"]["far"]["G"] <= 1.0
+    assert set(report["psf_energy"]["near"]) == {"R", "G", "B"}
+    assert all(0.99 <= report["psf_energy"][d][c] <= 1.001 for d in ("near", "far") for c in "RGB")  # windows hold the light
+    assert report["canvas_margin_px"] == max(report["psf_window_px"].values()) // 2 and report["warnings"] == []
     for name in ("a_clean.png", "a_obstructed.exr", "a_unobstructed.png", "a_alpha.png", "a_obstruction.png", "contact_sheet.png"):
         assert (out / name).stat().st_size > 0
     assert 0 < report["images"][0]["alpha_coverage"] < 1
@@ -46,17 +48,59 @@ def test_evaluate_json_csv_plot(capsys, tmp_path, photo_dir):
                                   "--obstruction", "dirt,drops", "--json", "--csv", csv, "--plot", plot)
     assert code == 0 and plot.stat().st_size > 0
     report = json.loads(stdout)
-    assert len(report["rows"]) == 2 * 2 * 2
+    assert len(report["rows"]) == 2 * 2 * 2 and report["photometric_match"] == "luminance"
     for row in report["rows"]:
-        assert set(row) == {"design", "obstruction", "condition", "psnr_db", "ssim"}
+        assert set(row) == {"design", "obstruction", "condition", "n", "psnr_db", "psnr_db_ci", "ssim", "ssim_ci"}
         assert row["condition"] in ("unobstructed", "obstructed") and row["psnr_db"] > 0 and -1 <= row["ssim"] <= 1
-    assert csv.read_text().splitlines()[0] == "design,obstruction,condition,psnr_db,ssim"
+        assert row["n"] == 2 and row["psnr_db_ci"][0] <= row["psnr_db"] <= row["psnr_db_ci"][1]
+    assert len(report["units"]) == 2 * 2 * 2 and len(report["comparisons"]) == 2 * 3 * 2  # kinds × conditions × metrics
+    assert csv.read_text().splitlines()[0] == "design,obstruction,condition,n,psnr_db,psnr_db_lo,psnr_db_hi,ssim,ssim_lo,ssim_hi"
     assert "LPIPS" in stderr
 
 
 def test_evaluate_table(capsys):
-    code, stdout, _ = invoke(capsys, "evaluate", "hyperbolic:532nm", *SMALL, "--obstruction", "rain", "--limit", "1")
-    assert code == 0 and "Δ PSNR" in stdout
+    code, stdout, _ = invoke(capsys, "evaluate", "hyperbolic:532nm", *SMALL, "--obstruction", "rain", "--limit", "1", "--seed", "0:1")
+    assert code == 0 and "Raw Δ" in stdout and "1 images × 2 seeds" in stdout
+
+
+PAPER_LENS = ["--f", "4mm", "--aperture", "2.516mm", "--pixels", "48", "--wavelengths", "420:680:20nm", "--z-near", "45mm", "--z-far", "1m"]
+
+
+@pytest.fixture(scope="module")
+def grey_wall(tmp_path_factory):
+    """The issue's case: a grey PNG (value 128) and fully transparent / fully opaque RGBA covers."""
+    import cv2
+
+    folder = tmp_path_factory.mktemp("wall")
+    cv2.imwrite(str(folder / "grey.png"), np.full((128, 128, 3), 128, np.uint8))
+    cv2.imwrite(str(folder / "clear.png"), np.zeros((128, 128, 4), np.uint8))
+    cover = np.zeros((128, 128, 4), np.uint8)
+    cover[..., :3], cover[..., 3] = (30, 60, 60), 255  # BGR: a brownish cover, opaque
+    cv2.imwrite(str(folder / "opaque.png"), cover)
+    return folder
+
+
+def test_grey_wall_is_grey_and_an_opaque_cover_hides_it(capsys, tmp_path, grey_wall):
+    """Through the paper's lens (near blur ≈ 120-330 px on a 48-px sensor): a grey wall images as
+    the same grey at every pixel, behind a clear cover too; an opaque cover leaves only its colour."""
+    from metalens_cli.imaging.images import srgb_to_linear
+    from metalens_cli.io.image_files import read_exr_rgb
+
+    grey = float(srgb_to_linear(np.array(128 / 255)))
+    for cover, out in (("clear", tmp_path / "clear"), ("opaque", tmp_path / "opaque")):
+        code, _, _ = invoke(capsys, "simulate", "hyperbolic:532nm", *PAPER_LENS, "--images", grey_wall / "grey.png",
+                            "--obstruction", f"file:{grey_wall / f'{cover}.png'}", "-o", out)
+        assert code == 0
+        unobstructed, obstructed = (read_exr_rgb(out / f"grey_{c}.exr") for c in ("unobstructed", "obstructed"))
+        alpha = read_exr_rgb(out / "grey_alpha.exr")
+        np.testing.assert_allclose(unobstructed, grey, rtol=5e-3)  # the issue's bound: 0.5 % at every pixel
+        if cover == "clear":
+            np.testing.assert_allclose(obstructed, grey, rtol=5e-3)
+            np.testing.assert_allclose(alpha, 0.0, atol=1e-3)
+        else:
+            colour = srgb_to_linear(np.array([60, 60, 30]) / 255)[:, None, None]  # RGB of the cover
+            np.testing.assert_allclose(alpha, 1.0, atol=1e-3)
+            np.testing.assert_allclose(obstructed, np.broadcast_to(colour, obstructed.shape), rtol=1e-2)
 
 
 @pytest.mark.parametrize("args", [

@@ -25,8 +25,9 @@ def test_two_process_torchrun_equals_one_process(tmp_path):
     torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]
     parallel = _optimize(torchrun, tmp_path / "two")
     # same draws, batch split 1 + 1, gradients summed by all_reduce: only the summation order
-    # differs (float32 PSFs, float64 θ); AdamW then moves θ by ≤ lr per step either way
-    np.testing.assert_allclose(parallel, single, rtol=0, atol=1e-6)
+    # differs (float32 PSFs and FFTs, float64 θ): a gradient moves by ~1e-7 relative, and AdamW's
+    # normalised step turns that into ≤ a few 1e-6 rad on |θ| ≤ 30 rad over 3 steps
+    np.testing.assert_allclose(parallel, single, rtol=0, atol=1e-5)
     from metalens_cli.design.training import build_model
     from metalens_cli.io.presets import load_preset
 

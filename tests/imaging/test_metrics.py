@@ -1,11 +1,13 @@
-"""Metrics: PSNR of known noise, SSIM against an independent implementation, gain/bias match."""
+"""Metrics: PSNR of known noise, SSIM against an independent implementation, gain/bias match
+(luminance and least squares) against known affine changes and numpy closed forms."""
 
 import numpy as np
 import pytest
 import scipy.signal
 import torch
 
-from metalens_cli.imaging.metrics import photometric_match, psnr, ssim
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.metrics import MATCH_METHODS, photometric_match, psnr, ssim
 
 
 def test_psnr_of_known_noise():
@@ -58,3 +60,43 @@ def test_gain_bias_match_recovers_affine_change():
     np.testing.assert_allclose(gain.numpy(), [1.7, 1.7], rtol=1e-12)
     np.testing.assert_allclose(bias.numpy(), [0.05, 0.05], atol=1e-12)
     np.testing.assert_allclose(matched.numpy(), ref.numpy(), atol=1e-12)
+
+
+@pytest.mark.parametrize("method", MATCH_METHODS)
+def test_match_recovers_a_gain_and_bias_per_batch_entry(method):
+    rng = np.random.default_rng(3)
+    ref = torch.as_tensor(rng.random((2, 3, 32, 32)))
+    a, b = torch.tensor([1.7, 0.6], dtype=torch.float64), torch.tensor([0.05, -0.1], dtype=torch.float64)
+    changed = (ref - b.view(2, 1, 1, 1)) / a.view(2, 1, 1, 1)  # reference = a·changed + b, per entry
+    matched, gain, bias = photometric_match(changed, ref, method=method)
+    # exact in arithmetic; float64 round-off of means over 3072 values stays ~1e-15
+    np.testing.assert_allclose(gain.numpy(), a.numpy(), rtol=1e-12)
+    np.testing.assert_allclose(bias.numpy(), b.numpy(), atol=1e-12)
+    np.testing.assert_allclose(matched.numpy(), ref.numpy(), atol=1e-12)
+
+
+def test_luminance_and_lstsq_differ_with_channel_contrast():
+    rng = np.random.default_rng(4)
+    ref = rng.random((3, 24, 24))
+    est = ref * np.array([1.0, 0.5, 2.0])[:, None, None] + 0.1  # contrast differs per channel
+    y = lambda im: np.tensordot([0.2126, 0.7152, 0.0722], im, axes=1)  # noqa: E731
+    a_lum = y(ref).std() / y(est).std()  # Suppl. Note 11, population σ
+    a_lsq = np.polyfit(est.ravel(), ref.ravel(), 1)[0]  # least squares over every sample
+    _, gain, bias = photometric_match(torch.as_tensor(est), torch.as_tensor(ref))  # default: luminance
+    _, gain_lsq, _ = photometric_match(torch.as_tensor(est), torch.as_tensor(ref), method="lstsq")
+    # closed forms in float64 numpy, different summation order: agree to round-off
+    assert float(gain) == pytest.approx(a_lum, rel=1e-10)
+    assert float(bias) == pytest.approx(y(ref).mean() - a_lum * y(est).mean(), abs=1e-10)
+    assert float(gain_lsq) == pytest.approx(a_lsq, rel=1e-10)
+    assert abs(a_lum - a_lsq) > 0.1  # 1.70 vs 0.40 here: the methods weigh channels differently
+
+
+def test_luminance_match_of_a_flat_estimate_and_unknown_method():
+    ref = torch.as_tensor(np.random.default_rng(5).random((3, 16, 16)))
+    matched, gain, bias = photometric_match(torch.full_like(ref, 0.3), ref)  # σ_Y ≈ 1e-17, round-off
+    luminance = (torch.tensor([0.2126, 0.7152, 0.0722], dtype=ref.dtype).view(3, 1, 1) * ref).sum(0)
+    assert float(gain) == 0.0
+    assert float(bias) == pytest.approx(float(luminance.mean()), abs=1e-15)
+    assert (matched == bias).all()  # 0·estimate + b: the reference's mean luminance, exactly
+    with pytest.raises(InputError, match="luminance or lstsq"):
+        photometric_match(ref, ref, method="histogram")

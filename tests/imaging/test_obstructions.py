@@ -22,9 +22,10 @@ def test_pixels_from_metres():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_dirt_coverage_within_range(seed):
     o = make("dirt", seed, dirt_coverage=(0.2, 0.3))
-    # the soft threshold is placed by bisection on the mean: exact to 1e-6
-    assert 0.2 - 1e-6 <= o.coverage <= 0.3 + 1e-6
-    assert o.coverage == pytest.approx(o.settings["target_coverage"], abs=1e-6)
+    # the soft threshold is placed by bisection on the mean of every 4th pixel per axis: a
+    # 1/16 sample of noise correlated over ≥ 4.5 px (the finest octave), measured within 0.01
+    assert 0.2 - 0.015 <= o.coverage <= 0.3 + 0.015
+    assert o.coverage == pytest.approx(o.settings["target_coverage"], abs=0.015)
     brown = o.rgb[:, o.mask[0] > 0.5].mean(axis=1)
     assert brown[0] > brown[1] > brown[2]  # brownish
     assert 0 < ((o.mask > 0) & (o.mask < 1)).mean() < 0.2  # soft edges exist

@@ -1,0 +1,40 @@
+"""Canvases around the sensor: the source image supplies the margin, reflection only past its edge."""
+
+import numpy as np
+
+from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
+from metalens_cli.imaging.images import builtin_images
+from metalens_cli.imaging.obstructions import make_obstruction
+
+
+def test_sensor_field_does_not_depend_on_the_margin():
+    image = np.random.default_rng(1).random((3, 300, 400)).astype(np.float32)
+    plain = fit_to_canvas(image, (64, 64))
+    for margin in (10, 100, 200):
+        canvas = fit_to_canvas(image, (64, 64), margin)
+        assert canvas.shape == (3, 64 + 2 * margin, 64 + 2 * margin)
+        np.testing.assert_array_equal(sensor_crop(canvas, margin), plain)
+
+
+def test_margin_comes_from_the_source_then_reflection():
+    """A 100 × 160 source framed on a 100 × 100 sensor: the 30 extra columns each side are the
+    source's own; rows past its edge (and columns past 30) are mirror images."""
+    image = np.random.default_rng(2).random((3, 100, 160)).astype(np.float32)
+    canvas = fit_to_canvas(image, (100, 100), 40)
+    np.testing.assert_array_equal(canvas[:, 40:140, 10:170], image)
+    np.testing.assert_array_equal(canvas[:, 39, 10:170], image[:, 0, :])        # symmetric reflection at the top edge
+    np.testing.assert_array_equal(canvas[:, 40:140, 9], image[:, :, 0])         # and at the left edge of the source
+
+
+def test_builtin_scenes_and_file_obstructions_fill_the_canvas(tmp_path):
+    import cv2
+
+    images = builtin_images((32, 32), margin=20, count=4)
+    assert [i.linear.shape for i in images] == [(3, 72, 72)] * 4 and images[0].sensor.shape == (3, 32, 32)
+    assert all(np.isfinite(i.linear).all() and i.linear.min() >= 0 for i in images)
+    opaque = np.zeros((16, 16, 4), np.uint8)
+    opaque[..., 3] = 255
+    opaque[..., 2] = 200
+    cv2.imwrite(str(tmp_path / "cover.png"), opaque)
+    obstruction = make_obstruction(f"file:{tmp_path / 'cover.png'}", (32, 32), 0.045, 4e-3, 1.85e-6, 0, margin=20)
+    assert obstruction.mask.shape == (1, 72, 72) and obstruction.mask.min() == 1.0 and obstruction.coverage == 1.0
