@@ -63,7 +63,7 @@ def test_evaluate_table(capsys):
     assert code == 0 and "Raw Δ" in stdout and "1 images × 2 seeds" in stdout
 
 
-PAPER_LENS = ["--f", "4mm", "--aperture", "2.516mm", "--pixels", "48", "--wavelengths", "420:680:20nm", "--z-near", "45mm", "--z-far", "1m"]
+PAPER_LENS = ["--f", "4mm", "--aperture", "2.516mm", "--pitch", "395nm", "--pixels", "48", "--wavelengths", "420:680:20nm", "--z-near", "45mm", "--z-far", "1m"]
 
 
 @pytest.fixture(scope="module")
@@ -80,15 +80,29 @@ def grey_wall(tmp_path_factory):
     return folder
 
 
-def test_grey_wall_is_grey_and_an_opaque_cover_hides_it(capsys, tmp_path, grey_wall):
+def _learned_like(path):
+    """A radial θ(r) unlike any closed form: the hyperbolic profile plus smooth random ripples of
+    ±2 rad (what a learned design looks like to the optics), saved as a design .npy."""
+    from metalens_cli.optics.lens import hyperbolic
+
+    theta = hyperbolic(532e-9, 4e-3, 2.516e-3, 395e-9).theta.numpy()
+    r = np.linspace(0, 1, theta.size)
+    ripples = sum(np.random.default_rng(k).normal() * np.sin((k + 1) * np.pi * r) for k in range(12))
+    np.save(path, theta + 2 * ripples / np.abs(ripples).max())
+    return path
+
+
+@pytest.mark.parametrize("design", ["hyperbolic", "learned"])
+def test_grey_wall_is_grey_and_an_opaque_cover_hides_it(capsys, tmp_path, grey_wall, design):
     """Through the paper's lens (near blur ≈ 120-330 px on a 48-px sensor): a grey wall images as
     the same grey at every pixel, behind a clear cover too; an opaque cover leaves only its colour."""
     from metalens_cli.imaging.images import srgb_to_linear
     from metalens_cli.io.image_files import read_exr_rgb
 
+    spec = "hyperbolic:532nm" if design == "hyperbolic" else str(_learned_like(tmp_path / "theta.npy"))
     grey = float(srgb_to_linear(np.array(128 / 255)))
     for cover, out in (("clear", tmp_path / "clear"), ("opaque", tmp_path / "opaque")):
-        code, _, _ = invoke(capsys, "simulate", "hyperbolic:532nm", *PAPER_LENS, "--images", grey_wall / "grey.png",
+        code, _, _ = invoke(capsys, "simulate", spec, *PAPER_LENS, "--images", grey_wall / "grey.png",
                             "--obstruction", f"file:{grey_wall / f'{cover}.png'}", "-o", out)
         assert code == 0
         unobstructed, obstructed = (read_exr_rgb(out / f"grey_{c}.exr") for c in ("unobstructed", "obstructed"))
