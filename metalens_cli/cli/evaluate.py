@@ -82,7 +82,7 @@ def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near
     if pairs:
         con.print(render.table("Paired PSNR differences (design − versus, same units), dB [95 % CI]",
                                ["design", "versus", "obstruction", "condition", "difference"],
-                               [[c["design"], c["versus"], c["obstruction"], LABELS[c["condition"]], _ci(c["difference"], c["ci"], 2)]
+                               [[c["design"], c["versus"], c["obstruction"], LABELS[c["condition"]], _ci(c["difference"], c["ci"], 2, lines=False)]
                                 for c in pairs]))
 
 
@@ -90,9 +90,10 @@ def _short(metric: str) -> str:
     return {"psnr_db": "PSNR", "ssim": "SSIM", "lpips": "LPIPS"}[metric]
 
 
-def _ci(mean: float, ci, digits: int) -> str:
-    return f"{mean:+.{digits}f} [{ci[0]:+.{digits}f}, {ci[1]:+.{digits}f}]" if mean < 0 or ci[0] < 0 else \
-        f"{mean:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
+def _ci(mean: float, ci, digits: int, lines: bool = True) -> str:
+    """The mean and, below it (or beside it), its interval; signed when either can be negative."""
+    f = f"{{:{'+' if mean < 0 or ci[0] < 0 else ''}.{digits}f}}"
+    return f"{f.format(mean)}{chr(10) if lines else ' '}[{f.format(ci[0])}, {f.format(ci[1])}]"
 
 
 def _table_rows(result, kinds, metrics) -> list[list[str]]:
