@@ -21,7 +21,7 @@ from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
 SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 BUILTIN = "builtin"
 BUILTIN_COUNT = 24                                            # photographs + dead-leaves charts
-PHOTOGRAPHS = ("grace_hopper.jpg", "Minduka_Present_Blue_Pack.png")  # in matplotlib's sample data
+PHOTOGRAPHS = ("grace_hopper.jpg",)  # the photograph in matplotlib's sample data (its other images are drawings)
 
 
 @dataclass(frozen=True)
