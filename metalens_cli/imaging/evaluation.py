@@ -89,13 +89,14 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
     metrics = metric_names(lpips_model)
     scores: dict[tuple, dict] = {}
     total, done = len(designs) * len(kinds) * len(seeds), 0
-    for d, design in enumerate(designs):
-        out.panels[design.spec] = []
-        for kind in kinds:
-            for seed in seeds:
+    out.panels = {design.spec: [] for design in designs}
+    for kind in kinds:
+        for seed in seeds:
+            obstructions: dict = {}  # generated once, shared by the designs (same seed, depths and canvas)
+            for d, design in enumerate(designs):
                 captures = simulate_captures(images, kind, psfs[d, seed], design.focal_length_m, settings.pixel_pitch_m, seed,
                                              settings.obstruction_params, settings.formation, settings.alpha_gain,
-                                             settings.photons, settings.read_noise)
+                                             settings.photons, settings.read_noise, obstructions)
                 for index, c in enumerate(captures):
                     key = (d, "unobstructed", seed, index)  # the same for every obstruction kind
                     if key not in scores:
@@ -104,10 +105,10 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
                     out.units.append({"design": design.spec, "obstruction": kind, "seed": seed, "image": c.name,
                                       "unobstructed": scores[key], "obstructed": scores[d, kind, seed, index]})
                 if seed == seeds[0]:
-                    first = captures[0]
-                    if not out.panels[design.spec]:
-                        out.panels[design.spec] += [("clean", first.clean), ("unobstructed", first.unobstructed)]
-                    out.panels[design.spec].append((f"obstructed: {kind}", first.obstructed))
+                    first, panels = captures[0], out.panels[design.spec]
+                    if not panels:
+                        panels += [("clean", first.clean), ("unobstructed", first.unobstructed)]
+                    panels.append((f"obstructed: {kind}", first.obstructed))
                 done += 1
                 if on_progress is not None:
                     on_progress(done, total)

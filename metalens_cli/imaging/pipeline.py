@@ -124,18 +124,25 @@ class SimulatedCapture:
 def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_length_m: float, pixel_pitch_m: float,
                       seed: int, params: ObstructionConfig | None = None, formation: str = "physical",
                       alpha_gain: float | None = None, photons: float | None = None,
-                      read_noise: float = 0.0) -> list[SimulatedCapture]:
+                      read_noise: float = 0.0, obstructions: dict | None = None) -> list[SimulatedCapture]:
     """For each clean image (on a canvas whose margin covers ``psfs.margin``): an obstruction on
     the same canvas (seed + image index), the unobstructed capture P̂_far ∗ I_clean and the
-    obstructed capture (``imaging.formation``); noise (if any) seeded the same way."""
+    obstructed capture (``imaging.formation``); noise (if any) seeded the same way.
+
+    ``obstructions``: a dict shared by calls that differ only in the design (same images, seed
+    and depths), so each obstruction is generated once."""
     captures = []
     transforms = None
     dev, dt = psfs.near.device, psfs.near.dtype
     for index, image in enumerate(images):
         start = time.perf_counter()
         sensor = image.sensor.shape[-2:]
-        obstruction = make_obstruction(obstruction_spec, sensor, psfs.z_near_m, focal_length_m, pixel_pitch_m,
-                                       [seed, index], params, clean=image.linear, margin=image.margin)
+        key = (obstruction_spec, seed, index, psfs.z_near_m, focal_length_m)
+        obstruction = (obstructions or {}).get(key) or make_obstruction(
+            obstruction_spec, sensor, psfs.z_near_m, focal_length_m, pixel_pitch_m, [seed, index], params, clean=image.linear,
+            margin=image.margin)
+        if obstructions is not None:
+            obstructions[key] = obstruction
         if transforms is None or transforms[0].sensor_hw != tuple(sensor):
             transforms = (psf_transform(psfs.near, tuple(sensor)), psf_transform(psfs.far, tuple(sensor)))
         with torch.no_grad():
