@@ -1,8 +1,8 @@
 """Near obstructions on the cover glass: dirt, fences, blood drops, raindrops, or an RGBA file.
 
-Every generator returns an :class:`Obstruction`: ``rgb`` (3, H, W) linear radiance (0 where
-nothing is), ``mask`` (1, H, W) coverage m in 0..1 (soft edges, semi-opaque drops), float32
-numpy. Generators are seeded (the same seed gives the same obstruction) and depth-aware: a
+Every generator returns an :class:`Obstruction` on the canvas (``imaging.canvas``): ``rgb``
+(3, H + 2M, W + 2M) linear radiance (0 where nothing is), ``mask`` (1, H + 2M, W + 2M) coverage m
+in 0..1 (soft edges, semi-opaque drops), float32 numpy. Generators are seeded (the same seed gives the same obstruction) and depth-aware: a
 feature of ``s`` metres on the cover glass at depth ``z`` spans s·f/z/pitch pixels on the
 sensor (:func:`pixels_from_metres`). Rain needs the clean image, which its drops refract.
 

@@ -138,3 +138,12 @@ def test_obstruction_preview_sheet(capsys, tmp_path):
     assert [(o["kind"], o["depth_m"]) for o in report["obstructions"]] == [("dirt", 0.04), ("fence", 0.04), ("dirt", 0.05), ("fence", 0.05)]
     dirt = [o["coverage"] for o in report["obstructions"] if o["kind"] == "dirt"]
     assert all(0.15 <= c <= 0.35 for c in dirt)  # the default configured coverage range
+
+
+def test_cli_choices_match_the_core():
+    """The CLI spells the choices out to start without torch; they must stay the core's."""
+    from metalens_cli.cli.evaluate import MATCH_METHODS
+    from metalens_cli.cli.simulate import FORMATIONS
+    from metalens_cli.imaging import formation, metrics
+
+    assert FORMATIONS == formation.FORMATIONS and MATCH_METHODS == metrics.MATCH_METHODS
