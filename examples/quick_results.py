@@ -196,7 +196,7 @@ def write(path: Path, reports, tables, energies, bands, seeds) -> None:
     lines += [f"metalens optimize presets/{n}.toml -o runs/{n}" for n in DESIGNS]
     lines += [f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --obstruction {OBSTRUCTIONS} "
               f"--pixels {{128,512}} --seed 0:{seeds - 1} --json",
-              f"metalens psf-scan --design runs/{{quick-split-spectrum,quick-broadband}} --wavelengths "
+              "metalens psf-scan --design runs/{quick-split-spectrum,quick-broadband} --wavelengths "
               + ",".join(f"{lo * 1e9:.0f}:{hi * 1e9:.0f}:2nm" for _, lo, hi in bands) + f" --depths {NEAR_DEPTH},inf --pixels 64 "
               "-o runs/…/passbands.exr --json", "```", "", "## Training", "",
              "| design | steps | torch threads | s/step (median) | training time | validation loss before → after (4 fixed draws) "
