@@ -138,7 +138,7 @@ def plan_windows(preset, sensitivity) -> Windows:
     lens to change; each step reports what its windows kept."""
     grid = sensitivity.wavelengths_m
     support = grid[sensitivity.values.max(axis=0) > WINDOW_SENSITIVITY * sensitivity.values.max()]
-    waves = list(support[:: max(1, len(support) // 32)]) + [support[-1]]
+    waves = [float(support.min()), float(support.max())]  # the ends of the range bound every ray (optics.blur)
     lens, d, pitch = build_model(preset).lens(), preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
     near, far = preset.scene.z_near_m, preset.scene.z_far_m
     return Windows(psf_window(lens, waves, list(near), d, pitch, PLAN_HEADROOM), psf_window(lens, waves, list(far), d, pitch, PLAN_HEADROOM))

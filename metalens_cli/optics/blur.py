@@ -81,10 +81,13 @@ def numerical_aperture(lens: Metalens, distance_m: float) -> float:
 
 
 def window_radius_m(lens: Metalens, wavelengths_m, depths_m, distance_m: float) -> float:
-    """Radius (m) that holds the light of every (λ, z): geometric blur + diffraction margin."""
+    """Radius (m) that holds the light of every (λ, z) in the ranges given: geometric blur +
+    diffraction margin. Only the extreme wavelengths and depths are traced: a ray's direction sine
+    is λ·∇φ_lens/2π + r/√(r² + z²), linear in λ and monotone in z, and its landing point is
+    monotone in that sine, so its distance from the axis is largest at an end of each range."""
     na = numerical_aperture(lens, distance_m)
-    return max(geometric_blur_radius(lens, lam, z, distance_m) + DIFFRACTION_MARGIN * lam / na
-               for lam in wavelengths_m for z in depths_m)
+    lams, zs = {min(wavelengths_m), max(wavelengths_m)}, {min(depths_m), max(depths_m)}
+    return max(geometric_blur_radius(lens, lam, z, distance_m) + DIFFRACTION_MARGIN * lam / na for lam in lams for z in zs)
 
 
 def window_pixels(radius_m: float, pixel_pitch_m: float) -> int:

@@ -75,3 +75,14 @@ def test_a_learned_profile_is_traced_from_its_own_phase():
     # ray optics: extra slope 0.2·(r/f) at the rim → lands 0.2·a·(d/f) further across
     extra = geometric_blur_radius(steeper, 532e-9, math.inf, 4e-3) - geometric_blur_radius(base, 532e-9, math.inf, 4e-3)
     assert extra == pytest.approx(0.2 * r[r <= 0.25e-3][-1], rel=0.02)
+
+
+def test_extreme_wavelengths_and_depths_bound_every_ray():
+    """window_radius_m traces only the ends of each range; tracing every (λ, z) gives the same."""
+    from metalens_cli.optics.blur import DIFFRACTION_MARGIN, numerical_aperture
+
+    lens = hyperbolic(532e-9, 4e-3, 1e-3, PITCH)
+    lams, zs = list(np.linspace(420e-9, 680e-9, 14)), [0.04, 0.043, 0.05, 1.0, math.inf]
+    na = numerical_aperture(lens, 4e-3)
+    brute = max(geometric_blur_radius(lens, lam, z, 4e-3) + DIFFRACTION_MARGIN * lam / na for lam in lams for z in zs)
+    assert window_radius_m(lens, lams, zs, 4e-3) == pytest.approx(brute, rel=1e-12)
