@@ -5,14 +5,17 @@
 1. ``metalens optimize`` trains presets/quick-split-spectrum.toml and presets/quick-broadband.toml
    (same code, same schedule; the broadband baseline has no filter) and writes the hyperbolic
    532 nm baseline as a run directory (presets/hyperbolic-532.toml, no steps).
-2. ``metalens evaluate`` scores raw captures of the built-in held-out images (photographs and
+2. ``metalens reconstruct train`` trains one reconstruction network per design
+   (presets/quick-reconstruct.toml) into ``runs/recon-NAME``.
+3. ``metalens evaluate`` scores raw captures of the built-in held-out images (photographs and
    dead-leaves charts, never used in training) through all three designs, at the sensor crop the
    quick presets train on and at the paper's full 512 × 512 sensor, over images × ``--seeds``
    draws of depths and obstructions: means with 95 % bootstrap intervals, Δ, and paired
-   differences between designs, laid out like the paper's Suppl. table (Raw rows).
-3. ``metalens psf-scan`` measures, per pass band of the tri-band filter, the fraction of power in
+   differences between designs, laid out like the paper's Suppl. table; at the sizes in
+   ``--recon-pixels`` (the 128 × 128 crop the networks train on) with ``--recon``: Raw and Recon rows.
+4. ``metalens psf-scan`` measures, per pass band of the tri-band filter, the fraction of power in
    the central 5 × 5 pixels of the far (∞) and near (45 mm) PSFs of both learned designs.
-4. The cost of a training step at the paper's resolution, radial and 2-D, is copied from the
+5. The cost of a training step at the paper's resolution, radial and 2-D, is copied from the
    ``optimize-cpu`` section of docs/benchmarks.md (``python benchmarks/bench_optimize.py`` writes
    it; this script does not re-run it).
 
@@ -64,16 +67,33 @@ def train(runs: Path, reuse: bool) -> dict[str, dict]:
     return reports
 
 
-def evaluate(runs: Path, seeds: int, pixels: int, reuse: bool) -> dict:
-    """One ``metalens evaluate`` of all three designs on the same images × seeds, kept in
-    ``runs/evaluate_<pixels>.json`` (``--reuse`` reads it back when its seeds match)."""
+def train_recon(runs: Path, reuse: bool) -> dict[str, dict]:
+    """One reconstruction network per design: ``runs/recon-NAME``."""
+    reports = {}
+    for name in DESIGNS:
+        run = runs / f"recon-{name}"
+        if reuse and (run / "run.json").is_file():
+            reports[name] = json.loads((run / "run.json").read_text())
+            continue
+        if run.exists():
+            raise SystemExit(f"{run} exists: remove it or pass --reuse")
+        reports[name] = metalens("reconstruct", "train", str(runs / name), "--preset", "presets/quick-reconstruct.toml",
+                                 "-o", str(run), "--quiet")
+    return reports
+
+
+def evaluate(runs: Path, seeds: int, pixels: int, reuse: bool, recon: bool) -> dict:
+    """One ``metalens evaluate`` of all three designs on the same images × seeds (with their
+    reconstruction networks when ``recon``), kept in ``runs/evaluate_<pixels>.json`` (``--reuse``
+    reads it back when its seeds and networks match)."""
     saved = runs / f"evaluate_{pixels}.json"
+    networks = [str(runs / f"recon-{n}") for n in DESIGNS] if recon else []
     if reuse and saved.is_file():
         report = json.loads(saved.read_text())
-        if report["seeds"] == list(range(seeds)):
+        if report["seeds"] == list(range(seeds)) and [r for r in report.get("recon", []) if r] == networks:
             return report
     report = metalens("evaluate", *(str(runs / n) for n in DESIGNS), "--obstruction", OBSTRUCTIONS, "--pixels", str(pixels),
-                      "--seed", f"0:{seeds - 1}", "--quiet")
+                      "--seed", f"0:{seeds - 1}", "--quiet", *(("--recon", ",".join(networks)) if recon else ()))
     saved.write_text(json.dumps(report), encoding="utf-8")
     return report
 
@@ -83,6 +103,8 @@ def added_error(report: dict) -> dict:
     PSNR = −10·log10 MSE) and the Δ PSNR it corresponds to at that design's mean unobstructed MSE."""
     out = {}
     for unit in report["units"]:
+        if unit.get("capture", "raw") != "raw":
+            continue
         key = (Path(unit["design"]).name, unit["obstruction"])
         mse = [10 ** (-unit[c]["psnr_db"] / 10) for c in ("unobstructed", "obstructed")]
         out.setdefault(key, []).append((mse[1] - mse[0], mse[0]))
@@ -99,10 +121,12 @@ def evaluation_section(pixels: int, report: dict, seeds: int) -> tuple[list[str]
     paired differences, the windows' kept light; and the verdicts."""
     kinds = OBSTRUCTIONS.split(",")
     name = {str(Path(r["design"])): Path(r["design"]).name for r in report["rows"]}
-    row = {(name[r["design"]], r["obstruction"], r["condition"]): r for r in report["rows"]}
-    delta = {(name[d["design"]], d["obstruction"]): d for d in report["deltas"]}
+    row = {(name[r["design"]], r.get("capture", "raw"), r["obstruction"], r["condition"]): r for r in report["rows"]}
+    delta = {(name[d["design"]], d.get("capture", "raw"), d["obstruction"]): d for d in report["deltas"]}
+    captures = ("raw", "recon") if any(r.get("capture") == "recon" for r in report["rows"]) else ("raw",)
     n = report["rows"][0]["n"]
-    lines = ["", f"## (a) Raw captures of the held-out images, {pixels} × {pixels} sensor", "",
+    title = "Raw and reconstructed captures" if len(captures) == 2 else "Raw captures"
+    lines = ["", f"## (a) {title} of the held-out images, {pixels} × {pixels} sensor", "",
              f"`metalens evaluate`: {len(report['images'])} built-in images × seeds 0-{seeds - 1} = {n} units per cell (each seed "
              "draws z_near in 40-50 mm, z_far in 1-20 m, the obstructions and their placement); every design sees the same "
              "units. PSNR (dB) and SSIM after the paper's luminance gain/bias match; mean [95 % bootstrap CI]; "
@@ -110,25 +134,35 @@ def evaluation_section(pixels: int, report: dict, seeds: int) -> tuple[list[str]
              "| design | capture | condition | " + " | ".join(f"{k} PSNR | {k} SSIM" for k in kinds) + " |",
              "|---|---|---|" + "---|---|" * len(kinds)]
     for design in DESIGNS:
-        for condition, label in (("unobstructed", "Unobs."), ("obstructed", "Obs."), ("delta", "Δ")):
-            cells = []
-            for kind in kinds:
-                if condition == "delta":
-                    d = delta[design, kind]
-                    cells += [_cell(d["delta_psnr_db"], d["delta_psnr_db_ci"], 2, True), _cell(d["delta_ssim"], d["delta_ssim_ci"], 3, True)]
-                else:
-                    r = row[design, kind, condition]
-                    cells += [_cell(r["psnr_db"], r["psnr_db_ci"], 2), _cell(r["ssim"], r["ssim_ci"], 3)]
-            lines.append(f"| {LABELS[design] if condition == 'unobstructed' else ''} | {'Raw' if condition == 'unobstructed' else ''} | "
-                         f"{label} | " + " | ".join(cells) + " |")
-    pairs = {(name[c["design"]], name[c["versus"]], c["obstruction"], c["condition"]): c
-             for c in report["comparisons"] if c["metric"] == "psnr_db"}
+        for capture in captures:
+            for condition, label in (("unobstructed", "Unobs."), ("obstructed", "Obs."), ("delta", "Δ")):
+                cells = []
+                for kind in kinds:
+                    if condition == "delta":
+                        d = delta[design, capture, kind]
+                        cells += [_cell(d["delta_psnr_db"], d["delta_psnr_db_ci"], 2, True), _cell(d["delta_ssim"], d["delta_ssim_ci"], 3, True)]
+                    else:
+                        r = row[design, capture, kind, condition]
+                        cells += [_cell(r["psnr_db"], r["psnr_db_ci"], 2), _cell(r["ssim"], r["ssim_ci"], 3)]
+                first = condition == "unobstructed"
+                lines.append(f"| {LABELS[design] if first and capture == 'raw' else ''} | {capture.capitalize() if first else ''} | "
+                             f"{label} | " + " | ".join(cells) + " |")
+    pairs = {(name[c["design"]], c.get("capture", "raw"), name[c["versus"]], c.get("versus_capture", "raw"), c["obstruction"],
+              c["condition"]): c for c in report["comparisons"] if c["metric"] == "psnr_db"}
     lines += ["", "Paired PSNR differences, learned split-spectrum − baseline on the same units (dB, 95 % CI):", "",
               "| versus | " + " | ".join(f"{k} Obs. | {k} Δ" for k in kinds) + " |", "|---|" + "---|---|" * len(kinds)]
-    for other in DESIGNS[1:]:
-        cells = [_cell(pairs[DESIGNS[0], other, k, c]["difference"], pairs[DESIGNS[0], other, k, c]["ci"], 2, True)
-                 for k in kinds for c in ("obstructed", "delta")]
-        lines.append(f"| {LABELS[other]} | " + " | ".join(cells) + " |")
+    for capture in captures:
+        for other in DESIGNS[1:]:
+            cells = [_cell(pairs[DESIGNS[0], capture, other, capture, k, c]["difference"],
+                           pairs[DESIGNS[0], capture, other, capture, k, c]["ci"], 2, True) for k in kinds for c in ("obstructed", "delta")]
+            lines.append(f"| {LABELS[other]}{' (recon against recon)' if capture == 'recon' else ''} | " + " | ".join(cells) + " |")
+    if "recon" in captures:
+        lines += ["", "Paired PSNR differences, Recon − Raw of each design on the same units (dB, 95 % CI):", "",
+                  "| design | " + " | ".join(f"{k} Unobs. | {k} Obs." for k in kinds) + " |", "|---|" + "---|---|" * len(kinds)]
+        for design in DESIGNS:
+            cells = [_cell(pairs[design, "recon", design, "raw", k, c]["difference"], pairs[design, "recon", design, "raw", k, c]["ci"],
+                           2, True) for k in kinds for c in ("unobstructed", "obstructed")]
+            lines.append(f"| {LABELS[design]} | " + " | ".join(cells) + " |")
     extra = added_error(report)
     lines += ["", "The error the obstruction adds, in MSE of the display values (mean over units of MSE_Obs − MSE_Unobs; "
               "Δ PSNR compares it with each design's own unobstructed error, so the same added error costs more dB "
@@ -146,21 +180,27 @@ def evaluation_section(pixels: int, report: dict, seeds: int) -> tuple[list[str]
                      f"{max(p['psf_window_px']['far'] for p in entries)} | {kept['near']:.4f} | {kept['far']:.4f} |")
     verdicts = []
     for kind in kinds:
-        hyper = delta["hyperbolic-532", kind]
+        if "recon" in captures:
+            gain = pairs["hyperbolic-532", "recon", "hyperbolic-532", "raw", kind, "obstructed"]
+            verdicts.append(f"- (a) {pixels}², {kind}: hyperbolic Recon obstructed PSNR − Raw {gain['difference']:+.2f} "
+                            f"[{gain['ci'][0]:+.2f}, {gain['ci'][1]:+.2f}] dB: target ≥ +2 dB "
+                            + ("met." if gain["difference"] >= 2 else "NOT met."))
+        hyper = delta["hyperbolic-532", "raw", kind]
         verdicts.append(f"- (a) {pixels}², {kind}: hyperbolic Δ PSNR {hyper['delta_psnr_db']:+.2f} dB "
                         f"{'(whole CI below 0)' if hyper['delta_psnr_db_ci'][1] < 0 else '(CI reaches 0 or above)'}.")
-        smallest = min(DESIGNS, key=lambda d: abs(delta[d, kind]["delta_psnr_db"]))
-        verdicts.append(f"- (a) {pixels}², {kind}: smallest |Δ PSNR|: {LABELS[smallest]} ("
-                        + ", ".join(f"{LABELS[d]} {delta[d, kind]['delta_psnr_db']:+.2f}" for d in DESIGNS) + " dB).")
+        smallest = min(DESIGNS, key=lambda d: abs(delta[d, "raw", kind]["delta_psnr_db"]))
+        verdicts.append(f"- (a) {pixels}², {kind}: smallest |Δ PSNR| (raw): {LABELS[smallest]} ("
+                        + ", ".join(f"{LABELS[d]} {delta[d, 'raw', kind]['delta_psnr_db']:+.2f}" for d in DESIGNS) + " dB).")
         least = min(DESIGNS, key=lambda d: extra[d, kind][0])
         verdicts.append(f"- (a) {pixels}², {kind}: least error added by the obstruction (MSE): {LABELS[least]} ("
                         + ", ".join(f"{LABELS[d]} {extra[d, kind][0]:.4f}" for d in DESIGNS) + ").")
-        wins = [pairs[DESIGNS[0], other, kind, "obstructed"] for other in DESIGNS[1:]]
-        verdicts.append(f"- (a) {pixels}², {kind}: split-spectrum obstructed PSNR "
-                        + ("beats both baselines" if all(w["ci"][0] > 0 for w in wins) else
-                           "does NOT beat both baselines with its whole CI above 0")
-                        + " (" + ", ".join(f"{w['difference']:+.2f} [{w['ci'][0]:+.2f}, {w['ci'][1]:+.2f}] dB vs {LABELS[Path(w['versus']).name]}"
-                                           for w in wins) + ").")
+        for capture in captures:
+            wins = [pairs[DESIGNS[0], capture, other, capture, kind, "obstructed"] for other in DESIGNS[1:]]
+            verdicts.append(f"- (a) {pixels}², {kind}: split-spectrum {capture} obstructed PSNR "
+                            + ("beats both baselines" if all(w["ci"][0] > 0 for w in wins) else
+                               "does NOT beat both baselines with its whole CI above 0")
+                            + " (" + ", ".join(f"{w['difference']:+.2f} [{w['ci'][0]:+.2f}, {w['ci'][1]:+.2f}] dB vs "
+                                               f"{LABELS[Path(w['versus']).name]}" for w in wins) + ").")
     return lines, verdicts
 
 
@@ -188,14 +228,36 @@ def core_energy(runs: Path, bands) -> dict:
     return out
 
 
-def write(path: Path, reports, tables, energies, bands, seeds) -> None:
-    lines = ["# Results: the quick presets against both baselines", "",
+def recon_section(reports: dict[str, dict]) -> list[str]:
+    """The reconstruction networks' training: cost and validation PSNR before → after."""
+    lines = ["", "## Reconstruction networks", "",
+             "`metalens reconstruct train runs/NAME --preset presets/quick-reconstruct.toml -o runs/recon-NAME`: one network per "
+             "design on pairs simulated through it (dirt and fence). Validation: the run's held-out simulated pairs, PSNR after "
+             "the luminance match, raw capture → network output.", "",
+             "| design | steps | s/step (median) | training time | setup (PSF bank + pools) | validation obstructed PSNR raw → recon "
+             "| validation unobstructed PSNR raw → recon | loss terms |", "|---|---|---|---|---|---|---|---|"]
+    for name in DESIGNS:
+        r = reports[name]
+        cost, final = r["cost"], r["validation"]["final"]
+        setup = sum(cost["setup_seconds"].values())
+        lines.append(f"| {LABELS[name]} | {r['settings']['train']['steps']} | {cost['seconds_per_step_median']:.3f} | "
+                     f"{cost['training_seconds'] / 60:.1f} min | {setup:.0f} s | "
+                     f"{final['raw_obstructed_psnr_db']:.2f} → {final['recon_obstructed_psnr_db']:.2f} | "
+                     f"{final['raw_unobstructed_psnr_db']:.2f} → {final['recon_unobstructed_psnr_db']:.2f} | {', '.join(r['loss_terms'])} |")
+    return lines
+
+
+def write(path: Path, reports, recon_reports, tables, energies, bands, seeds) -> None:
+    lines = ["# Results: the quick presets against both baselines, raw and reconstructed", "",
              "Written by `python examples/quick_results.py` (all numbers below come from the commands it runs; "
              "re-running it rewrites this file). Machine: 2 CPU cores.", "",
              "## Commands", "", "```bash"]
     lines += [f"metalens optimize presets/{n}.toml -o runs/{n}" for n in DESIGNS]
+    lines += [f"metalens reconstruct train runs/{n} --preset presets/quick-reconstruct.toml -o runs/recon-{n}" for n in DESIGNS]
     lines += [f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --obstruction {OBSTRUCTIONS} "
-              f"--pixels {{128,512}} --seed 0:{seeds - 1} --json",
+              f"--pixels 128 --seed 0:{seeds - 1} --recon " + ",".join(f"runs/recon-{n}" for n in DESIGNS) + " --json",
+              f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --obstruction {OBSTRUCTIONS} "
+              f"--pixels 512 --seed 0:{seeds - 1} --json",
               "metalens psf-scan --design runs/{quick-split-spectrum,quick-broadband} --wavelengths "
               + ",".join(f"{lo * 1e9:.0f}:{hi * 1e9:.0f}:2nm" for _, lo, hi in bands) + f" --depths {NEAR_DEPTH},inf --pixels 64 "
               "-o runs/…/passbands.exr --json", "```", "", "## Training", "",
@@ -219,6 +281,7 @@ def write(path: Path, reports, tables, energies, bands, seeds) -> None:
               + "; ".join(f"{LABELS[n]} resumed at step {reports[n]['settings']['resumed_from_step']}"
                           for n in DESIGNS if reports[n]["settings"].get("resumed_from_step")) + ". Runs made side by side "
               "on the one 2-core machine take longer than a run alone: (c) has the step alone with 2 threads."]
+    lines += recon_section(recon_reports)
     verdict_a = []
     for pixels, report in tables.items():
         section, verdicts = evaluation_section(pixels, report, seeds)
@@ -264,13 +327,16 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=ROOT / "runs")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--pixels", type=int, nargs="+", default=[128, 512])
+    parser.add_argument("--recon-pixels", type=int, nargs="*", default=[128],
+                        help="Sizes evaluated with the reconstruction networks too (they train on the 128 × 128 sensor crop).")
     parser.add_argument("--reuse", action="store_true")
     parser.add_argument("--output", type=Path, default=ROOT / "docs" / "results.md")
     args = parser.parse_args()
     reports = train(args.runs, args.reuse)
-    tables = {p: evaluate(args.runs, args.seeds, p, args.reuse) for p in args.pixels}
+    recon_reports = train_recon(args.runs, args.reuse)
+    tables = {p: evaluate(args.runs, args.seeds, p, args.reuse, p in args.recon_pixels) for p in args.pixels}
     bands = pass_bands(ROOT / "presets" / "quick-split-spectrum.toml")
-    write(args.output, reports, tables, core_energy(args.runs, bands), bands, args.seeds)
+    write(args.output, reports, recon_reports, tables, core_energy(args.runs, bands), bands, args.seeds)
     print(args.output)
 
 

@@ -27,19 +27,23 @@ LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
               help="Directory with alexnet-owt-7be5be79.pth and lpips's v0.1 alex.pth "
                    "(without it: $METALENS_LPIPS_WEIGHTS, then torch hub's checkpoints with an installed lpips; "
                    "none found: LPIPS is skipped with a note; nothing is downloaded).")
+@click.option("--recon", "recon_runs", multiple=True,
+              help="Reconstruction runs (metalens reconstruct train), one per DESIGN in order, comma-separated or repeated; "
+                   "'-' for a design without one. Adds Recon rows.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @json_option
 @plot_option
 def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
              pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seeds, obstruction, match,
-             csv_path, lpips_weights, quiet, as_json, plot_path):
+             csv_path, lpips_weights, recon_runs, quiet, as_json, plot_path):
     """Unobstructed and obstructed captures of each DESIGN against the clean images.
 
     Every design sees the same units (image, seed). Per cell: the mean over units with a 95 %
     bootstrap confidence interval; Δ = Obs. − Unobs. per unit (LPIPS: Unobs. − Obs.; negative is
     a degradation); paired differences between designs on the same units. PSNR and SSIM after
     the photometric match (Suppl. Note 11), on sRGB-encoded images. LPIPS (v0.1, AlexNet) when
-    its weights are found locally (nothing is downloaded), else skipped with a note.
+    its weights are found locally (nothing is downloaded), else skipped with a note. With
+    --recon, each design's captures are also scored after its reconstruction network (Recon rows).
     """
     from metalens_cli.imaging.evaluation import EvaluationSettings, evaluate as run_evaluation, metric_names
     from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
@@ -53,8 +57,9 @@ def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near
     settings = EvaluationSettings(s["pixels"], s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]),
                                   s["wavelengths_m"], images, limit, s["obstruction_params"], formation, match, alpha_gain,
                                   photons, read_noise, psf_pixels, s["device"])
+    reconstructors = _reconstructors(recon_runs, s["designs"], s["device"])
     with progress_bar("evaluate", quiet) as update:
-        result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update)
+        result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update, reconstructors)
     notes = [n for n in (lpips_skip,) if n]
     err = render.console(stderr=True)
     for note in notes:
@@ -71,19 +76,46 @@ def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near
         render.emit_json({"rows": result.rows, "deltas": result.deltas, "comparisons": result.comparisons,
                           "units": result.units, "psfs": result.psfs, "images": result.images, "seeds": seeds,
                           "formation": formation, "photometric_match": match, "confidence": 0.95,
+                          "recon": [None if r is None else r.source for r in reconstructors],
                           "notes": notes, "warnings": result.warnings,
                           **({"csv": str(csv_path)} if csv_path else {}), **({"plot": str(plot_path)} if plot_path else {})})
         return
     con = render.console()
     n = result.rows[0]["n"] if result.rows else 0
-    con.print(render.table(f"Raw captures vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units",
+    what = "Raw and reconstructed captures" if any(reconstructors) else "Raw captures"
+    con.print(render.table(f"{what} vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units",
                            ["design", "condition"] + [f"{k} {_short(m)}" for k in kinds for m in metrics], _table_rows(result, kinds, metrics)))
     pairs = [c for c in result.comparisons if c["metric"] == "psnr_db" and c["condition"] in ("obstructed", "delta")]
     if pairs:
         con.print(render.table("Paired PSNR differences (design − versus, same units), dB [95 % CI]",
                                ["design", "versus", "obstruction", "condition", "difference"],
-                               [[c["design"], c["versus"], c["obstruction"], LABELS[c["condition"]], _ci(c["difference"], c["ci"], 2, lines=False)]
-                                for c in pairs]))
+                               [[f"{c['design']} ({c['capture']})", f"{c['versus']} ({c['versus_capture']})", c["obstruction"],
+                                 LABELS[c["condition"]], _ci(c["difference"], c["ci"], 2, lines=False)] for c in pairs]))
+
+
+def _reconstructors(runs, designs, device) -> list:
+    """One reconstructor (or None) per design from --recon, each checked to be made for its design."""
+    from metalens_cli.errors import InputError
+
+    names = [name.strip() for text in runs for name in text.split(",")]
+    if not names:
+        return [None] * len(designs)
+    if len(names) != len(designs):
+        raise InputError("--recon", f"{len(names)} runs for {len(designs)} designs", "one run (or '-') per DESIGN, in order")
+    from metalens_cli.imaging.restore import design_fingerprint, load_reconstructor
+
+    out = []
+    for name, design in zip(names, designs):
+        if name == "-":
+            out.append(None)
+            continue
+        recon = load_reconstructor(name, device, field_name="--recon")
+        made_for = recon.design.get("fingerprint")
+        if made_for != design_fingerprint(design):
+            raise InputError("--recon", f"{name!r} was trained for {recon.design.get('spec')!r}, not for {design.spec!r}",
+                             "the reconstruction run of each DESIGN, in order")
+        out.append(recon)
+    return out
 
 
 def _short(metric: str) -> str:
@@ -97,20 +129,23 @@ def _ci(mean: float, ci, digits: int, lines: bool = True) -> str:
 
 
 def _table_rows(result, kinds, metrics) -> list[list[str]]:
-    """The paper's Suppl. table layout: per design, rows Unobs., Obs., Δ; columns per obstruction and metric."""
+    """The paper's Suppl. table layout: per design, rows Raw (and Recon) Unobs., Obs., Δ; columns
+    per obstruction and metric."""
     digits = {"psnr_db": 2, "ssim": 3, "lpips": 3}
     table = []
-    for design in dict.fromkeys(r["design"] for r in result.rows):
+    for design, capture in dict.fromkeys((r["design"], r["capture"]) for r in result.rows):
         for condition in ("unobstructed", "obstructed", "delta"):
             cells = []
             for kind in kinds:
                 if condition == "delta":
-                    d = next(x for x in result.deltas if x["design"] == design and x["obstruction"] == kind)
+                    d = next(x for x in result.deltas if (x["design"], x["capture"], x["obstruction"]) == (design, capture, kind))
                     cells += [_ci(d[f"delta_{m}"], d[f"delta_{m}_ci"], digits[m]) for m in metrics]
                 else:
-                    r = next(x for x in result.rows if x["design"] == design and x["obstruction"] == kind and x["condition"] == condition)
+                    r = next(x for x in result.rows
+                             if (x["design"], x["capture"], x["obstruction"], x["condition"]) == (design, capture, kind, condition))
                     cells += [_ci(r[m], r[f"{m}_ci"], digits[m]) for m in metrics]
-            table.append([design if condition == "unobstructed" else "", f"Raw {LABELS[condition]}", *cells])
+            first = condition == "unobstructed" and capture == "raw"
+            table.append([design if first else "", f"{capture.capitalize()} {LABELS[condition]}", *cells])
     return table
 
 
@@ -120,12 +155,12 @@ def _write_csv(path, rows, metrics=("psnr_db", "ssim")) -> None:
 
     from metalens_cli.io.atomic import atomic_write
 
-    columns = ["design", "obstruction", "condition", "n"] + [c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")]
+    columns = ["design", "capture", "obstruction", "condition", "n"] + [c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")]
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     for row in rows:
-        writer.writerow({**{k: row[k] for k in ("design", "obstruction", "condition", "n")},
+        writer.writerow({**{k: row[k] for k in ("design", "capture", "obstruction", "condition", "n")},
                          **{c: v for m in metrics for c, v in ((m, row[m]), (f"{m}_lo", row[f"{m}_ci"][0]), (f"{m}_hi", row[f"{m}_ci"][1]))}})
     with atomic_write(path) as temporary:
         temporary.write_text(buffer.getvalue(), encoding="utf-8")

@@ -51,6 +51,7 @@ COMMANDS = {
     "simulate": ("simulate", "Simulated captures of images through a design with a near obstruction."),
     "evaluate": ("evaluate", "PSNR/SSIM of obstructed and unobstructed captures, design against design."),
     "optimize": ("optimize", "Learn the rotation map end to end from a preset into a run directory."),
+    "reconstruct": ("reconstruct", "The reconstruction network of a design: train, apply, export."),
 }
 
 

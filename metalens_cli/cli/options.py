@@ -134,6 +134,22 @@ def design_options(command):
     return click.option("--design", "spec", required=True, help=DESIGN_HELP)(geometry_options(command))
 
 
+def training_options(section: str):
+    """--steps, --seed, --device, --resume, --threads, --quiet and --json of a training command whose
+    preset holds steps and seed in ``[section]``."""
+    def decorate(command):
+        return apply_options(command, [
+            click.option("--steps", type=click.IntRange(0), help=f"Training steps [the preset's {section}.steps]."),
+            click.option("--seed", type=click.IntRange(0), help=f"Seed of every random draw [the preset's {section}.seed]."),
+            click.option("--device", default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps (under torchrun: each rank's)."),
+            click.option("--resume", is_flag=True, help="Continue the run in --output from its newest checkpoint (with the preset saved there)."),
+            click.option("--threads", type=click.IntRange(1), help="CPU threads for torch [torch's default]."),
+            click.option("--quiet", is_flag=True, help="No progress bar or progress lines."),
+            json_option,
+        ])
+    return decorate
+
+
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else.")
 plot_option = click.option(
     "--plot", "plot_path", type=click.Path(dir_okay=False), help="Write a figure (PNG) to this file."

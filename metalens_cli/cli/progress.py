@@ -25,6 +25,71 @@ def progress_bar(description: str, quiet: bool = False) -> Iterator[Callable[[in
         yield update
 
 
+class TrainingProgress:
+    """Progress of a training loop: a rich bar with the running loss and ETA on an interactive
+    stderr, otherwise a line every 10 % of the steps; ``stage(text)`` names the setup stages."""
+
+    def __init__(self, name: str, quiet: bool):
+        self.name, self.quiet, self.bar, self.recent = name, quiet, None, []
+
+    def __enter__(self) -> "TrainingProgress":
+        if not self.quiet and sys.stderr.isatty():
+            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+            self.bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                                TextColumn("loss {task.fields[loss]}"), TimeElapsedColumn(), TimeRemainingColumn(),
+                                console=_stderr_console(), transient=True)
+            self.bar.__enter__()
+            self.task = self.bar.add_task(self.name, total=None, loss="—")
+        return self
+
+    def stage(self, text: str) -> None:
+        if self.bar is not None:
+            self.bar.update(self.task, description=f"{self.name}: {text}")
+        elif not self.quiet:
+            print(f"{self.name}: {text}", file=sys.stderr, flush=True)
+
+    def step(self, done: int, total: int, row: dict) -> None:
+        self.recent = (self.recent + [row["total"]])[-20:]
+        mean = sum(self.recent) / len(self.recent)
+        if self.bar is not None:
+            self.bar.update(self.task, completed=done, total=total, loss=f"{mean:.4f}", description=self.name)
+        elif not self.quiet and (done == total or done % max(total // 10, 1) == 0):
+            print(f"{self.name}: step {done}/{total} loss {mean:.4f} ({row['seconds']:.2f} s/step)", file=sys.stderr, flush=True)
+
+    def __exit__(self, *exc) -> bool:
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+        return False
+
+
+def run_training(name: str, quiet: bool, resume_command: str, start: Callable[["TrainingProgress"], object]) -> dict | None:
+    """Run ``start(progress)`` (a training call returning an object with ``report``) under a
+    :class:`TrainingProgress` shown by rank 0 only; print its notes. Ctrl-C: the checkpoint and
+    ``resume_command`` on stderr, exit 130. Returns the report on rank 0, None on other ranks."""
+    import os
+
+    import click
+
+    from metalens_cli.design.training import TrainingInterrupted
+
+    rank0 = int(os.environ.get("RANK", "0")) == 0
+    with TrainingProgress(name, quiet or not rank0) as progress:
+        try:
+            summary = start(progress)
+        except TrainingInterrupted as stop:
+            if rank0:
+                click.echo(f"metalens: interrupted after step {stop.step}; checkpoint {stop.checkpoint}; "
+                           f"continue with: {resume_command}", err=True)
+            sys.exit(130)
+    if not rank0:
+        return None
+    console = _stderr_console()
+    for note in summary.report.get("notes", []):
+        console.print(f"note: {note}")
+    return summary.report
+
+
 def _stderr_console():
     from rich.console import Console
 

@@ -11,7 +11,8 @@
       checkpoints/step_NNNNNN.pt   θ, optimiser, scheduler and history (the last ``KEEP`` kept)
       run.json               settings, cost, accuracy and final metrics
 
-Every file is written atomically (temporary file, then rename).
+Every file is written atomically (temporary file, then rename). ``metalens reconstruct train``
+uses the same class for its own run directory (``design.reconstruct_training``).
 """
 
 from __future__ import annotations
@@ -25,21 +26,24 @@ import torch
 
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
-from metalens_cli.io.presets import load_preset, to_toml
+from metalens_cli.io.presets import load_preset
 
 KEEP = 2
 LOSS_COLUMNS = ("step", "lr", "total", "l1", "ssim", "domain_adaptation", "bright", "sharp", "z_near_m", "z_far_m", "seconds")
 
 
 class RunDirectory:
-    """Paths and writers of one run directory."""
+    """Paths and writers of one run directory: its preset file is ``preset_name``, its loss table
+    has ``columns``, and ``made_by`` names the command that writes it (for error messages)."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, preset_name: str = "preset.toml", columns: tuple[str, ...] = LOSS_COLUMNS,
+                 made_by: str = "metalens optimize"):
         self.path = Path(path)
+        self.preset_name, self.columns, self.made_by = preset_name, columns, made_by
 
     @property
     def preset_path(self) -> Path:
-        return self.path / "preset.toml"
+        return self.path / self.preset_name
 
     @property
     def checkpoints(self) -> Path:
@@ -48,13 +52,14 @@ class RunDirectory:
     def holds_run(self) -> bool:
         return self.preset_path.exists() or self.checkpoints.exists() or (self.path / "run.json").exists()
 
-    def create(self, preset, **overrides) -> None:
-        """Start a fresh run: refuse a folder that already holds one."""
+    def create(self, preset_text: str, folders: tuple[str, ...] = ("samples",)) -> None:
+        """Start a fresh run with its preset file: refuse a folder that already holds one."""
         if self.holds_run():
             raise InputError("--output", f"{str(self.path)!r} already holds a run", "another folder, or --resume to continue it")
-        (self.path / "samples").mkdir(parents=True, exist_ok=True)
-        self.checkpoints.mkdir(exist_ok=True)
-        self.write_text("preset.toml", to_toml(preset, **overrides))
+        for folder in folders:
+            (self.path / folder).mkdir(parents=True, exist_ok=True)
+        self.checkpoints.mkdir(parents=True, exist_ok=True)
+        self.write_text(self.preset_name, preset_text)
 
     def load_preset(self):
         return load_preset(self.preset_path)
@@ -82,7 +87,7 @@ class RunDirectory:
         try:
             return torch.load(found[-1], map_location="cpu", weights_only=False)
         except (OSError, RuntimeError, EOFError) as exc:
-            raise InputError("--resume", f"cannot read {found[-1]}: {exc}", "a checkpoint written by metalens optimize") from None
+            raise InputError("--resume", f"cannot read {found[-1]}: {exc}", f"a checkpoint written by {self.made_by}") from None
 
     # ------------------------------------------------------------------ results
 
@@ -96,7 +101,7 @@ class RunDirectory:
 
     def write_loss_csv(self, history: list[dict]) -> None:
         buffer = io.StringIO()
-        writer = csv.DictWriter(buffer, fieldnames=LOSS_COLUMNS, extrasaction="ignore", lineterminator="\n")
+        writer = csv.DictWriter(buffer, fieldnames=self.columns, extrasaction="ignore", lineterminator="\n")
         writer.writeheader()
         writer.writerows(history)
         self.write_text("loss.csv", buffer.getvalue())

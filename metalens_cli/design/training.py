@@ -275,7 +275,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **overrides))
     o = preset.optimize
     if ctx.is_main and not resume:
-        run.create(preset)
+        run.create(to_toml(preset))
     elif ctx.is_main and overrides:
         run.write_text("preset.toml", to_toml(preset))
     distributed.barrier(ctx)

@@ -1,12 +1,14 @@
 """The raw-capture evaluation of designs (Suppl. Note 11 protocol), with statistics.
 
 Every design sees the same units: (image, seed) pairs, where a seed draws the depths, the
-obstructions and the noise. Per unit and design: the unobstructed and obstructed captures scored
-against the clean image (``pipeline.score``: photometric match, then PSNR/SSIM/LPIPS). Reported
+obstructions and the noise. Per unit and design: the unobstructed and obstructed captures, raw
+and (for designs given a reconstruction network) reconstructed, scored against the clean image
+(``pipeline.score``: photometric match, then PSNR/SSIM/LPIPS). Reported
 per (design, obstruction, condition): the mean over units with a 95 % bootstrap confidence
 interval; Δ = obstructed − unobstructed per unit (for LPIPS unobstructed − obstructed, as the
 paper defines it: negative is a degradation for every metric); and paired differences between
-designs on the same units.
+designs on the same units (raw against raw, recon against recon) and between each design's
+recon and raw captures.
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ class EvaluationSettings:
 
 @dataclass
 class Evaluation:
-    """Results: ``rows`` (design, obstruction, condition, metric means, ``<metric>_ci``, n),
+    """Results: ``rows`` (design, capture, obstruction, condition, metric means, ``<metric>_ci``, n),
     ``deltas``, ``comparisons`` (paired design differences), ``units`` (every score), ``psfs``
     (per design and seed: depths, windows, kept light), ``images`` (names), ``panels`` (first
     image and seed, for figures) and ``warnings``."""
@@ -70,9 +72,15 @@ def delta(metric: str, unobstructed: float, obstructed: float) -> float:
 
 
 def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSettings, lpips_model=None,
-             on_progress: Callable[[int, int], None] | None = None) -> Evaluation:
-    """Score every design on the same (image, seed) units for every obstruction kind."""
+             on_progress: Callable[[int, int], None] | None = None, reconstructors: list | None = None) -> Evaluation:
+    """Score every design on the same (image, seed) units for every obstruction kind.
+
+    ``reconstructors``: one per design, a callable mapping a linear (3, H, W) capture to its
+    reconstruction (``imaging.restore.Reconstructor``) or None; designs with one are scored on
+    their ``recon`` captures as well as their ``raw`` ones.
+    """
     out = Evaluation()
+    recon = list(reconstructors) if reconstructors is not None else [None] * len(designs)
     psfs: dict[tuple[int, int], ChannelPsfs] = {}
     for d, design in enumerate(designs):
         for seed in seeds:
@@ -98,55 +106,66 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
                                              settings.obstruction_params, settings.formation, settings.alpha_gain,
                                              settings.photons, settings.read_noise, obstructions)
                 for index, c in enumerate(captures):
-                    key = (d, "unobstructed", seed, index)  # the same for every obstruction kind
-                    if key not in scores:
-                        scores[key] = score(c.unobstructed, c.clean, lpips_model, settings.match)
-                    scores[d, kind, seed, index] = score(c.obstructed, c.clean, lpips_model, settings.match)
-                    out.units.append({"design": design.spec, "obstruction": kind, "seed": seed, "image": c.name,
-                                      "unobstructed": scores[key], "obstructed": scores[d, kind, seed, index]})
-                if seed == seeds[0]:
-                    first, panels = captures[0], out.panels[design.spec]
-                    if not panels:
-                        panels += [("clean", first.clean), ("unobstructed", first.unobstructed)]
-                    panels.append((f"obstructed: {kind}", first.obstructed))
+                    estimates = {"raw": (c.unobstructed, c.obstructed)}
+                    if recon[d] is not None:
+                        clear_key = ("recon", d, "unobstructed", seed, index)
+                        estimates["recon"] = (None if clear_key in scores else recon[d](c.unobstructed), recon[d](c.obstructed))
+                    for capture, (clear, obstructed) in estimates.items():
+                        key = (capture, d, "unobstructed", seed, index)  # the same for every obstruction kind
+                        if key not in scores:
+                            scores[key] = score(clear, c.clean, lpips_model, settings.match)
+                        scores[capture, d, kind, seed, index] = score(obstructed, c.clean, lpips_model, settings.match)
+                        out.units.append({"design": design.spec, "capture": capture, "obstruction": kind, "seed": seed, "image": c.name,
+                                          "unobstructed": scores[key], "obstructed": scores[capture, d, kind, seed, index]})
+                        if seed == seeds[0] and index == 0:
+                            panels = out.panels[design.spec]
+                            if capture == "raw" and not panels:
+                                panels += [("clean", c.clean), ("unobstructed", c.unobstructed)]
+                            panels.append((f"{'recon, ' if capture == 'recon' else ''}obstructed: {kind}", obstructed))
                 done += 1
                 if on_progress is not None:
                     on_progress(done, total)
-    _summarise(out, designs, kinds, seeds, len(images), metrics, scores)
+    _summarise(out, designs, recon, kinds, seeds, len(images), metrics, scores)
     return out
 
 
-def _summarise(out: Evaluation, designs, kinds, seeds, n_images: int, metrics, scores) -> None:
+def _summarise(out: Evaluation, designs, recon, kinds, seeds, n_images: int, metrics, scores) -> None:
     units = [(seed, index) for seed in seeds for index in range(n_images)]
+    cells = [(capture, d) for d in range(len(designs)) for capture in ("raw", "recon") if capture == "raw" or recon[d] is not None]
 
-    def values(d, kind, condition, metric):
-        return [scores[(d, "unobstructed" if condition == "unobstructed" else kind, seed, index)][metric] for seed, index in units]
+    def values(capture, d, kind, condition, metric):
+        return [scores[(capture, d, "unobstructed" if condition == "unobstructed" else kind, seed, index)][metric]
+                for seed, index in units]
 
-    def deltas(d, kind, metric):
-        return [delta(metric, u, o) for u, o in zip(values(d, kind, "unobstructed", metric), values(d, kind, "obstructed", metric))]
+    def deltas(capture, d, kind, metric):
+        return [delta(metric, u, o) for u, o in zip(values(capture, d, kind, "unobstructed", metric),
+                                                    values(capture, d, kind, "obstructed", metric))]
 
     for kind in kinds:
-        for d, design in enumerate(designs):
+        for capture, d in cells:
             for condition in CONDITIONS:
-                row = {"design": design.spec, "obstruction": kind, "condition": condition, "n": len(units)}
+                row = {"design": designs[d].spec, "capture": capture, "obstruction": kind, "condition": condition, "n": len(units)}
                 for metric in metrics:
-                    stats = mean_ci(values(d, kind, condition, metric), metric=metric)
+                    stats = mean_ci(values(capture, d, kind, condition, metric), metric=metric)
                     row[metric], row[f"{metric}_ci"] = stats["mean"], stats["ci"]
                 out.rows.append(row)
-            entry = {"design": design.spec, "obstruction": kind, "n": len(units)}
+            entry = {"design": designs[d].spec, "capture": capture, "obstruction": kind, "n": len(units)}
             for metric in metrics:
-                stats = mean_ci(deltas(d, kind, metric), metric=f"delta_{metric}")
+                stats = mean_ci(deltas(capture, d, kind, metric), metric=f"delta_{metric}")
                 entry[f"delta_{metric}"], entry[f"delta_{metric}_ci"] = stats["mean"], stats["ci"]
             out.deltas.append(entry)
-        for a in range(len(designs)):
-            for b in range(a + 1, len(designs)):
-                for condition in (*CONDITIONS, "delta"):
-                    for metric in metrics:
-                        if condition == "delta":
-                            first, second = deltas(a, kind, metric), deltas(b, kind, metric)
-                        else:
-                            first, second = values(a, kind, condition, metric), values(b, kind, condition, metric)
-                        stats = paired_difference_ci(first, second, metric=metric)
-                        out.comparisons.append({"design": designs[a].spec, "versus": designs[b].spec, "obstruction": kind,
-                                                "condition": condition, "metric": metric, "difference": stats["mean"],
-                                                "ci": stats["ci"], "n": stats["n"]})
+        # design against design on the same kind of capture, and each design's recon against its raw
+        pairs = [(a, b) for i, a in enumerate(cells) for b in cells[i + 1:] if a[0] == b[0] or a[1] == b[1]]
+        for (cap_a, a), (cap_b, b) in pairs:
+            first_cell, second_cell = ((cap_b, b), (cap_a, a)) if a == b else ((cap_a, a), (cap_b, b))  # recon − raw
+            for condition in (*CONDITIONS, "delta"):
+                for metric in metrics:
+                    if condition == "delta":
+                        first, second = deltas(*first_cell, kind, metric), deltas(*second_cell, kind, metric)
+                    else:
+                        first, second = (values(*cell, kind, condition, metric) for cell in (first_cell, second_cell))
+                    stats = paired_difference_ci(first, second, metric=metric)
+                    out.comparisons.append({"design": designs[first_cell[1]].spec, "capture": first_cell[0],
+                                            "versus": designs[second_cell[1]].spec, "versus_capture": second_cell[0],
+                                            "obstruction": kind, "condition": condition, "metric": metric,
+                                            "difference": stats["mean"], "ci": stats["ci"], "n": stats["n"]})

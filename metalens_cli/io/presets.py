@@ -22,7 +22,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.io import units
 
 
-def _key(toml_key: str, kind: str, *, default: Any = dataclasses.MISSING, **limits: Any) -> Any:
+def toml_key(toml_key: str, kind: str, *, default: Any = dataclasses.MISSING, **limits: Any) -> Any:
     """A dataclass field read from ``toml_key`` as ``kind``, with optional ``lo``/``hi`` limits."""
     meta = {"key": toml_key, "kind": kind, **limits}
     if default is dataclasses.MISSING:
@@ -36,24 +36,24 @@ def _key(toml_key: str, kind: str, *, default: Any = dataclasses.MISSING, **limi
 class LensConfig:
     """The flat lens: focal (sensor) distance, aperture diameter, and how θ is initialised."""
 
-    focal_length_m: float = _key("focal_length", "length")
-    aperture_m: float = _key("aperture", "length")
-    design: str = _key("design", "choice", choices=("learned", "hyperbolic"))
-    design_wavelength_m: float | None = _key("design_wavelength", "length", default=None)
-    parameterization: str = _key("parameterization", "choice", choices=("radial", "2d"), default="radial")
+    focal_length_m: float = toml_key("focal_length", "length")
+    aperture_m: float = toml_key("aperture", "length")
+    design: str = toml_key("design", "choice", choices=("learned", "hyperbolic"))
+    design_wavelength_m: float | None = toml_key("design_wavelength", "length", default=None)
+    parameterization: str = toml_key("parameterization", "choice", choices=("radial", "2d"), default="radial")
 
 
 @dataclass(frozen=True)
 class NanofinConfig:
     """SiNx nanofin meta-atoms on a square grid; efficiency η(λ) as a table."""
 
-    pitch_m: float = _key("pitch", "length")
-    height_m: float = _key("height", "length")
-    width_m: float = _key("width", "length")
-    length_m: float = _key("length", "length")
-    efficiency_wavelengths_m: tuple[float, ...] = _key("efficiency_wavelengths", "length_list")
-    efficiency: tuple[float, ...] = _key("efficiency", "fraction_list")
-    efficiency_csv: str | None = _key("efficiency_csv", "path", default=None)  # replaces the table
+    pitch_m: float = toml_key("pitch", "length")
+    height_m: float = toml_key("height", "length")
+    width_m: float = toml_key("width", "length")
+    length_m: float = toml_key("length", "length")
+    efficiency_wavelengths_m: tuple[float, ...] = toml_key("efficiency_wavelengths", "length_list")
+    efficiency: tuple[float, ...] = toml_key("efficiency", "fraction_list")
+    efficiency_csv: str | None = toml_key("efficiency_csv", "path", default=None)  # replaces the table
 
 
 @dataclass(frozen=True)
@@ -62,65 +62,65 @@ class FilterConfig:
     logistic edges (10-90 % rise ``edge_width``), or a measured transmission ``csv``
     (wavelength_nm, transmission; pass bands where it exceeds ``threshold``)."""
 
-    centers_m: tuple[float, ...] = _key("centers", "length_list", default=())
-    widths_m: tuple[float, ...] = _key("widths", "length_list", default=())
-    csv: str | None = _key("csv", "path", default=None)
-    threshold: float = _key("threshold", "fraction", default=0.5)
-    edge_width_m: float = _key("edge_width", "length", default=2e-9)
-    peak_transmission: float = _key("peak_transmission", "fraction", default=0.9)
+    centers_m: tuple[float, ...] = toml_key("centers", "length_list", default=())
+    widths_m: tuple[float, ...] = toml_key("widths", "length_list", default=())
+    csv: str | None = toml_key("csv", "path", default=None)
+    threshold: float = toml_key("threshold", "fraction", default=0.5)
+    edge_width_m: float = toml_key("edge_width", "length", default=2e-9)
+    peak_transmission: float = toml_key("peak_transmission", "fraction", default=0.9)
 
 
 @dataclass(frozen=True)
 class SensorConfig:
     """Colour sensor: square pixels, window size, spectral response and range."""
 
-    pixel_pitch_m: float = _key("pixel_pitch", "length")
-    pixels: int = _key("pixels", "int", lo=1, hi=16384)
-    camera_response: str = _key("camera_response", "string", default="Nikon 5100 (NPL)")  # name or CSV path
-    wavelength_range_m: tuple[float, float] = _key("wavelength_range", "interval", default=(400e-9, 700e-9))
+    pixel_pitch_m: float = toml_key("pixel_pitch", "length")
+    pixels: int = toml_key("pixels", "int", lo=1, hi=16384)
+    camera_response: str = toml_key("camera_response", "string", default="Nikon 5100 (NPL)")  # name or CSV path
+    wavelength_range_m: tuple[float, float] = toml_key("wavelength_range", "interval", default=(400e-9, 700e-9))
 
 
 @dataclass(frozen=True)
 class SceneConfig:
     """Depth ranges of near obstructions and far scenes (uniformly sampled in training)."""
 
-    z_near_m: tuple[float, float] = _key("z_near", "interval")
-    z_far_m: tuple[float, float] = _key("z_far", "interval")
+    z_near_m: tuple[float, float] = toml_key("z_near", "interval")
+    z_far_m: tuple[float, float] = toml_key("z_far", "interval")
 
 
 @dataclass(frozen=True)
 class OptimizeConfig:
     """End-to-end learning of θ (Suppl. Note 4): AdamW with cosine annealing."""
 
-    steps: int = _key("steps", "int", lo=0, hi=10_000_000)
-    learning_rate: float = _key("learning_rate", "float", lo=0.0)
-    t_max: int = _key("t_max", "int", lo=1, hi=10_000_000)
-    optimizer: str = _key("optimizer", "choice", choices=("adamw",), default="adamw")
-    scheduler: str = _key("scheduler", "choice", choices=("cosine", "constant"), default="cosine")
-    weight_decay: float = _key("weight_decay", "float", lo=0.0, default=0.0)  # AdamW decay of the unwrapped θ
-    batch_size: int = _key("batch_size", "int", lo=1, hi=4096, default=1)
-    wavelengths_per_channel: int = _key("wavelengths_per_channel", "int", lo=1, hi=1024, default=3)
-    seed: int = _key("seed", "int", lo=0, hi=2**63 - 1, default=0)
-    init: str = _key("init", "choice", choices=("hyperbolic", "random"), default="hyperbolic")
-    design_grid: int = _key("design_grid", "int", lo=0, hi=100_000, default=0)  # radial samples / 2-D side; 0 = per meta-atom
-    obstructions: tuple[str, ...] = _key("obstructions", "string_list", default=("dirt",))
-    images: str | None = _key("images", "folder", default=None)  # training images; none: procedural scenes
-    checkpoint_every: int = _key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
-    sample_every: int = _key("sample_every", "int", lo=1, hi=10_000_000, default=100)
+    steps: int = toml_key("steps", "int", lo=0, hi=10_000_000)
+    learning_rate: float = toml_key("learning_rate", "float", lo=0.0)
+    t_max: int = toml_key("t_max", "int", lo=1, hi=10_000_000)
+    optimizer: str = toml_key("optimizer", "choice", choices=("adamw",), default="adamw")
+    scheduler: str = toml_key("scheduler", "choice", choices=("cosine", "constant"), default="cosine")
+    weight_decay: float = toml_key("weight_decay", "float", lo=0.0, default=0.0)  # AdamW decay of the unwrapped θ
+    batch_size: int = toml_key("batch_size", "int", lo=1, hi=4096, default=1)
+    wavelengths_per_channel: int = toml_key("wavelengths_per_channel", "int", lo=1, hi=1024, default=3)
+    seed: int = toml_key("seed", "int", lo=0, hi=2**63 - 1, default=0)
+    init: str = toml_key("init", "choice", choices=("hyperbolic", "random"), default="hyperbolic")
+    design_grid: int = toml_key("design_grid", "int", lo=0, hi=100_000, default=0)  # radial samples / 2-D side; 0 = per meta-atom
+    obstructions: tuple[str, ...] = toml_key("obstructions", "string_list", default=("dirt",))
+    images: str | None = toml_key("images", "folder", default=None)  # training images; none: procedural scenes
+    checkpoint_every: int = toml_key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
+    sample_every: int = toml_key("sample_every", "int", lo=1, hi=10_000_000, default=100)
 
 
 @dataclass(frozen=True)
 class LossConfig:
     """Weights of L1, 1 − SSIM, domain adaptation, L_bright and L_sharp."""
 
-    l1: float = _key("l1", "float", lo=0.0, default=1.0)
-    ssim: float = _key("ssim", "float", lo=0.0, default=1.0)
-    domain_adaptation: float = _key("domain_adaptation", "float", lo=0.0, default=1.0)
-    bright: float = _key("bright", "float", lo=0.0, default=1.0)
-    sharp: float = _key("sharp", "float", lo=0.0, default=1.0)
-    sharp_window: int = _key("sharp_window", "int", lo=1, hi=101, default=5)
-    sharp_mode: str = _key("sharp_mode", "choice", choices=("total", "per_channel"), default="total")  # see design.losses
-    domain_adaptation_weights: str | None = _key("domain_adaptation_weights", "path", default=None)  # DeepLabv3+ checkpoint
+    l1: float = toml_key("l1", "float", lo=0.0, default=1.0)
+    ssim: float = toml_key("ssim", "float", lo=0.0, default=1.0)
+    domain_adaptation: float = toml_key("domain_adaptation", "float", lo=0.0, default=1.0)
+    bright: float = toml_key("bright", "float", lo=0.0, default=1.0)
+    sharp: float = toml_key("sharp", "float", lo=0.0, default=1.0)
+    sharp_window: int = toml_key("sharp_window", "int", lo=1, hi=101, default=5)
+    sharp_mode: str = toml_key("sharp_mode", "choice", choices=("total", "per_channel"), default="total")  # see design.losses
+    domain_adaptation_weights: str | None = toml_key("domain_adaptation_weights", "path", default=None)  # DeepLabv3+ checkpoint
 
 
 @dataclass(frozen=True)
@@ -130,18 +130,18 @@ class ObstructionConfig:
     Defaults suit the paper's camera (f = 4 mm, 1.85 µm pixels, z_near ≈ 45 mm).
     """
 
-    dirt_scale_m: float = _key("dirt_scale", "length", default=1.5e-3)  # largest Perlin cell
-    dirt_octaves: int = _key("dirt_octaves", "int", lo=1, hi=10, default=5)
-    dirt_coverage: tuple[float, float] = _key("dirt_coverage", "fraction_pair", default=(0.15, 0.35))
-    dirt_edge: float = _key("dirt_edge", "float", lo=0.0, hi=1.0, default=0.04)  # soft edge, noise units
-    fence_pitch_m: float = _key("fence_pitch", "length", default=3e-3)
-    fence_width_m: float = _key("fence_width", "length", default=0.3e-3)
-    fence_angle_deg: float = _key("fence_angle_deg", "float", lo=-180.0, hi=180.0, default=45.0)
-    drop_radius_m: tuple[float, float] = _key("drop_radius", "interval", default=(0.2e-3, 0.8e-3))
-    drop_coverage: tuple[float, float] = _key("drop_coverage", "fraction_pair", default=(0.05, 0.15))
-    drop_opacity: float = _key("drop_opacity", "fraction", default=0.85)
-    rain_radius_m: tuple[float, float] = _key("rain_radius", "interval", default=(0.3e-3, 1.2e-3))
-    rain_coverage: tuple[float, float] = _key("rain_coverage", "fraction_pair", default=(0.10, 0.25))
+    dirt_scale_m: float = toml_key("dirt_scale", "length", default=1.5e-3)  # largest Perlin cell
+    dirt_octaves: int = toml_key("dirt_octaves", "int", lo=1, hi=10, default=5)
+    dirt_coverage: tuple[float, float] = toml_key("dirt_coverage", "fraction_pair", default=(0.15, 0.35))
+    dirt_edge: float = toml_key("dirt_edge", "float", lo=0.0, hi=1.0, default=0.04)  # soft edge, noise units
+    fence_pitch_m: float = toml_key("fence_pitch", "length", default=3e-3)
+    fence_width_m: float = toml_key("fence_width", "length", default=0.3e-3)
+    fence_angle_deg: float = toml_key("fence_angle_deg", "float", lo=-180.0, hi=180.0, default=45.0)
+    drop_radius_m: tuple[float, float] = toml_key("drop_radius", "interval", default=(0.2e-3, 0.8e-3))
+    drop_coverage: tuple[float, float] = toml_key("drop_coverage", "fraction_pair", default=(0.05, 0.15))
+    drop_opacity: float = toml_key("drop_opacity", "fraction", default=0.85)
+    rain_radius_m: tuple[float, float] = toml_key("rain_radius", "interval", default=(0.3e-3, 1.2e-3))
+    rain_coverage: tuple[float, float] = toml_key("rain_coverage", "fraction_pair", default=(0.10, 0.25))
 
 
 @dataclass(frozen=True)
@@ -175,7 +175,7 @@ OPTIONAL_DEFAULTS = {"loss": LossConfig, "obstruction": ObstructionConfig}
 TOP_LEVEL_KEYS = {"name", "description"}
 
 
-def _as_str(value: Any, path: str, form: str) -> str:
+def as_str(value: Any, path: str, form: str) -> str:
     if not isinstance(value, str):
         raise InputError(path, f"expected a string, got {type(value).__name__}", form)
     return value
@@ -185,20 +185,20 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
     """Convert one TOML value according to the field's kind and limits."""
     kind = meta["kind"]
     if kind == "length":
-        return units.parse_length(_as_str(value, path, units.LENGTH_FORM), path)
+        return units.parse_length(as_str(value, path, units.LENGTH_FORM), path)
     if kind == "length_list":
         if isinstance(value, list):
-            return tuple(units.parse_length(_as_str(v, path, units.LIST_FORM), path) for v in value)
-        return tuple(units.parse_length_list(_as_str(value, path, units.LIST_FORM), path))
+            return tuple(units.parse_length(as_str(v, path, units.LIST_FORM), path) for v in value)
+        return tuple(units.parse_length_list(as_str(value, path, units.LIST_FORM), path))
     if kind == "interval":
         if isinstance(value, list):
             if len(value) != 2:
                 raise InputError(path, "expected two values", units.INTERVAL_FORM)
-            lo, hi = (units.parse_length(_as_str(v, path, units.INTERVAL_FORM), path, allow_inf=True) for v in value)
+            lo, hi = (units.parse_length(as_str(v, path, units.INTERVAL_FORM), path, allow_inf=True) for v in value)
             if hi < lo:
                 raise InputError(path, "upper end below lower end", units.INTERVAL_FORM)
             return lo, hi
-        return units.parse_interval(_as_str(value, path, units.INTERVAL_FORM), path, allow_inf=True)
+        return units.parse_interval(as_str(value, path, units.INTERVAL_FORM), path, allow_inf=True)
     if kind == "fraction_pair":
         if not isinstance(value, list) or len(value) != 2:
             raise InputError(path, "expected two numbers [lo, hi] in [0, 1]", "[0.15, 0.35]")
@@ -220,11 +220,11 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
         return int(_number(value, path, lo=meta.get("lo"), hi=meta.get("hi"), form="an integer"))
     if kind in ("string", "path", "folder"):
         forms = {"string": "a string", "path": "a file path (relative to the preset)", "folder": "a folder (relative to the preset)"}
-        return _as_str(value, path, forms[kind])
+        return as_str(value, path, forms[kind])
     if kind == "string_list":
         if not isinstance(value, list) or not value:
             raise InputError(path, "expected a non-empty array of strings", '["dirt", "fence"]')
-        return tuple(_as_str(v, path, "a string") for v in value)
+        return tuple(as_str(v, path, "a string") for v in value)
     if kind == "choice":
         choices = meta["choices"]
         if value not in choices:
@@ -246,7 +246,7 @@ def _number(value: Any, path: str, *, lo=None, hi=None, form: str, open_lo: bool
     return value
 
 
-def _build_section(cls: type, table: Any, section: str) -> Any:
+def build_section(cls: type, table: Any, section: str) -> Any:
     if not isinstance(table, dict):
         raise InputError(section, "expected a table", f"[{section}] with keys")
     fields = {f.metadata["key"]: f for f in dataclasses.fields(cls)}
@@ -298,14 +298,14 @@ def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | N
     sections = {}
     for section, (cls, required) in SECTIONS.items():
         if section in data:
-            sections[section] = _build_section(cls, data[section], section)
+            sections[section] = build_section(cls, data[section], section)
         elif required:
             raise InputError(section, "missing section", f"a [{section}] table")
         elif section in OPTIONAL_DEFAULTS:
             sections[section] = OPTIONAL_DEFAULTS[section]()
     preset = Preset(
-        name=_as_str(data.get("name", name), "name", "a string"),
-        description=_as_str(data.get("description", ""), "description", "a string"),
+        name=as_str(data.get("name", name), "name", "a string"),
+        description=as_str(data.get("description", ""), "description", "a string"),
         source=source,
         **sections,
     )
@@ -313,17 +313,25 @@ def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | N
     return preset
 
 
-def load_preset(path: str | Path) -> Preset:
-    """Read and validate a preset TOML file. Errors name the file and the key path."""
-    path = Path(path)
+def read_toml(path: Path, field: str = "preset") -> dict[str, Any]:
+    """The parsed TOML document at ``path``; unreadable, non-UTF-8 or invalid files are an
+    :class:`InputError` naming ``field``."""
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise InputError("preset", f"cannot read {str(path)!r}: {exc.strerror or exc}", "a readable TOML file") from None
+        raise InputError(field, f"cannot read {str(path)!r}: {exc.strerror or exc}", "a readable TOML file") from None
+    except UnicodeDecodeError:
+        raise InputError(field, f"{path.name} is not UTF-8 text", "a UTF-8 TOML file") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError("preset", f"{path.name} is not valid TOML: {exc}", "TOML (https://toml.io)") from None
+        raise InputError(field, f"{path.name} is not valid TOML: {exc}", "TOML (https://toml.io)") from None
+
+
+def load_preset(path: str | Path) -> Preset:
+    """Read and validate a preset TOML file. Errors name the file and the key path."""
+    path = Path(path)
+    data = read_toml(path)
     try:
         preset = preset_from_dict(data, name=path.stem, source=str(path))
     except InputError as exc:
@@ -363,7 +371,7 @@ def to_toml(preset: Preset, **overrides: dict[str, Any]) -> str:
     """The resolved preset as TOML that :func:`load_preset` reads back to an equal preset:
     lengths written in metres with full precision, paths absolute. ``overrides`` maps a section
     name to {field name: value} replacing the preset's values (e.g. ``optimize={"steps": 10}``)."""
-    lines = [f"name = {_toml_value(preset.name)}", f"description = {_toml_value(preset.description)}"]
+    lines = [f"name = {toml_value(preset.name)}", f"description = {toml_value(preset.description)}"]
     for section in SECTIONS:
         config = getattr(preset, section)
         if config is None:
@@ -373,11 +381,11 @@ def to_toml(preset: Preset, **overrides: dict[str, Any]) -> str:
         for f in dataclasses.fields(config):
             value = getattr(config, f.name)
             if value is not None:
-                lines.append(f"{f.metadata['key']} = {_toml_field(value, f.metadata['kind'])}")
+                lines.append(f"{f.metadata['key']} = {toml_field(value, f.metadata['kind'])}")
     return "\n".join(lines) + "\n"
 
 
-def _toml_field(value: Any, kind: str) -> str:
+def toml_field(value: Any, kind: str) -> str:
     def length(v: float) -> str:
         return '"inf"' if math.isinf(v) else f'"{v!r}m"'
 
@@ -385,16 +393,16 @@ def _toml_field(value: Any, kind: str) -> str:
         return length(value)
     if kind in ("length_list", "interval"):
         return "[" + ", ".join(length(v) for v in value) + "]"
-    return _toml_value(value)
+    return toml_value(value)
 
 
-def _toml_value(value: Any) -> str:
+def toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (int, float)):
         return repr(value)
     if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
     text = str(value).replace("\\", "\\\\").replace('"', '\\"')
     return f'"{text}"'
 

@@ -11,11 +11,11 @@ from metalens_cli.plotting.common import new_figure, save_figure
 PARTS = ("total", "l1", "ssim", "domain_adaptation", "bright", "sharp")
 
 
-def loss_figure(path: str | Path, history: list[dict]) -> Path:
-    """Loss parts against step (log scale where positive), with a running mean of the total."""
+def loss_figure(path: str | Path, history: list[dict], parts: tuple[str, ...] = PARTS) -> Path:
+    """Loss ``parts`` against step (log scale where positive), with a running mean of the total."""
     fig, ax = new_figure(figsize=(7, 4))
     steps = np.array([row["step"] for row in history])
-    for name in PARTS:
+    for name in parts:
         values = np.array([row.get(name, np.nan) for row in history], dtype=float)
         if np.all(np.isnan(values)):
             continue

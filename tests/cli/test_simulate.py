@@ -50,11 +50,12 @@ def test_evaluate_json_csv_plot(capsys, tmp_path, photo_dir):
     report = json.loads(stdout)
     assert len(report["rows"]) == 2 * 2 * 2 and report["photometric_match"] == "luminance"
     for row in report["rows"]:
-        assert set(row) == {"design", "obstruction", "condition", "n", "psnr_db", "psnr_db_ci", "ssim", "ssim_ci"}
+        assert set(row) == {"design", "capture", "obstruction", "condition", "n", "psnr_db", "psnr_db_ci", "ssim", "ssim_ci"}
+        assert row["capture"] == "raw"  # no --recon
         assert row["condition"] in ("unobstructed", "obstructed") and row["psnr_db"] > 0 and -1 <= row["ssim"] <= 1
         assert row["n"] == 2 and row["psnr_db_ci"][0] <= row["psnr_db"] <= row["psnr_db_ci"][1]
     assert len(report["units"]) == 2 * 2 * 2 and len(report["comparisons"]) == 2 * 3 * 2  # kinds × conditions × metrics
-    assert csv.read_text().splitlines()[0] == "design,obstruction,condition,n,psnr_db,psnr_db_lo,psnr_db_hi,ssim,ssim_lo,ssim_hi"
+    assert csv.read_text().splitlines()[0] == "design,capture,obstruction,condition,n,psnr_db,psnr_db_lo,psnr_db_hi,ssim,ssim_lo,ssim_hi"
     assert "LPIPS" in stderr
 
 

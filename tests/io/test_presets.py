@@ -24,6 +24,8 @@ def test_paper_preset_values():
 
 def test_every_shipped_preset_loads():
     for path in PRESETS.glob("*.toml"):
+        if "[train]" in path.read_text():
+            continue  # a reconstruction preset (tests/io/test_reconstruct_presets.py)
         assert to_dict(load_preset(path))["name"] == path.stem
 
 

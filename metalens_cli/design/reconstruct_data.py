@@ -1,0 +1,243 @@
+"""Training pairs for the reconstruction network: simulated through a design, or read from disk.
+
+Simulated pairs use the image formation of ``simulate`` (``imaging.formation.form_image``): a
+pool of captures of ``data.pool_pixels``² sensor pixels on the canvas their PSF windows need,
+each with its own clean scene (generated, or a random crop of ``data.images``), obstruction kind
+and depths from a bank of PSFs at stratum midpoints of the camera's depth intervals. Every entry
+draws from its own (seed, generation, index) streams, so a resumed run rebuilds the same pool.
+Each training step takes random crops of pool entries and augments them (:func:`batch`).
+
+Captured pairs (``--pairs DIR``)::
+
+    DIR/gt/NAME.png             the clean reference (any of PNG, JPEG, TIFF, EXR)
+    DIR/captures/NAME.png       a capture of scene NAME through the lens, aligned to gt/NAME
+    DIR/captures/NAME@K.png     further captures of the same scene (K any text)
+
+8/16-bit files are sRGB-encoded, EXR linear. The last tenth of the scenes (by name; at least one)
+are held out for validation.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
+from metalens_cli.imaging.images import SUFFIXES
+from metalens_cli.imaging.network import pixel_positions
+from metalens_cli.imaging.obstructions import make_obstruction
+from metalens_cli.imaging.pipeline import ChannelPsfs, channel_psfs
+
+VALIDATION_GENERATION = 2**40  # the held-out pool's generation, far from any training generation
+
+
+@dataclass(frozen=True)
+class Camera:
+    """What the design's camera fixes: pixel pitch (m), depth intervals (m), obstruction sizes."""
+
+    pixel_pitch_m: float
+    z_near_m: tuple[float, float]
+    z_far_m: tuple[float, float]
+    obstruction_params: object = None
+
+
+@dataclass
+class Pool:
+    """Linear (P, 3, S, S) float32 arrays: clean sensor images, obstructed and unobstructed captures."""
+
+    clean: np.ndarray
+    obstructed: np.ndarray
+    unobstructed: np.ndarray
+    kinds: list[str]
+    seconds: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.clean)
+
+
+def strata(interval: tuple[float, float], count: int) -> list[float]:
+    """Midpoints of ``count`` equal strata of a depth interval; in inverse depth if it reaches ∞."""
+    lo, hi = interval
+    if math.isinf(hi):
+        return [1 / ((1 - (k + 0.5) / count) / lo) if k + 0.5 < count else math.inf for k in range(count)]
+    return [lo + (k + 0.5) * (hi - lo) / count for k in range(count)]
+
+
+@dataclass
+class PsfBank:
+    """Channel PSFs at the near and far stratum midpoints, and what they cost."""
+
+    near: list[ChannelPsfs]
+    far: list[ChannelPsfs]
+
+    @property
+    def margin(self) -> int:
+        return canvas_margin(*(p.near.shape[-1] for p in self.near), *(p.far.shape[-1] for p in self.far))
+
+    def report(self) -> dict:
+        return {"z_near_m": [p.z_near_m for p in self.near], "z_far_m": [p.z_far_m if math.isfinite(p.z_far_m) else None for p in self.far],
+                "windows_px": {"near": [p.near.shape[-1] for p in self.near], "far": [p.far.shape[-1] for p in self.far]},
+                "kept": {"near_min": min(min(p.kept_near) for p in self.near), "far_min": min(min(p.kept_far) for p in self.far)},
+                "seconds": sum(p.seconds for p in {id(p): p for p in self.near + self.far}.values())}
+
+    def warnings(self) -> list[str]:
+        return sorted({w for p in self.near + self.far for w in p.warnings()})
+
+
+def psf_bank(design, camera: Camera, data, device="cpu") -> PsfBank:
+    """PSFs for every near and far depth stratum (one ``channel_psfs`` call per pair of strata)."""
+    near_z, far_z = strata(camera.z_near_m, data.near_depths), strata(camera.z_far_m, data.far_depths)
+    calls = [channel_psfs(design, near_z[k % len(near_z)], far_z[k % len(far_z)], list(data.wavelengths_m), camera.pixel_pitch_m,
+                          device=device) for k in range(max(len(near_z), len(far_z)))]
+    return PsfBank(calls[:len(near_z)], calls[:len(far_z)])
+
+
+def _scene(data, canvas: int, sensor: int, rng: np.random.Generator, photos: list[np.ndarray] | None) -> np.ndarray:
+    from metalens_cli.design.scenes import procedural_scene, random_crop
+    from metalens_cli.imaging.dead_leaves import dead_leaves
+
+    if photos:
+        return random_crop(photos[rng.integers(len(photos))], (canvas, canvas), rng)
+    kind = data.scenes if data.scenes != "mixed" else ("procedural", "dead-leaves")[rng.integers(2)]
+    if kind == "procedural":
+        return procedural_scene((canvas, canvas), rng)
+    return dead_leaves((canvas, canvas), 1000 + int(rng.integers(2**31)), sensor_shape=(sensor, sensor))
+
+
+def simulate_pool(design, camera: Camera, data, bank: PsfBank, seed: int, generation: int, count: int,
+                  photos: list[np.ndarray] | None = None, device="cpu", threads: int = 1) -> Pool:
+    """``count`` simulated pairs of generation ``generation`` (entries drawn from (seed, generation, index))."""
+    import time
+
+    start = time.perf_counter()
+    s, margin = data.pool_pixels, bank.margin
+    canvas = s + 2 * margin
+    transforms = {}
+    for k, p in enumerate(bank.near):
+        transforms["near", k] = psf_transform(p.near, (s, s))
+    for k, p in enumerate(bank.far):
+        transforms["far", k] = psf_transform(p.far, (s, s))
+
+    def entry(index: int):
+        rng = np.random.default_rng([seed, generation, index, 29])
+        clean = _scene(data, canvas, s, rng, photos)
+        kind = data.obstructions[rng.integers(len(data.obstructions))]
+        i, j = int(rng.integers(len(bank.near))), int(rng.integers(len(bank.far)))
+        obstruction = make_obstruction(kind, (s, s), bank.near[i].z_near_m, design.focal_length_m, camera.pixel_pitch_m,
+                                       [seed, generation, index, 31], camera.obstruction_params, clean=clean, margin=margin)
+        with torch.no_grad():
+            tensors = (torch.as_tensor(a, dtype=torch.float32, device=device) for a in (clean, obstruction.rgb, obstruction.mask))
+            capture = form_image(*tensors, transforms["near", i], transforms["far", j], margin)
+            obstructed, unobstructed = capture.obstructed, capture.unobstructed
+            if data.photons or data.read_noise:
+                noise_seed = int(rng.integers(2**62))
+                obstructed = add_noise(obstructed, data.photons or None, data.read_noise, noise_seed)
+                unobstructed = add_noise(unobstructed, data.photons or None, data.read_noise, noise_seed + 1)
+        return (clean[:, margin:margin + s, margin:margin + s], obstructed.cpu().numpy(), unobstructed.cpu().numpy(), kind)
+
+    with ThreadPoolExecutor(max_workers=max(1, threads)) as workers:
+        entries = list(workers.map(entry, range(count)))
+    clean, obstructed, unobstructed, kinds = zip(*entries)
+    return Pool(np.stack(clean).astype(np.float32), np.stack(obstructed).astype(np.float32),
+                np.stack(unobstructed).astype(np.float32), list(kinds), time.perf_counter() - start)
+
+
+def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
+    """Training and validation pools from captured pairs (layout in the module docstring); every
+    image is cropped to the common smallest square so pools stack."""
+    from metalens_cli.imaging.images import read_image, srgb_to_linear
+
+    root = Path(folder)
+    gt_dir, capture_dir = root / "gt", root / "captures"
+    if not gt_dir.is_dir() or not capture_dir.is_dir():
+        raise InputError("--pairs", f"{str(root)!r} lacks gt/ or captures/", "a folder with gt/NAME.png and captures/NAME[@K].png")
+
+    def files(d: Path) -> list[Path]:
+        return sorted(p for p in d.iterdir() if p.suffix.lower() in SUFFIXES and not p.name.startswith("."))
+
+    def linear(path: Path) -> np.ndarray:
+        image, _ = read_image(path)
+        image = image[:3]
+        if not np.all(np.isfinite(image)):
+            raise InputError("--pairs", f"{path.name} holds NaN or infinite pixels", "finite pixel values")
+        return image if path.suffix.lower() == ".exr" else srgb_to_linear(image)
+
+    gts = {p.stem: p for p in files(gt_dir)}
+    pairs = [(p.stem.split("@")[0], p) for p in files(capture_dir)]
+    missing = sorted({name for name, _ in pairs} - set(gts))
+    if missing:
+        raise InputError("--pairs", f"captures/{missing[0]}* has no gt/{missing[0]} image", "a gt image for every captured scene")
+    if not pairs:
+        raise InputError("--pairs", f"{str(capture_dir)!r} holds no images", f"files ending in {', '.join(SUFFIXES)}")
+    scenes = sorted({name for name, _ in pairs})
+    held = set(scenes[len(scenes) - max(1, len(scenes) // 10):]) if len(scenes) > 1 else set()
+    loaded = []
+    for name, path in pairs:
+        gt, capture = linear(gts[name]), linear(path)
+        if gt.shape != capture.shape:
+            raise InputError("--pairs", f"{path.name} is {capture.shape[1:]} but gt/{gts[name].name} is {gt.shape[1:]}",
+                             "captures aligned to their gt image (metalens align), of equal size")
+        loaded.append((name in held, gt, capture))
+    side = min(min(gt.shape[1:]) for _, gt, _ in loaded)
+
+    def centre(a: np.ndarray) -> np.ndarray:
+        top, left = (a.shape[1] - side) // 2, (a.shape[2] - side) // 2
+        return a[:, top:top + side, left:left + side]
+
+    def pool(hold: bool) -> Pool:
+        chosen = [(centre(g), centre(c)) for h, g, c in loaded if h == hold] or [(centre(g), centre(c)) for _, g, c in loaded]
+        clean, capture = (np.stack(x).astype(np.float32) for x in zip(*chosen))
+        return Pool(clean, capture, capture, ["captured"] * len(clean))
+
+    return pool(False), pool(True)
+
+
+@dataclass
+class Batch:
+    """Network input (B, 3, c, c), target (B, 3, c, c) and sensor positions (B, 2, c, c)."""
+
+    inputs: torch.Tensor
+    targets: torch.Tensor
+    positions: torch.Tensor
+
+
+def batch(pool: Pool, data, crop: int, position_scale: float, seed: int, step: int, indices: list[int], device="cpu") -> Batch:
+    """Entries ``indices`` of step ``step``'s batch: a random pool entry (unobstructed with
+    probability ``data.clear_fraction``), a random ``crop``² window with its sensor positions,
+    one of the 8 flips/quarter turns applied to all three, then gain, contrast and Gaussian
+    noise on the input only."""
+    s = pool.clean.shape[-1]
+    inputs, targets, positions = [], [], []
+    for index in indices:
+        rng = np.random.default_rng([seed, step, index, 37])
+        p = int(rng.integers(len(pool)))
+        source = pool.unobstructed if rng.random() < data.clear_fraction else pool.obstructed
+        top, left = int(rng.integers(s - crop + 1)), int(rng.integers(s - crop + 1))
+        window = (slice(None), slice(top, top + crop), slice(left, left + crop))
+        x = torch.from_numpy(np.ascontiguousarray(source[p][window]))
+        y = torch.from_numpy(np.ascontiguousarray(pool.clean[p][window]))
+        u = pixel_positions(crop, crop, top, left, (s, s), position_scale)
+        turns, flip = int(rng.integers(4)), bool(rng.integers(2))
+        x, y, u = (_orient(t, turns, flip) for t in (x, y, u))  # each pixel keeps its sensor position
+        gain = 1 + rng.uniform(-data.brightness, data.brightness)
+        contrast = 1 + rng.uniform(-data.contrast, data.contrast)
+        mean = x.mean()
+        x = gain * ((x - mean) * contrast + mean)
+        if data.noise_sigma:
+            noise = torch.randn(x.shape, generator=torch.Generator().manual_seed(int(rng.integers(2**62))))
+            x = x + data.noise_sigma * noise
+        inputs.append(x)
+        targets.append(y)
+        positions.append(u)
+    return Batch(*(torch.stack(t).to(device) for t in (inputs, targets, positions)))
+
+
+def _orient(t: torch.Tensor, turns: int, flip: bool) -> torch.Tensor:
+    t = torch.rot90(t, turns, dims=(-2, -1))
+    return t.flip(-1) if flip else t

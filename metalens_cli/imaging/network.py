@@ -1,0 +1,184 @@
+"""The reconstruction network (Suppl. Note 5): a LocalNet-style U-Net with CBAM attention that
+predicts a residual added to the raw capture.
+
+Input planes, built by :func:`input_planes` from a linear RGB capture x (B, 3, H, W):
+
+- x itself;
+- the gradient magnitude of its Rec. 709 luminance (forward differences, edge replicated);
+- an over-exposure mask, 0 below ``OVEREXPOSED`` of full scale rising linearly to 1 at 1;
+- positional encodings sin(2^k·π·u), cos(2^k·π·u), k < ``frequencies``, of the pixel position u
+  (x and y) relative to the optical axis in units of ``position_scale`` pixels, so that the
+  network can learn aberrations that vary over the field (Vaswani et al. 2017; Mildenhall et al.
+  2020). Positions come in as a (B, 2, H, W) plane pair, so a tile or a crop knows where on the
+  sensor it lies (:func:`pixel_positions`).
+
+The U-Net has ``depth`` stride-2 downsamplings; level k carries ``width``·2^k channels; every
+level is a residual block: two 3 × 3 convolutions (ReLU between) whose output passes CBAM
+(channel attention from average- and max-pooled features through a shared MLP, then spatial
+attention from a 7 × 7 convolution of the channel mean and max; Woo et al. 2018) before the
+shortcut is added, so attention gates the residual and activations keep their scale through the
+levels (He initialisation). Upsampling is bilinear followed by a 1 × 1 convolution,
+then concatenation with the skip. The output convolution starts at zero, so an untrained network
+is the identity. Any H, W (a stride-2 level has ⌈H/2⌉ rows; upsampling returns to the skip's
+size exactly) and any floating dtype.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+OVEREXPOSED = 0.95  # fraction of full scale where the over-exposure mask starts
+LUMA_709 = (0.2126, 0.7152, 0.0722)
+GAIN_SCALE = 30.0  # spectral gains are stored ÷ this, so that optimiser steps of the order of the learning rate move them visibly
+
+
+@dataclass(frozen=True)
+class NetworkShape:
+    """Width (channels at full resolution), depth (downsamplings), positional frequencies per axis,
+    CBAM reduction of the channel MLP, the pixel scale of positions (half the trained sensor side)
+    and the knots of the learned spectral filter (0: none)."""
+
+    width: int = 16
+    depth: int = 3
+    frequencies: int = 4
+    reduction: int = 4
+    position_scale: float = 64.0
+    spectral_bins: int = 32
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @property
+    def input_channels(self) -> int:
+        return 3 + 1 + 1 + 4 * self.frequencies
+
+
+def pixel_positions(height: int, width: int, top: int = 0, left: int = 0, full: tuple[int, int] | None = None,
+                    scale: float = 1.0, dtype=torch.float32, device="cpu") -> torch.Tensor:
+    """(2, height, width) positions (x, y) in units of ``scale`` pixels from the centre of the
+    ``full`` (H, W) image (default: this one) for a window whose top-left pixel is (top, left)."""
+    full_h, full_w = full or (height, width)
+    y = (torch.arange(top, top + height, dtype=dtype, device=device) - (full_h - 1) / 2) / scale
+    x = (torch.arange(left, left + width, dtype=dtype, device=device) - (full_w - 1) / 2) / scale
+    return torch.stack([x.expand(height, width), y[:, None].expand(height, width)])
+
+
+def input_planes(x: torch.Tensor, positions: torch.Tensor, frequencies: int) -> torch.Tensor:
+    """(B, 5 + 4F, H, W): capture, luminance-gradient magnitude, over-exposure mask, encodings."""
+    luma = sum(w * x[:, c:c + 1] for c, w in enumerate(LUMA_709))
+    gx = F.pad(luma[..., :, 1:] - luma[..., :, :-1], (0, 1, 0, 0))
+    gy = F.pad(luma[..., 1:, :] - luma[..., :-1, :], (0, 0, 0, 1))
+    gradient = torch.sqrt(gx * gx + gy * gy + 1e-12)
+    overexposed = ((x.amax(dim=1, keepdim=True) - OVEREXPOSED) / (1 - OVEREXPOSED)).clamp(0, 1)
+    scales = (2.0 ** torch.arange(frequencies, dtype=x.dtype, device=x.device) * math.pi).view(1, 1, -1, 1, 1)
+    angles = (positions.to(x.dtype).unsqueeze(2) * scales).flatten(1, 2)
+    return torch.cat([x, gradient, overexposed, torch.sin(angles), torch.cos(angles)], dim=1)
+
+
+class SpectralFilter(nn.Module):
+    """A learned, radially symmetric frequency response per channel, 1 + g_c(ρ), with g_c linear
+    between ``bins`` knots over ρ = 0 … 1/√2 cycles per pixel (the corner of the spectrum), starting
+    at 0: the identity. Applied by FFT after extending the edge pixels ``pad`` pixels outwards (no
+    wrap-around across the image); defined in cycles per pixel, so the same at any image size. It restores the
+    contrast a shift-invariant lens blur takes from each spatial frequency, which the U-Net's
+    local convolutions reach only slowly when the blur is wide."""
+
+    def __init__(self, channels: int, bins: int, pad: int = 32):
+        super().__init__()
+        self.gain = nn.Parameter(torch.zeros(channels, bins))
+        self.pad = pad
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h, w = x.shape[-2:]
+        p = self.pad
+        padded = F.pad(x, (p, p, p, p), mode="replicate")
+        ph, pw = padded.shape[-2:]
+        iy = torch.arange(ph, device=x.device)
+        fy = torch.where(iy < (ph + 1) // 2, iy, iy - ph).to(x.dtype) / ph  # torch.fft.fftfreq, traceable for any size
+        fx = torch.arange(pw // 2 + 1, device=x.device).to(x.dtype) / pw  # torch.fft.rfftfreq
+        knots = self.gain.shape[-1] - 1
+        rho = torch.sqrt(fy[:, None] ** 2 + fx[None, :] ** 2) * (math.sqrt(2) * knots)
+        lo = rho.floor().clamp(max=knots - 1).long()
+        frac = rho - lo
+        g = GAIN_SCALE * self.gain.to(x.dtype)
+        response = 1 + g[:, lo] * (1 - frac) + g[:, lo + 1] * frac
+        out = torch.fft.irfft2(torch.fft.rfft2(padded) * response, s=(ph, pw))
+        return out[..., p:p + h, p:p + w]
+
+
+class Cbam(nn.Module):
+    """Convolutional block attention (Woo et al. 2018): channel, then spatial."""
+
+    def __init__(self, channels: int, reduction: int, kernel: int = 7):
+        super().__init__()
+        hidden = max(channels // reduction, 4)
+        self.mlp = nn.Sequential(nn.Conv2d(channels, hidden, 1), nn.ReLU(inplace=True), nn.Conv2d(hidden, channels, 1))
+        self.spatial = nn.Conv2d(2, 1, kernel, padding=kernel // 2)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x * torch.sigmoid(self.mlp(x.mean(dim=(-2, -1), keepdim=True)) + self.mlp(x.amax(dim=(-2, -1), keepdim=True)))
+        pooled = torch.cat([x.mean(dim=1, keepdim=True), x.amax(dim=1, keepdim=True)], dim=1)
+        return x * torch.sigmoid(self.spatial(pooled))
+
+
+class _Level(nn.Module):
+    """Residual block with CBAM (Woo et al. 2018, Fig. 3): relu(CBAM(conv(relu(conv x))) + shortcut x)."""
+
+    def __init__(self, c_in: int, c_out: int, reduction: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, 3, padding=1)
+        self.conv2 = nn.Conv2d(c_out, c_out, 3, padding=1)
+        self.attention = Cbam(c_out, reduction)
+        self.shortcut = nn.Identity() if c_in == c_out else nn.Conv2d(c_in, c_out, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = self.attention(self.conv2(F.leaky_relu(self.conv1(x), 0.2)))
+        return F.leaky_relu(h + self.shortcut(x), 0.2)
+
+
+class ReconstructionNet(nn.Module):
+    """S(x) + U-Net(input planes of S(x)): (B, 3, H, W) linear capture → (B, 3, H, W) linear
+    estimate, S the learned spectral filter (identity when ``spectral_bins`` is 0)."""
+
+    def __init__(self, shape: NetworkShape = NetworkShape()):
+        super().__init__()
+        self.shape = shape
+        w, r = shape.width, shape.reduction
+        self.spectral = SpectralFilter(3, shape.spectral_bins) if shape.spectral_bins else None
+        channels = [w * 2**k for k in range(shape.depth + 1)]
+        self.encoder = nn.ModuleList([_Level(shape.input_channels, w, r)] +
+                                     [_Level(channels[k], channels[k + 1], r) for k in range(shape.depth)])
+        self.down = nn.ModuleList([nn.Conv2d(c, c, 3, stride=2, padding=1) for c in channels[:-1]])
+        self.up = nn.ModuleList([nn.Conv2d(channels[k + 1], channels[k], 1) for k in range(shape.depth)])
+        self.decoder = nn.ModuleList([_Level(2 * channels[k], channels[k], r) for k in range(shape.depth)])
+        self.head = nn.Conv2d(w, 3, 3, padding=1)
+        for module in self.modules():
+            if isinstance(module, nn.Conv2d):
+                nn.init.kaiming_normal_(module.weight, nonlinearity="relu")
+                nn.init.zeros_(module.bias)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, x: torch.Tensor, positions: torch.Tensor | None = None) -> torch.Tensor:
+        """``positions`` (B or 1, 2, H, W) from :func:`pixel_positions`; None: this image's own,
+        centred, in units of ``shape.position_scale`` pixels."""
+        h, w = x.shape[-2:]
+        if positions is None:
+            positions = pixel_positions(h, w, scale=self.shape.position_scale, dtype=x.dtype, device=x.device)[None]
+        base = self.spectral(x) if self.spectral is not None else x
+        features = input_planes(base, positions.expand(x.shape[0], -1, -1, -1), self.shape.frequencies)
+        skips = []
+        for k, level in enumerate(self.encoder):
+            features = level(features)
+            if k < self.shape.depth:
+                skips.append(features)
+                features = self.down[k](features)
+        for k in reversed(range(self.shape.depth)):
+            features = F.interpolate(features, size=skips[k].shape[-2:], mode="bilinear", align_corners=False)
+            features = self.decoder[k](torch.cat([self.up[k](features), skips[k]], dim=1))
+        return base + self.head(features)

@@ -1,0 +1,163 @@
+"""Applying a trained reconstruction network to captures of any size.
+
+A trained network lives in ``RUN/model.pt`` (written by ``metalens reconstruct train``): the
+network shape, its weights and the identity of the design it was trained for
+(``design_fingerprint``). Images larger than the memory budget allows are cut into tiles that
+overlap by ``overlap`` pixels and blended with linear ramps across the overlaps; each tile is
+told where on the sensor it lies (positional encoding), so tiling changes only what the
+network's global (CBAM channel) pooling sees.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.network import NetworkShape, ReconstructionNet, pixel_positions
+
+MODEL_FILE = "model.pt"
+MODEL_FORMAT = "metalens-reconstruct/1"
+DEFAULT_MEMORY_BYTES = 1 << 30
+FLOAT_BYTES = 4
+ACTIVATION_PLANES = 18  # float32 planes per unit of width at the peak of a forward pass (17.4 measured: benchmarks/bench_reconstruct.py)
+DEFAULT_OVERLAP = 64
+
+
+def design_fingerprint(design) -> str:
+    """sha256 over θ (float64 bytes), pitch, aperture and lens-to-sensor distance of a resolved design:
+    the same lens gives the same fingerprint whatever spec names it."""
+    theta = np.ascontiguousarray(design.lens.theta.detach().cpu().numpy(), dtype=np.float64)
+    digest = hashlib.sha256(theta.tobytes())
+    digest.update(np.array([theta.ndim, design.lens.pitch_m, design.lens.aperture_m, design.focal_length_m], dtype=np.float64).tobytes())
+    return digest.hexdigest()[:16]
+
+
+def inference_bytes(shape: NetworkShape, pixels: int) -> int:
+    """Estimated peak memory (bytes) of one forward pass over ``pixels`` pixels (float32)."""
+    return pixels * FLOAT_BYTES * (shape.input_channels + ACTIVATION_PLANES * shape.width)
+
+
+@dataclass
+class Reconstructor:
+    """A trained network on a device, applied to linear (3, H, W) images."""
+
+    net: ReconstructionNet
+    design: dict = field(default_factory=dict)
+    device: torch.device = torch.device("cpu")
+    memory_bytes: int = DEFAULT_MEMORY_BYTES
+    overlap: int = DEFAULT_OVERLAP
+    source: str = ""
+
+    def __post_init__(self):
+        self.net = self.net.to(memory_format=torch.channels_last)  # oneDNN's fast layout: 512² in 0.29 s, not 0.36 s
+
+    @property
+    def shape(self) -> NetworkShape:
+        return self.net.shape
+
+    def tile_side(self, height: int, width: int) -> int | None:
+        """The tile side (a multiple of 2^depth) that fits the memory budget, or None when the whole image does."""
+        if inference_bytes(self.shape, height * width) <= self.memory_bytes:
+            return None
+        step = 2**self.shape.depth
+        side = int(math.sqrt(self.memory_bytes / inference_bytes(self.shape, 1))) // step * step
+        if side <= 2 * self.overlap:
+            raise InputError("--memory", f"{self.memory_bytes} bytes allow tiles of only {side} px",
+                             f"a budget for tiles larger than twice the {self.overlap} px overlap")
+        return side
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        """The reconstruction (3, H, W) float32 of a linear (3, H, W) capture."""
+        x = torch.as_tensor(np.asarray(image, dtype=np.float32), device=self.device)
+        with torch.inference_mode():
+            return self._apply(x).contiguous().cpu().numpy()
+
+    def _apply(self, x: torch.Tensor) -> torch.Tensor:
+        h, w = x.shape[-2:]
+        side = self.tile_side(h, w)
+        scale = self.shape.position_scale
+        if side is None:
+            return self.net(_fast(x[None]), pixel_positions(h, w, scale=scale, device=x.device)[None])[0]
+        total = torch.zeros_like(x)
+        weight = torch.zeros((1, h, w), dtype=x.dtype, device=x.device)
+        for top in _starts(h, side, self.overlap):
+            for left in _starts(w, side, self.overlap):
+                th, tw = min(side, h - top), min(side, w - left)
+                positions = pixel_positions(th, tw, top, left, (h, w), scale, device=x.device)
+                tile = self.net(_fast(x[None, :, top:top + th, left:left + tw]), positions[None])[0]
+                ramp = _ramp(th, top, h, self.overlap, x)[:, None] * _ramp(tw, left, w, self.overlap, x)[None, :]
+                total[:, top:top + th, left:left + tw] += tile * ramp
+                weight[:, top:top + th, left:left + tw] += ramp
+        return total / weight
+
+
+def _fast(x: torch.Tensor) -> torch.Tensor:
+    """(B, 3, H, W) in channels-last layout, as the network's weights are (the same layout gives
+    the same sums: ``imaging.export`` uses it too)."""
+    return x.contiguous(memory_format=torch.channels_last)
+
+
+def _starts(length: int, side: int, overlap: int) -> list[int]:
+    """Tile origins covering ``length`` with tiles of ``side`` overlapping by at least ``overlap``."""
+    if length <= side:
+        return [0]
+    count = math.ceil((length - overlap) / (side - overlap))
+    return [round(k * (length - side) / (count - 1)) for k in range(count)]
+
+
+def _ramp(n: int, start: int, length: int, overlap: int, like: torch.Tensor) -> torch.Tensor:
+    """Blend weights along one axis of a tile: rising over ``overlap`` pixels where another tile
+    precedes, falling where one follows, 1 at the image's own edges."""
+    ramp = torch.ones(n, dtype=like.dtype, device=like.device)
+    edge = torch.arange(1, overlap + 1, dtype=like.dtype, device=like.device) / (overlap + 1)
+    k = min(overlap, n)
+    if start > 0:
+        ramp[:k] = torch.minimum(ramp[:k], edge[:k])
+    if start + n < length:
+        ramp[n - k:] = torch.minimum(ramp[n - k:], edge[:k].flip(0))
+    return ramp
+
+
+def model_path(run: str | Path) -> Path:
+    """``RUN/model.pt`` of a run directory, or the file itself."""
+    path = Path(run)
+    return path / MODEL_FILE if path.is_dir() else path
+
+
+def save_model(path: str | Path, net: ReconstructionNet, design: dict, extra: dict | None = None) -> None:
+    """Write the network shape, weights and design identity atomically."""
+    from metalens_cli.io.atomic import atomic_write
+
+    state = {"format": MODEL_FORMAT, "shape": net.shape.to_dict(), "state_dict": net.state_dict(), "design": design, **(extra or {})}
+    with atomic_write(path) as temporary:
+        torch.save(state, temporary)
+
+
+def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAULT_MEMORY_BYTES, field_name: str = "RUN") -> Reconstructor:
+    """The network of a reconstruction run directory (or its model.pt) on ``device``."""
+    path = model_path(run)
+    expected = "a run directory written by metalens reconstruct train (holding model.pt)"
+    if not Path(run).exists():
+        raise InputError(field_name, f"no such run directory {str(run)!r}", expected)
+    if not path.is_file():
+        raise InputError(field_name, f"{str(run)!r} holds no trained network ({MODEL_FILE} missing)", expected)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for foreign or damaged files
+        raise InputError(field_name, f"cannot read {str(path)!r}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}",
+                         expected) from None
+    if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT:
+        raise InputError(field_name, f"{str(path)!r} is not a metalens reconstruction model", expected)
+    try:
+        net = ReconstructionNet(NetworkShape(**state["shape"]))
+        net.load_state_dict(state["state_dict"])
+    except (TypeError, KeyError, RuntimeError) as exc:
+        raise InputError(field_name, f"{str(path)!r} does not match the network: {str(exc).splitlines()[0]}", expected) from None
+    net.eval().to(device)
+    return Reconstructor(net, state.get("design", {}), torch.device(device), memory_bytes, source=str(run))

@@ -1,0 +1,141 @@
+"""Training the reconstruction network: schedule, loss encoding, pairs, batches, exact resume,
+torchrun data parallel."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from metalens_cli.design.reconstruct_data import Camera, Pool, batch, read_pairs, strata
+from metalens_cli.design.reconstruct_training import display, learning_rate_factor, train_reconstruction
+from metalens_cli.errors import InputError
+from metalens_cli.io.designs import resolve_design
+from metalens_cli.io.reconstruct_presets import load_reconstruct_preset
+
+TINY = Path(__file__).with_name("tiny_reconstruct.toml")
+CAMERA = Camera(1.85e-6, (0.040, 0.050), (1.0, 20.0))
+
+
+def _design(wavelength: str = "532nm"):
+    return resolve_design(f"hyperbolic:{wavelength}", f_m=1e-3, aperture_m=0.2e-3)
+
+
+def test_learning_rate_warm_up_then_cosine_with_warm_restarts():
+    t = dataclasses.replace(load_reconstruct_preset(TINY).train, warmup_steps=10, restart_period=100, restart_growth=2)
+    assert learning_rate_factor(0, t) == pytest.approx(0.1)
+    assert learning_rate_factor(5, t) == pytest.approx(0.55)
+    assert learning_rate_factor(10, t) == pytest.approx(1.0)
+    assert learning_rate_factor(60, t) == pytest.approx(0.5)  # half-way through the first period
+    assert learning_rate_factor(109, t) == pytest.approx(0.5 * (1 + math.cos(math.pi * 99 / 100)))
+    assert learning_rate_factor(110, t) == pytest.approx(1.0)  # restart
+    assert learning_rate_factor(210, t) == pytest.approx(0.5)  # the second period is twice as long
+    assert learning_rate_factor(310, t) == pytest.approx(1.0)
+
+
+def test_display_encoding_is_srgb():
+    import colour
+
+    x = np.linspace(0, 1, 1001)
+    expected = colour.cctf_encoding(x, function="sRGB")
+    np.testing.assert_allclose(display(torch.from_numpy(x)).numpy(), expected, rtol=0, atol=1e-9)
+    assert display(torch.tensor(-0.01)).item() == pytest.approx(-0.1292)  # the toe continues linearly
+
+
+def test_strata_midpoints():
+    assert strata((0.04, 0.05), 4) == pytest.approx([0.04125, 0.04375, 0.04625, 0.04875])
+    assert strata((1.0, math.inf), 2) == pytest.approx([1 / 0.75, 4.0])  # midpoints of 1/z in (0, 1]
+
+
+def test_batch_positions_follow_their_pixels():
+    s, crop, scale = 24, 10, 5.0
+    ys, xs = np.mgrid[0:s, 0:s].astype(np.float32)
+    coded = np.stack([xs, ys, np.zeros_like(xs)])[None].repeat(2, axis=0)  # pixel values name their column and row
+    pool = Pool(coded, coded, coded, ["dirt", "dirt"])
+    data = dataclasses.replace(load_reconstruct_preset(TINY).data, noise_sigma=0.0, brightness=0.0, contrast=0.0)
+    b = batch(pool, data, crop, scale, seed=3, step=7, indices=list(range(8)))
+    centre = (s - 1) / 2
+    for k in range(8):  # every turn and flip: the position planes still name where each pixel came from
+        np.testing.assert_allclose(b.positions[k, 0] * scale + centre, b.targets[k, 0], atol=1e-5)
+        np.testing.assert_allclose(b.positions[k, 1] * scale + centre, b.targets[k, 1], atol=1e-5)
+    torch.testing.assert_close(b.inputs, b.targets)  # no jitter, no noise: the input is the same window
+
+
+def _write_pairs(root: Path, names, size=(40, 48), mismatch: str | None = None) -> None:
+    import cv2
+
+    (root / "gt").mkdir(parents=True)
+    (root / "captures").mkdir()
+    rng = np.random.default_rng(0)
+    for name in names:
+        gt = rng.integers(0, 255, size=(*size, 3), dtype=np.uint8)
+        cv2.imwrite(str(root / "gt" / f"{name}.png"), gt)
+        for k in range(2):
+            shape = (size[0] - 2, size[1]) if name == mismatch else size
+            cv2.imwrite(str(root / "captures" / f"{name}@{k}.png"), rng.integers(0, 255, size=(*shape, 3), dtype=np.uint8))
+
+
+def test_captured_pairs_layout_and_refusals(tmp_path):
+    _write_pairs(tmp_path / "ok", [f"s{k:02d}" for k in range(10)])
+    train, validation = read_pairs(tmp_path / "ok")
+    assert len(train) == 18 and len(validation) == 2  # the last scene (two captures) is held out
+    assert train.clean.shape[1:] == (3, 40, 40)  # centred square crops
+    _write_pairs(tmp_path / "bad", ["a", "b"], mismatch="b")
+    with pytest.raises(InputError, match="aligned"):
+        read_pairs(tmp_path / "bad")
+    (tmp_path / "orphan" / "gt").mkdir(parents=True)
+    (tmp_path / "orphan" / "captures").mkdir()
+    (tmp_path / "orphan" / "captures" / "x.png").write_bytes((tmp_path / "bad" / "gt" / "a.png").read_bytes())
+    with pytest.raises(InputError, match="no gt/x"):
+        read_pairs(tmp_path / "orphan")
+
+
+def _states(run: Path) -> dict:
+    return torch.load(run / "model.pt", weights_only=True)["state_dict"]
+
+
+def test_resume_repeats_an_uninterrupted_run(tmp_path):
+    preset = load_reconstruct_preset(TINY)
+    whole = train_reconstruction(_design(), CAMERA, preset, tmp_path / "whole").report
+    train_reconstruction(_design(), CAMERA, preset, tmp_path / "parts", steps=2)
+    resumed = train_reconstruction(_design(), CAMERA, None, tmp_path / "parts", steps=4, resume=True).report
+    a, b = _states(tmp_path / "whole"), _states(tmp_path / "parts")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    first = json.loads((tmp_path / "whole" / "run.json").read_text())
+    assert first["validation"]["final"] == resumed["validation"]["final"]
+    assert [v["step"] for v in whole["validation"]["history"]] == [0, 2, 4]  # validate_every = 2
+    assert whole["loss_terms"][:2] == ["l1", "ssim"]
+    with pytest.raises(InputError, match="not the design the run was made for"):
+        train_reconstruction(_design("500nm"), CAMERA, None, tmp_path / "parts", steps=6, resume=True)
+    with pytest.raises(InputError, match="below the 4 steps"):
+        train_reconstruction(_design(), CAMERA, None, tmp_path / "parts", steps=3, resume=True)
+    with pytest.raises(InputError, match="already holds a run"):
+        train_reconstruction(_design(), CAMERA, preset, tmp_path / "parts")
+
+
+def _train_cli(launcher: list[str], out: Path) -> dict:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = launcher + ["-m", "metalens_cli", "reconstruct", "train", "hyperbolic:532nm", "--f", "1mm", "--aperture", "0.2mm",
+                      "--preset", str(TINY), "-o", str(out), "--steps", "3", "--threads", "1", "--quiet"]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return _states(out)
+
+
+def test_two_process_torchrun_equals_one_process(tmp_path):
+    single = _train_cli([sys.executable], tmp_path / "one")
+    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]
+    parallel = _train_cli(torchrun, tmp_path / "two")
+    # the batch of 2 split 1 + 1, gradients summed by all_reduce: only the summation order differs
+    for k in single:
+        torch.testing.assert_close(parallel[k], single[k], rtol=0, atol=1e-5)
+    moved = max(float((single[k] - torch.zeros_like(single[k])).abs().max()) for k in single if k.startswith("head"))
+    assert moved > 0  # the head left zero: both runs learned something
