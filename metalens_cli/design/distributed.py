@@ -9,6 +9,8 @@ Backend: gloo on CPU, NCCL on CUDA. Without torchrun (WORLD_SIZE unset or 1) not
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
@@ -65,9 +67,26 @@ def barrier(ctx: Context) -> None:
         dist.barrier()
 
 
-def teardown(ctx: Context) -> None:
-    """Leave the process group if :func:`setup` created it."""
+def teardown(ctx: Context, finished: bool = True) -> None:
+    """Leave the process group if :func:`setup` created it. After ``finished`` work every rank
+    first waits for the others: a rank that tears its connections down while another still
+    works makes gloo abort at exit ("terminate called without an active exception", 1 run in 3
+    here). After an error there is no barrier: another rank may be inside a collective."""
     if ctx.owns_group:
         import torch.distributed as dist
 
+        if finished:
+            dist.barrier()
         dist.destroy_process_group()
+
+
+@contextmanager
+def session(device: torch.device) -> Iterator[Context]:
+    """:func:`setup`, then :func:`teardown` (with the barrier only if the body finished)."""
+    ctx = setup(device)
+    try:
+        yield ctx
+    except BaseException:
+        teardown(ctx, finished=False)
+        raise
+    teardown(ctx)

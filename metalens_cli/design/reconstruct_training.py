@@ -97,12 +97,9 @@ def train_reconstruction(design, camera: Camera, preset: ReconstructPreset | Non
     pairs instead of simulation. ``lpips_weights``: a folder with the LPIPS weights (else looked
     up as ``evaluate`` does). ``on_step(done, total, row)`` and ``on_stage(text)`` report progress.
     """
-    ctx = distributed.setup(torch.device(device))
-    try:
+    with distributed.session(torch.device(device)) as ctx:
         return _train(design, camera, preset, run_directory(run_dir), steps, seed, ctx, resume, pairs, lpips_weights,
                       on_step or (lambda *a: None), on_stage or (lambda text: None))
-    finally:
-        distributed.teardown(ctx)
 
 
 def _identity(design, camera: Camera, pairs) -> dict:

@@ -203,11 +203,8 @@ def train(preset, run_dir: str | Path, *, steps: int | None = None, seed: int | 
     ``run_dir`` with the preset saved there (``steps`` may extend it). Under torchrun the run is
     data-parallel and only rank 0 writes. ``on_step(done, total, row)`` reports each step.
     """
-    ctx = distributed.setup(torch.device(device))
-    try:
+    with distributed.session(torch.device(device)) as ctx:
         return _train(preset, RunDirectory(run_dir), steps, seed, ctx, resume, on_step)
-    finally:
-        distributed.teardown(ctx)
 
 
 @dataclass
@@ -241,8 +238,7 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> di
     """Run ``steps`` training steps of ``preset`` without a run directory and report their cost:
     seconds per step (median over the steps after the first, which builds the kernels), seconds by
     stage, the first step's seconds, the number of θ parameters and, on CUDA, the peak memory (bytes)."""
-    ctx = distributed.setup(torch.device(device))
-    try:
+    with distributed.session(torch.device(device)) as ctx:
         session = _session(preset, ctx)
         if ctx.device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(ctx.device)
@@ -260,8 +256,6 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> di
         if ctx.device.type == "cuda":
             report["peak_memory_bytes"] = torch.cuda.max_memory_allocated(ctx.device)
         return report
-    finally:
-        distributed.teardown(ctx)
 
 
 def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunSummary:
