@@ -1,5 +1,6 @@
 """The reconstruction network (Suppl. Note 5): a LocalNet-style U-Net with CBAM attention that
-predicts a residual added to the raw capture.
+predicts a residual, added to the capture after a learned spectral filter (:class:`SpectralFilter`:
+a radial frequency response per channel, the identity at the start).
 
 Input planes, built by :func:`input_planes` from a linear RGB capture x (B, 3, H, W):
 
@@ -13,13 +14,13 @@ Input planes, built by :func:`input_planes` from a linear RGB capture x (B, 3, H
   sensor it lies (:func:`pixel_positions`).
 
 The U-Net has ``depth`` stride-2 downsamplings; level k carries ``width``·2^k channels; every
-level is a residual block: two 3 × 3 convolutions (ReLU between) whose output passes CBAM
+level is a residual block: two 3 × 3 convolutions (leaky ReLU between) whose output passes CBAM
 (channel attention from average- and max-pooled features through a shared MLP, then spatial
 attention from a 7 × 7 convolution of the channel mean and max; Woo et al. 2018) before the
 shortcut is added, so attention gates the residual and activations keep their scale through the
 levels (He initialisation). Upsampling is a 1 × 1 convolution followed by bilinear
-interpolation, then concatenation with the skip. The output convolution starts at zero, so an untrained network
-is the identity. Any H, W (a stride-2 level has ⌈H/2⌉ rows; upsampling returns to the skip's
+interpolation, then concatenation with the skip. The output convolution starts at zero, so an
+untrained network is the identity. Any H, W (a stride-2 level has ⌈H/2⌉ rows; upsampling returns to the skip's
 size exactly) and any floating dtype.
 """
 
@@ -32,8 +33,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from metalens_cli.imaging.metrics import LUMA_709
+
 OVEREXPOSED = 0.95  # fraction of full scale where the over-exposure mask starts
-LUMA_709 = (0.2126, 0.7152, 0.0722)
 GAIN_SCALE = 30.0  # spectral gains are stored ÷ this, so that optimiser steps of the order of the learning rate move them visibly
 
 
