@@ -61,7 +61,10 @@ def train(spec, preset_path, output, camera_path, f_m, aperture_m, pitch_m, pair
 
     if threads:
         torch.set_num_threads(threads)
+    from metalens_cli.io.atomic import ensure_folder
+
     preset = load_reconstruct_preset(preset_path) if preset_path else ReconstructPreset("reconstruct")
+    ensure_folder(Path(output).parent, "--output")
     s = setup([spec], camera_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, None, pixel_pitch_m, (), device)
     camera = Camera(s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]), s["obstruction_params"])
     report = run_training("reconstruct", quiet, f"metalens reconstruct train {spec} -o {output} --resume",
@@ -130,12 +133,12 @@ def apply(run, inputs, output, device, memory_mib, quiet, as_json):
     from metalens_cli.cli.progress import progress_bar
     from metalens_cli.imaging.images import linear_to_srgb, read_image, srgb_to_linear
     from metalens_cli.imaging.restore import load_reconstructor
+    from metalens_cli.io.atomic import ensure_folder
     from metalens_cli.io.image_files import write_exr_rgb, write_png
 
     files = _inputs(inputs)
     recon = load_reconstructor(run, torch_device(device), memory_mib << 20)
-    out = Path(output)
-    out.mkdir(parents=True, exist_ok=True)
+    out = ensure_folder(output, "--output")
     rows = []
     with progress_bar("reconstruct apply", quiet) as update:
         for k, path in enumerate(files):
@@ -178,8 +181,11 @@ def export(run, output, tolerance, as_json):
     from metalens_cli.imaging.export import export_program
     from metalens_cli.imaging.restore import load_reconstructor
 
+    from metalens_cli.io.atomic import check_output_file
+
     if not str(output).endswith(".pt2"):
         raise InputError("--output", f"{output!r} does not end in .pt2", "a file name ending in .pt2 (torch.export's format)")
+    check_output_file(output, "--output")
     recon = load_reconstructor(run)
     report = export_program(recon, output, tolerance)
     if as_json:

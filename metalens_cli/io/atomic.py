@@ -36,6 +36,39 @@ def atomic_write(target: str | os.PathLike[str]) -> Iterator[Path]:
         raise
 
 
+def ensure_folder(path: str | os.PathLike[str], field: str) -> Path:
+    """Create the output folder ``path`` (and its parents) or raise an :class:`InputError`
+    naming ``field``; refuses an existing non-folder."""
+    from metalens_cli.errors import InputError
+
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(field, f"{str(folder)!r} exists and is not a folder", "a writable folder path")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(field, f"cannot create folder {str(folder)!r}: {exc.strerror or exc}", "a writable folder path") from None
+    if not os.access(folder, os.W_OK):
+        raise InputError(field, f"folder {str(folder)!r} is not writable", "a writable folder path")
+    return folder
+
+
+def check_output_file(path: str | os.PathLike[str], field: str) -> Path:
+    """Refuse, before any work, an output file whose folder is missing or read-only, or which
+    exists and is not a regular file."""
+    from metalens_cli.errors import InputError
+
+    target = Path(path)
+    folder = target.parent
+    if not folder.is_dir():
+        raise InputError(field, f"folder {str(folder)!r} does not exist", "a file in an existing folder")
+    if not os.access(folder, os.W_OK):
+        raise InputError(field, f"folder {str(folder)!r} is not writable", "a file in a writable folder")
+    if target.exists() and not target.is_file():
+        raise InputError(field, f"{str(target)!r} exists and is not a regular file", "a new or regular file")
+    return target
+
+
 def _create_temporary(target: Path) -> Path:
     """Create an empty, uniquely named hidden file beside ``target`` and return its path."""
     while True:

@@ -108,6 +108,15 @@ def test_bad_inputs_are_one_line_exit_2(trained, tmp_path, capsys):
     _one_line_error(capsys, "NaN")
     assert run(["reconstruct", "train", *LENS, "--preset", str(TINY), "-o", str(trained)]) == 2
     _one_line_error(capsys, "already holds a run")
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    assert run(["reconstruct", "apply", str(trained), str(tmp_path / "nan.exr"), "-o", str(blocker / "out")]) == 2
+    _one_line_error(capsys, "cannot create folder")
+    assert run(["reconstruct", "export", str(trained), "-o", str(tmp_path / "missing" / "m.pt2")]) == 2
+    _one_line_error(capsys, "does not exist")
+    assert run(["reconstruct", "train", *LENS, "--preset", str(TINY), "-o", str(blocker / "run")]) == 2
+    _one_line_error(capsys, "not a folder")
+    assert not (tmp_path / "missing").exists()
     assert run(["reconstruct", "train", "hyperbolic:500nm", "--f", "1mm", "--aperture", "0.2mm", "-o", str(trained), "--resume"]) == 2
     _one_line_error(capsys, "not the design the run was made for")
 
