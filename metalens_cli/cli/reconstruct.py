@@ -128,10 +128,9 @@ def apply(run, inputs, output, device, memory_mib, quiet, as_json):
     Writes OUT/NAME.exr (linear, float32) and OUT/NAME.png (sRGB, 8-bit) per input; 8/16-bit
     inputs are taken as sRGB-encoded, EXR as linear.
     """
-    import numpy as np
 
     from metalens_cli.cli.progress import progress_bar
-    from metalens_cli.imaging.images import linear_to_srgb, read_image, srgb_to_linear
+    from metalens_cli.imaging.images import linear_to_srgb, read_linear
     from metalens_cli.imaging.restore import load_reconstructor
     from metalens_cli.io.atomic import ensure_folder
     from metalens_cli.io.image_files import write_exr_rgb, write_png
@@ -142,11 +141,7 @@ def apply(run, inputs, output, device, memory_mib, quiet, as_json):
     rows = []
     with progress_bar("reconstruct apply", quiet) as update:
         for k, path in enumerate(files):
-            image, _ = read_image(path)
-            image = image[:3]
-            if not np.all(np.isfinite(image)) or image.min() < 0:
-                raise InputError("INPUT", f"{path.name} holds NaN, infinite or negative pixels", "finite, non-negative pixel values")
-            linear = image if path.suffix.lower() == ".exr" else srgb_to_linear(image)
+            linear = read_linear(path)
             start = time.perf_counter()
             estimate = recon(linear)
             seconds = time.perf_counter() - start

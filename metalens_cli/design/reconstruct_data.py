@@ -151,7 +151,7 @@ def simulate_pool(design, camera: Camera, data, bank: PsfBank, seed: int, genera
 def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
     """Training and validation pools from captured pairs (layout in the module docstring); every
     image is cropped to the common smallest square so pools stack."""
-    from metalens_cli.imaging.images import read_image, srgb_to_linear
+    from metalens_cli.imaging.images import read_linear
 
     root = Path(folder)
     gt_dir, capture_dir = root / "gt", root / "captures"
@@ -160,13 +160,6 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
 
     def files(d: Path) -> list[Path]:
         return sorted(p for p in d.iterdir() if p.suffix.lower() in SUFFIXES and not p.name.startswith("."))
-
-    def linear(path: Path) -> np.ndarray:
-        image, _ = read_image(path)
-        image = image[:3]
-        if not np.all(np.isfinite(image)):
-            raise InputError("--pairs", f"{path.name} holds NaN or infinite pixels", "finite pixel values")
-        return image if path.suffix.lower() == ".exr" else srgb_to_linear(image)
 
     gts = {p.stem: p for p in files(gt_dir)}
     pairs = [(p.stem.split("@")[0], p) for p in files(capture_dir)]
@@ -179,7 +172,7 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
     held = set(scenes[len(scenes) - max(1, len(scenes) // 10):]) if len(scenes) > 1 else set()
     loaded = []
     for name, path in pairs:
-        gt, capture = linear(gts[name]), linear(path)
+        gt, capture = read_linear(gts[name], "--pairs"), read_linear(path, "--pairs")
         if gt.shape != capture.shape:
             raise InputError("--pairs", f"{path.name} is {capture.shape[1:]} but gt/{gts[name].name} is {gt.shape[1:]}",
                              "captures aligned to their gt image (metalens align), of equal size")

@@ -75,6 +75,16 @@ def read_image(path: Path, keep_alpha: bool = False) -> tuple[np.ndarray, bool]:
     return np.transpose(image[:, :, channels], (2, 0, 1)), has_alpha and keep_alpha
 
 
+def read_linear(path: Path, field: str = "INPUT") -> np.ndarray:
+    """(3, H, W) float32 linear RGB of an image file (8/16-bit taken as sRGB-encoded, EXR as linear);
+    NaN, infinite or negative pixels are an :class:`InputError` naming ``field``."""
+    path = Path(path)
+    image = read_image(path)[0][:3]
+    if not np.all(np.isfinite(image)) or image.min() < 0:
+        raise InputError(field, f"{path.name} holds NaN, infinite or negative pixels", "finite, non-negative pixel values")
+    return image.astype(np.float32) if path.suffix.lower() == ".exr" else srgb_to_linear(image)
+
+
 def builtin_images(shape: tuple[int, int], margin: int = 0, count: int = BUILTIN_COUNT) -> list[CleanImage]:
     """``count`` evaluation scenes: the photographs matplotlib ships (see ``PHOTOGRAPHS``), then
     seeded colour dead-leaves charts (``dead_leaves_NN``, seed NN), on the canvas of ``margin``."""
