@@ -3,13 +3,18 @@
 Grammar (whitespace ignored, units case-sensitive as written below):
 
 - a length: ``NUMBER UNIT`` with UNIT one of ``pm nm um µm μm mm cm m km``, or ``inf``
-  where infinity is allowed;
-- a list: lengths separated by commas (``45mm,inf``);
+  where infinity is allowed; NUMBER is written with ASCII digits (``4``, ``1.85``, ``.5``,
+  ``1e3``);
+- a list: lengths separated by commas (``45mm,inf``), at most :data:`MAX_LIST_VALUES` values
+  in all;
 - a range: ``START:STOP:STEP UNIT`` (``430:645:5nm``, inclusive end) or with a unit on
   every part (``40mm:50mm`` is a two-value interval, see :func:`parse_interval`).
 
-Lengths must be finite-or-inf, positive and non-zero. Pure Python: no numpy, so that
-commands which only need closed forms start fast.
+Lengths must be finite-or-inf, positive and non-zero. A length is the float nearest to the
+decimal value typed (``1.1nm == 1.1e-09``, ``395nm == 3.95e-07``), and each value of a range
+is the float nearest to the exact decimal ``START + i·STEP``, so ``430:645:5nm`` holds the
+same floats as typing ``430nm,435nm,…,645nm``. Pure Python: no numpy, so that commands which
+only need closed forms start fast.
 """
 
 from __future__ import annotations
@@ -19,7 +24,8 @@ import re
 
 from metalens_cli.errors import InputError
 
-# Decimal exponent of each unit; scaling by an exact power of ten keeps 395nm == 3.95e-07.
+# Decimal exponent of each unit: a length is scaled by shifting its decimal exponent, then
+# rounded once to the nearest float (395nm == 3.95e-07, 1.1nm == 1.1e-09).
 UNIT_EXPONENTS = {
     "pm": -12,
     "nm": -9,
@@ -33,92 +39,162 @@ UNIT_EXPONENTS = {
 }
 UNITS_M = {unit: 10.0**exp for unit, exp in UNIT_EXPONENTS.items()}
 
-
-def _scale(number: float, unit: str) -> float:
-    exp = UNIT_EXPONENTS[unit]
-    return number * 10.0**exp if exp >= 0 else number / 10.0 ** (-exp)
-
-
-_NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
-_LENGTH_RE = re.compile(rf"^({_NUMBER})\s*([a-zµμ]+)$")
-_RANGE_RE = re.compile(rf"^({_NUMBER})([a-zµμ]*):({_NUMBER})([a-zµμ]*):({_NUMBER})\s*([a-zµμ]+)$")
+# ASCII digits only: ``\d`` would also take Arabic-Indic or full-width digits. Each digit can
+# be matched one way only (not ``\d+\.?\d*``, which backtracks quadratically on a long run of
+# digits without a unit).
+_NUMBER = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+_NUMBER_PARTS_RE = re.compile(r"([+-]?)([0-9]*)(?:\.([0-9]*))?(?:[eE]([+-]?)([0-9]+))?")
+_LENGTH_RE = re.compile(rf"({_NUMBER})\s*([a-zµμ]+)")
+_RANGE_RE = re.compile(rf"({_NUMBER})([a-zµμ]*):({_NUMBER})([a-zµμ]*):({_NUMBER})\s*([a-zµμ]+)")
 
 LENGTH_FORM = "a number with a unit (pm, nm, um, µm, mm, cm, m, km), e.g. 4mm or 450nm"
 LENGTH_OR_INF_FORM = LENGTH_FORM + ", or inf"
 LIST_FORM = "lengths with units separated by commas (45mm,inf) or a range START:STOP:STEP with a unit (430:645:5nm)"
 INTERVAL_FORM = "a length (45mm) or an interval LO:HI with units (40mm:50mm)"
 
-# Guard against a range that would expand into an absurd number of values.
+# Guard against a range or list that would expand into an absurd number of values.
 MAX_RANGE_VALUES = 100_000
+MAX_LIST_VALUES = MAX_RANGE_VALUES
+# The start, stop and step of a range are computed with exactly; more significant digits than
+# this (a float has 17) would only make that arithmetic slow.
+MAX_RANGE_DIGITS = 40
+# An exponent with more digits than this is out of float range whatever its mantissa (which
+# would need as many digits to compensate), so it is clamped instead of converted to int.
+_MAX_EXPONENT_DIGITS = 15
 
 
 def _expected(allow_inf: bool) -> str:
     return LENGTH_OR_INF_FORM if allow_inf else LENGTH_FORM
 
 
+def _quote(text) -> str:
+    """``repr`` of the user's text (one line), shortened when it is long."""
+    s = str(text)
+    return repr(s) if len(s) <= 60 else f"{s[:50]!r}… ({len(s)} characters)"
+
+
+def _decimal(number: str, unit: str) -> tuple[bool, str, int]:
+    """The exact value of ``number`` in ``unit`` as metres: ``(negative, digits, exponent)``
+    meaning ``±int(digits)·10**exponent``; ``digits`` has no leading or trailing zeros and is
+    empty for zero."""
+    m = _NUMBER_PARTS_RE.fullmatch(number)
+    assert m is not None  # number matched _NUMBER
+    sign, whole, fraction, exp_sign, exp_digits = m.groups(default="")
+    exp_digits = (exp_digits or "0").lstrip("0") or "0"
+    if len(exp_digits) > _MAX_EXPONENT_DIGITS:
+        exp_digits = "1" + "0" * _MAX_EXPONENT_DIGITS
+    exponent = (-1 if exp_sign == "-" else 1) * int(exp_digits) - len(fraction) + UNIT_EXPONENTS[unit]
+    digits = (whole + fraction).lstrip("0")
+    stripped = digits.rstrip("0")
+    exponent += len(digits) - len(stripped)
+    return sign == "-", stripped, exponent
+
+
+def _length(number: str, unit: str, text, field: str, allow_inf: bool) -> tuple[float, str, int]:
+    """Check and round one length; also returns its exact ``(digits, exponent)``."""
+    negative, digits, exponent = _decimal(number, unit)
+    if negative or not digits:
+        raise InputError(field, f"{_quote(text)} must be positive and non-zero", _expected(allow_inf))
+    value = float(f"{digits}e{exponent}")  # correctly rounded, whatever the number of digits
+    if math.isinf(value):
+        raise InputError(field, f"{_quote(text)} overflows (more than {1.7976931348623157e308:.4g} m)", _expected(allow_inf))
+    if value == 0.0:
+        raise InputError(field, f"{_quote(text)} is too small (it rounds to zero)", _expected(allow_inf))
+    return value, digits, exponent
+
+
+def _parse_length(text, field: str, allow_inf: bool) -> tuple[float, str, int] | None:
+    """:func:`parse_length` with the exact decimal of a finite value (``None`` for inf)."""
+    s = str(text).strip().replace(" ", "")
+    low = s.lower()
+    if low in {"inf", "+inf", "infinity"}:
+        if allow_inf:
+            return None
+        raise InputError(field, "infinity is not allowed here", LENGTH_FORM)
+    if "nan" in low or "inf" in low:
+        raise InputError(field, f"{_quote(text)} is not a length", _expected(allow_inf))
+    m = _LENGTH_RE.fullmatch(s)
+    if m is None:
+        if re.fullmatch(_NUMBER, s):
+            raise InputError(field, f"{_quote(text)} has no unit", _expected(allow_inf))
+        raise InputError(field, f"{_quote(text)} is not a length", _expected(allow_inf))
+    number, unit = m.groups()
+    if unit not in UNITS_M:
+        raise InputError(field, f"unknown unit {_quote(unit)} in {_quote(text)}", _expected(allow_inf))
+    return _length(number, unit, text, field, allow_inf)
+
+
 def parse_length(text: str, field: str, *, allow_inf: bool = False) -> float:
     """Parse one length into metres; ``inf`` gives ``math.inf`` where allowed.
 
-    Raises :class:`InputError` naming ``field`` for a bare number, an unknown unit,
-    NaN, zero or a negative value.
+    The result is the float nearest to the decimal value typed. Raises
+    :class:`InputError` naming ``field`` for a bare number, an unknown unit, NaN, zero, a
+    negative value, or a value outside the float range.
     """
+    parsed = _parse_length(text, field, allow_inf)
+    return math.inf if parsed is None else parsed[0]
+
+
+def _expand_range(text: str, field: str, limit: int) -> list[float]:
     s = str(text).strip().replace(" ", "")
-    if s.lower() in {"inf", "+inf", "infinity"}:
-        if allow_inf:
-            return math.inf
-        raise InputError(field, "infinity is not allowed here", LENGTH_FORM)
-    if s.lower() in {"nan", "-inf"} or "nan" in s.lower():
-        raise InputError(field, f"{text!r} is not a length", _expected(allow_inf))
-    m = _LENGTH_RE.match(s)
+    m = _RANGE_RE.fullmatch(s)
     if m is None:
-        if re.fullmatch(_NUMBER, s):
-            raise InputError(field, f"{text!r} has no unit", _expected(allow_inf))
-        raise InputError(field, f"{text!r} is not a length", _expected(allow_inf))
-    number, unit = m.groups()
-    if unit not in UNITS_M:
-        raise InputError(field, f"unknown unit {unit!r} in {text!r}", _expected(allow_inf))
-    value = _scale(float(number), unit)
-    if not math.isfinite(value):
-        raise InputError(field, f"{text!r} overflows", _expected(allow_inf))
-    if value <= 0.0:
-        raise InputError(field, f"{text!r} must be positive and non-zero", _expected(allow_inf))
-    return value
+        raise InputError(field, f"{_quote(text)} is not a range", LIST_FORM)
+    start_n, start_u, stop_n, stop_u, step_n, unit = m.groups()
+    parts = []
+    for number, own_unit in ((start_n, start_u), (stop_n, stop_u), (step_n, unit)):
+        parsed = _parse_length(number + (own_unit or unit), field, False)
+        assert parsed is not None  # allow_inf=False
+        if len(parsed[1]) > MAX_RANGE_DIGITS:
+            raise InputError(field, f"range {_quote(text)} has a part with more than {MAX_RANGE_DIGITS} significant digits", LIST_FORM)
+        parts.append(parsed)
+    # Exact integer arithmetic on a common decimal exponent: START = a·10**e, STEP = d·10**e.
+    e = min(exponent for _, _, exponent in parts)
+    a, b, d = (int(digits) * 10 ** (exponent - e) for _, digits, exponent in parts)
+    if b < a:
+        raise InputError(field, f"range {_quote(text)} ends before it starts", LIST_FORM)
+    count = (b - a) // d + 1
+    if count > limit:
+        raise InputError(field, f"range {_quote(text)} has too many values (at most {MAX_RANGE_VALUES})", LIST_FORM)
+    if e >= 0:
+        scale = 10**e
+        values = [float((a + i * d) * scale) for i in range(count)]
+    else:
+        scale = 10**-e
+        values = [(a + i * d) / scale for i in range(count)]  # int / int is correctly rounded
+    for prev, value in zip(values, values[1:]):
+        if value <= prev:
+            raise InputError(field, f"range {_quote(text)} has a step too small to tell its values apart as floats", LIST_FORM)
+    return values
 
 
 def parse_range(text: str, field: str) -> list[float]:
     """Expand ``START:STOP:STEP UNIT`` (inclusive end) into metres.
 
     The unit may be given once at the end (``430:645:5nm``) or on every part
-    (``430nm:645nm:5nm``). The stop is included when it lies on the grid to within
-    1e-9 of a step.
+    (``430nm:645nm:5nm``). The values are ``START + i·STEP`` computed exactly in decimal,
+    each then rounded to the nearest float; the stop is included when it lies on the grid.
+    At most :data:`MAX_RANGE_VALUES` values; a step too fine to give distinct floats is
+    refused.
     """
-    s = str(text).strip().replace(" ", "")
-    m = _RANGE_RE.match(s)
-    if m is None:
-        raise InputError(field, f"{text!r} is not a range", LIST_FORM)
-    start_n, start_u, stop_n, stop_u, step_n, unit = m.groups()
-    parts = []
-    for number, own_unit in ((start_n, start_u), (stop_n, stop_u), (step_n, unit)):
-        parts.append(parse_length(number + (own_unit or unit), field))
-    start, stop, step = parts
-    if stop < start:
-        raise InputError(field, f"range {text!r} ends before it starts", LIST_FORM)
-    count = math.floor((stop - start) / step + 1e-9) + 1
-    if count > MAX_RANGE_VALUES:
-        raise InputError(field, f"range {text!r} has {count} values (at most {MAX_RANGE_VALUES})", LIST_FORM)
-    # Round to 12 significant digits so that 430:645:5nm gives 6.35e-07, not 6.350000000000001e-07.
-    return [float(f"{start + i * step:.12g}") for i in range(count)]
+    return _expand_range(text, field, MAX_RANGE_VALUES)
 
 
 def parse_length_list(text: str, field: str, *, allow_inf: bool = False) -> list[float]:
-    """Parse a comma-separated list whose items are lengths or ranges, in metres."""
-    items = [item.strip() for item in str(text).split(",")]
-    if not items or any(not item for item in items):
-        raise InputError(field, f"{text!r} has an empty item", LIST_FORM)
+    """Parse a comma-separated list whose items are lengths or ranges, in metres, in the
+    order given (at most :data:`MAX_LIST_VALUES` values in all)."""
+    text = str(text)
+    if text.count(",") >= MAX_LIST_VALUES:
+        raise InputError(field, f"{_quote(text)} has more than {MAX_LIST_VALUES} items", LIST_FORM)
+    items = [item.strip() for item in text.split(",")]
+    if any(not item for item in items):
+        raise InputError(field, f"{_quote(text)} has an empty item", LIST_FORM)
     values: list[float] = []
     for item in items:
         if item.count(":") == 2:
-            values.extend(parse_range(item, field))
+            values.extend(_expand_range(item, field, MAX_LIST_VALUES - len(values)))
+        elif len(values) >= MAX_LIST_VALUES:
+            raise InputError(field, f"{_quote(text)} has more than {MAX_LIST_VALUES} values", LIST_FORM)
         else:
             values.append(parse_length(item, field, allow_inf=allow_inf))
     return values
@@ -131,16 +207,17 @@ def parse_interval(text: str, field: str, *, allow_inf: bool = False) -> tuple[f
         value = parse_length(parts[0], field, allow_inf=allow_inf)
         return value, value
     if len(parts) != 2:
-        raise InputError(field, f"{text!r} is not an interval", INTERVAL_FORM)
+        raise InputError(field, f"{_quote(text)} is not an interval", INTERVAL_FORM)
     lo_text, hi_text = parts
-    # Allow a shared trailing unit: 40:50mm.
-    unit_match = re.search(r"[a-zµμ]+$", hi_text.strip())
-    if unit_match and re.fullmatch(_NUMBER, lo_text.strip()):
-        lo_text = lo_text.strip() + unit_match.group(0)
+    # Allow a shared trailing unit: 40:50mm (but not 40:inf, where inf is no unit). Anchored
+    # matches only: re.search(r"[a-z]+$") is quadratic on a long run of letters.
+    hi_match = _LENGTH_RE.fullmatch(hi_text.strip().replace(" ", ""))
+    if hi_match and hi_match.group(2) in UNITS_M and re.fullmatch(_NUMBER, lo_text.strip()):
+        lo_text = lo_text.strip() + hi_match.group(2)
     lo = parse_length(lo_text, field, allow_inf=allow_inf)
     hi = parse_length(hi_text, field, allow_inf=allow_inf)
     if hi < lo:
-        raise InputError(field, f"interval {text!r} has its upper end below its lower end", INTERVAL_FORM)
+        raise InputError(field, f"interval {_quote(text)} has its upper end below its lower end", INTERVAL_FORM)
     return lo, hi
 
 
