@@ -13,12 +13,17 @@
 
 Every file is written atomically (temporary file, then rename). ``metalens reconstruct train``
 uses the same class for its own run directory (``design.reconstruct_training``).
+
+``--resume`` trusts no checkpoint: :meth:`RunDirectory.latest_checkpoint` checks the file and
+:meth:`Checkpoint.restore` that its states fit the run's model, optimiser and scheduler, both
+before the run directory is written; any fault is an :class:`InputError` naming the file.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +34,7 @@ from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.presets import load_preset
 
 KEEP = 2
+STATES = ("model", "optimizer", "scheduler")  # the state dicts of a checkpoint, restored by Checkpoint.restore
 LOSS_COLUMNS = ("step", "lr", "total", "l1", "ssim", "domain_adaptation", "bright", "sharp", "z_near_m", "z_far_m", "seconds")
 
 
@@ -52,10 +58,14 @@ class RunDirectory:
     def holds_run(self) -> bool:
         return self.preset_path.exists() or self.checkpoints.exists() or (self.path / "run.json").exists()
 
-    def create(self, preset_text: str, folders: tuple[str, ...] = ("samples",)) -> None:
-        """Start a fresh run with its preset file: refuse a folder that already holds one."""
+    def check_fresh(self) -> None:
+        """Refuse a folder that already holds a run (before any work, so nothing is half-made)."""
         if self.holds_run():
             raise InputError("--output", f"{str(self.path)!r} already holds a run", "another folder, or --resume to continue it")
+
+    def create(self, preset_text: str, folders: tuple[str, ...] = ("samples",)) -> None:
+        """Start a fresh run with its preset file: refuse a folder that already holds one."""
+        self.check_fresh()
         for folder in folders:
             (self.path / folder).mkdir(parents=True, exist_ok=True)
         self.checkpoints.mkdir(parents=True, exist_ok=True)
@@ -80,14 +90,44 @@ class RunDirectory:
             old.unlink()
         return target
 
-    def latest_checkpoint(self) -> dict | None:
+    def latest_checkpoint(self, steps: int, lists: tuple[str, ...] = ()) -> Checkpoint | None:
+        """The newest checkpoint, None when there is none. It must be a dict holding ``step``, an
+        int in [0, ``steps``] (past ``steps``: an error on --steps), the ``STATES`` dicts with finite
+        tensors, ``history`` (a list of ``step`` dicts, one per step done) and a list of dicts under
+        each key of ``lists``. Anything else is an InputError on --resume naming the file."""
         found = sorted(self.checkpoints.glob("step_*.pt"))
         if not found:
             return None
+        path = found[-1]
+
+        def refuse(what: str) -> InputError:
+            return InputError("--resume", f"{path} {what}", f"a checkpoint written by {self.made_by}")
+
         try:
-            return torch.load(found[-1], map_location="cpu", weights_only=False)
-        except (OSError, RuntimeError, EOFError) as exc:
-            raise InputError("--resume", f"cannot read {found[-1]}: {exc}", f"a checkpoint written by {self.made_by}") from None
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception:  # torch raises many types for foreign or damaged files
+            raise refuse("cannot be read: it is truncated, damaged or not a torch file") from None
+        if not isinstance(state, dict):
+            raise refuse(f"holds a {type(state).__name__}, not a checkpoint")
+        missing = [key for key in ("step", *STATES, "history", *lists) if key not in state]
+        if missing:
+            raise refuse(f"lacks {', '.join(missing)}")
+        step = state["step"]
+        if type(step) is not int or step < 0:
+            raise refuse(f"has step {step!r}, not an integer ≥ 0")
+        if step > steps:
+            raise InputError("--steps", f"{steps} is below the {step} steps already run", f"at least {step}")
+        for key in STATES:
+            if not isinstance(state[key], dict):
+                raise refuse(f"has a {type(state[key]).__name__} as its {key} state")
+            if not all(tensor.isfinite().all() for tensor in _tensors(state[key])):
+                raise refuse(f"holds NaN or infinite values in its {key} state")
+        for key in ("history", *lists):
+            if not (isinstance(state[key], list) and all(isinstance(row, dict) for row in state[key])):
+                raise refuse(f"has no list of records as its {key}")
+        if len(state["history"]) != step:
+            raise refuse(f"has {len(state['history'])} history rows for step {step}")
+        return Checkpoint(path, state)
 
     # ------------------------------------------------------------------ results
 
@@ -105,3 +145,38 @@ class RunDirectory:
         writer.writeheader()
         writer.writerows(history)
         self.write_text("loss.csv", buffer.getvalue())
+
+
+@dataclass
+class Checkpoint:
+    """A checkpoint file and its contents, as checked by :meth:`RunDirectory.latest_checkpoint`."""
+
+    path: Path
+    state: dict
+
+    @property
+    def step(self) -> int:
+        return self.state["step"]
+
+    def restore(self, **modules) -> None:
+        """Load the ``STATES`` into ``modules`` (model=, optimizer=, scheduler=): an InputError on
+        --resume when torch refuses a state (other keys, a tensor of another shape) or an
+        optimiser moment differs in shape from its parameter (torch checks only their number)."""
+        for key, module in modules.items():
+            try:
+                module.load_state_dict(self.state[key])
+                if isinstance(module, torch.optim.Optimizer) and any(
+                        torch.is_tensor(m) and m.ndim and m.shape != p.shape for p, moments in module.state.items() for m in moments.values()):
+                    raise ValueError("a moment's shape differs from its parameter's")
+            except (RuntimeError, ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
+                raise InputError("--resume", f"{self.path} does not fit this run: its {key} state: {' '.join(str(exc).split())}",
+                                 "a checkpoint of this run") from None
+
+
+def _tensors(value):
+    """Every tensor in nested dicts, lists and tuples."""
+    if torch.is_tensor(value):
+        yield value
+    elif isinstance(value, dict | list | tuple):
+        for item in value.values() if isinstance(value, dict) else value:
+            yield from _tensors(item)

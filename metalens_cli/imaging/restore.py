@@ -140,7 +140,9 @@ def save_model(path: str | Path, net: ReconstructionNet, design: dict, extra: di
 
 
 def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAULT_MEMORY_BYTES, field_name: str = "RUN") -> Reconstructor:
-    """The network of a reconstruction run directory (or its model.pt) on ``device``."""
+    """The network of a reconstruction run directory (or its model.pt) on ``device``. A file that
+    is not a readable ``MODEL_FORMAT`` dict whose shape, finite weights, positive finite position
+    scale and design dict make one network is an InputError on ``field_name`` naming it."""
     path = model_path(run)
     expected = "a run directory written by metalens reconstruct train (holding model.pt)"
     if not Path(run).exists():
@@ -149,15 +151,20 @@ def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAUL
         raise InputError(field_name, f"{str(run)!r} holds no trained network ({MODEL_FILE} missing)", expected)
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for foreign or damaged files
-        raise InputError(field_name, f"cannot read {str(path)!r}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}",
-                         expected) from None
-    if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT:
+    except Exception:  # torch raises many types for foreign or damaged files
+        raise InputError(field_name, f"cannot read {str(path)!r}: it is truncated, damaged or not a torch file", expected) from None
+    if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT or not isinstance(state.get("design", {}), dict):
         raise InputError(field_name, f"{str(path)!r} is not a metalens reconstruction model", expected)
     try:
-        net = ReconstructionNet(NetworkShape(**state["shape"]))
+        shape = NetworkShape(**state["shape"])
+        scale = float(shape.position_scale)
+        with torch.device("meta"):  # check keys and shapes first: a foreign shape must not allocate what it asks for
+            ReconstructionNet(shape).load_state_dict(state["state_dict"], assign=True)
+        net = ReconstructionNet(shape)
         net.load_state_dict(state["state_dict"])
-    except (TypeError, KeyError, RuntimeError) as exc:
-        raise InputError(field_name, f"{str(path)!r} does not match the network: {str(exc).splitlines()[0]}", expected) from None
+    except (TypeError, KeyError, RuntimeError, ValueError) as exc:
+        raise InputError(field_name, f"{str(path)!r} does not match the network: {' '.join(str(exc).split())}", expected) from None
+    if not (0 < scale < math.inf and all(value.isfinite().all() for value in net.state_dict().values())):
+        raise InputError(field_name, f"{str(path)!r} holds NaN or infinite weights or position scale", expected)
     net.eval().to(device)
     return Reconstructor(net, state.get("design", {}), torch.device(device), memory_bytes, source=str(run))
