@@ -23,3 +23,8 @@ class InputError(MetalensError, ValueError):
 
 class SamplingError(MetalensError):
     """A simulation grid cannot represent the field without aliasing or wrap-around."""
+
+
+class Terminated(BaseException):
+    """SIGTERM received (raised by the CLI's handler): unwinds like Ctrl-C, so outputs in progress
+    are removed and training writes a checkpoint, and the CLI exits 143."""

@@ -144,6 +144,25 @@ def _best_depth(wavelength, lambda_d, f, aperture, lo, hi, samples, fine_points:
     return math.exp(result.x)
 
 
+PHASE_RATE = 1e8  # (wavelength, depth, sample) terms of the on-axis integral per second, 2 cores
+
+
+def estimate_validation(wavelengths_m, lambda_d_m: float, f_m: float, aperture_m: float,
+                        depth_range_m: tuple[float, float] | None = None, depth_points: int = 161) -> tuple[int, float]:
+    """(peak bytes, seconds) of :func:`validate_symmetry` with these arguments, from its sample
+    count: about a dozen float64 (depth × sample) arrays at once (the per-depth factors and a
+    chunk of the integrand), and every term of the map and of the refinements (~106 depths per
+    wavelength at S and 2S samples) at ``PHASE_RATE``."""
+    wavelengths = np.asarray(wavelengths_m, dtype=np.float64)
+    if depth_range_m is None:
+        real = [m for m in (depth_for_wavelength(float(w), lambda_d_m, f_m).depth_m for w in wavelengths) if m is not None]
+        depth_range_m = (max(1e-3, 0.5 * min(real, default=1e-3)), 1e3)
+    depths = np.geomspace(depth_range_m[0], depth_range_m[1], depth_points)
+    samples = required_samples(wavelengths, depths, lambda_d_m, f_m, aperture_m)
+    terms = wavelengths.size * samples * (depth_points + 106 * 3)
+    return 12 * depth_points * samples * 8, terms / PHASE_RATE
+
+
 def validate_symmetry(
     wavelengths_m,
     lambda_d_m: float,

@@ -40,6 +40,7 @@ import numpy as np
 
 from metalens_cli.analysis.mtf import PER_MM, mtf50
 from metalens_cli.errors import InputError
+from metalens_cli.io.image_files import read_image_file
 
 OVERSAMPLING = 4  # ESF bins per pixel
 ANGLE_MARGIN_DEG = 1.0  # refuse edges this near 0° (or 90°) and 45°
@@ -91,58 +92,18 @@ def read_edge_image(path: str | Path, srgb: bool = False) -> tuple[np.ndarray, l
     field = str(path)
     if path.suffix.lower() not in IMAGE_SUFFIXES:
         raise InputError(field, f"unsupported image type {path.suffix or '(none)'}", "a .png, .tif/.tiff or .exr image")
-    if not path.is_file():
-        raise InputError(field, "no such file", "an image file")
-    if path.suffix.lower() == ".exr":
-        if srgb:
-            raise InputError("srgb", "EXR images hold linear values", "no sRGB decoding for an EXR image")
-        return _read_exr(path)
-    image, names = _read_integer_image(path)
+    pixels, names, linear = read_image_file(path, field)
+    if linear and srgb:
+        raise InputError("srgb", "EXR images hold linear values", "no sRGB decoding for an EXR image")
+    if names[-1] == "A":
+        pixels, names = pixels[:, :, :3], names[:3]
+    image = pixels.astype(float)
     return (_srgb_to_linear(image) if srgb else image), names
-
-
-def _read_integer_image(path: Path) -> tuple[np.ndarray, list[str]]:
-    """8/16-bit PNG or TIFF through OpenCV, as RGB (or one channel) in 0..1."""
-    import cv2
-
-    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if data is None:
-        raise InputError(str(path), "not a readable PNG/TIFF image", "an 8- or 16-bit PNG or TIFF")
-    scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(data.dtype)
-    if scale is None:
-        raise InputError(str(path), f"{data.dtype} pixels", "8- or 16-bit integer pixels (or an EXR for floats)")
-    if data.ndim == 2:
-        return data[..., None] / scale, ["Y"]
-    if data.ndim == 3 and data.shape[2] in (3, 4):
-        return data[..., 2::-1] / scale, ["R", "G", "B"]  # BGR(A) → RGB, alpha dropped
-    raise InputError(str(path), f"{data.shape[2] if data.ndim == 3 else data.ndim} channels", "1 or 3 channels (or 4 with alpha)")
 
 
 def _srgb_to_linear(value: np.ndarray) -> np.ndarray:
     """The sRGB decoding (IEC 61966-2-1) of values in 0..1."""
     return np.where(value <= 0.04045, value / 12.92, ((value + 0.055) / 1.055) ** 2.4)
-
-
-def _read_exr(path: Path) -> tuple[np.ndarray, list[str]]:
-    """A single-part EXR's R, G, B channels, or its only channel, as float64."""
-    import OpenEXR
-
-    try:
-        exr = OpenEXR.File(str(path), separate_channels=True)
-    except RuntimeError as error:
-        raise InputError(str(path), "not a readable OpenEXR file", "an EXR image") from error
-    channels = {name: channel.pixels for name, channel in exr.channels().items()}
-    if {"R", "G", "B"} <= set(channels):
-        names = ["R", "G", "B"]
-        image = np.stack([channels[name] for name in names], axis=-1).astype(float)
-    elif len(channels) == 1:
-        names = ["Y"]
-        image = next(iter(channels.values())).astype(float)[..., None]
-    else:
-        raise InputError(str(path), f"channels {sorted(channels)}", "R, G, B channels or a single channel")
-    if not np.all(np.isfinite(image)):
-        raise InputError(str(path), "pixels are not finite numbers", "finite float pixels")
-    return image, names
 
 
 def slanted_edge_sfr(image: np.ndarray, channel_names: list[str], roi: tuple[int, int, int, int] | None = None) -> EdgeAnalysis:

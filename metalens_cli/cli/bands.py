@@ -6,12 +6,24 @@ import click
 
 from metalens_cli.analysis import bands as model
 from metalens_cli.cli import render
-from metalens_cli.cli.options import BandSpec, Interval, Length, json_option, load_preset_option, pick, plot_option, preset_option
+from metalens_cli.cli.options import (
+    BandSpec,
+    Interval,
+    json_option,
+    Length,
+    load_preset_option,
+    MetalensGroup,
+    Number,
+    pick,
+    plot_option,
+    preset_option,
+    WavelengthInterval,
+)
 from metalens_cli.errors import InputError
 from metalens_cli.io.units import INTERVAL_FORM, LENGTH_FORM, format_length
 
 
-@click.group()
+@click.group(cls=MetalensGroup)
 def bands():
     """Multi-band filter checks."""
 
@@ -78,10 +90,10 @@ def _render(report: model.BandsReport) -> None:
 @preset_option
 @click.option("--band", "band_specs", type=BandSpec(), multiple=True, help="Pass band CENTER:WIDTH (width = FWHM), e.g. 457nm:22nm; repeatable.")
 @click.option("--filter-csv", type=click.Path(dir_okay=False), help="Filter transmission CSV: wavelength_nm,transmission (0-1 or %).")
-@click.option("--threshold", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.5, show_default=True, help="Transmission above which a CSV filter passes.")
+@click.option("--threshold", type=Number(0, 1, min_open=True, max_open=True), default=0.5, show_default=True, help="Transmission above which a CSV filter passes.")
 @click.option("--f", "f_m", type=Length(), help="Focal length, e.g. 4mm.")
 @click.option("--z-near", "z_near", type=Interval(), help="Near (obstruction) depth, or a range that must hold throughout: 45mm or 40mm:50mm.")
-@click.option("--sensor-range", type=Interval(), help="Sensor's wavelength range [default: preset's, else 400nm:700nm].")
+@click.option("--sensor-range", type=WavelengthInterval(), help="Sensor's wavelength range [default: preset's, else 400nm:700nm].")
 @json_option
 @plot_option
 @click.pass_context

@@ -6,7 +6,7 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import SeedList, json_option, plot_option
+from metalens_cli.cli.options import announce, json_option, max_memory_option, MetalensCommand, OutputFile, plot_option, SeedList
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.cli.simulate import capture_options, setup
 
@@ -14,7 +14,7 @@ MATCH_METHODS = ("luminance", "lstsq")  # imaging.metrics.MATCH_METHODS (not imp
 LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 
 
-@click.command("evaluate")
+@click.command("evaluate", cls=MetalensCommand)
 @click.argument("specs", metavar="DESIGN...", nargs=-1, required=True)
 @capture_options
 @click.option("--seed", "seeds", type=SeedList(), default="0", show_default=True,
@@ -22,7 +22,7 @@ LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 @click.option("--obstruction", default="dirt,fence", show_default=True, help="Comma-separated: dirt, fence, drops, rain, file:PATH.png.")
 @click.option("--match", type=click.Choice(MATCH_METHODS), default="luminance", show_default=True,
               help="Photometric match before the metrics: luminance mean/std (the paper's) or least squares.")
-@click.option("--csv", "csv_path", type=click.Path(dir_okay=False), help="Write the rows (means and CIs) as CSV.")
+@click.option("--csv", "csv_path", type=OutputFile(), help="Write the rows (means and CIs) as CSV.")
 @click.option("--lpips-weights", "lpips_weights", type=click.Path(exists=True, file_okay=False),
               help="Directory with alexnet-owt-7be5be79.pth and lpips's v0.1 alex.pth "
                    "(without it: $METALENS_LPIPS_WEIGHTS, then torch hub's checkpoints with an installed lpips; "
@@ -31,11 +31,12 @@ LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
               help="Reconstruction runs (metalens reconstruct train), one per DESIGN in order, comma-separated or repeated; "
                    "'-' for a design without one. Adds Recon rows.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@max_memory_option
 @json_option
 @plot_option
 def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
              pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seeds, obstruction, match,
-             csv_path, lpips_weights, recon_runs, quiet, as_json, plot_path):
+             csv_path, lpips_weights, recon_runs, quiet, max_memory, as_json, plot_path):
     """Unobstructed and obstructed captures of each DESIGN against the clean images.
 
     Every design sees the same units (image, seed). Per cell: the mean over units with a 95 %
@@ -47,7 +48,10 @@ def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near
     """
     from metalens_cli.imaging.evaluation import EvaluationSettings, evaluate as run_evaluation, metric_names
     from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
+    from metalens_cli.imaging.images import image_count
     from metalens_cli.imaging.obstructions import parse_obstructions
+    from metalens_cli.imaging.pipeline import estimate_captures
+    from metalens_cli.io.resources import Estimate
 
     kinds = parse_obstructions(obstruction)
     lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
@@ -58,6 +62,12 @@ def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near
                                   s["wavelengths_m"], images, limit, s["obstruction_params"], formation, match, alpha_gain,
                                   photons, read_noise, psf_pixels, s["device"])
     reconstructors = _reconstructors(recon_runs, s["designs"], s["device"])
+    count = image_count(images, limit)
+    costs = [estimate_captures(design, s["z_near_interval_m"][0], s["z_far_interval_m"][0], s["wavelengths_m"], s["pixel_pitch_m"],
+                               s["pixels"], count, psf_pixels) for design in s["designs"]]
+    announce(Estimate(f"evaluate of {len(s['designs'])} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} obstruction(s)",
+                      max(memory for memory, _ in costs), "--psf-pixels" if psf_pixels else "--pixels",
+                      len(seeds) * len(kinds) * sum(seconds for _, seconds in costs)), max_memory)
     with progress_bar("evaluate", quiet) as update:
         result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update, reconstructors)
     notes = [n for n in (lpips_skip,) if n]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Length, design_options, json_option, load_preset_option, pick
+from metalens_cli.cli.options import announce, design_options, json_option, Length, load_preset_option, max_memory_option, MetalensCommand, OutputFile, pick
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.io import units
 
@@ -38,22 +38,23 @@ class AnglesSpec(click.ParamType):
         return int(text)
 
 
-@click.command("export-gds")
+@click.command("export-gds", cls=MetalensCommand)
 @design_options
 @click.option("--width", "width_m", type=Length(), help="Nanofin width (the side at angle θ) [preset's].")
 @click.option("--length", "length_m", type=Length(), help="Nanofin length [preset's].")
 @click.option("--layer", type=LayerSpec(), default="1/0", show_default=True, help="GDS layer/datatype.")
 @click.option("--dbu", "dbu_m", type=Length(), default="1nm", show_default=True, help="Database unit: vertices are rounded to it.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Output file, .gds or .oas.")
+@click.option("-o", "--output", type=OutputFile(), required=True, help="Output file, .gds or .oas.")
 @click.option("--format", "fmt", type=click.Choice(("gds", "oas")), help="Output format [from the extension].")
 @click.option("--angles", type=AnglesSpec(), default="exact", show_default=True,
               help="exact: one polygon per fin at its own θ; K: θ quantised to K referenced cells (phase error ≤ π/K).")
 @click.option("--verify", is_flag=True, help="Read the file back with KLayout and check count and a random sample of fins; exit 1 on mismatch.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@max_memory_option
 @json_option
 @click.pass_context
 def export_gds(ctx, spec, preset_path, f_m, aperture_m, pitch_m, width_m, length_m, layer, dbu_m, output, fmt, angles,
-               verify, quiet, as_json):
+               verify, quiet, max_memory, as_json):
     """Write the nanofin layout of a design for e-beam lithography.
 
     The lens centre is the layout origin and a site; sites at multiples of the pitch within D/2
@@ -62,7 +63,9 @@ def export_gds(ctx, spec, preset_path, f_m, aperture_m, pitch_m, width_m, length
     the fins and a text element recording the tool version, design and geometry.
     """
     from metalens_cli.io.designs import resolve_design
-    from metalens_cli.io.layout import FinGeometry, export_layout, format_of
+    from metalens_cli.io.layout import FinGeometry, estimate_layout, export_layout, format_of
+    from metalens_cli.io.layout_verify import require_klayout
+    from metalens_cli.io.resources import Estimate
 
     preset = load_preset_option(preset_path)
     design = resolve_design(spec, preset, f_m, aperture_m, pitch_m)
@@ -76,6 +79,10 @@ def export_gds(ctx, spec, preset_path, f_m, aperture_m, pitch_m, width_m, length
         datatype=layer[1],
     )
     fmt = format_of(output, fmt)
+    fins, disk, memory, seconds = estimate_layout(design.lens.aperture_m, geometry.pitch_m, fmt, angles)
+    announce(Estimate(f"export-gds of {fins:,} nanofins", memory, "--aperture", seconds, disk), max_memory, output)
+    if verify:
+        require_klayout()
     with progress_bar("export-gds", quiet) as update:
         report = export_layout(design, geometry, output, fmt, angles, update)
     checked = None

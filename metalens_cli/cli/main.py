@@ -1,19 +1,29 @@
 """The `metalens` Click app: a lazy group, so `metalens --help` imports no subcommand's deps.
 
-Error contract: bad input (a Click usage error or a :class:`MetalensError`) prints one line
-``metalens: error: …`` on stderr and exits 2, without a traceback.
+Error contract (docs/failures.md): every failure prints one line ``metalens: error: …`` on
+stderr, never a traceback. Exit codes: 2 bad input (a Click usage error, a
+:class:`MetalensError`, an output path that cannot be written), 1 the environment failed (disk
+full, file-size limit, out of memory, standard output closed) or an internal error, 130 Ctrl-C,
+143 SIGTERM; outputs being written are removed (see :mod:`metalens_cli.io.atomic`).
 """
 
 from __future__ import annotations
 
+import errno
 import importlib
+import os
+import signal
 import sys
+import warnings
 
 import click
 
 from metalens_cli import __version__
-from metalens_cli.errors import MetalensError
+from metalens_cli.errors import MetalensError, Terminated
 from metalens_cli.runtime import retain_freed_memory
+
+BAD_PATH_ERRNOS = {errno.ENOENT, errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR,
+                   errno.ENAMETOOLONG, errno.ELOOP, errno.EEXIST}
 
 
 class LazyGroup(click.Group):
@@ -55,34 +65,95 @@ COMMANDS = {
 }
 
 
-@click.group(cls=LazyGroup, lazy=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=LazyGroup, lazy=COMMANDS, invoke_without_command=True,
+             context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="metalens")
-def app():
+@click.pass_context
+def app(ctx):
     """Design and analyse learned split-spectrum metalenses.
 
     Lengths take units: 4mm, 450nm, 1.85um, inf. Results go to stdout (--json for
-    machines), messages to stderr. Exit codes: 0 success, 1 a check failed, 2 bad input.
+    machines), messages to stderr. Exit codes: 0 success, 1 a check failed or the environment
+    failed (disk full, out of memory), 2 bad input; see docs/failures.md.
     """
+    if ctx.invoked_subcommand is None:
+        click.echo(ctx.get_help())
 
 
 def run(argv: list[str] | None = None) -> int:
-    """Run the app on ``argv`` and return the exit code (errors rendered as one line)."""
+    """Run the app on ``argv`` and return the exit code (every error rendered as one line)."""
     try:
         code = app.main(args=argv, prog_name="metalens", standalone_mode=False)
     except click.exceptions.Abort:
-        click.echo("metalens: aborted", err=True)
-        return 130
+        return _fail("aborted", 130, prefix="metalens: ")
+    except Terminated:
+        return _fail("terminated", 143, prefix="metalens: ")
     except click.ClickException as exc:
-        click.echo(f"metalens: error: {exc.format_message()}", err=True)
-        return 2
+        return _fail(exc.format_message(), 2)
     except MetalensError as exc:
-        click.echo(f"metalens: error: {exc}", err=True)
-        return 2
+        return _fail(str(exc), 2)
+    except OSError as exc:
+        return _fail(os_error_line(exc), 2 if exc.errno in BAD_PATH_ERRNOS else 1)
+    except MemoryError:
+        return _fail("out of memory; ask for less (fewer pixels, wavelengths or a smaller batch) or set --max-memory", 1)
+    except Exception as exc:  # a bug: still one line; the traceback on request
+        if os.environ.get("METALENS_TRACEBACK"):
+            raise
+        if "allocate" in str(exc) and "memory" in str(exc):  # torch's allocator refusing
+            return _fail("out of memory; ask for less (fewer pixels, wavelengths or a smaller batch) or set --max-memory", 1)
+        first_line = (str(exc).strip().splitlines() or [""])[0]
+        return _fail(f"internal error: {type(exc).__name__}: {first_line} (METALENS_TRACEBACK=1 shows where; please report it)", 1)
     return code if isinstance(code, int) else 0
+
+
+def os_error_line(exc: OSError) -> str:
+    """``PATH: reason`` for an OSError, with a hint for full disks and size limits."""
+    where = exc.filename if exc.filename is not None else "standard output"
+    reason = exc.strerror or str(exc)
+    hint = {errno.ENOSPC: " (free space on that disk or write elsewhere)",
+            errno.EFBIG: " (the file-size limit, ulimit -f, is reached)"}.get(exc.errno, "")
+    return f"{where}: {reason}{hint}"
+
+
+def _fail(message: str, code: int, prefix: str = "metalens: error: ") -> int:
+    with _suppress_closed_stderr():
+        click.echo(prefix + message, err=True)
+    return code
+
+
+class _suppress_closed_stderr:
+    """Nothing can be said when stderr itself is gone; the exit code still tells."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, value, traceback):
+        return kind is not None and issubclass(kind, OSError)
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Python and numpy warnings as one line each, like every other message."""
+    with _suppress_closed_stderr():
+        click.echo(f"metalens: warning: {category.__name__}: {str(message).strip().splitlines()[0] if str(message).strip() else ''}",
+                   err=True)
 
 
 def cli() -> None:
     """Console-script entry point: the process is ours, so keep freed FFT work arrays (see
-    :mod:`metalens_cli.runtime`), then run."""
+    :mod:`metalens_cli.runtime`), turn SIGTERM into :class:`Terminated` (outputs being written
+    are cleaned up as on Ctrl-C), print warnings as single lines, run, and report a standard output that cannot take the
+    results (a full device, a closed pipe) as one line, exit 1."""
     retain_freed_memory()
-    sys.exit(run(sys.argv[1:]))
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    warnings.showwarning = _show_warning
+    code = run(sys.argv[1:])
+    try:
+        sys.stdout.flush()
+    except OSError as exc:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing left to flush at exit
+        code = _fail(os_error_line(exc), 1) if exc.errno != errno.EPIPE else 1
+    sys.exit(code)

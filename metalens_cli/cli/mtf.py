@@ -8,7 +8,7 @@ import math
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Length, json_option, plot_option
+from metalens_cli.cli.options import json_option, Length, MetalensCommand, Number, OutputFile, plot_option
 from metalens_cli.io.atomic import atomic_write
 
 NYQUIST_CY_PER_PX = 0.5
@@ -39,16 +39,16 @@ def _roi(ctx, param, text: str | None) -> tuple[int, int, int, int] | None:
     return tuple(int(part) for part in parts)
 
 
-@click.command("mtf")
+@click.command("mtf", cls=MetalensCommand)
 @click.argument("cube", required=False, type=click.Path(dir_okay=False))
 @click.option("--edge", "edge_path", type=click.Path(dir_okay=False), help="Slanted-edge image (PNG/TIFF 8/16-bit, EXR float; 1 or 3 channels) instead of a cube.")
 @click.option("--at", "at_lpmm", callback=_frequencies, help="Cube: also report the MTF at these frequencies (lp/mm), e.g. 50,100.")
-@click.option("--na", type=click.FloatRange(0, 1, min_open=True, max_open=True), help="Cube: NA for the diffraction-limited reference [the file's na].")
+@click.option("--na", type=Number(0, 1, min_open=True, max_open=True), help="Cube: NA for the diffraction-limited reference [the file's na].")
 @click.option("--remove-pixel-mtf", is_flag=True, help="Cube: divide the square-pixel aperture MTF out of every curve (included by default).")
 @click.option("--roi", callback=_roi, help="Edge: region x,y,w,h in pixels [automatic: around the one dominant edge].")
 @click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Edge: pixel pitch, to add lp/mm to cycles/pixel, e.g. 1.85um.")
 @click.option("--srgb", is_flag=True, help="Edge: decode 8/16-bit sRGB values to linear first (default: taken as linear).")
-@click.option("--csv", "csv_path", type=click.Path(dir_okay=False), help="Also write the curves as CSV (one row per curve and frequency).")
+@click.option("--csv", "csv_path", type=OutputFile(), help="Also write the curves as CSV (one row per curve and frequency).")
 @json_option
 @plot_option
 def mtf(cube, edge_path, at_lpmm, na, remove_pixel_mtf, roi, pixel_pitch_m, srgb, csv_path, as_json, plot_path):

@@ -5,12 +5,21 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Length, LengthList, flatten, json_option, load_preset_option, preset_option
+from metalens_cli.cli.options import (
+    flatten,
+    json_option,
+    Length,
+    LengthList,
+    load_preset_option,
+    MetalensGroup,
+    OutputFile,
+    preset_option,
+)
 
 DEFAULT_KINDS = "dirt,fence,drops,rain"
 
 
-@click.group()
+@click.group(cls=MetalensGroup)
 def obstruction():
     """Obstruction generators."""
 
@@ -23,7 +32,7 @@ def obstruction():
 @click.option("--pixels", type=click.IntRange(16, 4096), help="Sensor N × N [preset's, else 512].")
 @click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Pixel pitch [preset's, else 1.85um].")
 @click.option("--seed", type=click.IntRange(0), default=0, show_default=True)
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Sheet PNG.")
+@click.option("-o", "--output", type=OutputFile((".png",)), required=True, help="Sheet PNG.")
 @json_option
 def preview(preset_path, kinds, depths, f_m, pixels, pixel_pitch_m, seed, output, as_json):
     """Write a sheet of example obstructions (rows: depths; columns: kinds) with their coverage.

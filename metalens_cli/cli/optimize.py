@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import torch_device, training_options
+from metalens_cli.cli.options import announce, max_memory_option, MetalensCommand, OutputFolder, torch_device, training_options
 from metalens_cli.cli.progress import run_training
 
 
-@click.command("optimize")
+@click.command("optimize", cls=MetalensCommand)
 @click.argument("preset_path", metavar="PRESET.toml", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(file_okay=False), help="Run directory [runs/PRESET-NAME].")
+@click.option("-o", "--output", type=OutputFolder(), help="Run directory [runs/PRESET-NAME].")
 @training_options("optimize")
-def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, as_json):
+@max_memory_option
+def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, as_json, max_memory):
     """Learn the rotation map of PRESET.toml (the paper's Eq. 4) and write a run directory.
 
     The run directory holds the resolved preset, theta.npy, psf.exr, loss.csv/png, sample
@@ -25,13 +27,20 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
     """
     import torch
 
-    from metalens_cli.design.training import train
+    from metalens_cli.design.training import estimate_training, train
+    from metalens_cli.io.resources import Estimate
     from metalens_cli.io.presets import load_preset
 
     if threads:
         torch.set_num_threads(threads)
     preset = load_preset(preset_path)
     run_dir = Path(output) if output else Path("runs") / preset.name
+    if not resume:
+        planned = dataclasses.replace(preset, optimize=dataclasses.replace(
+            preset.optimize, **{k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}))
+        memory, seconds = estimate_training(planned)
+        announce(Estimate(f"optimize of {planned.optimize.steps} steps, batch {planned.optimize.batch_size}", memory,
+                          "optimize.batch_size", seconds), max_memory)
     report = run_training("optimize", quiet, f"metalens optimize {preset_path} -o {run_dir} --resume",
                           lambda progress: train(preset, run_dir, steps=steps, seed=seed, device=torch_device(device),
                                                  resume=resume, on_step=progress.step))

@@ -1,15 +1,23 @@
-"""Click parameter types for lengths with units, and the shared --preset/--json options.
+"""Click parameter types (lengths with units, finite numbers, devices, output paths), the
+command class that checks outputs against inputs, and the shared --preset/--json options.
 
 Each type converts to SI metres through :mod:`metalens_cli.io.units`; a bad value becomes a
 Click usage error naming the option and the accepted form (rendered as one line, exit 2).
+Output paths are checked while the command line is parsed, before any work.
 """
 
 from __future__ import annotations
+
+import math
+import os
+import re
 
 import click
 
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
+from metalens_cli.io.atomic import check_output_file, check_output_folder, same_file
+from metalens_cli.io.tables import check_wavelengths
 
 
 def _option_name(param: click.Parameter | None) -> str:
@@ -66,6 +74,31 @@ class Interval(_UnitType):
         return units.parse_interval(text, field)
 
 
+class _Optical:
+    """Mixin of a length type: every value parsed must be an optical wavelength (100 nm-10 µm)."""
+
+    def parse(self, text, field):
+        value = super().parse(text, field)
+        check_wavelengths(value if isinstance(value, (list, tuple)) else [value], field)
+        return value
+
+
+class Wavelength(_Optical, Length):
+    """One optical wavelength: ``532nm``."""
+
+    name = "wavelength"
+
+
+class WavelengthList(_Optical, LengthList):
+    """Optical wavelengths and ranges: ``457nm,530nm`` or ``430:645:5nm``."""
+
+    name = "wavelengths"
+
+
+class WavelengthInterval(_Optical, Interval):
+    """An interval of optical wavelengths: ``400nm:700nm``."""
+
+
 class BandSpec(_UnitType):
     """``CENTER:WIDTH`` with units, e.g. ``457nm:22nm`` → (centre, width) in metres."""
 
@@ -75,7 +108,9 @@ class BandSpec(_UnitType):
         parts = text.split(":")
         if len(parts) != 2:
             raise InputError(field, f"{text!r} is not CENTER:WIDTH", "CENTER:WIDTH with units, e.g. 457nm:22nm")
-        return tuple(units.parse_length(part, field) for part in parts)
+        centre, width = (units.parse_length(part, field) for part in parts)
+        check_wavelengths([centre], field)
+        return centre, width
 
 
 class SeedList(click.ParamType):
@@ -96,6 +131,130 @@ class SeedList(click.ParamType):
         if not seeds or min(seeds) < 0 or len(seeds) > 1000:
             self.fail(f"{value!r} (expected seeds like 0, 0,1,2 or 0:2)", param, ctx)
         return seeds
+
+
+class Number(click.FloatRange):
+    """A finite float in a range: ``click.FloatRange`` lets ``nan`` and ``inf`` through."""
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
+DEVICE_FORM = "cpu, cuda, cuda:N or mps"
+
+
+class Device(click.ParamType):
+    """A torch device name, checked for form without importing torch (:func:`torch_device`
+    checks that the machine has it)."""
+
+    name = "device"
+
+    def convert(self, value, param, ctx):
+        if not re.fullmatch(r"cpu|cuda(:\d{1,3})?|mps", str(value)):
+            self.fail(f"unknown device {value!r} (expected {DEVICE_FORM})", param, ctx)
+        return value
+
+
+class MemorySize(click.ParamType):
+    """A memory size: ``8GiB``, ``500MB``, ``2e9`` (bytes) → int bytes."""
+
+    name = "size"
+    UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12,
+             "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, int):
+            return value
+        match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", str(value))
+        unit = match.group(2).lower() if match else ""
+        if not match or unit not in self.UNITS or not 0 < float(match.group(1)) < 1e18:
+            self.fail(f"{value!r} is not a memory size (expected e.g. 8GiB, 500MB or bytes)", param, ctx)
+        return int(float(match.group(1)) * self.UNITS[unit])
+
+
+max_memory_option = click.option("--max-memory", type=MemorySize(),
+                                 help="Refuse to start when the estimated memory exceeds this, e.g. 8GiB [90 % of the available memory].")
+
+
+def announce(estimate, max_memory: int | None, output=None) -> None:
+    """Check ``estimate`` (:func:`metalens_cli.io.resources.check`) and, for a long job, say it on
+    stderr before starting (also under --quiet: a pipeline's log should show why it waits)."""
+    from metalens_cli.io import resources
+
+    resources.check(estimate, max_memory, output)
+    if resources.is_long(estimate):
+        click.echo(f"metalens: {estimate.describe()}", err=True)
+
+
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".eps", ".ps")
+
+
+class OutputFile(click.ParamType):
+    """A file the command will write: checked at once (:func:`check_output_file`), optionally
+    for its suffix; ``MetalensCommand`` also refuses one that is among the inputs."""
+
+    name = "file"
+
+    def __init__(self, suffixes: tuple[str, ...] | None = None):
+        self.suffixes = suffixes
+
+    def convert(self, value, param, ctx):
+        try:
+            return str(check_output_file(value, _option_name(param), suffixes=self.suffixes))
+        except InputError as exc:
+            self.fail(f"{exc.message} (expected {exc.expected})", param, ctx)
+
+
+class OutputFolder(click.ParamType):
+    """A folder the command will create or write into: checked at once, created only when the
+    command starts writing (:func:`check_output_folder`)."""
+
+    name = "directory"
+
+    def convert(self, value, param, ctx):
+        try:
+            return str(check_output_folder(value, _option_name(param)))
+        except InputError as exc:
+            self.fail(f"{exc.message} (expected {exc.expected})", param, ctx)
+
+
+class MetalensCommand(click.Command):
+    """A command that, before running, refuses an output path naming one of its inputs (an
+    output file equal to any existing file given as another parameter, or an output folder
+    equal to an input folder or holding an input file it would write over), and whose core
+    errors name the option (``--wavelengths``) where the core named its argument."""
+
+    def invoke(self, ctx):
+        outputs, inputs = [], []
+        for param in self.params:
+            value = ctx.params.get(param.name)
+            values = value if isinstance(value, (list, tuple)) else [value]
+            if isinstance(param.type, (OutputFile, OutputFolder)):
+                outputs += [(param, v) for v in values if v is not None]
+            else:
+                inputs += [v for v in values if isinstance(v, str) and os.path.exists(v)]
+        for param, output in outputs:
+            for path in inputs:
+                if same_file(output, path) or (isinstance(param.type, OutputFolder) and os.path.isfile(path)
+                                               and same_file(output, os.path.dirname(path) or ".")):
+                    raise InputError(_option_name(param), f"{output!r} is also an input ({path!r}); it would be overwritten",
+                                     "an output path apart from the inputs")
+        try:
+            return super().invoke(ctx)
+        except InputError as exc:  # the core names its argument (wavelengths): name the option (--wavelengths)
+            param = next((p for p in self.params if p.name == exc.field and p.opts), None)
+            if param is None:
+                raise
+            raise InputError(_option_name(param), exc.message, exc.expected) from None
+
+
+class MetalensGroup(click.Group):
+    """A subcommand group whose commands are :class:`MetalensCommand`."""
+
+    command_class = MetalensCommand
 
 
 def flatten(values) -> list[float]:
@@ -141,7 +300,7 @@ def training_options(section: str):
         return apply_options(command, [
             click.option("--steps", type=click.IntRange(0), help=f"Training steps [the preset's {section}.steps]."),
             click.option("--seed", type=click.IntRange(0), help=f"Seed of every random draw [the preset's {section}.seed]."),
-            click.option("--device", default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps (under torchrun: each rank's)."),
+            click.option("--device", type=Device(), default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps (under torchrun: each rank's)."),
             click.option("--resume", is_flag=True, help="Continue the run in --output from its newest checkpoint (with the preset saved there)."),
             click.option("--threads", type=click.IntRange(1), help="CPU threads for torch [torch's default]."),
             click.option("--quiet", is_flag=True, help="No progress bar or progress lines."),
@@ -152,8 +311,9 @@ def training_options(section: str):
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else.")
 plot_option = click.option(
-    "--plot", "plot_path", type=click.Path(dir_okay=False), help="Write a figure (PNG) to this file."
+    "--plot", "plot_path", type=OutputFile(PLOT_SUFFIXES), help="Write a figure (PNG, PDF or SVG, by the suffix) to this file."
 )
+device_option = click.option("--device", type=Device(), default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps.")
 
 
 def load_preset_option(path: str | None):
@@ -180,12 +340,13 @@ def torch_device(name: str):
     """A torch.device, refusing devices this machine does not have."""
     import torch
 
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise InputError("--device", f"unknown device {name!r}", "cpu, cuda, cuda:N or mps") from None
+    if not re.fullmatch(r"cpu|cuda(:\d{1,3})?|mps", name):
+        raise InputError("--device", f"unknown device {name!r}", DEVICE_FORM)
+    device = torch.device(name)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise InputError("--device", "CUDA is not available on this machine", "cpu")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise InputError("--device", f"{name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)", "cuda:0 … cuda:N-1")
     if device.type == "mps" and not torch.backends.mps.is_available():
         raise InputError("--device", "MPS is not available on this machine", "cpu")
     return device

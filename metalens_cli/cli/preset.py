@@ -5,11 +5,11 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import json_option
+from metalens_cli.cli.options import json_option, MetalensGroup
 from metalens_cli.io.presets import load_preset, to_dict
 
 
-@click.group()
+@click.group(cls=MetalensGroup)
 def preset():
     """Inspect presets."""
 

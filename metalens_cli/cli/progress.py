@@ -66,22 +66,24 @@ class TrainingProgress:
 def run_training(name: str, quiet: bool, resume_command: str, start: Callable[["TrainingProgress"], object]) -> dict | None:
     """Run ``start(progress)`` (a training call returning an object with ``report``) under a
     :class:`TrainingProgress` shown by rank 0 only; print its notes. Ctrl-C: the checkpoint and
-    ``resume_command`` on stderr, exit 130. Returns the report on rank 0, None on other ranks."""
+    ``resume_command`` on stderr, exit 130 (143 after SIGTERM). Returns the report on rank 0, None on other ranks."""
     import os
 
     import click
 
     from metalens_cli.design.training import TrainingInterrupted
+    from metalens_cli.errors import Terminated
 
     rank0 = int(os.environ.get("RANK", "0")) == 0
     with TrainingProgress(name, quiet or not rank0) as progress:
         try:
             summary = start(progress)
         except TrainingInterrupted as stop:
+            terminated = isinstance(stop.__context__, Terminated)
             if rank0:
-                click.echo(f"metalens: interrupted after step {stop.step}; checkpoint {stop.checkpoint}; "
-                           f"continue with: {resume_command}", err=True)
-            sys.exit(130)
+                click.echo(f"metalens: {'terminated' if terminated else 'interrupted'} after step {stop.step}; "
+                           f"checkpoint {stop.checkpoint}; continue with: {resume_command}", err=True)
+            sys.exit(143 if terminated else 130)
     if not rank0:
         return None
     console = _stderr_console()

@@ -7,30 +7,47 @@ import math
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Length, LengthList, design_options, flatten, json_option, load_preset_option, plot_option, torch_device
+from metalens_cli.cli.options import (
+    announce,
+    design_options,
+    device_option,
+    flatten,
+    json_option,
+    Length,
+    LengthList,
+    load_preset_option,
+    max_memory_option,
+    MetalensCommand,
+    OutputFile,
+    plot_option,
+    torch_device,
+    WavelengthList,
+)
 from metalens_cli.cli.progress import progress_bar
+from metalens_cli.errors import InputError
 
 PROPAGATORS = ("auto", "asm", "radial", "rs")
 DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
 
 
-@click.command("psf-scan")
+@click.command("psf-scan", cls=MetalensCommand)
 @design_options
-@click.option("--wavelengths", type=LengthList(), multiple=True, help="Wavelengths, e.g. 430:645:5nm (default) or 457nm,530nm.")
+@click.option("--wavelengths", type=WavelengthList(), multiple=True, help="Wavelengths, e.g. 430:645:5nm (default) or 457nm,530nm.")
 @click.option("--depths", type=LengthList(allow_inf=True), multiple=True, help="Source depths, e.g. 45mm,inf (default).")
 @click.option("--pixels", type=click.IntRange(1, 8192), help="Sensor window N × N [preset's, else 512].")
 @click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um].")
 @click.option("--propagator", type=click.Choice(PROPAGATORS), default="auto", show_default=True, help="auto: radial for radially symmetric designs, else asm.")
 @click.option("--dtype", type=click.Choice(("float32", "float64")), default="float32", show_default=True)
-@click.option("--device", default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps.")
+@device_option
 @click.option("--force", is_flag=True, help="Compute even when the sampling guard refuses the grid.")
 @click.option("--check-accuracy", is_flag=True, help="Recompute the sharpest PSF with doubled sampling and with the rs reference; report relative L2.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Output EXR file (see docs/formats.md).")
+@click.option("-o", "--output", type=OutputFile((".exr",)), required=True, help="Output EXR file (see docs/formats.md).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@max_memory_option
 @json_option
 @plot_option
 def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, pixels, pixel_pitch_m, propagator, dtype,
-             device, force, check_accuracy, output, quiet, as_json, plot_path):
+             device, force, check_accuracy, output, quiet, max_memory, as_json, plot_path):
     """PSF cube over wavelength × depth of a design, with cost and accuracy, written as EXR.
 
     Each PSF is the fraction of the power through the aperture landing on each pixel of an
@@ -40,7 +57,9 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
     import torch
 
     from metalens_cli.io.designs import resolve_design
-    from metalens_cli.io.exr import write_psf_cube
+    from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS, write_psf_cube
+    from metalens_cli.io.resources import Estimate
+    from metalens_cli.optics.psf import estimate_psf
     from metalens_cli.io.units import parse_length_list
     from metalens_cli.optics.scan import run_scan
 
@@ -51,6 +70,13 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
     pixel_pitch_m = pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M)
     wavelengths_m = flatten(wavelengths) or parse_length_list("430:645:5nm", "--wavelengths")
     depths_m = flatten(depths) or [0.045, math.inf]
+    for option, values, limit in (("--wavelengths", wavelengths_m, MAX_WAVELENGTHS), ("--depths", depths_m, MAX_DEPTHS)):
+        if len(values) > limit:
+            raise InputError(option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values")
+    cost = estimate_psf(design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, propagator,
+                        getattr(torch, dtype), force)
+    announce(Estimate(f"psf-scan of {len(wavelengths_m) * len(depths_m)} PSFs of {pixels}² pixels", cost.memory_bytes,
+                      "--pixels", cost.seconds, disk_bytes=len(wavelengths_m) * len(depths_m) * pixels**2 * 4), max_memory, output)
     with progress_bar("psf-scan", quiet) as update:
         scan = run_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, propagator,
                         getattr(torch, dtype), torch_device(device), force, check_accuracy, update)

@@ -9,14 +9,25 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Interval, Length, json_option, torch_device, training_options
+from metalens_cli.cli.options import (
+    device_option,
+    Interval,
+    json_option,
+    Length,
+    MetalensGroup,
+    Number,
+    OutputFile,
+    OutputFolder,
+    torch_device,
+    training_options,
+)
 from metalens_cli.cli.progress import run_training
 from metalens_cli.errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")  # imaging.images.SUFFIXES (not imported: it pulls in numpy/cv2)
 
 
-@click.group("reconstruct")
+@click.group("reconstruct", cls=MetalensGroup)
 def reconstruct():
     """The neural back end of a lens (Suppl. Note 5): train, apply, export.
 
@@ -29,7 +40,7 @@ def reconstruct():
 @click.argument("spec", metavar="DESIGN")
 @click.option("--preset", "preset_path", type=click.Path(dir_okay=False),
               help="Reconstruction preset TOML ([network], [train], [data]) [built-in defaults].")
-@click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Run directory (created).")
+@click.option("-o", "--output", type=OutputFolder(), required=True, help="Run directory (created).")
 @click.option("--camera", "camera_path", type=click.Path(dir_okay=False),
               help="Preset giving the camera (lens geometry, filter, sensor, depths) [the design's own, else the paper's sensor].")
 @click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length) [camera's].")
@@ -116,8 +127,8 @@ def _inputs(paths) -> list[Path]:
 @reconstruct.command("apply")
 @click.argument("run", metavar="RUN")
 @click.argument("inputs", metavar="INPUT...", nargs=-1, required=True)
-@click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Output folder (created).")
-@click.option("--device", default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps.")
+@click.option("-o", "--output", type=OutputFolder(), required=True, help="Output folder (created).")
+@device_option
 @click.option("--memory-mib", type=click.IntRange(16), default=1024, show_default=True,
               help="Memory budget of one forward pass; larger images are tiled with overlap.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
@@ -164,8 +175,8 @@ def apply(run, inputs, output, device, memory_mib, quiet, as_json):
 
 @reconstruct.command("export")
 @click.argument("run", metavar="RUN")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Exported program (.pt2).")
-@click.option("--tolerance", type=click.FloatRange(0, min_open=True), default=1e-5, show_default=True,
+@click.option("-o", "--output", type=OutputFile((".pt2",)), required=True, help="Exported program (.pt2).")
+@click.option("--tolerance", type=Number(0, min_open=True), default=1e-5, show_default=True,
               help="Largest absolute difference from `apply` accepted in the check.")
 @json_option
 def export(run, output, tolerance, as_json):

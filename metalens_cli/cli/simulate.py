@@ -8,7 +8,23 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import Interval, Length, LengthList, apply_options, flatten, geometry_options, json_option, load_preset_option, torch_device
+from metalens_cli.cli.options import (
+    announce,
+    max_memory_option,
+    apply_options,
+    device_option,
+    flatten,
+    geometry_options,
+    Interval,
+    json_option,
+    Length,
+    load_preset_option,
+    MetalensCommand,
+    Number,
+    OutputFolder,
+    torch_device,
+    WavelengthList,
+)
 from metalens_cli.errors import InputError
 
 FORMATIONS = ("physical", "paper")  # imaging.formation.FORMATIONS (not imported: it pulls in torch)
@@ -27,13 +43,13 @@ def capture_options(f):
         click.option("--psf-pixels", type=click.IntRange(3, 8192),
                      help="Force one PSF window size for both depths [from the optics: the window that holds the light]."),
         click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um]."),
-        click.option("--wavelengths", type=LengthList(), multiple=True, help="PSF wavelengths mixed into R, G, B [400:700:5nm]."),
+        click.option("--wavelengths", type=WavelengthList(), multiple=True, help="PSF wavelengths mixed into R, G, B [400:700:5nm]."),
         click.option("--formation", type=click.Choice(FORMATIONS), default="physical", show_default=True,
                      help="physical: obstruction light P̂_near ∗ (m ⊙ I_obs); paper: the paper's α ⊙ (P̂_near ∗ I_obs)."),
-        click.option("--alpha-gain", type=click.FloatRange(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."),
-        click.option("--photons", type=click.FloatRange(0), help="Full-well electrons for shot noise (0/absent: none)."),
-        click.option("--read-noise", type=click.FloatRange(0), default=0.0, help="Read-noise σ as a fraction of full scale."),
-        click.option("--device", default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps."),
+        click.option("--alpha-gain", type=Number(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."),
+        click.option("--photons", type=Number(0), help="Full-well electrons for shot noise (0/absent: none)."),
+        click.option("--read-noise", type=Number(0), default=0.0, help="Read-noise σ as a fraction of full scale."),
+        device_option,
     ]
     return geometry_options(apply_options(f, options))
 
@@ -59,29 +75,36 @@ def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, p
             "obstruction_params": in_force.obstruction if in_force is not None else None}
 
 
-@click.command("simulate")
+@click.command("simulate", cls=MetalensCommand)
 @click.argument("spec", metavar="DESIGN")
 @capture_options
 @click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of depths, obstructions and noise.")
 @click.option("--obstruction", default="dirt", show_default=True, help="dirt, fence, drops, rain or file:PATH.png.")
-@click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Output folder (created).")
+@click.option("-o", "--output", type=OutputFolder(), required=True, help="Output folder (created).")
+@max_memory_option
 @json_option
 def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
-             pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seed, obstruction, output, as_json):
+             pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seed, obstruction, output,
+             max_memory, as_json):
     """Simulated captures of clean images through DESIGN with a near obstruction.
 
     Writes, per image, the clean scene and the unobstructed and obstructed captures (PNG for
     viewing, linear EXR), the obstruction and α maps, a contact sheet and simulate.json.
     """
-    from metalens_cli.imaging.images import load_images
+    from metalens_cli.imaging.images import image_count, load_images
     from metalens_cli.imaging.obstructions import parse_obstructions
-    from metalens_cli.imaging.pipeline import channel_psfs, draw_depths, simulate_captures
+    from metalens_cli.imaging.pipeline import channel_psfs, draw_depths, estimate_captures, simulate_captures
+    from metalens_cli.io.resources import Estimate
 
     start = time.perf_counter()
     (kind,) = _single(parse_obstructions(obstruction))
     s = setup([spec], preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device)
     design = s["designs"][0]
     z_near, z_far = draw_depths(s["z_near_interval_m"], s["z_far_interval_m"], seed)
+    memory, seconds = estimate_captures(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], s["pixels"],
+                                        image_count(images, limit), psf_pixels)
+    announce(Estimate(f"simulate on {s['pixels']}² pixels", memory, "--psf-pixels" if psf_pixels else "--pixels", seconds),
+             max_memory)
     psfs = channel_psfs(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], device=s["device"], window=psf_pixels)
     clean = load_images(images, (s["pixels"], s["pixels"]), limit, psfs.margin)
     captures = simulate_captures(clean, kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed, params=s["obstruction_params"],

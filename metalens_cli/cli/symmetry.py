@@ -7,7 +7,21 @@ import click
 from metalens_cli.analysis import symmetry as model
 from metalens_cli.cli import render
 from metalens_cli.cli.progress import progress_bar
-from metalens_cli.cli.options import Length, LengthList, flatten, json_option, load_preset_option, pick, plot_option, preset_option
+from metalens_cli.cli.options import (
+    announce,
+    flatten,
+    json_option,
+    Length,
+    LengthList,
+    load_preset_option,
+    max_memory_option,
+    MetalensCommand,
+    pick,
+    plot_option,
+    preset_option,
+    Wavelength,
+    WavelengthList,
+)
 from metalens_cli.io.units import LENGTH_FORM, format_length
 
 NOTES = {
@@ -17,11 +31,11 @@ NOTES = {
 }
 
 
-@click.command()
+@click.command(cls=MetalensCommand)
 @preset_option
 @click.option("--f", "f_m", type=Length(), help="Focal length (lens-to-design-plane distance), e.g. 4mm.")
-@click.option("--lambda-d", "lambda_d_m", type=Length(), help="Design wavelength, e.g. 450nm.")
-@click.option("--wavelength", "wavelengths", type=LengthList(), multiple=True, help="Wavelengths: 530nm, 500nm,600nm or 430:645:5nm (repeatable). Default 400:700:10nm.")
+@click.option("--lambda-d", "lambda_d_m", type=Wavelength(), help="Design wavelength, e.g. 450nm.")
+@click.option("--wavelength", "wavelengths", type=WavelengthList(), multiple=True, help="Wavelengths: 530nm, 500nm,600nm or 430:645:5nm (repeatable). Default 400:700:10nm.")
 @click.option("--depth", "depths", type=LengthList(allow_inf=True), multiple=True, help="Depths z: the wavelength λd(1 + f/z) focused from there (repeatable; inf allowed).")
 @click.option("--delta-z", "delta_z_m", type=Length(), help="Depth step Δz (> 0, toward the lens) for Δλ = λd·f·(1/z − 1/(z − Δz)).")
 @click.option("--at-depth", "at_depth_m", type=Length(allow_inf=True), help="Depth z at which --delta-z is taken.")
@@ -29,9 +43,11 @@ NOTES = {
 @click.option("--validate", is_flag=True, help="Check the model against the on-axis Rayleigh-Sommerfeld intensity of the hyperbolic lens (needs --aperture).")
 @click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D for --validate, e.g. 2.516mm.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@max_memory_option
 @json_option
 @plot_option
-def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_depth_m, z_near_m, validate, aperture_m, quiet, as_json, plot_path):
+def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_depth_m, z_near_m, validate, aperture_m, quiet,
+             max_memory, as_json, plot_path):
     """Depth z = λd·f/(λ − λd) at which each wavelength focuses on the design plane.
 
     Also the inverse λ = λd(1 + f/z) for --depth, and Δλ for a depth step (--delta-z with
@@ -54,10 +70,16 @@ def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_de
     validation = None
     if validate:
         aperture_m = pick(aperture_m, preset, lambda p: p.lens.aperture_m, "--aperture", LENGTH_FORM)
-        from metalens_cli.analysis.focal_map import validate_symmetry
+        from metalens_cli.analysis.focal_map import estimate_validation, validate_symmetry
+        from metalens_cli.io.resources import Estimate
+
+        wavelengths_m = [r.wavelength_m for r in rows]
+        memory, seconds = estimate_validation(wavelengths_m, lambda_d_m, f_m, aperture_m)
+        announce(Estimate(f"symmetry --validate of {len(wavelengths_m)} wavelengths for D = {aperture_m * 1e3:g} mm", memory,
+                          "--aperture", seconds), max_memory)
 
         with progress_bar("focal-intensity map", quiet) as update:
-            validation = validate_symmetry([r.wavelength_m for r in rows], lambda_d_m, f_m, aperture_m, progress=update)
+            validation = validate_symmetry(wavelengths_m, lambda_d_m, f_m, aperture_m, progress=update)
 
     if plot_path and validation is not None:
         from metalens_cli.plotting.focal_map import plot_focal_map

@@ -36,7 +36,7 @@ from metalens_cli.design.reconstruct_data import (VALIDATION_GENERATION, Camera,
                                                   simulate_pool)
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.training import TrainingInterrupted
-from metalens_cli.errors import InputError
+from metalens_cli.errors import InputError, Terminated
 from metalens_cli.imaging.metrics import ssim
 from metalens_cli.imaging.network import NetworkShape, ReconstructionNet
 from metalens_cli.imaging.restore import MODEL_FILE, Reconstructor, design_fingerprint, save_model
@@ -127,20 +127,12 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
                              "the run's own design")
         pairs = made_for.get("pairs")
         identity["pairs"] = pairs
-        checkpoint = run.latest_checkpoint()
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
     preset = replace(preset, train=replace(preset.train, **overrides))
     t = preset.train
-    if checkpoint is not None and checkpoint["step"] > t.steps:
-        raise InputError("--steps", f"{t.steps} is below the {checkpoint['step']} steps already run", f"at least {checkpoint['step']}")
-    if ctx.is_main:
-        if not resume:
-            run.create(reconstruct_to_toml(preset), folders=("validation",))
-            run.write_text("design.json", json.dumps(identity, indent=2) + "\n")
-        elif overrides:
-            run.write_text(PRESET_FILE, reconstruct_to_toml(preset))
-    distributed.barrier(ctx)
-
+    checkpoint = run.latest_checkpoint(t.steps, lists=("validations",)) if resume else None
+    if not resume:
+        run.check_fresh()
     data = _Data(design, camera, preset, pairs, ctx.device, on_stage)
     torch.manual_seed(t.seed)
     n = preset.network
@@ -149,12 +141,16 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
     optimizer = torch.optim.AdamW(net.parameters(), lr=t.learning_rate, weight_decay=t.weight_decay)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: learning_rate_factor(s, t))
     lpips_model, notes = _lpips(t, lpips_weights)
+    if ctx.is_main and not resume:  # only now: every check above has passed
+        run.create(reconstruct_to_toml(preset), folders=("validation",))
+        run.write_text("design.json", json.dumps(identity, indent=2) + "\n")
     history, validations, start = [], [], 0
     if checkpoint is not None:
-        net.load_state_dict(checkpoint["model"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        scheduler.load_state_dict(checkpoint["scheduler"])
-        history, validations, start = checkpoint["history"], checkpoint["validations"], checkpoint["step"]
+        checkpoint.restore(model=net, optimizer=optimizer, scheduler=scheduler)
+        history, validations, start = checkpoint.state["history"], checkpoint.state["validations"], checkpoint.step
+    if ctx.is_main and resume and overrides:
+        run.write_text(PRESET_FILE, reconstruct_to_toml(preset))
+    distributed.barrier(ctx)
     shard = ctx.shard(t.batch_size)
     share = len(shard) / t.batch_size
     if ctx.is_main and not validations:
@@ -187,7 +183,7 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
                 if (step + 1) % t.checkpoint_every == 0:
                     run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, step + 1))
                     run.write_loss_csv(history)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Terminated):
         done = len(history)
         path = run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, done)) if ctx.is_main else None
         if ctx.is_main:

@@ -35,7 +35,7 @@ from metalens_cli.design.parameterization import initial_parameterization
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.scenes import training_scene
 from metalens_cli.imaging.canvas import sensor_crop
-from metalens_cli.errors import InputError, MetalensError
+from metalens_cli.errors import InputError, MetalensError, Terminated
 from metalens_cli.imaging.formation import canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import crop_window
@@ -142,6 +142,26 @@ def plan_windows(preset, sensitivity) -> Windows:
     lens, d, pitch = build_model(preset).lens(), preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
     near, far = preset.scene.z_near_m, preset.scene.z_far_m
     return Windows(psf_window(lens, waves, list(near), d, pitch, PLAN_HEADROOM), psf_window(lens, waves, list(far), d, pitch, PLAN_HEADROOM))
+
+
+def estimate_training(preset) -> tuple[int, float]:
+    """(peak bytes, seconds) of a run of ``preset``: one step's PSFs (``optics.psf.estimate_psf``
+    at the plan's wavelength range, kept for the backward pass: ×2) and its batch of captures on
+    the canvas (about 20 float32 planes of 3 channels per image, forward and backward); time from
+    the PSF plan (×3 with its backward pass) and the canvas FFTs (×1.5), times the steps. On the
+    quick preset: 48 min estimated, 36 min measured (run.json of runs/quick-split-spectrum)."""
+    from metalens_cli.optics.psf import FFT_RATE, estimate_psf
+
+    o = preset.optimize
+    windows = plan_windows(preset, preset_sensitivity(preset))
+    lo, hi = plan_range(preset)[0]
+    waves = list(np.linspace(lo, hi, 3 * o.wavelengths_per_channel))
+    psf = estimate_psf(build_model(preset).lens(), waves, [preset.scene.z_near_m[0], preset.scene.z_far_m[0]],
+                       max(windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m)
+    canvas = preset.sensor.pixels + 2 * windows.margin
+    captures = o.batch_size * 20 * 3 * canvas**2 * 4
+    per_step = 3 * (psf.seconds - psf.setup_seconds) + 1.5 * o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
+    return 2 * psf.memory_bytes + captures, psf.setup_seconds + o.steps * per_step
 
 
 def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None,
@@ -259,29 +279,30 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> di
 
 
 def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunSummary:
-    checkpoint = None
+    """The run; on --resume the checkpoint is checked (``RunDirectory.latest_checkpoint``,
+    ``Checkpoint.restore``) before preset.toml is rewritten, so a refused one changes no file."""
     if resume:
         if not run.preset_path.is_file():
             raise InputError("--resume", f"{str(run.path)!r} holds no run to resume", "a run directory written by metalens optimize")
         preset = run.load_preset()
-        checkpoint = run.latest_checkpoint()
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
     preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **overrides))
     o = preset.optimize
+    checkpoint = run.latest_checkpoint(o.steps) if resume else None
+    if not resume:
+        run.check_fresh()
+    session = _session(preset, ctx)
     if ctx.is_main and not resume:
         run.create(to_toml(preset))
-    elif ctx.is_main and overrides:
-        run.write_text("preset.toml", to_toml(preset))
-    distributed.barrier(ctx)
-    session = _session(preset, ctx)
     model, optimizer, scheduler = session.model, session.optimizer, session.scheduler
     history: list[dict] = []
     start = 0
     if checkpoint is not None:
-        model.load_state_dict(checkpoint["model"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        scheduler.load_state_dict(checkpoint["scheduler"])
-        history, start = checkpoint["history"], checkpoint["step"]
+        checkpoint.restore(model=model, optimizer=optimizer, scheduler=scheduler)
+        history, start = checkpoint.state["history"], checkpoint.step
+    if ctx.is_main and resume and overrides:
+        run.write_text("preset.toml", to_toml(preset))
+    distributed.barrier(ctx)
     timing: dict[str, float] = {}
     grid: dict = {}
     step = start
@@ -298,7 +319,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
                 run.write_loss_csv(history)
             if ctx.is_main and (step + 1) % o.sample_every == 0:
                 _write_sample(run, sample, step)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Terminated):
         done = len(history)
         path = run.save_checkpoint(_state(model, optimizer, scheduler, history, done)) if ctx.is_main else None
         if ctx.is_main:

@@ -17,6 +17,7 @@ import numpy as np
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
+from metalens_cli.io.image_files import read_image_file
 
 SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 BUILTIN = "builtin"
@@ -53,35 +54,23 @@ def linear_to_srgb(values: np.ndarray) -> np.ndarray:
     return np.asarray(colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=np.float32)
 
 
-def read_image(path: Path, keep_alpha: bool = False) -> tuple[np.ndarray, bool]:
+def read_image(path: Path, keep_alpha: bool = False, field: str | None = None) -> tuple[np.ndarray, bool]:
     """(C, H, W) float in 0..1 as stored (sRGB-encoded for 8/16-bit, linear for EXR), RGB[A]
-    order; returns (array, has_alpha). Greyscale is repeated to 3 channels."""
+    order; returns (array, has_alpha). Greyscale is repeated to 3 channels. Errors name
+    ``field`` (default: the path)."""
     path = Path(path)
-    if path.suffix.lower() == ".exr":
-        from metalens_cli.io.image_files import read_exr_rgb
-
-        return read_exr_rgb(path), False
-    import cv2
-
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise InputError(str(path), "not a readable image", "PNG, JPEG, TIFF or EXR")
-    scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(raw.dtype, 1.0)
-    image = raw.astype(np.float32) / scale
-    if image.ndim == 2:
-        image = image[:, :, None].repeat(3, axis=2)
-    has_alpha = image.shape[2] == 4
-    channels = [2, 1, 0] + ([3] if has_alpha and keep_alpha else [])
-    return np.transpose(image[:, :, channels], (2, 0, 1)), has_alpha and keep_alpha
+    pixels, names, _ = read_image_file(path, field or str(path))
+    rgb = pixels[:, :, [0, 0, 0]] if names[0] == "Y" else pixels[:, :, :3]
+    has_alpha = keep_alpha and names[-1] == "A"
+    image = np.concatenate([rgb, pixels[:, :, 3:]], axis=2) if has_alpha else rgb
+    return np.transpose(image, (2, 0, 1)), has_alpha
 
 
 def read_linear(path: Path, field: str = "INPUT") -> np.ndarray:
-    """(3, H, W) float32 linear RGB of an image file (8/16-bit taken as sRGB-encoded, EXR as linear);
-    NaN, infinite or negative pixels are an :class:`InputError` naming ``field``."""
+    """(3, H, W) float32 linear RGB of an image file (8/16-bit taken as sRGB-encoded, EXR as
+    linear); NaN, infinite or negative pixels are an :class:`InputError` naming ``field``."""
     path = Path(path)
-    image = read_image(path)[0][:3]
-    if not np.all(np.isfinite(image)) or image.min() < 0:
-        raise InputError(field, f"{path.name} holds NaN, infinite or negative pixels", "finite, non-negative pixel values")
+    image = read_image(path, field=field)[0]
     return image.astype(np.float32) if path.suffix.lower() == ".exr" else srgb_to_linear(image)
 
 
@@ -116,17 +105,29 @@ def _load(path: Path, shape, margin: int) -> CleanImage:
 def load_images(source: str | Path | None, shape: tuple[int, int], limit: int | None = None, margin: int = 0) -> list[CleanImage]:
     """Clean images for an H × W sensor on a canvas of ``margin`` pixels (``imaging.canvas``):
     a folder (sorted by name), one file, or ``builtin``/None (:func:`builtin_images`)."""
+    files = image_paths(source, limit)
+    if files is None:
+        return builtin_images(shape, margin)[: limit or None]
+    return [_load(p, shape, margin) for p in files]
+
+
+def image_paths(source: str | Path | None, limit: int | None = None) -> list[Path] | None:
+    """The files :func:`load_images` reads (at most ``limit``), or None for the built-in scenes."""
     if source is None or str(source) == BUILTIN:
-        images = builtin_images(shape, margin)
+        return None
+    path = Path(source)
+    if path.is_file():
+        files = [path]
+    elif path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES and not p.name.startswith("."))
     else:
-        path = Path(source)
-        if path.is_file():
-            files = [path]
-        elif path.is_dir():
-            files = sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES and not p.name.startswith("."))
-        else:
-            raise InputError("--images", f"no such folder {str(source)!r}", f"a folder of {', '.join(SUFFIXES)} images, or builtin")
-        if not files:
-            raise InputError("--images", f"{str(source)!r} holds no images", f"files ending in {', '.join(SUFFIXES)}")
-        images = [_load(p, shape, margin) for p in files[: limit or None]]
-    return images[: limit or None]
+        raise InputError("--images", f"no such folder {str(source)!r}", f"a folder of {', '.join(SUFFIXES)} images, or builtin")
+    if not files:
+        raise InputError("--images", f"{str(source)!r} holds no images", f"files ending in {', '.join(SUFFIXES)}")
+    return files[: limit or None]
+
+
+def image_count(source: str | Path | None, limit: int | None = None) -> int:
+    """How many images :func:`load_images` will return."""
+    files = image_paths(source, limit)
+    return min(limit or BUILTIN_COUNT, BUILTIN_COUNT) if files is None else len(files)

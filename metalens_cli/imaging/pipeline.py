@@ -6,6 +6,7 @@ drawn once per run from the configured intervals with the run's seed.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -98,6 +99,25 @@ def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_p
     kept = [kept_fraction(p).cpu().tolist() for p in (near, far)]
     return ChannelPsfs(near, far, z_near_m, z_far_m, kept[0], kept[1], [float(c) for c in weights.coverage],
                        time.perf_counter() - start)
+
+
+def estimate_captures(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_pitch_m: float, pixels: int,
+                      images: int, window: int | None = None) -> tuple[int, float]:
+    """(peak bytes, seconds) of :func:`channel_psfs` plus :func:`simulate_captures` for ``images``
+    images of ``pixels``² on the sensor, from the PSF plan (``optics.psf.estimate_psf``) and the
+    canvas the windows need: each image's canvas holds about a dozen float32 planes of 3 channels
+    (scene, obstruction, α, their spectra, the captures) while it is formed."""
+    from metalens_cli.optics.blur import psf_window
+    from metalens_cli.optics.psf import FFT_RATE, estimate_psf
+
+    d = design.focal_length_m
+    windows = [window or psf_window(design.lens, list(wavelengths_m), [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)]
+    psf = estimate_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, d)
+    canvas = pixels + 2 * canvas_margin(*windows)
+    planes = 12 * 3 * canvas**2 * 8
+    kept = 6 * 3 * pixels**2 * 4 * images
+    seconds = psf.seconds + images * 10 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
+    return psf.memory_bytes + planes + kept, seconds
 
 
 def crop_window(psf: torch.Tensor, n: int) -> torch.Tensor:

@@ -1,16 +1,27 @@
-"""Atomic file replacement: write to a temporary file beside the target, then rename.
+"""Output files: checked before any work, written to a temporary file beside the target, renamed.
 
 A reader never sees a half-written target: it sees the old file (or none) until
-``os.replace`` swaps the finished file in, and a failed write leaves nothing behind.
+``os.replace`` swaps the finished file in, and a failed or interrupted write leaves nothing
+behind. :func:`check_output_file` and :func:`check_output_folder` refuse, before a command
+starts its work, every target that would fail or do harm at the end: a missing or read-only
+folder, a name too long for the file system, a folder, device or FIFO in the target's place.
 """
 
 from __future__ import annotations
 
+import errno
 import os
+import resource
 import secrets
-from collections.abc import Iterator
+import shutil
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
+
+from metalens_cli.errors import InputError
+
+SUFFIX_KEPT = 16  # longest target suffix the temporary name repeats (writers pick formats by it)
+FULL_MARGIN_BYTES = 1 << 20  # free space below which a failed write is blamed on a full disk
 
 
 @contextmanager
@@ -22,63 +33,139 @@ def atomic_write(target: str | os.PathLike[str]) -> Iterator[Path]:
     target. It is created with mode 0o666 minus the umask, like an ordinary new file, and
     flushed to disk before the rename. If the ``with`` body raises (any exception,
     KeyboardInterrupt included), the temporary file is removed, ``target`` is left untouched
-    and the exception propagates. The target's directory must exist.
+    and the exception propagates; a library error caused by a full disk or the file-size limit
+    (``ulimit -f``) is raised as that :class:`OSError` (ENOSPC, EFBIG) naming ``target``. The
+    target's directory must exist.
     """
     target = Path(target)
     temporary = _create_temporary(target)
     try:
-        yield temporary
-        _fsync(temporary)
-        os.replace(temporary, target)
+        try:
+            yield temporary
+            _fsync(temporary)
+            os.replace(temporary, target)
+        except OSError as exc:
+            if exc.filename not in (None, str(temporary)):
+                raise
+            raise OSError(exc.errno, exc.strerror, str(target)) from None
+        except Exception as exc:
+            cause = _storage_exhausted(temporary)
+            if cause is None:
+                raise
+            raise OSError(cause, os.strerror(cause), str(target)) from exc
     except BaseException:
         with suppress(FileNotFoundError):
             os.unlink(temporary)
         raise
 
 
-def ensure_folder(path: str | os.PathLike[str], field: str) -> Path:
-    """Create the output folder ``path`` (and its parents) or raise an :class:`InputError`
-    naming ``field``; refuses an existing non-folder."""
-    from metalens_cli.errors import InputError
+def check_output_file(path: str | os.PathLike[str], field: str, *, suffixes: Iterable[str] | None = None) -> Path:
+    """Refuse, before any work, an output file that cannot be written where it is asked for.
 
-    folder = Path(path)
-    if folder.exists() and not folder.is_dir():
-        raise InputError(field, f"{str(folder)!r} exists and is not a folder", "a writable folder path")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(field, f"cannot create folder {str(folder)!r}: {exc.strerror or exc}", "a writable folder path") from None
-    if not os.access(folder, os.W_OK):
-        raise InputError(field, f"folder {str(folder)!r} is not writable", "a writable folder path")
-    return folder
-
-
-def check_output_file(path: str | os.PathLike[str], field: str) -> Path:
-    """Refuse, before any work, an output file whose folder is missing or read-only, or which
-    exists and is not a regular file."""
-    from metalens_cli.errors import InputError
-
+    Refused with an :class:`InputError` naming ``field``: an empty name, a name longer than
+    the file system allows, a suffix outside ``suffixes`` (lower-case, with the dot), a missing
+    or unwritable folder (tried by creating and removing a file there, so a read-only file
+    system is caught even for root), an existing folder, device, FIFO or socket at ``path``.
+    """
     target = Path(path)
-    folder = target.parent
-    if not folder.is_dir():
-        raise InputError(field, f"folder {str(folder)!r} does not exist", "a file in an existing folder")
-    if not os.access(folder, os.W_OK):
-        raise InputError(field, f"folder {str(folder)!r} is not writable", "a file in a writable folder")
+    if target.name in ("", ".", ".."):
+        raise InputError(field, f"{str(path)!r} names a folder", "a file path")
+    if suffixes is not None:
+        allowed = tuple(suffixes)
+        if target.suffix.lower() not in allowed:
+            raise InputError(field, f"{target.name!r} does not end in {_either(allowed)}", f"a file name ending in {_either(allowed)}")
+    if not target.parent.is_dir():
+        raise InputError(field, f"folder {str(target.parent)!r} does not exist", "a file in an existing folder")
+    _check_name_length(target, field)
+    if target.is_dir():
+        raise InputError(field, f"{str(target)!r} is a folder", "a file path")
     if target.exists() and not target.is_file():
-        raise InputError(field, f"{str(target)!r} exists and is not a regular file", "a new or regular file")
+        raise InputError(field, f"{str(target)!r} exists and is not a regular file (a device, FIFO or socket)", "a new or regular file")
+    _probe_writable(target.parent, field)
     return target
 
 
+def check_output_folder(path: str | os.PathLike[str], field: str) -> Path:
+    """Refuse, before any work, an output folder that cannot be created or written: an existing
+    non-folder, a name too long, or a nearest existing ancestor that is not a writable folder.
+    Nothing is created."""
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(field, f"{str(folder)!r} exists and is not a folder", "a folder path")
+    existing = folder
+    while not existing.exists():
+        _check_name_length(existing, field)
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InputError(field, f"{str(existing)!r} is not a folder", "a path inside folders")
+    _probe_writable(existing, field)
+    return folder
+
+
+def ensure_folder(path: str | os.PathLike[str], field: str) -> Path:
+    """Check (:func:`check_output_folder`) and create the output folder ``path`` with its parents."""
+    folder = check_output_folder(path, field)
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    """Whether two paths name one file or folder (through links), existing or not."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _either(suffixes: tuple[str, ...]) -> str:
+    return suffixes[0] if len(suffixes) == 1 else ", ".join(suffixes[:-1]) + " or " + suffixes[-1]
+
+
+def _check_name_length(path: Path, field: str) -> None:
+    folder = path.parent if path.parent.is_dir() else Path(".")
+    try:
+        limit = os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        limit = 255
+    size = len(os.fsencode(path.name))
+    if size > limit:
+        raise InputError(field, f"the name {path.name[:24]!r}… is {size} bytes; this file system allows {limit}", f"a name of at most {limit} bytes")
+
+
+def _probe_writable(folder: Path, field: str) -> None:
+    """Create and remove a file in ``folder``: the one test of writability that root, ACLs and
+    read-only mounts all answer truthfully."""
+    try:
+        os.unlink(_create_temporary(folder / "probe"))
+    except OSError as exc:
+        raise InputError(field, f"cannot write in folder {str(folder)!r}: {exc.strerror}", "a writable folder") from None
+
+
 def _create_temporary(target: Path) -> Path:
-    """Create an empty, uniquely named hidden file beside ``target`` and return its path."""
+    """Create an empty, uniquely named hidden file beside ``target`` and return its path.
+
+    The name is short (a 255-byte target name still fits) and keeps the target's suffix."""
+    suffix = target.suffix if len(target.suffix) <= SUFFIX_KEPT else ""
     while True:
-        candidate = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp{target.suffix}")
+        candidate = target.with_name(f".metalens-{secrets.token_hex(6)}.tmp{suffix}")
         try:
             descriptor = os.open(candidate, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
         except FileExistsError:
             continue
         os.close(descriptor)
         return candidate
+
+
+def _storage_exhausted(temporary: Path) -> int | None:
+    """ENOSPC or EFBIG when the disk is (nearly) full or ``temporary`` reached the process's
+    file-size limit; None when storage is not to blame."""
+    with suppress(OSError):
+        limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        if limit != resource.RLIM_INFINITY and temporary.stat().st_size >= limit - FULL_MARGIN_BYTES:
+            return errno.EFBIG
+        if shutil.disk_usage(temporary.parent).free < FULL_MARGIN_BYTES:
+            return errno.ENOSPC
+    return None
 
 
 def _fsync(path: Path) -> None:

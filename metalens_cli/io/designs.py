@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from metalens_cli.errors import InputError
+from metalens_cli.io.input_files import read_npy
 from metalens_cli.io import units
 from metalens_cli.io.presets import Preset, load_preset
 
@@ -72,12 +73,9 @@ def _geometry(preset, f_m, aperture_m, pitch_m, default_pitch=None):
 def _load_theta(path: Path):
     import numpy as np
 
-    try:
-        theta = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise InputError("--design", f"cannot read θ from {str(path)!r}: {exc}", "a .npy array of angles in radians") from None
-    if theta.dtype.kind not in "fiu":
-        raise InputError("--design", f"{path.name} holds {theta.dtype}, not real numbers", "a float .npy array of angles in radians")
+    theta = read_npy(path, "--design", "a float .npy array of angles in radians")
+    if not np.all(np.isfinite(theta)):
+        raise InputError("--design", f"{path.name} holds NaN or infinite angles", "finite angles in radians")
     return theta
 
 

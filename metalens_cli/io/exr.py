@@ -22,6 +22,7 @@ import numpy as np
 import metalens_cli
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
+from metalens_cli.io.input_files import open_exr
 
 FORMAT = "metalens-psf-cube/1"
 HEADER_ATTRIBUTE = "metalens"
@@ -135,7 +136,7 @@ def _write_exr(path: Path, header_text: str, channels: dict[str, np.ndarray]) ->
 def read_psf_cube(path: str | os.PathLike[str]) -> PsfCube:
     """Read and validate a PSF cube; InputError with a one-line reason if it breaks the contract."""
     field = str(path)
-    exr = _open_exr(Path(path))
+    exr = open_exr(Path(path), field, _EXPECTED)
     header = exr.header()
     compression = getattr(header.get("compression"), "name", str(header.get("compression")))
     if compression not in LOSSLESS_COMPRESSIONS:
@@ -144,21 +145,6 @@ def read_psf_cube(path: str | os.PathLike[str]) -> PsfCube:
     channels = {name: channel.pixels for name, channel in exr.channels().items()}
     _check_cube(field, metadata, channels)
     return _assemble(metadata, channels)
-
-
-def _open_exr(path: Path):
-    """The file as an ``OpenEXR.File`` with one numpy array per channel; single part only."""
-    import OpenEXR
-
-    if not path.is_file():
-        raise InputError(str(path), "no such file", _EXPECTED)
-    try:
-        exr = OpenEXR.File(str(path), separate_channels=True)
-    except RuntimeError as error:
-        raise InputError(str(path), "not a readable OpenEXR file", _EXPECTED) from error
-    if len(exr.parts) != 1:
-        raise InputError(str(path), f"{len(exr.parts)} parts", "a single-part EXR image")
-    return exr
 
 
 def _parse_header(field: str, text: Any) -> dict[str, Any]:

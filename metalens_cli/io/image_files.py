@@ -12,6 +12,7 @@ import numpy as np
 
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
+from metalens_cli.io.input_files import check_image_size, open_exr, regular_file
 
 
 def write_exr_rgb(path: str | os.PathLike[str], image: np.ndarray) -> None:
@@ -29,19 +30,56 @@ def write_exr_rgb(path: str | os.PathLike[str], image: np.ndarray) -> None:
 
 
 def read_exr_rgb(path: str | os.PathLike[str]) -> np.ndarray:
-    """(3, H, W) float32 from an EXR's R, G, B channels (or Y repeated)."""
-    import OpenEXR
+    """(3, H, W) float32 from an EXR's R, G, B channels (or its one channel repeated), values as
+    stored (this tool's own outputs; inputs go through :func:`read_image_file`)."""
+    pixels, _ = _exr_pixels(regular_file(path, str(path), "an EXR image"), str(path))
+    return np.transpose(pixels[:, :, :3] if pixels.shape[2] >= 3 else pixels[:, :, [0, 0, 0]], (2, 0, 1))
+
+
+def read_image_file(path: Path, field: str) -> tuple[np.ndarray, list[str], bool]:
+    """The one reader of image files: (H, W, C) float32 pixels, their channel names and whether
+    they are linear.
+
+    PNG, JPEG, TIFF: 8- or 16-bit, scaled to 0..1 as encoded (not linear); C = 1 ("Y"), 3
+    ("R", "G", "B") or 4 (with "A"). EXR: float channels R, G, B (and A) or a single channel,
+    linear. The header is checked against the pixel limit before decoding; NaN, infinite or
+    negative pixels, other depths and channel counts are an :class:`InputError` naming ``field``.
+    """
+    path = regular_file(path, field, "an image file")
+    check_image_size(path, field)
+    if path.suffix.lower() == ".exr":
+        pixels, names = _exr_pixels(path, field)
+        if not np.all(np.isfinite(pixels)) or pixels.min() < 0:
+            raise InputError(field, f"{path.name} holds NaN, infinite or negative pixels", "finite, non-negative pixel values")
+        return pixels, names, True
+    import cv2
 
     try:
-        exr = OpenEXR.File(str(path), separate_channels=True)
-    except RuntimeError as error:
-        raise InputError(str(path), "not a readable OpenEXR file", "an RGB EXR image") from error
-    channels = {name: channel.pixels for name, channel in exr.channels().items()}
-    if all(c in channels for c in "RGB"):
-        return np.stack([channels[c] for c in "RGB"]).astype(np.float32)
-    if "Y" in channels:
-        return np.repeat(channels["Y"][None], 3, axis=0).astype(np.float32)
-    raise InputError(str(path), f"channels {sorted(channels)}", "R, G, B (or Y) channels")
+        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        raise InputError(field, f"{path.name} cannot be decoded: {str(exc).strip().splitlines()[-1][:120]}", "a PNG, JPEG, TIFF or EXR image") from None
+    if raw is None:
+        raise InputError(field, f"{path.name} is not a readable image", "a PNG, JPEG, TIFF or EXR image")
+    scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(raw.dtype)
+    if scale is None:
+        raise InputError(field, f"{path.name} has {raw.dtype} pixels", "8- or 16-bit integer pixels (or an EXR for floats)")
+    if raw.ndim == 2:
+        return (raw[:, :, None] / np.float32(scale)).astype(np.float32), ["Y"], False
+    if raw.ndim != 3 or raw.shape[2] not in (3, 4):
+        raise InputError(field, f"{path.name} has {raw.shape[2] if raw.ndim == 3 else raw.ndim} channels", "1 or 3 channels (or 4 with alpha)")
+    order = [2, 1, 0, 3][: raw.shape[2]]  # OpenCV's BGR(A) → RGB(A)
+    return (raw[:, :, order] / np.float32(scale)).astype(np.float32), ["R", "G", "B", "A"][: raw.shape[2]], False
+
+
+def _exr_pixels(path: Path, field: str) -> tuple[np.ndarray, list[str]]:
+    channels = {name: channel.pixels for name, channel in open_exr(path, field, "an RGB EXR image").channels().items()}
+    names = ["R", "G", "B"] + (["A"] if "A" in channels else [])
+    if not all(c in channels for c in "RGB"):
+        if len(channels) != 1:
+            raise InputError(field, f"{path.name} has channels {sorted(channels)[:6]}", "R, G, B channels or a single channel")
+        names = ["Y"]
+        channels = {"Y": next(iter(channels.values()))}
+    return np.stack([channels[name] for name in names], axis=-1).astype(np.float32), names
 
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:

@@ -403,6 +403,21 @@ def format_of(path: str | os.PathLike, fmt: str | None) -> str:
     return aliases[suffix]
 
 
+# Per fin: bytes in the file, fins written per second, bytes held in memory (OASIS is built in
+# KLayout's memory); measured by benchmarks/bench_gds.py on the paper's lens (docs/benchmarks.md).
+FIN_COSTS = {("gds", "exact"): (64, 2.3e6, 0), ("gds", "quantised"): (40, 3.9e6, 0), ("oas", "exact"): (2.4, 5.6e5, 36),
+             ("oas", "quantised"): (2.4, 5.6e5, 36)}
+STREAMING_BYTES = 1 << 29  # the chunked writer's working set (CHUNK_SITES sites of temporaries, 0.41 GiB measured)
+
+
+def estimate_layout(aperture_m: float, pitch_m: float, fmt: str, angles: int | None) -> tuple[int, int, int, float]:
+    """(fins, file bytes, peak memory bytes, seconds) of :func:`export_layout` for a lens of
+    diameter ``aperture_m`` on a grid of ``pitch_m``, from the measured per-fin costs."""
+    fins = int(math.pi * (aperture_m / 2) ** 2 / pitch_m**2)
+    size, rate, held = FIN_COSTS[(fmt if fmt in FORMATS else "gds", "exact" if angles is None else "quantised")]
+    return fins, int(fins * size), int(STREAMING_BYTES + fins * held), fins / rate
+
+
 def export_layout(design, geometry: FinGeometry, path: str | os.PathLike, fmt: str = "gds", angles: int | None = None,
                   progress: Callable[[int, int], None] | None = None) -> ExportReport:
     """Write the lens layout of ``design`` (a :class:`metalens_cli.io.designs.Design`) to ``path``.

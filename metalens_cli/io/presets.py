@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from metalens_cli.errors import InputError
+from metalens_cli.io.input_files import read_text
 from metalens_cli.io import units
 
 
@@ -173,6 +175,7 @@ SECTIONS: dict[str, tuple[type, bool]] = {
 }
 OPTIONAL_DEFAULTS = {"loss": LossConfig, "obstruction": ObstructionConfig}
 TOP_LEVEL_KEYS = {"name", "description"}
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 
 
 def as_str(value: Any, path: str, form: str) -> str:
@@ -264,7 +267,23 @@ def build_section(cls: type, table: Any, section: str) -> Any:
 
 
 def _check_consistency(p: Preset) -> None:
-    """Cross-field rules that no single key can express."""
+    """Cross-field rules that no single key can express, and the physics checks every command
+    would otherwise make later (bands disjoint, a known camera, optical wavelengths)."""
+    from metalens_cli.io.tables import CAMERA_NAMES, check_bands, check_wavelengths
+
+
+    if not NAME_PATTERN.fullmatch(p.name):
+        raise InputError("name", f"{p.name!r} is not a plain name", "letters, digits, '.', '_' or '-', not starting with '.' (it names runs/NAME)")
+    for key, values in (("sensor.wavelength_range", p.sensor.wavelength_range_m),
+                        ("nanofin.efficiency_wavelengths", p.nanofin.efficiency_wavelengths_m),
+                        ("lens.design_wavelength", [p.lens.design_wavelength_m] if p.lens.design_wavelength_m else []),
+                        ("filter.centers", p.filter.centers_m if p.filter else [])):
+        check_wavelengths(values, key)
+    if p.sensor.wavelength_range_m[0] >= p.sensor.wavelength_range_m[1]:
+        raise InputError("sensor.wavelength_range", "is empty", "LO:HI with LO < HI, e.g. 400nm:700nm")
+    camera = p.sensor.camera_response
+    if camera not in CAMERA_NAMES and not camera.lower().endswith(".csv"):
+        raise InputError("sensor.camera_response", f"unknown camera {camera!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV path")
     if p.lens.design == "hyperbolic" and p.lens.design_wavelength_m is None:
         raise InputError("lens.design_wavelength", "missing (required when lens.design = 'hyperbolic')", units.LENGTH_FORM)
     if len(p.nanofin.efficiency) != len(p.nanofin.efficiency_wavelengths_m):
@@ -280,6 +299,11 @@ def _check_consistency(p: Preset) -> None:
             raise InputError("filter.widths", "needs one width per filter.centers entry", "equal lengths")
         if list(p.filter.centers_m) != sorted(p.filter.centers_m):
             raise InputError("filter.centers", "must increase", "band centres in ascending order")
+        if p.filter.centers_m:
+            try:
+                check_bands(list(p.filter.centers_m), list(p.filter.widths_m), p.filter.edge_width_m, p.filter.peak_transmission)
+            except InputError as exc:
+                raise InputError("filter.widths", exc.message, exc.expected) from None
     if math.isinf(p.scene.z_near_m[1]):
         raise InputError("scene.z_near", "must be finite", units.INTERVAL_FORM)
     if not p.scene.z_near_m[1] < p.scene.z_far_m[0]:
@@ -316,12 +340,7 @@ def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | N
 def read_toml(path: Path, field: str = "preset") -> dict[str, Any]:
     """The parsed TOML document at ``path``; unreadable, non-UTF-8 or invalid files are an
     :class:`InputError` naming ``field``."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(field, f"cannot read {str(path)!r}: {exc.strerror or exc}", "a readable TOML file") from None
-    except UnicodeDecodeError:
-        raise InputError(field, f"{path.name} is not UTF-8 text", "a UTF-8 TOML file") from None
+    text = read_text(path, field, "a UTF-8 TOML file")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -403,8 +422,10 @@ def toml_value(value: Any) -> str:
         return repr(value)
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    text = str(value).replace("\\", "\\\\").replace('"', '\\"')
-    return f'"{text}"'
+    return '"' + "".join(_TOML_ESCAPES.get(c) or (f"\\u{ord(c):04x}" if ord(c) < 0x20 or ord(c) == 0x7F else c) for c in str(value)) + '"'
+
+
+_TOML_ESCAPES = {"\\": "\\\\", '"': '\\"', "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
 
 
 def to_dict(obj: Any) -> Any:

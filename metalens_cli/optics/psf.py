@@ -88,6 +88,71 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
     return PsfResult(psf, tuple(lams), tuple(zs), pixel_pitch_m, d, propagator, grid, clock.times)
 
 
+@dataclass(frozen=True)
+class PsfCost:
+    """Planned peak memory (bytes) and run time (s) of :func:`compute_psf`, from its sampling plan.
+
+    Counted: the PSF stack and its copies (×3), the propagator's largest arrays (Hankel kernel
+    and output matrix, the radial sensor operator's build arrays; the padded ASM grid ×2 and the
+    meta-atom grid; the summation chunks for rs) and, for time, the dominant work at rates
+    measured on 2 cores (``*_RATE``). Measured against peak RSS (tests/optics/test_psf_cost.py):
+    within a factor of 2, above rather than below; for refusing jobs that cannot fit, not for
+    scheduling."""
+
+    memory_bytes: int
+    seconds: float
+    setup_seconds: float = 0.0  # of ``seconds``: kernels and sensor operators, cached across calls
+
+
+MATMUL_RATE = 2e10     # real multiply-adds per second (float32 matrix products, 2 cores)
+FFT_RATE = 2e8         # complex points per second through one 2-D FFT pass (×log2 size)
+RS_RATE = 1e7          # Rayleigh-Sommerfeld kernel evaluations per second (float64)
+SENSOR_RATE = 5e5      # (pixel, radial interval) overlap areas per second, radial sensor build
+RS_PAIR_BYTES = 800    # working set per (node, output point) pair of one Rayleigh-Sommerfeld chunk
+
+
+def estimate_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitch_m: float,
+                 distance_m: float | None = None, propagator: str = "auto", dtype: torch.dtype = torch.float32,
+                 force: bool = False, oversample: float = 1.0) -> PsfCost:
+    """What :func:`compute_psf` with these arguments will cost, computed from the same plan
+    (a :class:`SamplingError` here is the one it would raise) before any large array exists."""
+    lams, zs = [float(x) for x in np.ravel(wavelengths_m)], [float(x) for x in np.ravel(depths_m)]
+    d = distance_m if distance_m is not None else lens.focal_length_m
+    _validate(lams, zs, pixels, pixel_pitch_m, d, propagator if propagator in PROPAGATORS else "?", dtype, oversample)
+    propagator = ("radial" if lens.radial else "asm") if propagator == "auto" else propagator
+    f_max = sampling.check_lens_sampling(lens, lams, zs, force)
+    count, real = len(lams) * len(zs), 4 if dtype == torch.float32 else 8
+    out_bytes = 3 * count * pixels**2 * 4
+    octant = (pixels // 2 + 1) * (pixels // 2 + 2) // 2
+    if propagator == "radial":
+        plan = sampling.plan_radial(lens, lams, zs, d, pixels, pixel_pitch_m, f_max, oversample)
+        intervals = math.ceil(math.sqrt(2) * pixel_pitch_m / plan.step_m) + 7
+        sensor_bytes = 8 * octant * intervals * 4 * 8
+        matrices = (plan.n_freq * plan.n_nodes + plan.n_radii * plan.n_freq) * 3 * real  # built in float64, kept in dtype
+        fields = 4 * plan.n_nodes * count * 2 * real
+        memory = out_bytes + sensor_bytes + matrices + fields
+        products = (plan.n_freq * plan.n_nodes + plan.n_radii * plan.n_freq) * count * 2
+        setup = octant * intervals / SENSOR_RATE
+        return PsfCost(int(memory), products / MATMUL_RATE + setup, setup)
+    if propagator == "asm":
+        grid = sampling.plan_asm(lens, [max(lams)], d, pixels, pixel_pitch_m, f_max, oversample)
+        window = 2 * grid.window_half + 1
+        memory = out_bytes + 2 * grid.size**2 * 2 * real + lens.grid_size**2 * (real + 8 + 1) + 2 * window**2 * 2 * real
+        passes = count * 2 * grid.size**2 * max(math.log2(grid.size), 1)
+        return PsfCost(int(memory), passes / FFT_RATE + count * pixels * window**2 * 2 / MATMUL_RATE)
+    # rs: sums over the pupil for every output sample, chunked; memory is the PSFs and the nodes
+    nu = sampling.frequency_limit(f_max, lams, 2 * oversample)
+    if lens.radial:
+        step = 1 / (16 * nu * oversample)
+        outputs = math.ceil(math.hypot(pixels // 2 + 0.5, pixels // 2 + 0.5) * pixel_pitch_m / step) + 3
+        n_r, n_phi = sampling.plan_rs(lens, lams, d, outputs * step, f_max, oversample)
+        nodes = n_r * (n_phi + 1)
+    else:
+        nodes = math.ceil(math.pi * lens.radius_m**2 / lens.pitch_m**2)
+        outputs = (2 * math.ceil((pixels // 2 + 0.5) * pixel_pitch_m * 4 * nu * oversample) + 7) ** 2
+    return PsfCost(int(out_bytes + RS_PAIR_BYTES * max(nodes, 1 << 22) + 100 * nodes), count * nodes * outputs / RS_RATE)
+
+
 def _validate(lams, zs, pixels, pitch, d, propagator, dtype, oversample) -> None:
     if propagator not in PROPAGATORS:
         raise InputError("propagator", f"unknown propagator {propagator!r}", "|".join(PROPAGATORS))

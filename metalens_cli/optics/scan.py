@@ -74,9 +74,12 @@ def run_scan(
     progress: Callable[[int, int], None] | None = None,
 ) -> ScanResult:
     """Compute the cube. The radial path runs as one batch; 2-D paths go one wavelength at a
-    time so that ``progress(done, total)`` can report."""
+    time so that ``progress(done, total)`` can report. The channel weights (which refuse a
+    wavelength list that cannot integrate S^c) are settled before any PSF is computed."""
     start = time.perf_counter()
     timing: dict[str, float] = {}
+    warnings: list[str] = []
+    weights, spectra = _channel_weights(design, wavelengths_m, warnings) if design.preset is not None else (None, None)
     batched = propagator == "radial" or (propagator == "auto" and design.lens.radial)
     groups = [wavelengths_m] if batched else [[w] for w in wavelengths_m]
     parts, result = [], None
@@ -89,11 +92,7 @@ def run_scan(
         if progress is not None:
             progress(done, len(groups))
     psf = torch.cat(parts, dim=1).numpy()
-    warnings: list[str] = []
-    rgb, spectra = None, None
-    if design.preset is not None:
-        weights, spectra = _channel_weights(design, wavelengths_m, warnings)
-        rgb = np.einsum("cw,dwij->dcij", weights, psf).astype(np.float32)
+    rgb = None if weights is None else np.einsum("cw,dwij->dcij", weights, psf).astype(np.float32)
     metrics = [
         {"depth_m": z, "wavelength_m": w, **summarize(psf[i, j], pixel_pitch_m)}
         for i, z in enumerate(depths_m)

@@ -21,10 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.tables import as_fractions, read_spectrum_csv
+from metalens_cli.io.tables import CAMERA_NAMES, as_fractions, check_bands, read_spectrum_csv
 
 CHANNELS = ("R", "G", "B")
-CAMERA_NAMES = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
 DEFAULT_CAMERA = "Nikon 5100 (NPL)"
 DEFAULT_EDGE_WIDTH_M = 2e-9
 """10-90 % rise distance of each filter band edge (typical of hard-coated interference filters)."""
@@ -124,7 +123,7 @@ def bandpass_transmission(
     """
     centres = np.atleast_1d(np.asarray(centres_m, dtype=float))
     widths = np.atleast_1d(np.asarray(widths_m, dtype=float))
-    _check_bands(centres, widths, edge_width_m, peak)
+    check_bands(centres.tolist(), widths.tolist(), edge_width_m, peak)
     scale = edge_width_m / (2.0 * math.log(9.0))
     grid = np.asarray(wavelengths_m, dtype=float)
     total = np.zeros_like(grid)
@@ -134,23 +133,6 @@ def bandpass_transmission(
         right = _logistic(x - (grid - centre) / scale)
         total += left * right / _logistic(x) ** 2
     return peak * total
-
-
-def _check_bands(centres: np.ndarray, widths: np.ndarray, edge_width_m: float, peak: float) -> None:
-    """Refuse malformed band lists (InputError on field ``filter``)."""
-    if centres.shape != widths.shape or centres.ndim != 1:
-        raise InputError("filter", f"{centres.size} centres but {widths.size} widths", "one width per band centre")
-    if not (np.all(np.isfinite(centres)) and np.all(centres > 0) and np.all(widths > 0)):
-        raise InputError("filter", "band centres and widths must be positive", "metres")
-    if not (edge_width_m > 0 and 0 < peak <= 1):
-        raise InputError("filter", f"edge width {edge_width_m} m, peak {peak}", "edge width > 0, 0 < peak <= 1")
-    narrowest = 2.0 * math.acosh(3.0) * edge_width_m / (2.0 * math.log(9.0))
-    if np.any(widths < narrowest):
-        raise InputError("filter", f"a band is narrower than {narrowest / _NM:.2f} nm", "FWHM >= 0.80 × edge width")
-    order = np.argsort(centres)
-    low, high = centres[order] - widths[order] / 2, centres[order] + widths[order] / 2
-    if np.any(low[1:] <= high[:-1]):
-        raise InputError("filter", "pass bands overlap", "disjoint bands [c - w/2, c + w/2]")
 
 
 def _band_half_width(u: float) -> float:

@@ -111,7 +111,7 @@ def test_bad_inputs_are_one_line_exit_2(trained, tmp_path, capsys):
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
     assert run(["reconstruct", "apply", str(trained), str(tmp_path / "nan.exr"), "-o", str(blocker / "out")]) == 2
-    _one_line_error(capsys, "cannot create folder")
+    _one_line_error(capsys, "is not a folder")
     assert run(["reconstruct", "export", str(trained), "-o", str(tmp_path / "missing" / "m.pt2")]) == 2
     _one_line_error(capsys, "does not exist")
     assert run(["reconstruct", "train", *LENS, "--preset", str(TINY), "-o", str(blocker / "run")]) == 2

@@ -1,0 +1,106 @@
+"""What a job will cost, checked before it starts: memory against what this machine (or its
+container) has free, disk against the output folder's free space, and time for jobs that can
+take hours.
+
+The estimates themselves come from the core (each knows its own arrays: ``optics.psf``,
+``io.layout``, ...); this module reads the machine and decides. A job over the limit is refused
+with its estimate and the option that changes it; ``--max-memory`` sets a stricter limit.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from metalens_cli.errors import InputError
+
+LONG_JOB_SECONDS = 60.0  # jobs estimated above this announce their estimate on stderr
+MEMORY_SHARE = 0.9       # of the available memory a job may plan to use
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A job's planned peak memory (bytes), output size on disk (bytes) and run time (s; None when
+    it cannot be long). ``what`` says what is computed; ``option`` names what shrinks it."""
+
+    what: str
+    memory_bytes: int
+    option: str
+    seconds: float | None = None
+    disk_bytes: int = 0
+
+    def describe(self) -> str:
+        parts = [f"about {_size(self.memory_bytes)} of memory"]
+        if self.disk_bytes:
+            parts.append(f"{_size(self.disk_bytes)} on disk")
+        if self.seconds is not None:
+            parts.append(f"about {_duration(self.seconds)}")
+        return f"{self.what}: " + ", ".join(parts)
+
+    def to_dict(self) -> dict:
+        return {"what": self.what, "memory_bytes": self.memory_bytes, "disk_bytes": self.disk_bytes, "seconds": self.seconds}
+
+
+def available_memory() -> int | None:
+    """Bytes this process can still allocate: the kernel's MemAvailable, capped by the cgroup
+    (container) limit less its usage; None where neither can be read (not Linux)."""
+    values = []
+    try:
+        with open("/proc/meminfo", encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    values.append(int(line.split()[1]) * 1024)
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            used = int(Path("/sys/fs/cgroup/memory.current").read_text())
+            values.append(max(int(limit) - used, 0))
+    except (OSError, ValueError):
+        pass
+    return min(values) if values else None
+
+
+def check(estimate: Estimate, max_memory: int | None = None, output: str | os.PathLike[str] | None = None) -> None:
+    """Refuse ``estimate`` (an :class:`InputError` naming its option, with the estimate) when its
+    memory exceeds ``max_memory`` or 90 % of the available memory, or its disk bytes exceed the
+    free space of ``output``'s folder."""
+    available = available_memory()
+    limits = [(max_memory, "the --max-memory limit")] if max_memory is not None else []
+    if available is not None:
+        limits.append((int(available * MEMORY_SHARE), "the memory available on this machine"))
+    for limit, name in limits:
+        if estimate.memory_bytes > limit:
+            raise InputError(estimate.option, f"{estimate.describe()}, over {name} ({_size(limit)})",
+                             f"a smaller {estimate.option}, or --max-memory if the estimate is too cautious")
+    if output is not None and estimate.disk_bytes:
+        folder = Path(output).parent if not Path(output).is_dir() else Path(output)
+        free = shutil.disk_usage(folder).free
+        if estimate.disk_bytes > free:
+            raise InputError(estimate.option, f"{estimate.describe()}, over the {_size(free)} free in {str(folder)!r}",
+                             f"a smaller {estimate.option} or another disk")
+
+
+def is_long(estimate: Estimate) -> bool:
+    return estimate.seconds is not None and estimate.seconds > LONG_JOB_SECONDS
+
+
+def _size(size: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if size < 1024 or unit == "PiB":
+            return f"{size:.3g} {unit}"
+        size /= 1024
+    raise AssertionError
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 172800:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.0f} days"

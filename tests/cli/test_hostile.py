@@ -1,0 +1,228 @@
+"""Hostile input over every command: bad paths, devices, corrupt files, non-finite options, huge
+requests. Each case must end in exactly one stderr line ``metalens: error: …`` naming what is
+wrong, the documented exit code (2 bad input, 1 environment), no traceback, no internal error,
+and no file left behind or destroyed (docs/failures.md)."""
+
+import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from metalens_cli.cli.main import run
+from metalens_cli.io.image_files import write_exr_rgb
+
+ROOT = Path(__file__).parents[2]
+PRESETS = ROOT / "presets"
+TINY = ROOT / "tests" / "design" / "tiny.toml"
+LENS = ["--f", "1mm", "--aperture", "0.1mm"]
+SCAN = ["psf-scan", "--design", "hyperbolic:532nm", *LENS, "--pixels", "16", "--wavelengths", "532nm", "--depths", "inf"]
+SIM = ["hyperbolic:532nm", *LENS, "--pixels", "32", "--wavelengths", "520nm,540nm", "--images", "{imgs}"]
+NPY, NPY_REST = ["psf-scan", "--design"], [*LENS, "--pitch", "395nm", *SCAN[5:], "-o", "{tmp}/n.exr"]
+GDS = ["export-gds", "--design", "hyperbolic:532nm", *LENS, "--pitch", "395nm", "--width", "200nm", "--length", "100nm"]
+
+
+def _png_header(path: Path, width: int, height: int) -> None:
+    """A PNG whose header claims width × height pixels, with one tiny (truncated) data chunk."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+    ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 1024)) + chunk(b"IEND", b""))
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    """A folder of hostile inputs, made once: their paths by name (dots as underscores) for the case table."""
+    root = tmp_path_factory.mktemp("hostile")
+    paths = {"tmp": root}
+    (root / "folder.exr").mkdir()
+    os.mkfifo(root / "fifo.csv")
+    (root / "a_file").write_text("x")
+    (root / "latin1.toml").write_bytes(b"name = '\xe9\xff'\n")
+    (root / "big.toml").write_bytes(b"#" * (5 << 20))
+    with open(root / "huge.npy", "wb") as handle:
+        np.lib.format.write_array_header_1_0(handle, {"descr": "<f4", "fortran_order": False, "shape": (10**6, 10**6)})
+        handle.write(b"\0" * 64)
+    np.save(root / "short.npy", np.zeros((64, 64)))
+    (root / "short.npy").write_bytes((root / "short.npy").read_bytes()[:2000])
+    np.save(root / "nan.npy", np.full((8, 8), np.nan))
+    (root / "garbage.exr").write_bytes(b"v/1\x01" + b"\0" * 40)
+    _png_header(root / "bomb.png", 60000, 60000)
+    write_exr_rgb(root / "nan.exr", np.full((3, 32, 32), np.nan, np.float32))
+    write_exr_rgb(root / "negative.exr", np.full((3, 32, 32), -0.5, np.float32))
+    (root / "imgs").mkdir()
+    write_exr_rgb(root / "imgs" / "grey.exr", np.full((3, 32, 32), 0.5, np.float32))
+    assert run([*SCAN, "-o", str(root / "cube.exr"), "--quiet"]) == 0
+    (root / "truncated.exr").write_bytes((root / "cube.exr").read_bytes()[:600])
+    preset = (PRESETS / "split-spectrum.toml").read_text()
+    variants = {
+        "overlap.toml": preset.replace('widths = ["22nm", "20nm", "28nm"]', 'widths = ["22nm", "200nm", "28nm"]'),
+        "camera.toml": preset.replace('camera_response = "Nikon 5100 (NPL)"', 'camera_response = "Kodak Brownie"'),
+        "range.toml": preset.replace('wavelength_range = "400nm:700nm"', 'wavelength_range = "1pm:2pm"'),
+        "name.toml": preset.replace('name = "split-spectrum"', 'name = "../../x"'),
+    }
+    assert all(text != preset for text in variants.values())
+    for name, text in variants.items():
+        (root / name).write_text(text)
+    return {k: str(v) for k, v in {**paths, **{p.name.replace(".", "_"): p for p in root.iterdir()}}.items()}
+
+
+CASES = {  # argv (with {names} from the bench), exit code, words the one error line must hold
+    # 1. output paths, every writer
+    "psf-scan -o in a missing folder": ([*SCAN, "-o", "{tmp}/nope/x.exr"], 2, "does not exist"),
+    "psf-scan -o onto a folder": ([*SCAN, "-o", "{folder_exr}"], 2, "is a folder"),
+    "psf-scan -o in /proc (unwritable)": ([*SCAN, "-o", "/proc/x.exr"], 2, "cannot write in folder"),
+    "psf-scan -o name too long": ([*SCAN, "-o", "{tmp}/" + "a" * 300 + ".exr"], 2, "bytes"),
+    "psf-scan -o without .exr": ([*SCAN, "-o", "{tmp}/x.png"], 2, "does not end in .exr"),
+    "psf-scan --plot in a missing folder": ([*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/nope/p.png"], 2, "does not exist"),
+    "psf-scan --plot unknown format": ([*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/p.xyz"], 2, "does not end in .png"),
+    "mtf --csv onto its input": (["mtf", "{cube_exr}", "--csv", "{cube_exr}"], 2, "also an input"),
+    "mtf --csv onto a FIFO": (["mtf", "{cube_exr}", "--csv", "{fifo_csv}"], 2, "not a regular file"),
+    "mtf --csv onto /dev/null": (["mtf", "{cube_exr}", "--csv", "/dev/null"], 2, "not a regular file"),
+    "export-gds -o in a missing folder": ([*GDS, "-o", "{tmp}/nope/x.gds"], 2, "does not exist"),
+    "obstruction preview -o not PNG": (["obstruction", "preview", "-o", "{tmp}/x.jpg"], 2, "does not end in .png"),
+    "evaluate --csv in a missing folder": (["evaluate", *SIM, "--csv", "{tmp}/nope/x.csv"], 2, "does not exist"),
+    "simulate -o under a file": (["simulate", *SIM, "-o", "{a_file}/out"], 2, "not a folder"),
+    "optimize -o under a file": (["optimize", str(TINY), "-o", "{a_file}/run"], 2, "not a folder"),
+    "symmetry --plot in a missing folder": (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--plot", "{tmp}/nope/s.png"], 2, "does not exist"),
+    "bands check --plot in a missing folder": (["bands", "check", "--preset", str(PRESETS / "split-spectrum.toml"), "--plot", "{tmp}/nope/b.png"], 2, "does not exist"),
+    # 2. input files
+    "preset show: not UTF-8": (["preset", "show", "{latin1_toml}"], 2, "UTF-8"),
+    "preset show /dev/zero": (["preset", "show", "/dev/zero"], 2, "not a regular file"),
+    "preset show: 5 MiB": (["preset", "show", "{big_toml}"], 2, "larger than"),
+    "design .npy claiming 4 TB": ([*NPY, "{huge_npy}", *NPY_REST], 2, "claims"),
+    "design .npy truncated": ([*NPY, "{short_npy}", *NPY_REST], 2, "truncated"),
+    "design .npy of NaN": ([*NPY, "{nan_npy}", *NPY_REST], 2, "NaN"),
+    "mtf of a truncated EXR": (["mtf", "{truncated_exr}", "--json"], 2, "corrupt or truncated"),
+    "mtf of garbage": (["mtf", "{garbage_exr}", "--json"], 2, "not a readable OpenEXR file"),
+    "mtf --edge decompression bomb": (["mtf", "--edge", "{bomb_png}"], 2, "megapixels"),
+    "simulate NaN image": (["simulate", *SIM[:-1], "{nan_exr}", "-o", "{tmp}/s1"], 2, "NaN"),
+    "simulate negative image": (["simulate", *SIM[:-1], "{negative_exr}", "-o", "{tmp}/s2"], 2, "negative"),
+    # 3. validation before work
+    "--photons nan": (["simulate", *SIM, "--photons", "nan", "-o", "{tmp}/s3"], 2, "not a finite number"),
+    "--read-noise inf": (["simulate", *SIM, "--read-noise", "inf", "-o", "{tmp}/s4"], 2, "not a finite number"),
+    "--alpha-gain nan": (["evaluate", *SIM, "--alpha-gain", "nan"], 2, "not a finite number"),
+    "--device meta": ([*SCAN, "-o", "{tmp}/d.exr", "--device", "meta"], 2, "unknown device"),
+    "--device xpu": (["simulate", *SIM, "--device", "xpu", "-o", "{tmp}/s5"], 2, "unknown device"),
+    "--wavelengths 1m": ([*SCAN[:-4], "--wavelengths", "1m", "-o", "{tmp}/w.exr"], 2, "not an optical wavelength"),
+    "1141 wavelengths": ([*SCAN[:-4], "--wavelengths", "430:1000:0.5nm", "-o", "{tmp}/w.exr"], 2, "at most 1000"),
+    "one wavelength with a preset's filter": (["psf-scan", "--design", "hyperbolic:532nm", "--preset", str(PRESETS / "split-spectrum.toml"),
+                                              "--wavelengths", "530nm", "-o", "{tmp}/w.exr"], 2, "--wavelengths: channel quadrature"),
+    "101 depths": ([*SCAN[:-2], "--depths", "1m:101m:1m", "-o", "{tmp}/w.exr"], 2, "at most 100"),
+    "preset: overlapping bands": (["preset", "show", "{overlap_toml}"], 2, "overlap"),
+    "preset: unknown camera": (["preset", "show", "{camera_toml}"], 2, "unknown camera"),
+    "preset: sensor range 1pm:2pm": (["preset", "show", "{range_toml}"], 2, "not an optical wavelength"),
+    "preset: name escaping runs/": (["preset", "show", "{name_toml}"], 2, "not a plain name"),
+    # 4. estimates before big jobs
+    "psf-scan 8192 px": (["psf-scan", "--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--pixels", "8192",
+                          "-o", "{tmp}/big.exr"], 2, "over the memory available"),
+    "psf-scan over --max-memory": ([*SCAN, "-o", "{tmp}/m.exr", "--max-memory", "1kB"], 2, "--max-memory"),
+    "simulate --psf-pixels 8192": (["simulate", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--psf-pixels", "8192",
+                                    "--images", "{imgs}", "-o", "{tmp}/s6"], 2, "over the memory available"),
+    "symmetry --validate of a 1 m lens": (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate", "--aperture", "1m"], 2, "TiB"),
+    "export-gds of a 1 m lens": ([*GDS[:3], "--f", "1m", "--aperture", "1m", *GDS[7:], "-o", "{tmp}/big.gds"], 2, "TiB on disk"),
+    "optimize over --max-memory": (["optimize", str(TINY), "-o", "{tmp}/run", "--max-memory", "1MiB"], 2, "--max-memory"),
+}
+
+
+def _snapshot(folder: str) -> dict:
+    return {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in Path(folder).rglob("*")}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_hostile_input_gets_one_line_and_no_debris(name, bench, capsys):
+    argv, code, words = CASES[name]
+    before = _snapshot(bench["tmp"])
+    dev_null = os.stat("/dev/null")
+    assert run([a.format(**bench) for a in argv]) == code
+    out, err = capsys.readouterr()
+    assert err.count("\n") == 1 and err.startswith("metalens: error: "), err
+    assert "Traceback" not in err and "internal error" not in err
+    assert words in err, err
+    assert out == ""
+    assert _snapshot(bench["tmp"]) == before  # nothing written, nothing destroyed
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode) and os.stat("/dev/null").st_ino == dev_null.st_ino
+
+
+def test_a_240_byte_name_is_written(bench, capsys):
+    target = Path(bench["tmp"]) / ("b" * 236 + ".exr")
+    assert run([*SCAN, "-o", str(target), "--quiet"]) == 0
+    assert target.is_file() and not [p for p in target.parent.iterdir() if p.name.startswith(".metalens-")]
+    target.unlink()
+
+
+def test_verify_without_klayout_is_refused_before_writing(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "klayout", None)
+    monkeypatch.setitem(sys.modules, "klayout.db", None)
+    assert run([*GDS, "-o", str(tmp_path / "v.gds"), "--verify"]) == 2
+    assert "klayout" in capsys.readouterr().err and list(tmp_path.iterdir()) == []
+
+
+def test_no_subcommand_prints_help_and_succeeds(capsys):
+    assert run([]) == 0
+    out, err = capsys.readouterr()
+    assert "Usage: metalens" in out and err == ""
+
+
+def test_optimize_early_failure_leaves_no_run_directory(tmp_path, capsys):
+    empty = tmp_path / "no_images"
+    empty.mkdir()
+    preset = tmp_path / "p.toml"
+    preset.write_text(TINY.read_text().replace("[optimize]", f'[optimize]\nimages = "{empty}"'))
+    assert run(["optimize", str(preset), "-o", str(tmp_path / "run"), "--quiet"]) == 2
+    assert "holds no images" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+def _cli(*args, **kwargs):
+    return subprocess.Popen([sys.executable, "-m", "metalens_cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, **kwargs)
+
+
+def test_sigterm_removes_the_output_being_written(tmp_path):
+    """SIGTERM while export-gds streams a 50 MB layout: exit 143, one line, no temporary, no target."""
+    proc = _cli(*GDS[:3], "--f", "4mm", "--aperture", "0.5mm", *GDS[7:], "-o", str(tmp_path / "lens.gds"), "--quiet")
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob(".metalens-*")) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143 and err == "metalens: terminated\n", err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_file_size_limit_is_one_line_exit_1(tmp_path):
+    """RLIMIT_FSIZE (ulimit -f) below the layout's size: the writer fails with EFBIG."""
+    def limit():
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1 << 20, 1 << 20))
+
+    proc = _cli(*GDS, "-o", str(tmp_path / "lens.gds"), "--quiet", preexec_fn=limit)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1 and err.count("\n") == 1 and "file-size limit" in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_full_stdout_is_one_line_exit_1():
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([sys.executable, "-m", "metalens_cli", "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--json"],
+                              stdout=full, stderr=subprocess.PIPE, text=True, timeout=60)
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "No space left" in proc.stderr, proc.stderr
+
+
+def test_json_stdout_stays_json_when_the_exr_library_complains(bench, capfd):
+    """OpenEXR writes its warnings to file descriptor 1; --json output must still parse (here: empty on error)."""
+    assert run(["mtf", bench["truncated_exr"], "--json"]) == 2
+    out, err = capfd.readouterr()
+    assert out == "" and err.count("\n") == 1
+    assert run(["mtf", bench["cube_exr"], "--json"]) == 0
+    json.loads(capfd.readouterr().out)

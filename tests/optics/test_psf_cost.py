@@ -1,0 +1,40 @@
+"""The PSF cost estimate (``optics.psf.estimate_psf``) against the peak memory of the computation
+it plans, measured in a fresh process: Linux's peak RSS (VmHWM), reset just before the PSFs
+(``/proc/self/clear_refs``), minus the RSS then."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+MEASURE = """
+import json, math, sys
+import numpy as np, torch
+from metalens_cli.optics.lens import hyperbolic
+from metalens_cli.optics.psf import compute_psf, estimate_psf
+radial, aperture, pixels, count, propagator = json.loads(sys.argv[1])
+lens = hyperbolic(532e-9, 4e-3, aperture, 395e-9, radial=radial)
+lams = list(np.linspace(430e-9, 645e-9, count))
+cost = estimate_psf(lens, lams, [0.045, math.inf], pixels, 1.85e-6, propagator=propagator)
+def status(key):
+    return next(int(line.split()[1]) * 1024 for line in open("/proc/self/status") if line.startswith(key))
+open("/proc/self/clear_refs", "w").write("5")
+before = status("VmRSS:")
+psf = compute_psf(lens, lams, [0.045, math.inf], pixels, 1.85e-6, propagator=propagator).psf.numpy().copy()
+peak = status("VmHWM:")
+print(json.dumps({"estimate": cost.memory_bytes, "measured": peak - before}))
+"""
+
+
+@pytest.mark.skipif(not os.access("/proc/self/clear_refs", os.W_OK), reason="needs Linux's resettable peak RSS")
+@pytest.mark.parametrize("case", [
+    (True, 2.516e-3, 384, 4, "radial"),   # the paper's lens: Hankel matrices and the sensor operator dominate
+    (False, 0.4e-3, 256, 2, "asm"),       # a 2-D lens: the padded FFT grid dominates
+])
+def test_estimate_bounds_the_measured_peak_within_a_factor_of_2(case):
+    proc = subprocess.run([sys.executable, "-c", MEASURE, json.dumps(case)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert 0.8 * result["measured"] <= result["estimate"] <= 2.0 * result["measured"], result
