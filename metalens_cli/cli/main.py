@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import warnings
+from contextlib import suppress
 
 import click
 
@@ -22,6 +23,7 @@ from metalens_cli import __version__
 from metalens_cli.errors import MetalensError, Terminated
 from metalens_cli.runtime import retain_freed_memory
 
+OUT_OF_MEMORY = "out of memory; ask for less (fewer pixels, wavelengths or a smaller batch) or set --max-memory"
 BAD_PATH_ERRNOS = {errno.ENOENT, errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR,
                    errno.ENAMETOOLONG, errno.ELOOP, errno.EEXIST}
 
@@ -95,12 +97,12 @@ def run(argv: list[str] | None = None) -> int:
     except OSError as exc:
         return _fail(os_error_line(exc), 2 if exc.errno in BAD_PATH_ERRNOS else 1)
     except MemoryError:
-        return _fail("out of memory; ask for less (fewer pixels, wavelengths or a smaller batch) or set --max-memory", 1)
+        return _fail(OUT_OF_MEMORY, 1)
     except Exception as exc:  # a bug: still one line; the traceback on request
         if os.environ.get("METALENS_TRACEBACK"):
             raise
         if "allocate" in str(exc) and "memory" in str(exc):  # torch's allocator refusing
-            return _fail("out of memory; ask for less (fewer pixels, wavelengths or a smaller batch) or set --max-memory", 1)
+            return _fail(OUT_OF_MEMORY, 1)
         first_line = (str(exc).strip().splitlines() or [""])[0]
         return _fail(f"internal error: {type(exc).__name__}: {first_line} (METALENS_TRACEBACK=1 shows where; please report it)", 1)
     return code if isinstance(code, int) else 0
@@ -116,19 +118,9 @@ def os_error_line(exc: OSError) -> str:
 
 
 def _fail(message: str, code: int, prefix: str = "metalens: error: ") -> int:
-    with _suppress_closed_stderr():
+    with suppress(OSError):  # stderr itself gone: the exit code still tells
         click.echo(prefix + message, err=True)
     return code
-
-
-class _suppress_closed_stderr:
-    """Nothing can be said when stderr itself is gone; the exit code still tells."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, kind, value, traceback):
-        return kind is not None and issubclass(kind, OSError)
 
 
 def _raise_terminated(signum, frame):
@@ -137,7 +129,7 @@ def _raise_terminated(signum, frame):
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Python and numpy warnings as one line each, like every other message."""
-    with _suppress_closed_stderr():
+    with suppress(OSError):  # stderr itself gone: the exit code still tells
         click.echo(f"metalens: warning: {category.__name__}: {str(message).strip().splitlines()[0] if str(message).strip() else ''}",
                    err=True)
 
@@ -145,8 +137,8 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 def cli() -> None:
     """Console-script entry point: the process is ours, so keep freed FFT work arrays (see
     :mod:`metalens_cli.runtime`), turn SIGTERM into :class:`Terminated` (outputs being written
-    are cleaned up as on Ctrl-C), print warnings as single lines, run, and report a standard output that cannot take the
-    results (a full device, a closed pipe) as one line, exit 1."""
+    are cleaned up as on Ctrl-C), print warnings as single lines, run, and report a standard
+    output that cannot take the results (a full device, a closed pipe) as one line, exit 1."""
     retain_freed_memory()
     signal.signal(signal.SIGTERM, _raise_terminated)
     warnings.showwarning = _show_warning

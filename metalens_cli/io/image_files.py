@@ -1,6 +1,7 @@
-"""Linear RGB images as EXR (float32, ZIP, atomic) and display images as 8-bit PNG (atomic).
+"""Image files: linear RGB written as EXR (float32, ZIP, atomic) and display images as 8-bit PNG
+(atomic); :func:`read_image_file`, the one reader of every image the tool takes as input.
 
-Arrays are (3, H, W) or (1, H, W) float, channel order R, G, B.
+Written arrays are (3, H, W) or (1, H, W) float, channel order R, G, B.
 """
 
 from __future__ import annotations
