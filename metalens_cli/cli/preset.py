@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import json_option, MetalensGroup
-from metalens_cli.io.presets import load_preset, to_dict
+from metalens_cli.io.presets import load_preset, read_toml, to_dict
 
 
 @click.group(cls=MetalensGroup)
@@ -18,8 +20,12 @@ def preset():
 @click.argument("file", type=click.Path(dir_okay=False))
 @json_option
 def show(file, as_json):
-    """Validate FILE and print its resolved configuration (metres, fractions)."""
-    resolved = to_dict(load_preset(file))
+    """Validate FILE and print its resolved configuration (metres, fractions): a camera preset
+    (optimize, --preset) or, with a [train] section, a reconstruction preset."""
+    from metalens_cli.io.reconstruct_presets import load_reconstruct_preset
+
+    load = load_reconstruct_preset if "train" in read_toml(Path(file)) else load_preset
+    resolved = to_dict(load(file))
     if as_json:
         render.emit_json(resolved)
         return

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from metalens_cli.errors import InputError
+from metalens_cli.io.tables import check_wavelengths
 from metalens_cli.io.presets import as_str, build_section, read_toml, toml_field, toml_key
 
 OBSTRUCTION_KINDS = ("dirt", "fence", "drops", "rain")
@@ -122,6 +123,7 @@ def reconstruct_preset_from_dict(data: dict, name: str = "reconstruct", source: 
                          "a crop no larger than the simulated captures")
     if len(preset.data.wavelengths_m) < 2 or list(preset.data.wavelengths_m) != sorted(set(preset.data.wavelengths_m)):
         raise InputError("data.wavelengths", "needs at least two increasing wavelengths", "a range such as 400:700:10nm")
+    check_wavelengths(preset.data.wavelengths_m, "data.wavelengths")
     return preset
 
 

@@ -139,3 +139,9 @@ def test_symmetry_validate_json(capsys, tmp_path):
 def test_symmetry_validate_needs_aperture(capsys):
     code, _, err = invoke(capsys, "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate")
     assert code == 2 and "--aperture" in err
+
+
+def test_preset_show_reads_reconstruction_presets(capsys):
+    code, out, err = invoke(capsys, "preset", "show", PRESETS / "quick-reconstruct.toml", "--json")
+    data = json.loads(out)
+    assert code == 0 and err == "" and set(data) >= {"network", "train", "data"} and data["train"]["steps"] == 1200
