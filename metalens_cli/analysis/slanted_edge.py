@@ -119,6 +119,8 @@ def slanted_edge_sfr(image: np.ndarray, channel_names: list[str], roi: tuple[int
     if image.ndim != 3 or image.shape[2] != len(channel_names):
         raise InputError("image", f"shape {image.shape} for channels {channel_names}", "(H, W, C) with one name per channel")
     x, y, w, h = (0, 0, image.shape[1], image.shape[0]) if roi is None else _check_roi(roi, image.shape)
+    if min(w, h) < MIN_COLUMNS:  # before any statistics of too few pixels
+        raise InputError("roi", f"{w} × {h} pixels", f"an image or ROI of at least {MIN_COLUMNS} × {MIN_COLUMNS}")
     region = image[y : y + h, x : x + w]
     vertical = _is_vertical(region.mean(axis=-1))
     oriented = region if vertical else region.transpose(1, 0, 2)

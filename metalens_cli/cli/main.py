@@ -90,6 +90,9 @@ def run(argv: list[str] | None = None) -> int:
         return _fail("aborted", 130, prefix="metalens: ")
     except Terminated:
         return _fail("terminated", 143, prefix="metalens: ")
+    except click.exceptions.NoArgsIsHelpError as exc:  # a command group alone (metalens bands): its help
+        click.echo(exc.ctx.get_help())
+        return 0
     except click.ClickException as exc:
         return _fail(exc.format_message(), 2)
     except MetalensError as exc:
@@ -147,5 +150,5 @@ def cli() -> None:
         sys.stdout.flush()
     except OSError as exc:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing left to flush at exit
-        code = _fail(os_error_line(exc), 1) if exc.errno != errno.EPIPE else 1
+        code = _fail(os_error_line(exc), 1)
     sys.exit(code)

@@ -15,8 +15,12 @@ from metalens_cli.cli.options import (
     OutputFile,
     preset_option,
 )
+from metalens_cli.errors import InputError
 
 DEFAULT_KINDS = "dirt,fence,drops,rain"
+
+
+MAX_ROWS = 16  # depths on one preview sheet
 
 
 @click.group(cls=MetalensGroup)
@@ -49,6 +53,8 @@ def preview(preset_path, kinds, depths, f_m, pixels, pixel_pitch_m, seed, output
     pixels = pixels or (preset.sensor.pixels if preset else 512)
     pixel_pitch_m = pixel_pitch_m or (preset.sensor.pixel_pitch_m if preset else 1.85e-6)
     depths_m = flatten(depths) or (sorted(set(preset.scene.z_near_m)) if preset else [0.045])
+    if len(depths_m) > MAX_ROWS:
+        raise InputError("--z-near", f"{len(depths_m)} depths; a sheet shows at most {MAX_ROWS} rows", f"at most {MAX_ROWS} depths")
     params = preset.obstruction if preset else None
     clean = builtin_images((pixels, pixels), count=1)[0].linear  # rain refracts a scene
     rows = []

@@ -27,6 +27,7 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
     """
     import torch
 
+    from metalens_cli.design.rundir import RunDirectory
     from metalens_cli.design.training import estimate_training, train
     from metalens_cli.io.resources import Estimate
     from metalens_cli.io.presets import load_preset
@@ -36,11 +37,12 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
     preset = load_preset(preset_path)
     run_dir = Path(output) if output else Path("runs") / preset.name
     if not resume:
+        RunDirectory(run_dir).check_fresh()
         planned = dataclasses.replace(preset, optimize=dataclasses.replace(
             preset.optimize, **{k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}))
         memory, seconds = estimate_training(planned)
         announce(Estimate(f"optimize of {planned.optimize.steps} steps, batch {planned.optimize.batch_size}", memory,
-                          "optimize.batch_size", seconds), max_memory)
+                          "optimize.batch_size" if seconds is not None else "lens.aperture (its 2-D θ grid)", seconds), max_memory)
     report = run_training("optimize", quiet, f"metalens optimize {preset_path} -o {run_dir} --resume",
                           lambda progress: train(preset, run_dir, steps=steps, seed=seed, device=torch_device(device),
                                                  resume=resume, on_step=progress.step))

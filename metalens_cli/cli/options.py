@@ -8,6 +8,7 @@ Output paths are checked while the command line is parsed, before any work.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -113,6 +114,9 @@ class BandSpec(_UnitType):
         return centre, width
 
 
+MAX_SEEDS = 1000
+
+
 class SeedList(click.ParamType):
     """``0``, ``0,1,2`` or an inclusive range ``0:2`` → list of non-negative integers."""
 
@@ -121,16 +125,19 @@ class SeedList(click.ParamType):
     def convert(self, value, param, ctx):
         if isinstance(value, list):
             return value
-        seeds = []
+        bounds = []
         try:
             for part in str(value).split(","):
                 lo, _, hi = part.strip().partition(":")
-                seeds += list(range(int(lo), int(hi or lo) + 1))
+                bounds.append((int(lo), int(hi or lo)))
         except ValueError:
-            seeds = []
-        if not seeds or min(seeds) < 0 or len(seeds) > 1000:
+            bounds = []
+        if not bounds or min(lo for lo, _ in bounds) < 0 or any(hi < lo for lo, hi in bounds):
             self.fail(f"{value!r} (expected seeds like 0, 0,1,2 or 0:2)", param, ctx)
-        return seeds
+        count = sum(hi - lo + 1 for lo, hi in bounds)  # before any list is built
+        if count > MAX_SEEDS:
+            self.fail(f"{value!r} holds {count} seeds (expected at most {MAX_SEEDS})", param, ctx)
+        return [seed for lo, hi in bounds for seed in range(lo, hi + 1)]
 
 
 class Number(click.FloatRange):
@@ -234,8 +241,14 @@ class MetalensCommand(click.Command):
             values = value if isinstance(value, (list, tuple)) else [value]
             if isinstance(param.type, (OutputFile, OutputFolder)):
                 outputs += [(param, v) for v in values if v is not None]
-            else:
-                inputs += [v for v in values if isinstance(v, str) and os.path.exists(v)]
+            else:  # paths, also inside lists such as --kinds dirt,file:mask.png
+                texts = [v for v in values if isinstance(v, str)]
+                inputs += [p for v in texts for p in {v, *(part.strip().removeprefix("file:") for part in v.split(","))}
+                           if p and os.path.exists(p)]
+        for (param, output), (other_param, other) in itertools.combinations(outputs, 2):
+            if same_file(output, other):
+                raise InputError(_option_name(other_param), f"{other!r} is also {_option_name(param)}'s output",
+                                 "a separate path for each output")
         for param, output in outputs:
             for path in inputs:
                 if same_file(output, path) or (isinstance(param.type, OutputFolder) and os.path.isfile(path)
@@ -302,7 +315,7 @@ def training_options(section: str):
             click.option("--seed", type=click.IntRange(0), help=f"Seed of every random draw [the preset's {section}.seed]."),
             click.option("--device", type=Device(), default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps (under torchrun: each rank's)."),
             click.option("--resume", is_flag=True, help="Continue the run in --output from its newest checkpoint (with the preset saved there)."),
-            click.option("--threads", type=click.IntRange(1), help="CPU threads for torch [torch's default]."),
+            click.option("--threads", type=click.IntRange(1, 1024), help="CPU threads for torch [torch's default]."),
             click.option("--quiet", is_flag=True, help="No progress bar or progress lines."),
             json_option,
         ])

@@ -143,21 +143,21 @@ def apply(run, inputs, output, device, memory_mib, quiet, as_json):
     from metalens_cli.cli.progress import progress_bar
     from metalens_cli.imaging.images import linear_to_srgb, read_linear
     from metalens_cli.imaging.restore import load_reconstructor
-    from metalens_cli.io.atomic import ensure_folder
+    from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.image_files import write_exr_rgb, write_png
 
     files = _inputs(inputs)
     recon = load_reconstructor(run, torch_device(device), memory_mib << 20)
-    out = ensure_folder(output, "--output")
+    out = Path(output)
     rows = []
-    with progress_bar("reconstruct apply", quiet) as update:
+    with progress_bar("reconstruct apply", quiet) as update, atomic_folder(out) as staging:  # every file or none
         for k, path in enumerate(files):
             linear = read_linear(path)
             start = time.perf_counter()
             estimate = recon(linear)
             seconds = time.perf_counter() - start
-            write_exr_rgb(out / f"{path.stem}.exr", estimate)
-            write_png(out / f"{path.stem}.png", linear_to_srgb(estimate))
+            write_exr_rgb(staging / f"{path.stem}.exr", estimate)
+            write_png(staging / f"{path.stem}.png", linear_to_srgb(estimate))
             side = recon.tile_side(*linear.shape[-2:])
             rows.append({"input": str(path), "exr": str(out / f"{path.stem}.exr"), "png": str(out / f"{path.stem}.png"),
                          "height": int(linear.shape[1]), "width": int(linear.shape[2]), "tile_px": side, "seconds": seconds})

@@ -47,8 +47,8 @@ def capture_options(f):
         click.option("--formation", type=click.Choice(FORMATIONS), default="physical", show_default=True,
                      help="physical: obstruction light P̂_near ∗ (m ⊙ I_obs); paper: the paper's α ⊙ (P̂_near ∗ I_obs)."),
         click.option("--alpha-gain", type=Number(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."),
-        click.option("--photons", type=Number(0), help="Full-well electrons for shot noise (0/absent: none)."),
-        click.option("--read-noise", type=Number(0), default=0.0, help="Read-noise σ as a fraction of full scale."),
+        click.option("--photons", type=Number(0, 1e15), help="Full-well electrons for shot noise (0/absent: none)."),
+        click.option("--read-noise", type=Number(0, 1), default=0.0, help="Read-noise σ as a fraction of full scale."),
         device_option,
     ]
     return geometry_options(apply_options(f, options))
@@ -109,36 +109,35 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
     clean = load_images(images, (s["pixels"], s["pixels"]), limit, psfs.margin)
     captures = simulate_captures(clean, kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed, params=s["obstruction_params"],
                                  formation=formation, alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
-    out = Path(output)
-    out.mkdir(parents=True, exist_ok=True)
-    files = write_captures(out, captures)
-    from metalens_cli.plotting.imaging import contact_sheet
-
-    files.append(str(contact_sheet(out / "contact_sheet.png", captures)))
-    warnings = psfs.warnings()
-    report = render.jsonable({
-        "design": design.describe(),
-        "obstruction": kind,
-        "seed": seed,
-        "z_near_m": z_near, "z_far_m": z_far,
-        "z_near_interval_m": s["z_near_interval_m"], "z_far_interval_m": s["z_far_interval_m"],
-        "pixels": s["pixels"], "pixel_pitch_m": s["pixel_pitch_m"], "canvas_margin_px": psfs.margin,
-        "wavelengths_m": s["wavelengths_m"], "formation": formation,
-        "alpha_gain": alpha_gain, "photons": photons, "read_noise": read_noise,
-        **psfs.report(),
-        "spectral_coverage": dict(zip("RGB", psfs.coverage)),
-        "images": [{"name": c.name, "obstruction_coverage": c.obstruction.coverage, "alpha_coverage": c.alpha_coverage,
-                    "obstruction_settings": c.obstruction.settings, "seconds": c.seconds} for c in captures],
-        "timing_s": {"psf": psfs.seconds, "captures": sum(c.seconds for c in captures), "total": time.perf_counter() - start},
-        "warnings": warnings,
-        "files": files,
-    })
     import json
 
-    from metalens_cli.io.atomic import atomic_write
+    from metalens_cli.io.atomic import atomic_folder
+    from metalens_cli.plotting.imaging import contact_sheet
 
-    with atomic_write(out / "simulate.json") as temporary:
-        temporary.write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    out = Path(output)
+    with atomic_folder(out) as staging:  # the folder gets every file or none (failure, Ctrl-C, SIGTERM)
+        names = write_captures(staging, captures)
+        contact_sheet(staging / "contact_sheet.png", captures)
+        files = [str(out / name) for name in [*names, "contact_sheet.png"]]
+        warnings = psfs.warnings()
+        report = render.jsonable({
+            "design": design.describe(),
+            "obstruction": kind,
+            "seed": seed,
+            "z_near_m": z_near, "z_far_m": z_far,
+            "z_near_interval_m": s["z_near_interval_m"], "z_far_interval_m": s["z_far_interval_m"],
+            "pixels": s["pixels"], "pixel_pitch_m": s["pixel_pitch_m"], "canvas_margin_px": psfs.margin,
+            "wavelengths_m": s["wavelengths_m"], "formation": formation,
+            "alpha_gain": alpha_gain, "photons": photons, "read_noise": read_noise,
+            **psfs.report(),
+            "spectral_coverage": dict(zip("RGB", psfs.coverage)),
+            "images": [{"name": c.name, "obstruction_coverage": c.obstruction.coverage, "alpha_coverage": c.alpha_coverage,
+                        "obstruction_settings": c.obstruction.settings, "seconds": c.seconds} for c in captures],
+            "timing_s": {"psf": psfs.seconds, "captures": sum(c.seconds for c in captures), "total": time.perf_counter() - start},
+            "warnings": warnings,
+            "files": files,
+        })
+        (staging / "simulate.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     err = render.console(stderr=True)
     for warning in warnings:
         err.print(f"warning: {warning}")
@@ -167,7 +166,8 @@ def _single(specs):
 
 
 def write_captures(out: Path, captures) -> list[str]:
-    """PNG (sRGB) and linear EXR of clean, unobstructed and obstructed; obstruction and α maps."""
+    """PNG (sRGB) and linear EXR of clean, unobstructed and obstructed; obstruction and α maps.
+    Returns the file names written in ``out``."""
     import numpy as np
 
     from metalens_cli.imaging.images import linear_to_srgb
@@ -181,10 +181,10 @@ def write_captures(out: Path, captures) -> list[str]:
         for label, image in (("clean", c.clean), ("unobstructed", c.unobstructed), ("obstructed", c.obstructed)):
             write_png(out / f"{c.name}_{label}.png", linear_to_srgb(image))
             write_exr_rgb(out / f"{c.name}_{label}.exr", image)
-            files += [str(out / f"{c.name}_{label}.png"), str(out / f"{c.name}_{label}.exr")]
+            files += [f"{c.name}_{label}.png", f"{c.name}_{label}.exr"]
         write_png(out / f"{c.name}_obstruction.png", linear_to_srgb(composite))
         write_png(out / f"{c.name}_alpha.png", np.clip(c.alpha, 0, 1))
         write_exr_rgb(out / f"{c.name}_obstruction_mask.exr", mask)
         write_exr_rgb(out / f"{c.name}_alpha.exr", c.alpha)
-        files += [str(out / f"{c.name}_{x}") for x in ("obstruction.png", "alpha.png", "obstruction_mask.exr", "alpha.exr")]
+        files += [f"{c.name}_{x}" for x in ("obstruction.png", "alpha.png", "obstruction_mask.exr", "alpha.exr")]
     return files

@@ -133,6 +133,7 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
     checkpoint = run.latest_checkpoint(t.steps, lists=("validations",)) if resume else None
     if not resume:
         run.check_fresh()
+    lpips_model, notes = _lpips(t, lpips_weights)  # its files are checked before the data is built
     data = _Data(design, camera, preset, pairs, ctx.device, on_stage)
     torch.manual_seed(t.seed)
     n = preset.network
@@ -140,7 +141,6 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
                                          n.spectral_bins)).to(ctx.device, memory_format=torch.channels_last)  # oneDNN's fast layout
     optimizer = torch.optim.AdamW(net.parameters(), lr=t.learning_rate, weight_decay=t.weight_decay)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: learning_rate_factor(s, t))
-    lpips_model, notes = _lpips(t, lpips_weights)
     if ctx.is_main and not resume:  # only now: every check above has passed
         run.create(reconstruct_to_toml(preset), folders=("validation",))
         run.write_text("design.json", json.dumps(identity, indent=2) + "\n")

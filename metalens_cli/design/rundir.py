@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from metalens_cli.errors import InputError
+from metalens_cli.imaging.restore import load_tensors
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.presets import load_preset
 
@@ -59,9 +60,12 @@ class RunDirectory:
         return self.preset_path.exists() or self.checkpoints.exists() or (self.path / "run.json").exists()
 
     def check_fresh(self) -> None:
-        """Refuse a folder that already holds a run (before any work, so nothing is half-made)."""
+        """Refuse a folder that already holds a run, or any other files it would write over
+        (before any work, so nothing is half-made)."""
         if self.holds_run():
             raise InputError("--output", f"{str(self.path)!r} already holds a run", "another folder, or --resume to continue it")
+        if self.path.is_dir() and any(self.path.iterdir()):
+            raise InputError("--output", f"{str(self.path)!r} is not empty", "a new or empty folder for the run")
 
     def create(self, preset_text: str, folders: tuple[str, ...] = ("samples",)) -> None:
         """Start a fresh run with its preset file: refuse a folder that already holds one."""
@@ -104,7 +108,7 @@ class RunDirectory:
             return InputError("--resume", f"{path} {what}", f"a checkpoint written by {self.made_by}")
 
         try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
+            state = load_tensors(path)
         except Exception:  # torch raises many types for foreign or damaged files
             raise refuse("cannot be read: it is truncated, damaged or not a torch file") from None
         if not isinstance(state, dict):
@@ -180,3 +184,4 @@ def _tensors(value):
     elif isinstance(value, dict | list | tuple):
         for item in value.values() if isinstance(value, dict) else value:
             yield from _tensors(item)
+

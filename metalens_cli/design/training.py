@@ -47,6 +47,8 @@ from metalens_cli.optics.spectra import mix_channels, preset_sensitivity, sample
 
 DEFAULT_LAMBDA_D_M = 532e-9
 PLAN_HEADROOM = 1.25
+THETA_GRID_COPIES = 12       # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
+LARGE_GRID_BYTES = 1 << 30   # a 2-D θ grid above this is estimated (and refused) before it is built
 WINDOW_SENSITIVITY = 1e-3  # wavelengths whose S^c exceeds this fraction of the peak size the windows
 
 
@@ -144,15 +146,21 @@ def plan_windows(preset, sensitivity) -> Windows:
     return Windows(psf_window(lens, waves, list(near), d, pitch, PLAN_HEADROOM), psf_window(lens, waves, list(far), d, pitch, PLAN_HEADROOM))
 
 
-def estimate_training(preset) -> tuple[int, float]:
+def estimate_training(preset) -> tuple[int, float | None]:
     """(peak bytes, seconds) of a run of ``preset``: one step's PSFs (``optics.psf.estimate_psf``
     at the plan's wavelength range, kept for the backward pass: ×2) and its batch of captures on
     the canvas (about 20 float32 planes of 3 channels per image, forward and backward); time from
     the PSF plan (×3 with its backward pass) and the canvas FFTs (×1.5), times the steps. On the
-    quick preset: 48 min estimated, 36 min measured (run.json of runs/quick-split-spectrum)."""
+    quick preset: 48 min estimated, 36 min measured (run.json of runs/quick-split-spectrum). A 2-D
+    θ grid over 1 GiB is estimated alone, without building anything (time None)."""
     from metalens_cli.optics.psf import FFT_RATE, estimate_psf
 
     o = preset.optimize
+    if preset.lens.parameterization == "2d":  # before building it: the θ grid alone can exceed the machine
+        side = o.design_grid or math.ceil(preset.lens.aperture_m / preset.nanofin.pitch_m) + 1
+        grid_bytes = THETA_GRID_COPIES * 4 * side**2
+        if grid_bytes > LARGE_GRID_BYTES:
+            return grid_bytes, None
     windows = plan_windows(preset, preset_sensitivity(preset))
     lo, hi = plan_range(preset)[0]
     waves = list(np.linspace(lo, hi, 3 * o.wavelengths_per_channel))
@@ -355,6 +363,9 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     loss, parts = training_loss(capture, clean, sensor_psf(far, preset), preset.loss, session.features, image_share=share,
                                  psf_share=1 / ctx.world)
     t = _lap(timing, "formation_loss", t)
+    if not torch.isfinite(loss):
+        raise InputError("optimize.learning_rate", f"training diverged at step {step + 1}: the loss is {float(loss)}",
+                         "a smaller learning rate or loss weights")
     loss.backward()
     t = _lap(timing, "backward", t)
     names = sorted(parts)

@@ -52,6 +52,14 @@ class NetworkShape:
     position_scale: float = 64.0
     spectral_bins: int = 32
 
+    def __post_init__(self):
+        """ValueError for sizes no network has (a foreign or damaged model file's)."""
+        counts = {"width": (self.width, 1), "depth": (self.depth, 0), "frequencies": (self.frequencies, 0),
+                  "reduction": (self.reduction, 1), "spectral_bins": (self.spectral_bins, 0)}
+        for name, (value, least) in counts.items():
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise ValueError(f"{name} {value!r} is not an integer ≥ {least}")
+
     def to_dict(self) -> dict:
         return asdict(self)
 

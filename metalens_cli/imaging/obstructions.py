@@ -53,6 +53,10 @@ class Obstruction:
         return float(self.sensor_mask.mean())
 
 
+MIN_FEATURE_PX = 0.05       # finer obstruction features than this alias into noise
+MAX_FEATURE_CANVASES = 100  # coarser than this many canvas widths: uniform, and costly to draw
+
+
 def pixels_from_metres(size_m: float, focal_length_m: float, depth_m: float, pixel_pitch_m: float) -> float:
     """Sensor pixels spanned by a feature of ``size_m`` metres at depth ``depth_m``: s·f/z/pitch."""
     return size_m * focal_length_m / depth_m / pixel_pitch_m
@@ -182,11 +186,17 @@ def make_obstruction(
     if not (depth_m > 0 and math.isfinite(depth_m)):
         raise InputError("--z-near", f"{depth_m!r}", "a finite positive depth")
 
-    def px(size_m):
-        return pixels_from_metres(size_m, focal_length_m, depth_m, pixel_pitch_m)
-
     sensor = tuple(int(v) for v in shape)
     shape = (sensor[0] + 2 * margin, sensor[1] + 2 * margin)
+
+    def px(size_m):
+        size = pixels_from_metres(size_m, focal_length_m, depth_m, pixel_pitch_m)
+        if not MIN_FEATURE_PX <= size <= MAX_FEATURE_CANVASES * max(shape):
+            raise InputError("--z-near", f"a {size_m * 1e3:g} mm {spec} feature at {depth_m * 1e3:g} mm spans {size:.3g} pixels "
+                             f"(f {focal_length_m * 1e3:g} mm, pitch {pixel_pitch_m * 1e6:g} µm)",
+                             f"a geometry where obstruction features span {MIN_FEATURE_PX}-{MAX_FEATURE_CANVASES} canvases of pixels")
+        return size
+
     if spec == "dirt":
         rgb, mask, info = dirt(shape, px(p.dirt_scale_m), rng, p)
     elif spec == "fence":

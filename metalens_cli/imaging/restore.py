@@ -150,7 +150,7 @@ def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAUL
     if not path.is_file():
         raise InputError(field_name, f"{str(run)!r} holds no trained network ({MODEL_FILE} missing)", expected)
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        state = load_tensors(path)
     except Exception:  # torch raises many types for foreign or damaged files
         raise InputError(field_name, f"cannot read {str(path)!r}: it is truncated, damaged or not a torch file", expected) from None
     if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT or not isinstance(state.get("design", {}), dict):
@@ -168,3 +168,14 @@ def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAUL
         raise InputError(field_name, f"{str(path)!r} holds NaN or infinite weights or position scale", expected)
     net.eval().to(device)
     return Reconstructor(net, state.get("design", {}), torch.device(device), memory_bytes, source=str(run))
+
+
+def load_tensors(path: Path):
+    """``torch.load`` of tensors and plain containers only (``weights_only``), onto the CPU, its
+    warnings about foreign pickles kept off stderr (callers refuse such files in their own words).
+    Shared by model files and training checkpoints."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return torch.load(path, map_location="cpu", weights_only=True)

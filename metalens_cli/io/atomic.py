@@ -14,6 +14,7 @@ import os
 import resource
 import secrets
 import shutil
+import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -59,6 +60,28 @@ def atomic_write(target: str | os.PathLike[str]) -> Iterator[Path]:
         raise
 
 
+@contextmanager
+def atomic_folder(target: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a fresh hidden folder beside ``target`` to write a command's files into; on success
+    it becomes ``target`` (renamed when ``target`` does not exist, else its files are moved in one
+    by one), on any exception (Ctrl-C, SIGTERM included) it is removed: ``target`` never holds
+    part of one run's files. Missing parents of ``target`` are created."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".metalens-", suffix=".tmp", dir=target.parent))
+    try:
+        yield staging
+        if target.exists():
+            for item in staging.iterdir():
+                os.replace(item, target / item.name)
+            staging.rmdir()
+        else:
+            os.rename(staging, target)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
 def check_output_file(path: str | os.PathLike[str], field: str, *, suffixes: Iterable[str] | None = None) -> Path:
     """Refuse, before any work, an output file that cannot be written where it is asked for.
 
@@ -70,13 +93,13 @@ def check_output_file(path: str | os.PathLike[str], field: str, *, suffixes: Ite
     target = Path(path)
     if target.name in ("", ".", ".."):
         raise InputError(field, f"{str(path)!r} names a folder", "a file path")
+    _check_name_lengths(target, field)
     if suffixes is not None:
         allowed = tuple(suffixes)
         if target.suffix.lower() not in allowed:
             raise InputError(field, f"{target.name!r} does not end in {_either(allowed)}", f"a file name ending in {_either(allowed)}")
     if not target.parent.is_dir():
         raise InputError(field, f"folder {str(target.parent)!r} does not exist", "a file in an existing folder")
-    _check_name_length(target, field)
     if target.is_dir():
         raise InputError(field, f"{str(target)!r} is a folder", "a file path")
     if target.exists() and not target.is_file():
@@ -90,11 +113,11 @@ def check_output_folder(path: str | os.PathLike[str], field: str) -> Path:
     non-folder, a name too long, or a nearest existing ancestor that is not a writable folder.
     Nothing is created."""
     folder = Path(path)
+    _check_name_lengths(folder, field)
     if folder.exists() and not folder.is_dir():
         raise InputError(field, f"{str(folder)!r} exists and is not a folder", "a folder path")
     existing = folder
     while not existing.exists():
-        _check_name_length(existing, field)
         existing = existing.parent
     if not existing.is_dir():
         raise InputError(field, f"{str(existing)!r} is not a folder", "a path inside folders")
@@ -121,15 +144,18 @@ def _either(suffixes: tuple[str, ...]) -> str:
     return suffixes[0] if len(suffixes) == 1 else ", ".join(suffixes[:-1]) + " or " + suffixes[-1]
 
 
-def _check_name_length(path: Path, field: str) -> None:
-    folder = path.parent if path.parent.is_dir() else Path(".")
+def _check_name_lengths(path: Path, field: str) -> None:
+    """Every component of ``path`` within the file system's name limit (checked before any stat,
+    which would fail on a long name with an OSError of its own)."""
     try:
-        limit = os.pathconf(folder, "PC_NAME_MAX")
+        limit = os.pathconf(".", "PC_NAME_MAX")
     except (OSError, ValueError):
         limit = 255
-    size = len(os.fsencode(path.name))
-    if size > limit:
-        raise InputError(field, f"the name {path.name[:24]!r}… is {size} bytes; this file system allows {limit}", f"a name of at most {limit} bytes")
+    for part in path.parts:
+        size = len(os.fsencode(part))
+        if size > limit:
+            raise InputError(field, f"the name {part[:24]!r}… is {size} bytes; this file system allows {limit}",
+                             f"names of at most {limit} bytes")
 
 
 def _probe_writable(folder: Path, field: str) -> None:

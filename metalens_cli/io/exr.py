@@ -157,6 +157,8 @@ def _parse_header(field: str, text: Any) -> dict[str, Any]:
         metadata = json.loads(text)
     except json.JSONDecodeError as error:
         raise InputError(field, f"header '{HEADER_ATTRIBUTE}' is not valid JSON ({error.msg})", "a JSON object") from None
+    except RecursionError:
+        raise InputError(field, f"header '{HEADER_ATTRIBUTE}' nests too deeply", "a flat JSON object") from None
     if not isinstance(metadata, dict):
         raise InputError(field, f"header '{HEADER_ATTRIBUTE}' is not a JSON object", "a JSON object")
     if metadata.get("format") != FORMAT:

@@ -13,7 +13,7 @@ import numpy as np
 
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
-from metalens_cli.io.input_files import check_image_size, open_exr, regular_file
+from metalens_cli.io.input_files import check_image_size, library_output, open_exr, regular_file
 
 
 def write_exr_rgb(path: str | os.PathLike[str], image: np.ndarray) -> None:
@@ -55,12 +55,15 @@ def read_image_file(path: Path, field: str) -> tuple[np.ndarray, list[str], bool
         return pixels, names, True
     import cv2
 
-    try:
-        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    except cv2.error as exc:
-        raise InputError(field, f"{path.name} cannot be decoded: {str(exc).strip().splitlines()[-1][:120]}", "a PNG, JPEG, TIFF or EXR image") from None
+    with library_output() as said:  # OpenCV and libpng report to stderr: quote them instead
+        try:
+            raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        except cv2.error as exc:
+            raw, said.text = None, str(exc)
     if raw is None:
-        raise InputError(field, f"{path.name} is not a readable image", "a PNG, JPEG, TIFF or EXR image")
+        reason = next((line.strip() for line in reversed(said.text.splitlines()) if line.strip()), "")
+        raise InputError(field, f"{path.name} is not a readable image" + (f" ({reason[:120]})" if reason else ""),
+                         "a PNG, JPEG, TIFF or EXR image")
     scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(raw.dtype)
     if scale is None:
         raise InputError(field, f"{path.name} has {raw.dtype} pixels", "8- or 16-bit integer pixels (or an EXR for floats)")

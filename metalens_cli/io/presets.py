@@ -77,7 +77,7 @@ class SensorConfig:
     """Colour sensor: square pixels, window size, spectral response and range."""
 
     pixel_pitch_m: float = toml_key("pixel_pitch", "length")
-    pixels: int = toml_key("pixels", "int", lo=1, hi=16384)
+    pixels: int = toml_key("pixels", "int", lo=1, hi=8192)
     camera_response: str = toml_key("camera_response", "string", default="Nikon 5100 (NPL)")  # name or CSV path
     wavelength_range_m: tuple[float, float] = toml_key("wavelength_range", "interval", default=(400e-9, 700e-9))
 
@@ -95,7 +95,7 @@ class OptimizeConfig:
     """End-to-end learning of θ (Suppl. Note 4): AdamW with cosine annealing."""
 
     steps: int = toml_key("steps", "int", lo=0, hi=10_000_000)
-    learning_rate: float = toml_key("learning_rate", "float", lo=0.0)
+    learning_rate: float = toml_key("learning_rate", "float", lo=0.0, hi=10.0)
     t_max: int = toml_key("t_max", "int", lo=1, hi=10_000_000)
     optimizer: str = toml_key("optimizer", "choice", choices=("adamw",), default="adamw")
     scheduler: str = toml_key("scheduler", "choice", choices=("cosine", "constant"), default="cosine")
@@ -115,11 +115,11 @@ class OptimizeConfig:
 class LossConfig:
     """Weights of L1, 1 − SSIM, domain adaptation, L_bright and L_sharp."""
 
-    l1: float = toml_key("l1", "float", lo=0.0, default=1.0)
-    ssim: float = toml_key("ssim", "float", lo=0.0, default=1.0)
-    domain_adaptation: float = toml_key("domain_adaptation", "float", lo=0.0, default=1.0)
-    bright: float = toml_key("bright", "float", lo=0.0, default=1.0)
-    sharp: float = toml_key("sharp", "float", lo=0.0, default=1.0)
+    l1: float = toml_key("l1", "float", lo=0.0, hi=1e3, default=1.0)
+    ssim: float = toml_key("ssim", "float", lo=0.0, hi=1e3, default=1.0)
+    domain_adaptation: float = toml_key("domain_adaptation", "float", lo=0.0, hi=1e3, default=1.0)
+    bright: float = toml_key("bright", "float", lo=0.0, hi=1e3, default=1.0)
+    sharp: float = toml_key("sharp", "float", lo=0.0, hi=1e3, default=1.0)
     sharp_window: int = toml_key("sharp_window", "int", lo=1, hi=101, default=5)
     sharp_mode: str = toml_key("sharp_mode", "choice", choices=("total", "per_channel"), default="total")  # see design.losses
     domain_adaptation_weights: str | None = toml_key("domain_adaptation_weights", "path", default=None)  # DeepLabv3+ checkpoint
@@ -175,6 +175,7 @@ SECTIONS: dict[str, tuple[type, bool]] = {
 }
 OPTIONAL_DEFAULTS = {"loss": LossConfig, "obstruction": ObstructionConfig}
 TOP_LEVEL_KEYS = {"name", "description"}
+MAX_OBSTRUCTION_M = 0.1  # obstruction features (dirt cells, wires, drops) on a cover glass
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 
 
@@ -281,6 +282,11 @@ def _check_consistency(p: Preset) -> None:
         check_wavelengths(values, key)
     if p.sensor.wavelength_range_m[0] >= p.sensor.wavelength_range_m[1]:
         raise InputError("sensor.wavelength_range", "is empty", "LO:HI with LO < HI, e.g. 400nm:700nm")
+    o = p.obstruction
+    for key, value in (("dirt_scale", o.dirt_scale_m), ("fence_pitch", o.fence_pitch_m), ("fence_width", o.fence_width_m),
+                       ("drop_radius", o.drop_radius_m[1]), ("rain_radius", o.rain_radius_m[1])):
+        if not value <= MAX_OBSTRUCTION_M:
+            raise InputError(f"obstruction.{key}", f"{value:g} m is not a feature on a cover glass", f"at most {MAX_OBSTRUCTION_M * 1e3:g} mm")
     camera = p.sensor.camera_response
     if camera not in CAMERA_NAMES and not camera.lower().endswith(".csv"):
         raise InputError("sensor.camera_response", f"unknown camera {camera!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV path")
@@ -345,6 +351,8 @@ def read_toml(path: Path, field: str = "preset") -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(field, f"{path.name} is not valid TOML: {exc}", "TOML (https://toml.io)") from None
+    except RecursionError:
+        raise InputError(field, f"{path.name} nests arrays or tables too deeply", "a preset's flat sections") from None
 
 
 def load_preset(path: str | Path) -> Preset:

@@ -50,7 +50,7 @@ class TrainConfig:
     steps: int = toml_key("steps", "int", lo=0, hi=10_000_000)
     batch_size: int = toml_key("batch_size", "int", lo=1, hi=4096, default=8)
     crop: int = toml_key("crop", "int", lo=16, hi=4096, default=128)
-    learning_rate: float = toml_key("learning_rate", "float", lo=0.0, default=2e-3)
+    learning_rate: float = toml_key("learning_rate", "float", lo=0.0, hi=10.0, default=2e-3)
     weight_decay: float = toml_key("weight_decay", "float", lo=0.0, default=1e-4)
     warmup_steps: int = toml_key("warmup_steps", "int", lo=0, hi=10_000_000, default=50)
     restart_period: int = toml_key("restart_period", "int", lo=1, hi=10_000_000, default=1000)
@@ -58,8 +58,8 @@ class TrainConfig:
     seed: int = toml_key("seed", "int", lo=0, hi=2**63 - 1, default=0)
     checkpoint_every: int = toml_key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
     validate_every: int = toml_key("validate_every", "int", lo=1, hi=10_000_000, default=250)
-    l1: float = toml_key("l1", "float", lo=0.0, default=1.0)
-    ssim: float = toml_key("ssim", "float", lo=0.0, default=0.1)
+    l1: float = toml_key("l1", "float", lo=0.0, hi=1e3, default=1.0)
+    ssim: float = toml_key("ssim", "float", lo=0.0, hi=1e3, default=0.1)
     lpips: float = toml_key("lpips", "float", lo=0.0, default=0.1)
 
 

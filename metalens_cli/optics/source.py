@@ -17,11 +17,12 @@ import torch
 
 
 def source_phase(r: torch.Tensor, wavelength_m: torch.Tensor | float, depth_m: float) -> torch.Tensor:
-    """k·(√(r² + z²) − z) in rad at radii ``r`` (m), computed as k·r²/(√(r² + z²) + z)."""
+    """k·(√(r² + z²) − z) in rad at radii ``r`` (m), computed as k·r²/(z·(√(1 + (r/z)²) + 1)):
+    no cancellation for large z, no overflow of z² for any finite z."""
     if math.isinf(depth_m):
         return torch.zeros_like(r)
     k = 2 * math.pi / wavelength_m
-    return k * r**2 / (torch.sqrt(r**2 + depth_m**2) + depth_m)
+    return k * r**2 / (depth_m * (torch.sqrt(1 + (r / depth_m) ** 2) + 1))
 
 
 def source_amplitude(r: torch.Tensor, depth_m: float) -> torch.Tensor:

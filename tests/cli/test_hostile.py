@@ -29,6 +29,12 @@ NPY, NPY_REST = ["psf-scan", "--design"], [*LENS, "--pitch", "395nm", *SCAN[5:],
 GDS = ["export-gds", "--design", "hyperbolic:532nm", *LENS, "--pitch", "395nm", "--width", "200nm", "--length", "100nm"]
 
 
+def cv2_write(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    assert cv2.imwrite(str(path), image)
+
+
 def _png_header(path: Path, width: int, height: int) -> None:
     """A PNG whose header claims width × height pixels, with one tiny (truncated) data chunk."""
     def chunk(kind: bytes, data: bytes) -> bytes:
@@ -46,6 +52,12 @@ def bench(tmp_path_factory):
     (root / "folder.exr").mkdir()
     os.mkfifo(root / "fifo.csv")
     (root / "a_file").write_text("x")
+    (root / "deep.toml").write_text("a = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    (root / "user_files").mkdir()
+    (root / "user_files" / "theta.npy").write_bytes(b"the user's own file")
+    _png_header(root / "fake.png", 0, 0)
+    cv2_write(root / "one.png", np.zeros((1, 1), np.uint8))
+    cv2_write(root / "mask.png", np.full((8, 8), 255, np.uint8))
     (root / "latin1.toml").write_bytes(b"name = '\xe9\xff'\n")
     (root / "big.toml").write_bytes(b"#" * (5 << 20))
     with open(root / "huge.npy", "wb") as handle:
@@ -68,6 +80,8 @@ def bench(tmp_path_factory):
         "camera.toml": preset.replace('camera_response = "Nikon 5100 (NPL)"', 'camera_response = "Kodak Brownie"'),
         "range.toml": preset.replace('wavelength_range = "400nm:700nm"', 'wavelength_range = "1pm:2pm"'),
         "name.toml": preset.replace('name = "split-spectrum"', 'name = "../../x"'),
+        "drops.toml": preset.replace('drop_radius = "0.2mm:0.8mm"', 'drop_radius = "0.2mm:inf"'),
+        "rate.toml": preset.replace("learning_rate = ", "learning_rate = 1e308 # "),
     }
     assert all(text != preset for text in variants.values())
     for name, text in variants.items():
@@ -94,7 +108,15 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "optimize -o under a file": (["optimize", str(TINY), "-o", "{a_file}/run"], 2, "not a folder"),
     "symmetry --plot in a missing folder": (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--plot", "{tmp}/nope/s.png"], 2, "does not exist"),
     "bands check --plot in a missing folder": (["bands", "check", "--preset", str(PRESETS / "split-spectrum.toml"), "--plot", "{tmp}/nope/b.png"], 2, "does not exist"),
+    "mtf: --csv and --plot on one path": (["mtf", "{cube_exr}", "--csv", "{tmp}/same.png", "--plot", "{tmp}/same.png"], 2,
+                                           "is also --csv's output"),
+    "obstruction file: mask as its own output": (["obstruction", "preview", "--pixels", "16", "--kinds", "file:{mask_png}",
+                                                  "-o", "{mask_png}"], 2, "also an input"),
+    "optimize into a folder of user files": (["optimize", str(TINY), "-o", "{user_files}"], 2, "is not empty"),
     # 2. input files
+    "preset nested 100 000 deep": (["preset", "show", "{deep_toml}"], 2, "too deeply"),
+    "image with a broken header": (["mtf", "--edge", "{fake_png}"], 2, "not a readable image"),
+    "slanted edge of 1 × 1 pixel": (["mtf", "--edge", "{one_png}"], 2, "at least"),
     "preset show: not UTF-8": (["preset", "show", "{latin1_toml}"], 2, "UTF-8"),
     "preset show /dev/zero": (["preset", "show", "/dev/zero"], 2, "not a regular file"),
     "preset show: 5 MiB": (["preset", "show", "{big_toml}"], 2, "larger than"),
@@ -108,7 +130,7 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "simulate negative image": (["simulate", *SIM[:-1], "{negative_exr}", "-o", "{tmp}/s2"], 2, "negative"),
     # 3. validation before work
     "--photons nan": (["simulate", *SIM, "--photons", "nan", "-o", "{tmp}/s3"], 2, "not a finite number"),
-    "--read-noise inf": (["simulate", *SIM, "--read-noise", "inf", "-o", "{tmp}/s4"], 2, "not a finite number"),
+    "--read-noise inf": (["simulate", *SIM, "--read-noise", "inf", "-o", "{tmp}/s4"], 2, "--read-noise"),
     "--alpha-gain nan": (["evaluate", *SIM, "--alpha-gain", "nan"], 2, "not a finite number"),
     "--device meta": ([*SCAN, "-o", "{tmp}/d.exr", "--device", "meta"], 2, "unknown device"),
     "--device xpu": (["simulate", *SIM, "--device", "xpu", "-o", "{tmp}/s5"], 2, "unknown device"),
@@ -120,6 +142,14 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "preset: overlapping bands": (["preset", "show", "{overlap_toml}"], 2, "overlap"),
     "preset: unknown camera": (["preset", "show", "{camera_toml}"], 2, "unknown camera"),
     "preset: sensor range 1pm:2pm": (["preset", "show", "{range_toml}"], 2, "not an optical wavelength"),
+    "preset: infinite drops": (["preset", "show", "{drops_toml}"], 2, "obstruction.drop_radius"),
+    "preset: learning rate 1e308": (["preset", "show", "{rate_toml}"], 2, "optimize.learning_rate"),
+    "--read-noise 1e300": (["simulate", *SIM, "--read-noise", "1e300", "-o", "{tmp}/s7"], 2, "--read-noise"),
+    "--threads 100000": (["optimize", str(TINY), "-o", "{tmp}/run2", "--threads", "100000"], 2, "--threads"),
+    "--seed 0:99999999999": (["evaluate", *SIM, "--seed", "0:99999999999"], 2, "holds 100000000000 seeds"),
+    "obstruction sheet of 1000 depths": (["obstruction", "preview", "--pixels", "16", "--z-near", "1:1000:1mm", "-o", "{tmp}/o.png"], 2,
+                                         "at most 16 rows"),
+    "obstruction 1 nm away": (["obstruction", "preview", "--pixels", "16", "--z-near", "1nm", "-o", "{tmp}/o.png"], 2, "spans"),
     "preset: name escaping runs/": (["preset", "show", "{name_toml}"], 2, "not a plain name"),
     # 4. estimates before big jobs
     "psf-scan 8192 px": (["psf-scan", "--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--pixels", "8192",
@@ -134,7 +164,8 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
 
 
 def _snapshot(folder: str) -> dict:
-    return {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in Path(folder).rglob("*")}
+    """Every file's size and time, every folder's name (a folder's time moves with the write probe)."""
+    return {p: None if p.is_dir() else (p.stat().st_size, p.stat().st_mtime_ns) for p in Path(folder).rglob("*")}
 
 
 @pytest.mark.parametrize("name", list(CASES))
@@ -166,8 +197,9 @@ def test_verify_without_klayout_is_refused_before_writing(tmp_path, monkeypatch,
     assert "klayout" in capsys.readouterr().err and list(tmp_path.iterdir()) == []
 
 
-def test_no_subcommand_prints_help_and_succeeds(capsys):
-    assert run([]) == 0
+@pytest.mark.parametrize("group", [[], ["bands"], ["preset"], ["obstruction"], ["reconstruct"]])
+def test_a_group_alone_prints_its_help_and_succeeds(group, capsys):
+    assert run(group) == 0
     out, err = capsys.readouterr()
     assert "Usage: metalens" in out and err == ""
 
@@ -207,6 +239,18 @@ def test_file_size_limit_is_one_line_exit_1(tmp_path):
         resource.setrlimit(resource.RLIMIT_FSIZE, (1 << 20, 1 << 20))
 
     proc = _cli(*GDS, "-o", str(tmp_path / "lens.gds"), "--quiet", preexec_fn=limit)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1 and err.count("\n") == 1 and "file-size limit" in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_simulate_under_a_file_size_limit_leaves_no_folder(bench, tmp_path):
+    def limit():
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+
+    proc = _cli("simulate", *[a.format(**bench) for a in SIM], "-o", str(tmp_path / "out"), preexec_fn=limit)
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 1 and err.count("\n") == 1 and "file-size limit" in err, err
     assert list(tmp_path.iterdir()) == []

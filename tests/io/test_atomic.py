@@ -1,0 +1,55 @@
+"""Output folders written all or nothing, and output paths checked before work (io.atomic)."""
+
+import os
+
+import pytest
+
+from metalens_cli.errors import InputError
+from metalens_cli.io.atomic import atomic_folder, check_output_file, check_output_folder
+
+
+def test_atomic_folder_publishes_everything_or_nothing(tmp_path):
+    target = tmp_path / "new" / "out"
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_folder(target) as staging:
+            (staging / "a.txt").write_text("a")
+            raise KeyboardInterrupt
+    assert not target.exists() and os.listdir(tmp_path / "new") == []
+    with atomic_folder(target) as staging:
+        (staging / "a.txt").write_text("a")
+    assert os.listdir(target) == ["a.txt"] and os.listdir(tmp_path / "new") == ["out"]
+    (target / "keep.txt").write_text("user's")
+    with atomic_folder(target) as staging:  # an existing folder: files moved in, others kept
+        (staging / "a.txt").write_text("b")
+    assert sorted(os.listdir(target)) == ["a.txt", "keep.txt"] and (target / "a.txt").read_text() == "b"
+    assert os.listdir(tmp_path / "new") == ["out"]
+
+
+@pytest.mark.parametrize("make, path, words", [
+    (lambda t: None, "missing/x.csv", "does not exist"),
+    (lambda t: (t / "d.csv").mkdir(), "d.csv", "is a folder"),
+    (lambda t: os.mkfifo(t / "f.csv"), "f.csv", "not a regular file"),
+    (lambda t: None, "a" * 300 + ".csv", "bytes"),
+    (lambda t: None, "x.txt", "does not end in .csv"),
+])
+def test_check_output_file_refuses(tmp_path, make, path, words):
+    make(tmp_path)
+    with pytest.raises(InputError, match=words) as info:
+        check_output_file(tmp_path / path, "--csv", suffixes=(".csv",))
+    assert info.value.field == "--csv"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".metalens-")]
+
+
+def test_check_output_paths_refuse_unwritable_folders_even_for_root():
+    with pytest.raises(InputError, match="cannot write in folder"):
+        check_output_file("/proc/x.csv", "--csv")
+    with pytest.raises(InputError, match="cannot write in folder"):
+        check_output_folder("/proc/new/out", "-o")
+
+
+def test_check_output_folder_creates_nothing(tmp_path):
+    assert check_output_folder(tmp_path / "a" / "b", "-o") == tmp_path / "a" / "b"
+    assert os.listdir(tmp_path) == []
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        check_output_folder(tmp_path / "file" / "out", "-o")
