@@ -28,6 +28,21 @@ def test_source_phase_float32_matches_float64(depth):
     assert np.abs(naive - exact).max() > 1e-3
 
 
+@pytest.mark.parametrize("depth", [1e-3, 1e3, 1e150, 1e300])
+def test_source_phase_against_its_series_at_any_depth(depth):
+    """k(√(r² + z²) − z) = k r²/(2z) · (1 − r²/(4z²) + r⁴/(8z⁴) − …): the closed form for r ≪ z,
+    finite and without overflow up to z = 1e300 m (z² would overflow)."""
+    k = 2 * math.pi / 532e-9
+    r = R.double()[1:]
+    phase = source_phase(r, 532e-9, depth).numpy()
+    x = (r.numpy() / depth) ** 2
+    series = k * r.numpy() ** 2 / (2 * depth) * (1 - x / 4 + x**2 / 8 - 5 * x**3 / 64)
+    if depth > 1e-2:
+        assert_allclose(phase, series, rtol=1e-12)
+    else:  # r ~ z: the direct form (which cancels to ~1e-10 relative near the axis)
+        assert_allclose(phase, k * (np.hypot(r.numpy(), depth) - depth), rtol=1e-9)
+
+
 def test_plane_wave_and_amplitude():
     assert torch.all(source_phase(R, 500e-9, math.inf) == 0)
     assert torch.all(source_amplitude(R, math.inf) == 1)
