@@ -27,6 +27,16 @@ from metalens_cli.cli.options import (
 )
 from metalens_cli.errors import InputError
 
+class Photons(Number):
+    """A full well in electrons: 0 (no shot noise) or at least 1."""
+
+    def convert(self, value, param, ctx):
+        electrons = super().convert(value, param, ctx)
+        if 0 < electrons < 1:
+            self.fail(f"{value!r} electrons (expected 0 for no shot noise, or at least 1)", param, ctx)
+        return electrons
+
+
 FORMATIONS = ("physical", "paper")  # imaging.formation.FORMATIONS (not imported: it pulls in torch)
 
 DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
@@ -47,7 +57,7 @@ def capture_options(f):
         click.option("--formation", type=click.Choice(FORMATIONS), default="physical", show_default=True,
                      help="physical: obstruction light P̂_near ∗ (m ⊙ I_obs); paper: the paper's α ⊙ (P̂_near ∗ I_obs)."),
         click.option("--alpha-gain", type=Number(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."),
-        click.option("--photons", type=Number(0, 1e15), help="Full-well electrons for shot noise (0/absent: none)."),
+        click.option("--photons", type=Photons(0, 1e15), help="Full-well electrons for shot noise (0/absent: none)."),
         click.option("--read-noise", type=Number(0, 1), default=0.0, help="Read-noise σ as a fraction of full scale."),
         device_option,
     ]

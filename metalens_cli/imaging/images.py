@@ -115,6 +115,8 @@ def image_paths(source: str | Path | None, limit: int | None = None) -> list[Pat
     """The files :func:`load_images` reads (at most ``limit``), or None for the built-in scenes."""
     if source is None or str(source) == BUILTIN:
         return None
+    if not str(source).strip():
+        raise InputError("--images", "is empty", f"a folder of {', '.join(SUFFIXES)} images, one file, or builtin")
     path = Path(source)
     if path.is_file():
         files = [path]

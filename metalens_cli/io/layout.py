@@ -393,11 +393,15 @@ def require_klayout():
 
 
 def format_of(path: str | os.PathLike, fmt: str | None) -> str:
-    """The output format: ``fmt`` if given, else from the extension (.gds, .oas)."""
-    if fmt is not None:
-        return fmt
+    """The output format: ``fmt`` if given (refused when the extension names the other one), else
+    from the extension (.gds, .oas)."""
     suffix = Path(path).suffix.lower().lstrip(".")
     aliases = {"gds": "gds", "gdsii": "gds", "gds2": "gds", "oas": "oas", "oasis": "oas"}
+    if fmt is not None:
+        if aliases.get(suffix, fmt) != fmt:
+            raise InputError("--format", f"{fmt} into {Path(path).name!r}, whose extension says {aliases[suffix]}",
+                             "a format matching the extension")
+        return fmt
     if suffix not in aliases:
         raise InputError("--output", f"cannot tell the format of {str(path)!r} from its extension", ".gds or .oas, or --format")
     return aliases[suffix]
