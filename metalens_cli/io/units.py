@@ -104,8 +104,9 @@ def _length(number: str, unit: str, text, field: str, allow_inf: bool) -> tuple[
 
 
 def _parse_length(text, field: str, allow_inf: bool) -> tuple[float, str, int] | None:
-    """:func:`parse_length` with the exact decimal of a finite value (``None`` for inf)."""
-    s = str(text).strip().replace(" ", "")
+    """:func:`parse_length` with the exact decimal of a finite value (``None`` for inf). Spaces
+    may separate the number from its unit (``1 mm``), never split the number (``4 5mm``)."""
+    s = str(text).strip()
     low = s.lower()
     if low in {"inf", "+inf", "infinity"}:
         if allow_inf:
@@ -136,7 +137,7 @@ def parse_length(text: str, field: str, *, allow_inf: bool = False) -> float:
 
 
 def _expand_range(text: str, field: str, limit: int) -> list[float]:
-    s = str(text).strip().replace(" ", "")
+    s = re.sub(r"\s*:\s*", ":", str(text).strip())  # spaces around the colons only
     m = _RANGE_RE.fullmatch(s)
     if m is None:
         raise InputError(field, f"{_quote(text)} is not a range", LIST_FORM)
@@ -211,7 +212,7 @@ def parse_interval(text: str, field: str, *, allow_inf: bool = False) -> tuple[f
     lo_text, hi_text = parts
     # Allow a shared trailing unit: 40:50mm (but not 40:inf, where inf is no unit). Anchored
     # matches only: re.search(r"[a-z]+$") is quadratic on a long run of letters.
-    hi_match = _LENGTH_RE.fullmatch(hi_text.strip().replace(" ", ""))
+    hi_match = _LENGTH_RE.fullmatch(hi_text.strip())
     if hi_match and hi_match.group(2) in UNITS_M and re.fullmatch(_NUMBER, lo_text.strip()):
         lo_text = lo_text.strip() + hi_match.group(2)
     lo = parse_length(lo_text, field, allow_inf=allow_inf)

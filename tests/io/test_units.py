@@ -65,3 +65,11 @@ def test_format_length():
     assert units.format_length(4e-3) == "4 mm"
     assert units.format_length(1.85e-6) == "1.85 µm"
     assert units.format_length(math.inf) == "inf"
+
+
+def test_spaces_separate_a_number_from_its_unit_but_never_split_it():
+    assert units.parse_length(" 1 mm ", "x") == 1e-3
+    assert units.parse_length_list("430 : 440 : 5nm", "x") == [430e-9, 435e-9, 440e-9]
+    for text in ("4 5mm", "6 00nm", "1.8 5um"):
+        with pytest.raises(InputError, match="is not a length"):
+            units.parse_length(text, "x")
