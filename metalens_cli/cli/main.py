@@ -143,6 +143,9 @@ def cli() -> None:
     are cleaned up as on Ctrl-C), print warnings as single lines, run, and report a standard
     output that cannot take the results (a full device, a closed pipe) as one line, exit 1."""
     retain_freed_memory()
+    for name in ("stdout", "stderr"):  # closed by the caller (>&-): what would go there is dropped
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(os.devnull, "w", encoding="utf-8"))
     signal.signal(signal.SIGTERM, _raise_terminated)
     warnings.showwarning = _show_warning
     code = run(sys.argv[1:])

@@ -36,13 +36,15 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
         torch.set_num_threads(threads)
     preset = load_preset(preset_path)
     run_dir = Path(output) if output else Path("runs") / preset.name
+    run = RunDirectory(run_dir)
     if not resume:
-        RunDirectory(run_dir).check_fresh()
-        planned = dataclasses.replace(preset, optimize=dataclasses.replace(
-            preset.optimize, **{k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}))
-        memory, seconds = estimate_training(planned)
-        announce(Estimate(f"optimize of {planned.optimize.steps} steps, batch {planned.optimize.batch_size}", memory,
-                          "optimize.batch_size" if seconds is not None else "lens.aperture (its 2-D θ grid)", seconds), max_memory)
+        run.check_fresh()
+    planned = run.load_preset() if resume and run.preset_path.is_file() else preset  # a resumed run goes on with its own
+    planned = dataclasses.replace(planned, optimize=dataclasses.replace(
+        planned.optimize, **{k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}))
+    memory, seconds = estimate_training(planned)
+    announce(Estimate(f"optimize of {planned.optimize.steps} steps, batch {planned.optimize.batch_size}", memory,
+                      "optimize.batch_size" if seconds is not None else "lens.aperture (its 2-D θ grid)", seconds), max_memory)
     report = run_training("optimize", quiet, f"metalens optimize {preset_path} -o {run_dir} --resume",
                           lambda progress: train(preset, run_dir, steps=steps, seed=seed, device=torch_device(device),
                                                  resume=resume, on_step=progress.step))

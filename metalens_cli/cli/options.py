@@ -258,7 +258,7 @@ class MetalensCommand(click.Command):
         try:
             return super().invoke(ctx)
         except InputError as exc:  # the core names its argument (wavelengths): name the option (--wavelengths)
-            param = next((p for p in self.params if p.name == exc.field and p.opts), None)
+            param = next((p for p in self.params if p.name in (exc.field, f"{exc.field}_m") and p.opts), None)
             if param is None:
                 raise
             raise InputError(_option_name(param), exc.message, exc.expected) from None

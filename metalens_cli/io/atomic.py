@@ -100,6 +100,8 @@ def check_output_file(path: str | os.PathLike[str], field: str, *, suffixes: Ite
             raise InputError(field, f"{target.name!r} does not end in {_either(allowed)}", f"a file name ending in {_either(allowed)}")
     if not target.parent.is_dir():
         raise InputError(field, f"folder {str(target.parent)!r} does not exist", "a file in an existing folder")
+    if target.is_symlink():  # replacing it would cut the link; writing through it, surprise its target
+        raise InputError(field, f"{str(target)!r} is a symbolic link", "a regular file path (the link's target itself)")
     if target.is_dir():
         raise InputError(field, f"{str(target)!r} is a folder", "a file path")
     if target.exists() and not target.is_file():

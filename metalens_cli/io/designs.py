@@ -20,6 +20,7 @@ from pathlib import Path
 
 from metalens_cli.errors import InputError
 from metalens_cli.io.input_files import read_npy
+from metalens_cli.io.tables import check_wavelengths
 from metalens_cli.io import units
 from metalens_cli.io.presets import Preset, load_preset
 
@@ -108,6 +109,7 @@ def resolve_design(
         from metalens_cli.optics.lens import hyperbolic
 
         lam = units.parse_length(text.split(":", 1)[1], "--design")
+        check_wavelengths([lam], "--design")
         f, aperture, pitch = _geometry(preset, f_m, aperture_m, pitch_m, PAPER_PITCH_M)
         return Design(text, "hyperbolic", hyperbolic(lam, f, aperture, pitch, radial=radial), f, preset, lam)
     path = Path(text)

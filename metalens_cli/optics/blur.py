@@ -40,7 +40,7 @@ def _source_gradient(r, wavelength_m: float, depth_m: float):
     """d(source phase)/dr (rad/m) at radii r: k·r/√(r² + z²); 0 for a plane wave."""
     if math.isinf(depth_m):
         return np.zeros_like(r)
-    return 2 * math.pi / wavelength_m * r / np.sqrt(r**2 + depth_m**2)
+    return 2 * math.pi / wavelength_m * (r / depth_m) / np.sqrt((r / depth_m) ** 2 + 1)  # no z² to overflow
 
 
 def geometric_blur_radius(lens: Metalens, wavelength_m: float, depth_m: float, distance_m: float) -> float:

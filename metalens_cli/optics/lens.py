@@ -94,6 +94,10 @@ def hyperbolic_phase(r: np.ndarray | torch.Tensor, lambda_d_m: float, focal_leng
     return -(2 * math.pi / lambda_d_m) * r**2 / (sqrt(r**2 + focal_length_m**2) + focal_length_m)
 
 
+MAX_RADIAL_SITES = 2e7  # meta-atoms across a radial lens (a 7.9 m lens at the paper's 395 nm pitch)
+MAX_GRID_SIDE = 32768   # sites per side of a 2-D map (8.6 GB of float64 θ)
+
+
 def hyperbolic(lambda_d_m: float, focal_length_m: float, aperture_m: float, pitch_m: float,
                radial: bool = True) -> Metalens:
     """Hyperbolic lens focusing a plane wave of wavelength λd at distance f (all in m).
@@ -102,6 +106,11 @@ def hyperbolic(lambda_d_m: float, focal_length_m: float, aperture_m: float, pitc
     smallest odd grid holding the pupil.
     """
     _check_positive(lambda_d_m=lambda_d_m, f_m=focal_length_m, aperture_m=aperture_m, pitch_m=pitch_m)
+    sites = aperture_m / pitch_m
+    if sites > (MAX_RADIAL_SITES if radial else MAX_GRID_SIDE):
+        limit = MAX_RADIAL_SITES if radial else MAX_GRID_SIDE
+        raise InputError("aperture", f"{aperture_m:g} m holds {sites:.3g} meta-atoms of pitch {pitch_m:g} m across",
+                         f"at most {limit:g} across ({'radial' if radial else '2-D'} lens)")
     if radial:
         k = math.ceil(aperture_m / 2 / pitch_m - 1e-9) + 1
         r = np.arange(k + 1) * pitch_m

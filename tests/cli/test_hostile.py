@@ -52,6 +52,7 @@ def bench(tmp_path_factory):
     (root / "folder.exr").mkdir()
     os.mkfifo(root / "fifo.csv")
     (root / "a_file").write_text("x")
+    (root / "link.csv").symlink_to(root / "a_file")
     (root / "deep.toml").write_text("a = " + "[" * 100_000 + "]" * 100_000 + "\n")
     (root / "user_files").mkdir()
     (root / "user_files" / "theta.npy").write_bytes(b"the user's own file")
@@ -100,6 +101,7 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "psf-scan --plot unknown format": ([*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/p.xyz"], 2, "does not end in .png"),
     "mtf --csv onto its input": (["mtf", "{cube_exr}", "--csv", "{cube_exr}"], 2, "also an input"),
     "mtf --csv onto a FIFO": (["mtf", "{cube_exr}", "--csv", "{fifo_csv}"], 2, "not a regular file"),
+    "mtf --csv onto a symbolic link": (["mtf", "{cube_exr}", "--csv", "{link_csv}"], 2, "symbolic link"),
     "mtf --csv onto /dev/null": (["mtf", "{cube_exr}", "--csv", "/dev/null"], 2, "not a regular file"),
     "export-gds -o in a missing folder": ([*GDS, "-o", "{tmp}/nope/x.gds"], 2, "does not exist"),
     "obstruction preview -o not PNG": (["obstruction", "preview", "-o", "{tmp}/x.jpg"], 2, "does not end in .png"),
@@ -148,6 +150,8 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "--photons 1e-300": (["simulate", *SIM, "--photons", "1e-300", "-o", "{tmp}/s8"], 2, "at least 1"),
     "--images ''": (["simulate", *SIM[:-1], "", "-o", "{tmp}/s9"], 2, "--images: is empty"),
     "export-gds --format oas into .gds": ([*GDS, "-o", "{tmp}/f.gds", "--format", "oas"], 2, "extension says gds"),
+    "a 1 km lens": ([*SCAN[:3], "--f", "1mm", "--aperture", "1km", *SCAN[7:], "-o", "{tmp}/k.exr"], 2, "--aperture"),
+    "hyperbolic:1e300nm": (["psf-scan", "--design", "hyperbolic:1e300nm", *SCAN[3:], "-o", "{tmp}/k.exr"], 2, "not an optical wavelength"),
     "--threads 100000": (["optimize", str(TINY), "-o", "{tmp}/run2", "--threads", "100000"], 2, "--threads"),
     "--seed 0:99999999999": (["evaluate", *SIM, "--seed", "0:99999999999"], 2, "holds 100000000000 seeds"),
     "obstruction sheet of 1000 depths": (["obstruction", "preview", "--pixels", "16", "--z-near", "1:1000:1mm", "-o", "{tmp}/o.png"], 2,
@@ -273,3 +277,19 @@ def test_json_stdout_stays_json_when_the_exr_library_complains(bench, capfd):
     assert out == "" and err.count("\n") == 1
     assert run(["mtf", bench["cube_exr"], "--json"]) == 0
     json.loads(capfd.readouterr().out)
+
+
+def test_closed_standard_streams_are_not_errors(tmp_path):
+    """`>&-` / `2>&-`: what would go there is dropped, the work is done."""
+    out = tmp_path / "sheet.png"
+    proc = subprocess.run(f"{sys.executable} -m metalens_cli obstruction preview --pixels 16 -o {out} --json >&- 2>&-",
+                          shell=True, timeout=60)
+    assert proc.returncode == 0 and out.is_file()
+
+
+def test_a_scene_at_1e300_m_images_like_one_at_infinity(bench, capsys):
+    far = [a.format(**bench) for a in SIM[:-1]] + ["builtin", "--limit", "1", "--seed", "0", "--json", "--quiet"]
+    assert run(["evaluate", *far, "--z-far", "1e300m", "--obstruction", "dirt"]) == 0
+    at_1e300 = json.loads(capsys.readouterr().out)["rows"]
+    assert run(["evaluate", *far, "--z-far", "1e12m", "--obstruction", "dirt"]) == 0
+    assert json.loads(capsys.readouterr().out)["rows"] == at_1e300
