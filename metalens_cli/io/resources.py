@@ -39,9 +39,6 @@ class Estimate:
             parts.append(f"about {_duration(self.seconds)}")
         return f"{self.what}: " + ", ".join(parts)
 
-    def to_dict(self) -> dict:
-        return {"what": self.what, "memory_bytes": self.memory_bytes, "disk_bytes": self.disk_bytes, "seconds": self.seconds}
-
 
 def available_memory() -> int | None:
     """Bytes this process can still allocate: the kernel's MemAvailable, capped by the cgroup
