@@ -1,4 +1,5 @@
-"""Typed errors raised by the core; the CLI turns them into one line and exit code 2."""
+"""Typed errors raised by the core; the CLI turns them into one line and exit code 2 (1 for
+:class:`ResultFailed`)."""
 
 
 class MetalensError(Exception):
@@ -23,6 +24,11 @@ class InputError(MetalensError, ValueError):
 
 class SamplingError(MetalensError):
     """A simulation grid cannot represent the field without aliasing or wrap-around."""
+
+
+class ResultFailed(MetalensError):
+    """The input was valid but the computation could not produce a trustworthy result (e.g. two
+    images with too few consistent feature matches to register); the CLI exits 1, not 2."""
 
 
 class Terminated(BaseException):

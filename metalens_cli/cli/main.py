@@ -20,7 +20,7 @@ from contextlib import suppress
 import click
 
 from metalens_cli import __version__
-from metalens_cli.errors import MetalensError, Terminated
+from metalens_cli.errors import MetalensError, ResultFailed, Terminated
 from metalens_cli.runtime import retain_freed_memory
 
 OUT_OF_MEMORY = "out of memory; ask for less (fewer pixels, wavelengths or a smaller batch) or set --max-memory"
@@ -57,7 +57,9 @@ COMMANDS = {
     "bands": ("bands", "Multi-band filter checks (bands check)."),
     "preset": ("preset", "Inspect presets (preset show)."),
     "obstruction": ("obstruction", "Obstruction generators (obstruction preview)."),
+    "align": ("align", "Register captured photographs onto a reference (homography, then a smooth refinement)."),
     "export-gds": ("export_gds", "Nanofin layout of a design as GDSII or OASIS for e-beam lithography."),
+    "psf": ("psf", "Measured PSFs: psf import (bench frames to a PSF cube), psf compare (measured against simulated)."),
     "psf-scan": ("psf_scan", "PSF cubes over wavelength and depth of a design, written as EXR."),
     "mtf": ("mtf", "MTFs of a PSF cube (EXR) or the slanted-edge SFR of an image."),
     "simulate": ("simulate", "Simulated captures of images through a design with a near obstruction."),
@@ -95,6 +97,8 @@ def run(argv: list[str] | None = None) -> int:
         return 0
     except click.ClickException as exc:
         return _fail(exc.format_message(), 2)
+    except ResultFailed as exc:
+        return _fail(str(exc), 1)
     except MetalensError as exc:
         return _fail(str(exc), 2)
     except OSError as exc:

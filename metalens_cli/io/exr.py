@@ -27,7 +27,8 @@ from metalens_cli.io.input_files import open_exr
 FORMAT = "metalens-psf-cube/1"
 HEADER_ATTRIBUTE = "metalens"
 DEFAULT_NORMALIZATION = "fraction-of-aperture-power"
-REQUIRED_KEYS = ("format", "wavelengths_m", "depths_m", "pixel_pitch_m", "normalization", "design", "version")
+REQUIRED_KEYS = ("format", "wavelengths_m", "depths_m", "pixel_pitch_m", "normalization")  # what a reader needs
+WRITTEN_KEYS = (*REQUIRED_KEYS, "design", "version")  # what this writer always adds
 RGB_CHANNELS = ("R", "G", "B")
 LOSSLESS_COMPRESSIONS = ("NO_COMPRESSION", "RLE_COMPRESSION", "ZIPS_COMPRESSION", "ZIP_COMPRESSION", "PIZ_COMPRESSION")
 MAX_DEPTHS = 100
@@ -83,14 +84,14 @@ def write_psf_cube(
     ``psf`` (D, W, N, N) and ``rgb`` (D, 3, N, N) or None are stored as float32 (exactly, if
     already float32); ``depths_m`` may hold ``inf`` (written as JSON null). ``design`` is a
     design spec string or a JSON-able object; ``extra`` adds JSON keys (e.g. ``na``, ``f_m``,
-    ``aperture_m``, ``accuracy``) and may not override the required ones. The file is
+    ``aperture_m``, ``accuracy``) and may not override the keys the writer sets. The file is
     validated exactly as ``read_psf_cube`` would, so an invalid cube raises InputError and
     writes nothing.
     """
     field = str(path)
-    clash = sorted(set(extra or {}) & set(REQUIRED_KEYS))
+    clash = sorted(set(extra or {}) & set(WRITTEN_KEYS))
     if clash:
-        raise InputError(field, f"extra metadata overrides required keys {clash}", "other key names")
+        raise InputError(field, f"extra metadata overrides the keys {clash}", "other key names")
     metadata = {
         "format": FORMAT,
         "wavelengths_m": [float(value) for value in np.asarray(wavelengths_m, dtype=float).ravel()],
@@ -167,7 +168,8 @@ def _parse_header(field: str, text: Any) -> dict[str, Any]:
 
 
 def _check_cube(field: str, metadata: dict[str, Any], channels: dict[str, np.ndarray]) -> None:
-    """Refuse metadata or channels that break the contract (shared by writing and reading)."""
+    """Refuse metadata or channels that break the contract (shared by writing and reading);
+    ``design`` and ``version`` are optional (a measured cube from another program may lack them)."""
     missing = [key for key in REQUIRED_KEYS if key not in metadata]
     if missing:
         raise InputError(field, f"header JSON lacks {', '.join(missing)}", _EXPECTED)
@@ -192,14 +194,15 @@ def _positive_list(field: str, metadata: dict[str, Any], key: str, *, allow_null
 
 
 def _check_scalars(field: str, metadata: dict[str, Any]) -> None:
-    """pixel_pitch_m a positive number; normalization and version strings; design a string or object."""
+    """pixel_pitch_m a positive number; normalization (and version, if present) non-empty strings;
+    design (if present) a string or object."""
     pitch = metadata["pixel_pitch_m"]
     if not _is_number(pitch) or not 0 < pitch < math.inf:
         raise InputError(field, f"pixel_pitch_m is {pitch!r}", "a positive number of metres")
     for key in ("normalization", "version"):
-        if not isinstance(metadata[key], str) or not metadata[key]:
+        if key in metadata and (not isinstance(metadata[key], str) or not metadata[key]):
             raise InputError(field, f"{key} is {metadata[key]!r}", "a non-empty string")
-    if not isinstance(metadata["design"], str | dict):
+    if "design" in metadata and not isinstance(metadata["design"], str | dict):
         raise InputError(field, f"design is {metadata['design']!r}", "a string or a JSON object")
 
 

@@ -46,13 +46,23 @@ def read_image_file(path: Path, field: str) -> tuple[np.ndarray, list[str], bool
     linear. The header is checked against the pixel limit before decoding; NaN, infinite or
     negative pixels, other depths and channel counts are an :class:`InputError` naming ``field``.
     """
+    pixels, names, full_scale = read_image_codes(path, field)
+    if full_scale is None:
+        return pixels, names, True
+    return pixels / np.float32(full_scale), names, False
+
+
+def read_image_codes(path: Path, field: str) -> tuple[np.ndarray, list[str], float | None]:
+    """:func:`read_image_file` without the scaling: (H, W, C) float32 pixels as stored (the
+    integer codes 0..255 or 0..65535 of PNG, JPEG, TIFF; EXR floats), the channel names and the
+    full-scale code (255.0, 65535.0; None for EXR), e.g. to find saturated pixels of a frame."""
     path = regular_file(path, field, "an image file")
     check_image_size(path, field)
     if path.suffix.lower() == ".exr":
         pixels, names = _exr_pixels(path, field)
         if not np.all(np.isfinite(pixels)) or pixels.min() < 0:
             raise InputError(field, f"{path.name} holds NaN, infinite or negative pixels", "finite, non-negative pixel values")
-        return pixels, names, True
+        return pixels, names, None
     import cv2
 
     with library_output() as said:  # OpenCV and libpng report to stderr: quote them instead
@@ -68,11 +78,11 @@ def read_image_file(path: Path, field: str) -> tuple[np.ndarray, list[str], bool
     if scale is None:
         raise InputError(field, f"{path.name} has {raw.dtype} pixels", "8- or 16-bit integer pixels (or an EXR for floats)")
     if raw.ndim == 2:
-        return (raw[:, :, None] / np.float32(scale)).astype(np.float32), ["Y"], False
+        return raw[:, :, None].astype(np.float32), ["Y"], scale
     if raw.ndim != 3 or raw.shape[2] not in (3, 4):
         raise InputError(field, f"{path.name} has {raw.shape[2] if raw.ndim == 3 else raw.ndim} channels", "1 or 3 channels (or 4 with alpha)")
     order = [2, 1, 0, 3][: raw.shape[2]]  # OpenCV's BGR(A) → RGB(A)
-    return (raw[:, :, order] / np.float32(scale)).astype(np.float32), ["R", "G", "B", "A"][: raw.shape[2]], False
+    return raw[:, :, order].astype(np.float32), ["R", "G", "B", "A"][: raw.shape[2]], scale
 
 
 def _exr_pixels(path: Path, field: str) -> tuple[np.ndarray, list[str]]:

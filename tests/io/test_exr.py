@@ -138,6 +138,15 @@ def test_broken_files_are_refused_with_one_line(tmp_path, metadata, channels, re
     assert str(caught.value).startswith(str(path))
 
 
+def test_a_cube_without_design_and_version_is_read(tmp_path):
+    """A measured cube written by another program needs only the five keys a reader uses."""
+    path = tmp_path / "measured.exr"
+    metadata = {k: v for k, v in valid_metadata(normalization="peak-one").items() if k not in ("design", "version")}
+    write_raw(path, one_channel(), metadata)
+    cube = read_psf_cube(path)
+    assert "design" not in cube.metadata and cube.psf.shape == (1, 1, 5, 5)
+
+
 def test_lossy_compression_is_refused(tmp_path):
     path = tmp_path / "lossy.exr"
     write_raw(path, one_channel(16), valid_metadata(), {"compression": OpenEXR.PXR24_COMPRESSION})
@@ -160,7 +169,7 @@ def test_writer_refuses_what_the_reader_would(tmp_path):
         write_example(path, wavelengths_m=WAVELENGTHS[:2])
     with pytest.raises(InputError, match="NaN"):
         write_example(path, psf=np.full((2, 3, 4, 4), np.nan, np.float32), rgb=None)
-    with pytest.raises(InputError, match="overrides required keys"):
+    with pytest.raises(InputError, match="overrides the keys"):
         write_example(path, extra={"format": "x"})
     with pytest.raises(InputError, match="strict JSON"):
         write_example(path, extra={"na": float("nan")})

@@ -1,0 +1,224 @@
+"""`metalens psf`: measured PSFs. `psf import` turns bench frames into a PSF cube; `psf compare`
+sets a measured cube beside a simulated one."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+from metalens_cli.cli import render
+from metalens_cli.cli.options import (
+    announce,
+    json_option,
+    Length,
+    LengthList,
+    max_memory_option,
+    MetalensGroup,
+    Number,
+    OutputFile,
+    plot_option,
+)
+from metalens_cli.cli.progress import progress_bar
+from metalens_cli.errors import InputError
+
+NORMALIZATIONS = ("sum-to-one", "peak-one")  # analysis.measured_psf.NORMALIZATIONS (numpy-free import)
+CENTRINGS = ("centroid", "peak")
+WORKERS = 2
+BYTES_PER_FRAME_PIXEL = 48       # float32 working copies of one frame (values, median, smoothed, masks)
+SECONDS_PER_FRAME_PIXEL = 2.5e-8  # read and first pass, 2 cores (benchmarks/bench_psf_import.py)
+
+
+@click.group("psf", cls=MetalensGroup, context_settings={"help_option_names": ["-h", "--help"]})
+def psf():
+    """Measured PSFs: import bench frames into a PSF cube, compare it with a simulation."""
+
+
+@psf.command("import")
+@click.argument("manifest", type=click.Path())
+@click.option("--pattern", help="MANIFEST is a folder: file names such as psf_{wavelength}_{depth}.png ({exposure} optional; "
+                                "{wavelength:nm} gives bare numbers a unit).")
+@click.option("-o", "--output", type=OutputFile((".exr",)), required=True, help="PSF cube to write (docs/formats.md).")
+@click.option("--dark", "dark_path", type=click.Path(dir_okay=False),
+              help="Dark frame (image, .npy, or a .npy stack averaged) subtracted from every frame [manifest's dark].")
+@click.option("--pixels", type=click.IntRange(3, 8192), help="Window N × N [automatic: as large as the light of every frame].")
+@click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Camera pixel pitch, e.g. 3.45um [manifest's pixel_pitch].")
+@click.option("--magnification", type=Number(0, 1e4, min_open=True),
+              help="Magnification of the relay optics onto the camera; the cube's pitch is pitch / magnification [manifest's, else 1].")
+@click.option("--normalize", "normalization", type=click.Choice(NORMALIZATIONS), default="sum-to-one", show_default=True)
+@click.option("--centre", "centring", type=click.Choice(CENTRINGS), default="centroid", show_default=True,
+              help="Put the light's centroid or its peak on pixel (N//2, N//2).")
+@click.option("--saturation", type=Number(0, 1e30, min_open=True),
+              help="Saturation level in the frames' units, e.g. 4095 for 12-bit data in 16-bit files [the file's full scale].")
+@click.option("--allow-saturated", is_flag=True, help="Import frames with saturated pixels (reported) instead of refusing them.")
+@click.option("--hot-pixel-sigma", type=Number(0, 1e3), default=6.0, show_default=True,
+              help="Hot pixels stand this many σ above their neighbours; 0 turns removal off.")
+@click.option("--design", help="What was measured, stored as the cube's design [manifest's design, else 'measured: MANIFEST'].")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@max_memory_option
+@json_option
+@plot_option
+def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, magnification, normalization, centring,
+                  saturation, allow_saturated, hot_pixel_sigma, design, quiet, max_memory, as_json, plot_path):
+    """Measured PSF frames listed in MANIFEST → a PSF cube (EXR).
+
+    MANIFEST: a CSV with a header and columns file,wavelength,depth[,exposure] (values with
+    units: 530nm, 45mm, inf, 10ms; paths relative to the manifest; stack.npy#K for frame K of a
+    .npy stack), a TOML with [[frame]] tables (and optional pixel_pitch, magnification, dark,
+    saturation, design), or a folder with --pattern. Frames: 8/16-bit PNG or TIFF, EXR, .npy.
+
+    Per frame: saturated pixels refused (or reported with --allow-saturated); dark frame and
+    border background subtracted; hot pixels replaced; the centroid (or peak) moved onto pixel
+    (N//2, N//2) by a Fourier shift; cropped to N; repeats averaged; normalised.
+    """
+    from pathlib import Path
+
+    from metalens_cli.analysis.measured_psf import dark_frame, ImportSettings, import_psfs
+    from metalens_cli.io.exr import write_psf_cube
+    from metalens_cli.io.psf_manifest import frame_shape, read_frame_file, read_manifest
+    from metalens_cli.io.resources import Estimate
+
+    m = read_manifest(manifest, pattern)
+    pitch = pixel_pitch_m or m.settings.get("pixel_pitch_m")
+    if pitch is None:
+        raise InputError("--pixel-pitch", "the camera's pixel pitch is not given", "--pixel-pitch 3.45um or pixel_pitch in a TOML manifest")
+    settings = ImportSettings(pitch, magnification or m.settings.get("magnification", 1.0), pixels, normalization, centring,
+                              saturation or m.settings.get("saturation"), allow_saturated, hot_pixel_sigma)
+    dark_source = dark_path or m.settings.get("dark")
+    height, width = frame_shape(m.frames[0])
+    announce(Estimate(f"psf import of {len(m.frames)} frames of {width} × {height} pixels",
+                      BYTES_PER_FRAME_PIXEL * WORKERS * height * width, "--pixels",
+                      SECONDS_PER_FRAME_PIXEL * len(m.frames) * height * width,
+                      disk_bytes=len(m.depths_m) * len(m.wavelengths_m) * (pixels or 64) ** 2 * 4), max_memory, output)
+    dark = None
+    if dark_source is not None:
+        values, _ = read_frame_file(Path(dark_source), None, "--dark")
+        dark = dark_frame(values, hot_pixel_sigma)
+    with progress_bar("psf import", quiet) as update:
+        cube = import_psfs(m, settings, dark, update, WORKERS)
+    name = design or m.settings.get("design") or f"measured: {click.format_filename(manifest)}"
+    extra = {"source": "measured", "camera_pixel_pitch_m": pitch, "magnification": settings.magnification,
+             "centring": centring, "hot_pixels": cube.hot_pixels, "dark": None if dark_source is None else str(dark_source),
+             "frames": cube.frames}
+    write_psf_cube(output, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m, name,
+                   normalization=normalization, extra=render.jsonable(extra))
+    if plot_path:
+        from metalens_cli.plotting.psf_scan import plot_psf_scan
+
+        plot_psf_scan(plot_path, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m)
+    err = render.console(stderr=True)
+    for warning in cube.warnings:
+        err.print(f"warning: {warning}", markup=False)
+    if as_json:
+        render.emit_json({"file": str(output), "design": name, "pixels": int(cube.psf.shape[-1]), "pixel_pitch_m": cube.pixel_pitch_m,
+                          "wavelengths_m": cube.wavelengths_m.tolist(),
+                          "depths_m": [None if math.isinf(d) else float(d) for d in cube.depths_m],
+                          "normalization": normalization, **extra, "warnings": cube.warnings,
+                          **({"plot": str(plot_path)} if plot_path else {})})
+        return
+    _render_import(cube, output)
+
+
+def _render_import(cube, output) -> None:
+    from metalens_cli.io.units import format_length
+
+    rows = [[f["file"], render.nm(f["wavelength_m"], 1), format_length(math.inf if f["depth_m"] is None else f["depth_m"]),
+             f"{f['peak_snr']:.0f}", f"{f['noise']:.3g}", str(f["saturated_pixels"]), f"{f['centre_px'][0]:.2f}, {f['centre_px'][1]:.2f}"]
+            for f in cube.frames]
+    con = render.console()
+    con.print(render.table(f"Frames imported into {output}", ["file", "λ (nm)", "depth", "peak/σ", "noise σ", "saturated", "centre (row, col)"], rows))
+    n = cube.psf.shape[-1]
+    con.print(f"{len(cube.depths_m)} depths × {len(cube.wavelengths_m)} wavelengths of {n} × {n} pixels at "
+              f"{cube.pixel_pitch_m * 1e6:.4g} µm; {cube.hot_pixels} hot pixel(s) replaced")
+
+
+@psf.command("compare")
+@click.argument("measured", type=click.Path(dir_okay=False))
+@click.argument("simulated", type=click.Path(dir_okay=False))
+@click.option("--radii", "radii_m", type=LengthList(), multiple=True, help="Encircled-energy radii, e.g. 2um,5um [2, 5 and 10 measured pixels].")
+@click.option("--no-interpolate", is_flag=True, help="Refuse measured wavelengths the simulated cube lacks instead of interpolating.")
+@click.option("--csv", "csv_path", type=OutputFile((".csv",)), help="Also write the table as CSV.")
+@json_option
+@plot_option
+def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plot_path):
+    """A measured PSF cube against a simulated one, per common (depth, wavelength).
+
+    After sub-pixel registration: the peak ratio (Strehl-like, simulated = 1), FWHM, encircled
+    energy at radii, relative L2 error and MTF50 of both. Simulated wavelengths that do not
+    match exactly are interpolated linearly between their neighbours (said per row) or, outside
+    the simulated range or with --no-interpolate, refused (listed). --plot: the x-λ scans of
+    both side by side per depth (the paper's Fig. 4c).
+    """
+    from metalens_cli.analysis.psf_compare import compare_cubes
+    from metalens_cli.io.exr import read_psf_cube
+
+    radii = [r for group in radii_m for r in group] or None
+    result = compare_cubes(read_psf_cube(measured), read_psf_cube(simulated), radii, not no_interpolate)
+    if csv_path:
+        _write_compare_csv(csv_path, result)
+    if plot_path:
+        from metalens_cli.plotting.psf_compare import plot_psf_comparison
+
+        plot_psf_comparison(plot_path, result)
+    if as_json:
+        render.emit_json({"measured": str(measured), "simulated": str(simulated), "pixels": result.pixels,
+                          "pixel_pitch_m": result.pixel_pitch_m, "simulated_resampled": result.resampled, "radii_m": result.radii_m,
+                          "pairs": result.pairs, "refused": result.refused,
+                          **({"csv": str(csv_path)} if csv_path else {}), **({"plot": str(plot_path)} if plot_path else {})})
+        return
+    _render_compare(result, measured, simulated)
+
+
+def _compare_rows(result) -> tuple[list[str], list[list]]:
+    """Header and rows (numbers) of the comparison table, shared by the CSV and the screen."""
+    header = ["depth_m", "wavelength_m", "simulated", "peak_ratio", "relative_l2", "fwhm_measured_m", "fwhm_simulated_m",
+              "mtf50_measured_lpmm", "mtf50_simulated_lpmm",
+              *[f"ee_{which}_{r * 1e6:g}um" for r in result.radii_m for which in ("measured", "simulated")], "shift_y_px", "shift_x_px"]
+    rows = []
+    for p in result.pairs:
+        ee = [p["encircled_energy"][which][k] for k in range(len(result.radii_m)) for which in ("measured", "simulated")]
+        rows.append([p["depth_m"] if p["depth_m"] is not None else "inf", p["wavelength_m"], p["simulated"], p["peak_ratio"], p["relative_l2"],
+                     p["fwhm_m"]["measured"], p["fwhm_m"]["simulated"], p["mtf50_lpmm"]["measured"], p["mtf50_lpmm"]["simulated"],
+                     *ee, *p["shift_px"]])
+    return header, rows
+
+
+def _write_compare_csv(path, result) -> None:
+    import csv
+    import io
+
+    from metalens_cli.io.atomic import atomic_write
+
+    header, rows = _compare_rows(result)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows([["" if v is None else v for v in row] for row in rows])
+    with atomic_write(path) as temporary:
+        temporary.write_text(buffer.getvalue(), encoding="utf-8")
+
+
+def _render_compare(result, measured, simulated) -> None:
+    from metalens_cli.io.units import format_length
+
+    def um(value):
+        return "—" if value is None else f"{value * 1e6:.2f}"
+
+    def number(value, digits):
+        return "—" if value is None else f"{value:.{digits}f}"
+
+    rows = []
+    for p in result.pairs:
+        ee = [f"{m:.3f} / {s:.3f}" for m, s in zip(p["encircled_energy"]["measured"], p["encircled_energy"]["simulated"])]
+        rows.append([format_length(math.inf if p["depth_m"] is None else p["depth_m"]), render.nm(p["wavelength_m"], 1), p["simulated"],
+                     f"{p['peak_ratio']:.3f}", f"{p['relative_l2']:.3f}", f"{um(p['fwhm_m']['measured'])} / {um(p['fwhm_m']['simulated'])}",
+                     f"{number(p['mtf50_lpmm']['measured'], 1)} / {number(p['mtf50_lpmm']['simulated'], 1)}", *ee])
+    con = render.console()
+    con.print(render.table(f"{measured} (measured) against {simulated} (simulated), {result.pixels}² pixels of {result.pixel_pitch_m * 1e6:.4g} µm",
+                           ["depth", "λ (nm)", "simulated", "peak ratio", "rel. L2", "FWHM (µm) meas / sim", "MTF50 (lp/mm) meas / sim",
+                            *[f"EE {r * 1e6:.3g} µm meas / sim" for r in result.radii_m]], rows))
+    if result.resampled:
+        con.print("the simulated cube was resampled onto the measured pixel pitch")
+    for r in result.refused:
+        depth = format_length(math.inf if r["depth_m"] is None else r["depth_m"])
+        con.print(f"refused: {render.nm(r['wavelength_m'], 1)} nm at {depth}: {r['reason']}")

@@ -1,0 +1,173 @@
+"""Measured PSF import (analysis.measured_psf, io.psf_manifest) against known synthetic frames:
+Gaussian spots integrated over pixels, Poisson photons, dark offset, read noise, 16-bit."""
+
+import math
+import re
+
+import cv2
+import numpy as np
+import pytest
+
+from metalens_cli.analysis.measured_psf import dark_frame, ImportSettings, import_psfs
+from metalens_cli.analysis.mtf import cube_mtf
+from metalens_cli.errors import InputError
+from metalens_cli.io.exr import PsfCube
+from metalens_cli.io.psf_manifest import read_frame_file, read_manifest
+from synthetic import bench_frame, gaussian_spot
+
+PITCH = 1.85e-6
+SHAPE = (160, 170)
+
+
+def write_bench(folder, spots, rng, exposure="10ms", **noise):
+    """Frames (one per (wavelength nm, depth text, spot)) as 16-bit PNGs and their CSV manifest."""
+    rows = ["file,wavelength,depth,exposure"]
+    for k, (wavelength, depth, spot) in enumerate(spots):
+        cv2.imwrite(str(folder / f"frame{k:02d}.png"), bench_frame(spot, rng, **noise))
+        rows.append(f"frame{k:02d}.png,{wavelength}nm,{depth},{exposure}")
+    (folder / "psf.csv").write_text("\n".join(rows) + "\n")
+    return folder / "psf.csv"
+
+
+def centroid(psf):
+    yy, xx = np.indices(psf.shape)
+    return (psf * yy).sum() / psf.sum(), (psf * xx).sum() / psf.sum()
+
+
+@pytest.mark.parametrize("sigma", [1.5, 3.0])
+def test_gaussian_spot_gives_its_mtf50_within_3_percent(tmp_path, sigma):
+    """A Gaussian of σ pixels has MTF exp(−2π²σ²f²) once the pixel aperture is divided out:
+    MTF50 = √(ln 2 / 2π²σ²) cycles/pixel, from noisy 16-bit frames with a dark frame."""
+    rng = np.random.default_rng(3)
+    spots = [(530, "inf", gaussian_spot(*SHAPE, (80.3, 84.6), sigma)), (630, "inf", gaussian_spot(*SHAPE, (77.8, 90.2), sigma))]
+    manifest = read_manifest(write_bench(tmp_path, spots, rng, photons=6e5))
+    dark = bench_frame(np.zeros(SHAPE), rng, background=0.0)
+    cube = import_psfs(manifest, ImportSettings(PITCH), dark_frame(dark[:, :, None].astype(np.float32), 6.0))
+    psf_cube = PsfCube(cube.psf, None, cube.wavelengths_m, cube.depths_m, {"pixel_pitch_m": PITCH})
+    measured = cube_mtf(psf_cube, remove_pixel_mtf=True).mtf50_lpmm[0]
+    expected = math.sqrt(math.log(2) / (2 * math.pi**2 * sigma**2)) / PITCH * 1e-3
+    np.testing.assert_allclose(measured, expected, rtol=0.03)
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (0.3, -0.17), (-0.45, 0.5), (0.21, 0.49)])
+def test_a_spot_at_a_known_subpixel_offset_is_centred_within_005_px(tmp_path, offset):
+    rng = np.random.default_rng(7)
+    truth = (81 + offset[0], 77 + offset[1])
+    manifest = read_manifest(write_bench(tmp_path, [(530, "45mm", gaussian_spot(*SHAPE, truth, 2.2))], rng))
+    cube = import_psfs(manifest, ImportSettings(PITCH, pixels=41))
+    assert np.allclose(cube.frames[0]["centre_px"], truth, atol=0.05)
+    n = cube.psf.shape[-1]
+    assert np.allclose(centroid(cube.psf[0, 0].astype(float)), (n // 2, n // 2), atol=0.05)
+
+
+def test_peak_centring_puts_the_maximum_on_the_axis_where_the_centroid_does_not(tmp_path):
+    """A spot with a faint side lobe: its centroid sits off the peak."""
+    spot = 0.8 * gaussian_spot(*SHAPE, (80.0, 80.0), 1.8) + 0.2 * gaussian_spot(*SHAPE, (80.0, 92.0), 2.5)
+    manifest = read_manifest(write_bench(tmp_path, [(530, "inf", spot)], np.random.default_rng(1)))
+    n = 51
+    for centring, on_axis in (("peak", True), ("centroid", False)):
+        psf = import_psfs(manifest, ImportSettings(PITCH, pixels=n, centring=centring)).psf[0, 0]
+        assert (np.unravel_index(np.argmax(psf), psf.shape) == (n // 2, n // 2)) is on_axis
+
+
+def test_normalisations_and_the_pitch_through_the_relay(tmp_path):
+    manifest = read_manifest(write_bench(tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 80), 2.0))], np.random.default_rng(2)))
+    summed = import_psfs(manifest, ImportSettings(5.5e-6, magnification=2.0))
+    peaked = import_psfs(manifest, ImportSettings(5.5e-6, normalization="peak-one"))
+    assert summed.psf.sum() == pytest.approx(1.0, abs=1e-5) and peaked.psf.max() == pytest.approx(1.0, abs=1e-6)
+    assert summed.pixel_pitch_m == pytest.approx(2.75e-6)
+    # the automatic window holds the light: a σ = 2 px spot needs well under 41 pixels, more than 11
+    assert 11 < summed.psf.shape[-1] < 41
+
+
+def test_saturated_frames_are_refused_or_imported_and_reported(tmp_path):
+    spot = gaussian_spot(*SHAPE, (80, 80), 1.2)
+    path = write_bench(tmp_path, [(530, "inf", spot)], np.random.default_rng(4), photons=4e6)
+    with pytest.raises(InputError, match=r"psf.csv line 2: frame00.png has \d+ saturated pixel"):
+        import_psfs(read_manifest(path), ImportSettings(PITCH))
+    cube = import_psfs(read_manifest(path), ImportSettings(PITCH, allow_saturated=True))
+    assert cube.frames[0]["saturated_pixels"] > 0 and "saturated" in cube.warnings[0]
+    with pytest.raises(InputError, match="saturated"):  # a 12-bit camera's level, given explicitly
+        import_psfs(read_manifest(write_bench(tmp_path, [(530, "inf", spot)], np.random.default_rng(4), photons=2e5)),
+                    ImportSettings(PITCH, saturation=4095))
+
+
+def test_hot_pixels_are_replaced_and_a_sharp_core_is_kept(tmp_path):
+    """Isolated hot pixels in every frame are found without a dark frame; an undersampled but
+    bright spot (σ = 0.5 px, peak 20× its neighbours) is not mistaken for one."""
+    rng = np.random.default_rng(5)
+    hot = [(20, 30), (75, 95), (140, 150)]  # one inside the light's window
+    spots = [(w, "inf", gaussian_spot(*SHAPE, (80.0, 80.0), 0.5 if w == 530 else 2.5)) for w in (450, 530, 630)]
+    rows = ["file,wavelength,depth"]
+    for k, (w, depth, spot) in enumerate(spots):
+        frame = bench_frame(spot, rng, photons=5e4)
+        for y, x in hot:
+            frame[y, x] = 20000
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), frame)
+        rows.append(f"f{k}.png,{w}nm,{depth}")
+    (tmp_path / "psf.csv").write_text("\n".join(rows) + "\n")
+    cube = import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH, pixels=41))
+    assert cube.hot_pixels == len(hot)
+    sharp = cube.psf[0, 1]
+    assert np.unravel_index(np.argmax(sharp), sharp.shape) == (20, 20) and sharp.max() > 0.4  # the core kept (a σ = 0.5 px spot puts 0.47 in its pixel)
+    kept = import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH, pixels=41, hot_pixel_sigma=0))
+    assert kept.hot_pixels == 0 and kept.psf[0, 0].max() > 5 * cube.psf[0, 0].max()  # the hot pixel in the window dominates
+
+
+def test_repeats_are_averaged_after_scaling_by_exposure(tmp_path):
+    spot = gaussian_spot(*SHAPE, (80, 80), 2.0)
+    rng = np.random.default_rng(6)
+    for k, photons in enumerate((2e5, 4e5)):
+        cv2.imwrite(str(tmp_path / f"r{k}.png"), bench_frame(spot, rng, photons=photons))
+    (tmp_path / "psf.csv").write_text("file,wavelength,depth,exposure\nr0.png,530nm,inf,5ms\nr1.png,530nm,inf,10ms\n")
+    cube = import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH))
+    assert cube.psf.shape[:2] == (1, 1) and len(cube.frames) == 2
+    assert cube.frames[0]["noise"] > cube.frames[1]["noise"]  # per second: the shorter exposure is noisier
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("file,wavelength\nf.png,530nm\n", "lacks the column(s) depth"),
+    ("file,wavelength,depth,gain\n", "unknown column(s) gain"),
+    ("file,wavelength,depth\nf.png,530,inf\n", "has no unit"),
+    ("file,wavelength,depth\nf.png,20um,inf\n", "20000 nm is not an optical wavelength"),
+    ("file,wavelength,depth\nmissing.png,530nm,inf\n", "no such file"),
+    ("file,wavelength,depth\nf.png,530nm,inf,extra\n", "4 values for 3 columns"),
+    ("file,wavelength,depth,exposure\nf.png,530nm,inf,-1ms\n", "exposure: '-1ms'"),
+    ("file,wavelength,depth\nf.png,530nm,inf\nf.png,630nm,45mm\n", "has no frame at 530 nm, depth 45 mm"),
+    ("file,wavelength,depth\nf.txt,530nm,inf\n", "is not a frame format"),
+    ("file,wavelength,depth\n", "lists no frames"),
+])
+def test_bad_manifests_are_one_line_errors(tmp_path, text, message):
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((20, 20), np.uint16))
+    (tmp_path / "f.txt").write_text("x")
+    (tmp_path / "psf.csv").write_text(text)
+    with pytest.raises(InputError, match=re.escape(message)) as caught:
+        read_manifest(tmp_path / "psf.csv")
+    assert "\n" not in str(caught.value)
+
+
+def test_toml_and_pattern_manifests_name_the_same_frames(tmp_path):
+    rng = np.random.default_rng(8)
+    for name in ("psf_530nm_inf.png", "psf_630nm_inf.png"):
+        cv2.imwrite(str(tmp_path / name), bench_frame(gaussian_spot(40, 40, (20, 20), 2.0), rng))
+    (tmp_path / "m.toml").write_text('pixel_pitch = "3.45um"\nmagnification = 2\n'
+                                     '[[frame]]\nfile = "psf_530nm_inf.png"\nwavelength = "530nm"\ndepth = "inf"\n'
+                                     '[[frame]]\nfile = "psf_630nm_inf.png"\nwavelength = "630nm"\ndepth = "inf"\n')
+    toml = read_manifest(tmp_path / "m.toml")
+    pattern = read_manifest(tmp_path, "psf_{wavelength}_{depth}.png")
+    assert [(f.path, f.wavelength_m, f.depth_m) for f in toml.frames] == [(f.path, f.wavelength_m, f.depth_m) for f in pattern.frames]
+    assert toml.settings == {"pixel_pitch_m": 3.45e-6, "magnification": 2.0}
+    assert toml.wavelengths_m == [530e-9, 630e-9] and toml.depths_m == [math.inf]
+
+
+def test_a_frame_of_a_npy_stack(tmp_path):
+    stack = np.stack([np.full((20, 20), k, np.uint16) for k in range(3)])
+    np.save(tmp_path / "s.npy", stack)
+    values, full_scale = read_frame_file(tmp_path / "s.npy", 2, "f")
+    assert values.shape == (20, 20, 1) and values.max() == 2 and full_scale == 65535
+    assert read_frame_file(tmp_path / "s.npy", None, "dark")[0].max() == 1  # a stack without index: its mean
+    with pytest.raises(InputError, match="the stack has 3 frames"):
+        read_frame_file(tmp_path / "s.npy", 3, "f")
+
+
+

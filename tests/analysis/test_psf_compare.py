@@ -1,0 +1,74 @@
+"""psf compare against cases with known answers: a cube with itself, a shifted copy, a Gaussian
+sampled at two pitches, wavelengths between and outside the simulated ones."""
+
+import math
+
+import numpy as np
+import pytest
+
+from metalens_cli.analysis.psf_compare import compare_cubes
+from metalens_cli.errors import InputError
+from metalens_cli.io.exr import PsfCube
+from synthetic import gaussian_spot
+
+PITCH = 2e-6
+
+
+def cube(psfs, wavelengths_nm, pitch=PITCH, depths=(math.inf,)):
+    psf = np.asarray(psfs, dtype=np.float32).reshape(len(depths), len(wavelengths_nm), *np.shape(psfs)[-2:])
+    return PsfCube(psf, None, np.array(wavelengths_nm) * 1e-9, np.array(depths, dtype=float), {"pixel_pitch_m": pitch})
+
+
+def spot(n, sigma, offset=(0.0, 0.0)):
+    return gaussian_spot(n, n, (n // 2 + offset[0], n // 2 + offset[1]), sigma)
+
+
+def test_a_cube_against_itself_has_peak_ratio_one_and_no_error():
+    c = cube([spot(41, 1.5), spot(41, 2.5)], [530, 630])
+    result = compare_cubes(c, c)
+    for pair in result.pairs:
+        assert pair["peak_ratio"] == pytest.approx(1, abs=1e-12) and pair["relative_l2"] < 1e-12
+        assert pair["simulated"] == "exact" and pair["shift_px"] == [0.0, 0.0]
+        assert pair["mtf50_lpmm"]["measured"] == pair["mtf50_lpmm"]["simulated"]
+        ee = pair["encircled_energy"]
+        assert ee["measured"] == pytest.approx(ee["simulated"]) and ee["measured"] == sorted(ee["measured"])
+
+
+def test_a_shifted_copy_is_registered_back():
+    measured = cube([spot(41, 2.0, (0.4, -1.3))], [530])
+    result = compare_cubes(measured, cube([spot(41, 2.0)], [530]))
+    pair = result.pairs[0]
+    assert np.allclose(pair["shift_px"], (0.4, -1.3), atol=0.05)
+    assert pair["relative_l2"] < 0.02 and pair["peak_ratio"] == pytest.approx(1, abs=0.02)
+
+
+def test_a_broader_measured_spot_has_a_lower_peak_and_mtf50():
+    pair = compare_cubes(cube([spot(41, 3.0)], [530]), cube([spot(41, 1.5)], [530])).pairs[0]
+    assert pair["peak_ratio"] < 0.3 and pair["mtf50_lpmm"]["measured"] < 0.6 * pair["mtf50_lpmm"]["simulated"]
+    assert pair["fwhm_m"]["measured"] == pytest.approx(2 * pair["fwhm_m"]["simulated"], rel=0.05)  # FWHM ∝ σ
+
+
+def test_a_simulation_at_half_the_pitch_is_resampled_onto_the_measured_grid():
+    """The same Gaussian (σ = 3 µm) sampled at 2 µm and at 1 µm pixels."""
+    measured = cube([spot(31, 1.5)], [530])
+    simulated = cube([spot(81, 3.0)], [530], pitch=PITCH / 2)
+    result = compare_cubes(measured, simulated)
+    assert result.resampled and result.pixels == 31
+    pair = result.pairs[0]
+    assert pair["relative_l2"] < 0.02 and pair["peak_ratio"] == pytest.approx(1, abs=0.02)
+
+
+def test_wavelengths_between_are_interpolated_and_outside_refused():
+    simulated = cube([spot(31, 1.0), spot(31, 3.0)], [520, 540])
+    measured = cube([spot(31, 2.0), spot(31, 2.0), spot(31, 2.0)], [510, 530, 540])
+    result = compare_cubes(measured, simulated)
+    how = {round(p["wavelength_m"] * 1e9): p["simulated"] for p in result.pairs}
+    assert how == {530: "interpolated from 520 and 540 nm", 540: "exact"}
+    assert [round(r["wavelength_m"] * 1e9) for r in result.refused] == [510]
+    strict = compare_cubes(measured, simulated, interpolate=False)
+    assert [round(p["wavelength_m"] * 1e9) for p in strict.pairs] == [540]
+
+
+def test_no_common_depth_is_refused():
+    with pytest.raises(InputError, match="no simulated PSF at this depth"):
+        compare_cubes(cube([spot(21, 1.0)], [530], depths=(0.045,)), cube([spot(21, 1.0)], [530]))

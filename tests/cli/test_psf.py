@@ -1,0 +1,102 @@
+"""`metalens psf import` and `psf compare` end to end: bench frames → cube → mtf and compare;
+one-line errors with nothing written."""
+
+import json
+
+import cv2
+import numpy as np
+import OpenEXR
+import pytest
+
+from metalens_cli.cli.main import run
+from synthetic import bench_frame, gaussian_spot
+
+
+def invoke(capsys, *args):
+    code = run([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def bench(tmp_path):
+    """Two depths × two wavelengths of 16-bit frames, a dark frame, and their CSV manifest."""
+    rng = np.random.default_rng(11)
+    rows = ["file,wavelength,depth,exposure"]
+    for i, depth in enumerate(("45mm", "inf")):
+        for j, wavelength in enumerate((530, 630)):
+            spot = gaussian_spot(96, 96, (47.3 + i, 49.6 - j), 1.5 + 1.5 * i + 0.3 * j)
+            cv2.imwrite(str(tmp_path / f"psf_{i}{j}.png"), bench_frame(spot, rng, photons=4e5))
+            rows.append(f"psf_{i}{j}.png,{wavelength}nm,{depth},20ms")
+    cv2.imwrite(str(tmp_path / "dark.png"), bench_frame(np.zeros((96, 96)), rng, background=0.0))
+    (tmp_path / "psf.csv").write_text("\n".join(rows) + "\n")
+    return tmp_path
+
+
+def test_import_then_mtf_then_compare(capsys, bench):
+    cube = bench / "measured.exr"
+    code, out, err = invoke(capsys, "psf", "import", bench / "psf.csv", "-o", cube, "--dark", bench / "dark.png",
+                            "--pixel-pitch", "3.7um", "--magnification", "2", "--pixels", "33", "--plot", bench / "psf.png", "--json")
+    assert code == 0, err
+    report = json.loads(out)
+    assert report["pixels"] == 33 and report["pixel_pitch_m"] == pytest.approx(1.85e-6)
+    assert report["depths_m"] == [0.045, None] and len(report["frames"]) == 4
+    assert all(f["saturated_pixels"] == 0 for f in report["frames"]) and (bench / "psf.png").stat().st_size > 0
+    code, out, err = invoke(capsys, "mtf", cube, "--json")
+    assert code == 0, err
+    curves = json.loads(out)["curves"]
+    assert [c["mtf50_lpmm"] > 0 for c in curves] == [True] * 4
+    code, out, err = invoke(capsys, "psf", "compare", cube, cube, "--json", "--csv", bench / "c.csv", "--plot", bench / "c.png")
+    assert code == 0, err
+    pairs = json.loads(out)["pairs"]
+    assert len(pairs) == 4 and all(p["peak_ratio"] == pytest.approx(1) and p["relative_l2"] < 1e-9 for p in pairs)
+    assert (bench / "c.csv").read_text().count("\n") == 5
+    code, out, _ = invoke(capsys, "psf", "compare", cube, cube)
+    assert code == 0 and "peak ratio" in out
+
+
+def test_mtf_reads_a_cube_without_design_and_version(capsys, tmp_path):
+    """A measured cube written by another program: only the keys a reader needs."""
+    metadata = {"format": "metalens-psf-cube/1", "wavelengths_m": [5.3e-07], "depths_m": [None], "pixel_pitch_m": 1.85e-06,
+                "normalization": "peak-one"}
+    psf = gaussian_spot(33, 33, (16, 16), 2.0).astype(np.float32)
+    OpenEXR.File({"type": OpenEXR.scanlineimage, "metalens": json.dumps(metadata)}, {"psf.d00.w000": psf / psf.max()}).write(
+        str(tmp_path / "other.exr"))
+    code, out, err = invoke(capsys, "mtf", tmp_path / "other.exr", "--json")
+    assert code == 0, err
+    assert json.loads(out)["curves"][0]["mtf50_lpmm"] > 0
+
+
+@pytest.mark.parametrize(("change", "args", "message"), [
+    (None, [], "--pixel-pitch: the camera's pixel pitch is not given"),
+    (lambda b: (b / "psf_00.png").write_bytes(b"garbage"), ["--pixel-pitch", "2um"], "psf.csv line 2: psf_00.png is not a readable image"),
+    (lambda b: (b / "psf.csv").write_text("file,wavelength\n"), ["--pixel-pitch", "2um"], "lacks the column(s) depth"),
+    (lambda b: (b / "psf.csv").write_text("file,wavelength,depth\npsf_00.png,530nm,45 parsecs\n"), ["--pixel-pitch", "2um"],
+     "unknown unit"),
+    (None, ["--pixel-pitch", "2um", "--dark", "nothing.png"], "--dark: no such file"),
+    (lambda b: cv2.imwrite(str(b / "dark.png"), np.zeros((50, 50), np.uint16)), ["--pixel-pitch", "2um", "--dark", "DARK"],
+     "is 96 × 96 pixels, the dark frame 50 × 50"),
+    (lambda b: cv2.imwrite(str(b / "psf_11.png"), np.full((96, 96), 65535, np.uint16)), ["--pixel-pitch", "2um"],
+     "psf_11.png has 9216 saturated pixel(s)"),
+    (None, ["--pixel-pitch", "2um", "--pattern", "x_{wavelength}_{depth}.png"], "--pattern: only applies to a folder"),
+])
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(capsys, bench, change, args, message):
+    if change is not None:
+        change(bench)
+    output = bench / "cube.exr"
+    code, out, err = invoke(capsys, "psf", "import", bench / "psf.csv", "-o", output,
+                            *[str(bench / "dark.png") if a == "DARK" else a for a in args])
+    assert code == 2 and out == "" and err.count("\n") == 1 and message in err, err
+    assert not output.exists() and not list(bench.glob(".metalens-*"))
+
+
+def test_compare_refuses_cubes_with_nothing_in_common(capsys, bench):
+    cube = bench / "m.exr"
+    assert invoke(capsys, "psf", "import", bench / "psf.csv", "-o", cube, "--pixel-pitch", "2um", "--quiet")[0] == 0
+    other = bench / "other.exr"
+    metadata = {"format": "metalens-psf-cube/1", "wavelengths_m": [4.5e-07], "depths_m": [1.0], "pixel_pitch_m": 2e-06,
+                "normalization": "sum-to-one"}
+    OpenEXR.File({"type": OpenEXR.scanlineimage, "metalens": json.dumps(metadata)},
+                 {"psf.d00.w000": np.ones((9, 9), np.float32)}).write(str(other))
+    code, out, err = invoke(capsys, "psf", "compare", cube, other)
+    assert code == 2 and err.count("\n") == 1 and "no simulated PSF at this depth" in err
