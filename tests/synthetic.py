@@ -34,3 +34,33 @@ def bench_frame(spot: np.ndarray, rng: np.random.Generator, photons: float = 1.2
     background and Gaussian read noise, clipped to 0..65535 like the camera does."""
     signal = rng.poisson(photons * spot + background) + dark_level + rng.normal(0, read_noise, spot.shape)
     return np.clip(np.rint(signal), 0, 65535).astype(np.uint16)
+
+
+def texture(height: int, width: int, seed: int) -> np.ndarray:
+    """A (H, W, 3) linear RGB test scene in 0.05..0.95: multi-scale smoothed noise (structure at
+    2-32 pixels, so features and optical flow have something to hold) with random colour."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(seed)
+    scene = np.zeros((height, width, 3))
+    for sigma in (2, 4, 8, 16, 32):
+        layer = gaussian_filter(rng.normal(size=(height, width)), sigma)
+        scene += (layer / layer.std())[:, :, None] * rng.uniform(0.3, 1.0, 3)
+    scene -= scene.min()
+    return (0.05 + 0.9 * scene / scene.max()).astype(np.float32)
+
+
+def warp(image: np.ndarray, homography: np.ndarray, ripple_px: float = 0.0, size: tuple[int, int] | None = None) -> np.ndarray:
+    """``image`` (H, W, C) seen through a camera: output pixel (x, y) samples the image at
+    H·(x, y, 1) plus a smooth ripple of ``ripple_px`` pixels (a lens distortion stand-in)."""
+    import cv2
+
+    h, w = size or image.shape[:2]
+    y, x = np.mgrid[:h, :w].astype(np.float64)
+    u = homography[0, 0] * x + homography[0, 1] * y + homography[0, 2]
+    v = homography[1, 0] * x + homography[1, 1] * y + homography[1, 2]
+    s = homography[2, 0] * x + homography[2, 1] * y + homography[2, 2]
+    u, v = u / s, v / s
+    u += ripple_px * np.sin(2 * np.pi * y / h) * np.cos(np.pi * x / w)
+    v += ripple_px * np.cos(2 * np.pi * x / w) * np.sin(np.pi * y / h)
+    return cv2.remap(image, u.astype(np.float32), v.astype(np.float32), cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)

@@ -11,11 +11,16 @@ from metalens_cli.cli.progress import progress_bar
 from metalens_cli.cli.simulate import capture_options, setup
 
 MATCH_METHODS = ("luminance", "lstsq")  # imaging.metrics.MATCH_METHODS (not imported: it pulls in torch)
+ALIGN_MODES = ("unobstructed", "each", "none")  # imaging.captured_pairs.ALIGN_MODES
+REFINEMENTS = ("flow", "tps", "none")  # imaging.registration.REFINEMENTS
 LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 
 
+PAIRS_OPTIONS = {"pairs", "align", "refine", "match", "csv_path", "lpips_weights", "quiet", "as_json", "plot_path", "max_memory", "specs"}
+
+
 @click.command("evaluate", cls=MetalensCommand)
-@click.argument("specs", metavar="DESIGN...", nargs=-1, required=True)
+@click.argument("specs", metavar="DESIGN...", nargs=-1)
 @capture_options
 @click.option("--seed", "seeds", type=SeedList(), default="0", show_default=True,
               help="Seeds of depths, obstructions and noise: 0, 0,1,2 or 0:2; units are images × seeds.")
@@ -30,14 +35,24 @@ LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 @click.option("--recon", "recon_runs", multiple=True,
               help="Reconstruction runs (metalens reconstruct train), one per DESIGN in order, comma-separated or repeated; "
                    "'-' for a design without one. Adds Recon rows.")
+@click.option("--pairs", type=click.Path(exists=True, file_okay=False),
+              help="Score real captures instead of simulating: DIR/gt/NAME.png, DIR/DESIGN/unobstructed/NAME.png, "
+                   "DIR/DESIGN/obstructed[-KIND]/NAME.png, optional DIR/DESIGN/recon-unobstructed/ and recon-obstructed[-KIND]/.")
+@click.option("--align", type=click.Choice(ALIGN_MODES), default="unobstructed", show_default=True,
+              help="--pairs: register each scene's unobstructed capture onto gt and reuse its warp, register every capture, "
+                   "or none (already aligned).")
+@click.option("--refine", type=click.Choice(REFINEMENTS), default="flow", show_default=True,
+              help="--pairs: the non-linear refinement after the homography (see metalens align).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 @plot_option
-def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
+@click.pass_context
+def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
              pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seeds, obstruction, match,
-             csv_path, lpips_weights, recon_runs, quiet, max_memory, as_json, plot_path):
-    """Unobstructed and obstructed captures of each DESIGN against the clean images.
+             csv_path, lpips_weights, recon_runs, pairs, align, refine, quiet, max_memory, as_json, plot_path):
+    """Unobstructed and obstructed captures of each DESIGN against the clean images, or of real
+    captures with --pairs DIR.
 
     Every design sees the same units (image, seed). Per cell: the mean over units with a 95 %
     bootstrap confidence interval; Δ = Obs. − Unobs. per unit (LPIPS: Unobs. − Obs.; negative is
@@ -45,7 +60,15 @@ def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near
     the photometric match (Suppl. Note 11), on sRGB-encoded images. LPIPS (v0.1, AlexNet) when
     its weights are found locally (nothing is downloaded), else skipped with a note. With
     --recon, each design's captures are also scored after its reconstruction network (Recon rows).
+
+    --pairs DIR: the same table from captured photographs (the paper's Suppl. table), one unit
+    per scene: each capture registered onto its gt image (homography, then a smooth
+    refinement), the metrics over the region every capture of the scene covers.
     """
+    if pairs is not None:
+        return _evaluate_pairs(ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, as_json, plot_path)
+    if not specs:
+        raise click.UsageError("give at least one DESIGN, or --pairs DIR for captured photographs")
     from metalens_cli.imaging.evaluation import EvaluationSettings, evaluate as run_evaluation, metric_names
     from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
     from metalens_cli.imaging.images import image_count
@@ -71,6 +94,16 @@ def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near
     with progress_bar("evaluate", quiet) as update:
         result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update, reconstructors)
     notes = [n for n in (lpips_skip,) if n]
+    n = result.rows[0]["n"] if result.rows else 0
+    what = "Raw and reconstructed captures" if any(reconstructors) else "Raw captures"
+    _report(result, [d.spec for d in s["designs"]], kinds, metrics, notes, csv_path, plot_path, as_json,
+            {"photometric_match": match, "psfs": result.psfs, "seeds": seeds, "formation": formation,
+             "recon": [None if r is None else r.source for r in reconstructors]},
+            f"{what} vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units")
+
+
+def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, extra: dict, title: str) -> None:
+    """Notes and warnings on stderr, the CSV and figure, then the JSON or the tables."""
     err = render.console(stderr=True)
     for note in notes:
         err.print(f"note: {note}")
@@ -81,26 +114,45 @@ def evaluate(specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near
     if plot_path:
         from metalens_cli.plotting.imaging import comparison_figure
 
-        comparison_figure(plot_path, [d.spec for d in s["designs"]], result.panels)
+        comparison_figure(plot_path, specs, result.panels)
     if as_json:
         render.emit_json({"rows": result.rows, "deltas": result.deltas, "comparisons": result.comparisons,
-                          "units": result.units, "psfs": result.psfs, "images": result.images, "seeds": seeds,
-                          "formation": formation, "photometric_match": match, "confidence": 0.95,
-                          "recon": [None if r is None else r.source for r in reconstructors],
-                          "notes": notes, "warnings": result.warnings,
+                          "units": result.units, "images": result.images,
+                          "confidence": 0.95, **extra, "notes": notes, "warnings": result.warnings,
                           **({"csv": str(csv_path)} if csv_path else {}), **({"plot": str(plot_path)} if plot_path else {})})
         return
     con = render.console()
-    n = result.rows[0]["n"] if result.rows else 0
-    what = "Raw and reconstructed captures" if any(reconstructors) else "Raw captures"
-    con.print(render.table(f"{what} vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units",
-                           ["design", "condition"] + [f"{k} {_short(m)}" for k in kinds for m in metrics], _table_rows(result, kinds, metrics)))
+    con.print(render.table(title, ["design", "condition"] + [f"{k} {_short(m)}" for k in kinds for m in metrics],
+                           _table_rows(result, kinds, metrics)))
     pairs = [c for c in result.comparisons if c["metric"] == "psnr_db" and c["condition"] in ("obstructed", "delta")]
     if pairs:
         con.print(render.table("Paired PSNR differences (design − versus, same units), dB [95 % CI]",
                                ["design", "versus", "obstruction", "condition", "difference"],
                                [[f"{c['design']} ({c['capture']})", f"{c['versus']} ({c['versus_capture']})", c["obstruction"],
                                  LABELS[c["condition"]], _ci(c["difference"], c["ci"], 2, lines=False)] for c in pairs]))
+
+
+def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, as_json, plot_path) -> None:
+    """evaluate --pairs: the table of captured photographs (imaging.captured_pairs)."""
+    from metalens_cli.imaging.captured_pairs import evaluate_pairs, read_layout
+    from metalens_cli.imaging.evaluation import metric_names
+    from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
+
+    given = [p for p in ctx.command.params if p.name not in PAIRS_OPTIONS
+             and ctx.get_parameter_source(p.name) == click.core.ParameterSource.COMMANDLINE]
+    if ctx.params["specs"] or given:
+        names = ["DESIGN" if not given else max(given[0].opts, key=len)]
+        raise click.UsageError(f"{names[0]} does not apply to --pairs (the designs are the folders of DIR)")
+    layout = read_layout(folder)
+    lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
+    lpips_model = Lpips.from_files(lpips_paths.alexnet, lpips_paths.lin) if lpips_paths else None
+    metrics = metric_names(lpips_model)
+    with progress_bar("evaluate --pairs", quiet) as update:
+        result = evaluate_pairs(layout, lpips_model, match, align, refine, update)
+    notes = [n for n in (lpips_skip,) if n]
+    _report(result, layout.designs, layout.kinds, metrics, notes, csv_path, plot_path, as_json,
+            {"photometric_match": match, "pairs": str(folder), "alignment": align, "refine": refine, "alignments": result.alignments},
+            f"Captures vs gt: mean [95 % CI] over {len(result.images)} scenes")
 
 
 def _reconstructors(runs, designs, device) -> list:

@@ -50,7 +50,7 @@ class Evaluation:
     """Results: ``rows`` (design, capture, obstruction, condition, metric means, ``<metric>_ci``, n),
     ``deltas``, ``comparisons`` (paired design differences), ``units`` (every score), ``psfs``
     (per design and seed: depths, windows, kept light), ``images`` (names), ``panels`` (first
-    image and seed, for figures) and ``warnings``."""
+    image and seed, for figures), ``warnings`` and, for captured pairs, ``alignments``."""
 
     rows: list[dict] = field(default_factory=list)
     deltas: list[dict] = field(default_factory=list)
@@ -60,6 +60,7 @@ class Evaluation:
     images: list[str] = field(default_factory=list)
     panels: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    alignments: list[dict] = field(default_factory=list)
 
 
 def metric_names(lpips_model) -> tuple[str, ...]:
@@ -125,13 +126,21 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
                 done += 1
                 if on_progress is not None:
                     on_progress(done, total)
-    _summarise(out, designs, recon, kinds, seeds, len(images), metrics, scores)
+    summarise(out, [design.spec for design in designs], recon, kinds, seeds, len(images), metrics, scores)
     return out
 
 
-def _summarise(out: Evaluation, designs, recon, kinds, seeds, n_images: int, metrics, scores) -> None:
+def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_images: int, metrics, scores) -> None:
+    """Fill ``out.rows``, ``deltas`` and ``comparisons`` from ``scores[(capture, design index,
+    condition or "unobstructed", seed, image index)]`` (metric dicts) over the units (seed,
+    image); designs named ``specs``, those whose ``recon`` entry is not None also scored as recon."""
+    from metalens_cli.imaging.metrics import PSNR_CEILING_DB
+
+    exact = sum(1 for value in scores.values() if value["psnr_db"] >= PSNR_CEILING_DB)
+    if exact:
+        out.warnings.append(f"{exact} score(s) match their reference exactly; their PSNR is reported as the {PSNR_CEILING_DB:g} dB ceiling")
     units = [(seed, index) for seed in seeds for index in range(n_images)]
-    cells = [(capture, d) for d in range(len(designs)) for capture in ("raw", "recon") if capture == "raw" or recon[d] is not None]
+    cells = [(capture, d) for d in range(len(specs)) for capture in ("raw", "recon") if capture == "raw" or recon[d] is not None]
 
     def values(capture, d, kind, condition, metric):
         return [scores[(capture, d, "unobstructed" if condition == "unobstructed" else kind, seed, index)][metric]
@@ -144,12 +153,12 @@ def _summarise(out: Evaluation, designs, recon, kinds, seeds, n_images: int, met
     for kind in kinds:
         for capture, d in cells:
             for condition in CONDITIONS:
-                row = {"design": designs[d].spec, "capture": capture, "obstruction": kind, "condition": condition, "n": len(units)}
+                row = {"design": specs[d], "capture": capture, "obstruction": kind, "condition": condition, "n": len(units)}
                 for metric in metrics:
                     stats = mean_ci(values(capture, d, kind, condition, metric), metric=metric)
                     row[metric], row[f"{metric}_ci"] = stats["mean"], stats["ci"]
                 out.rows.append(row)
-            entry = {"design": designs[d].spec, "capture": capture, "obstruction": kind, "n": len(units)}
+            entry = {"design": specs[d], "capture": capture, "obstruction": kind, "n": len(units)}
             for metric in metrics:
                 stats = mean_ci(deltas(capture, d, kind, metric), metric=f"delta_{metric}")
                 entry[f"delta_{metric}"], entry[f"delta_{metric}_ci"] = stats["mean"], stats["ci"]
@@ -165,7 +174,7 @@ def _summarise(out: Evaluation, designs, recon, kinds, seeds, n_images: int, met
                     else:
                         first, second = (values(*cell, kind, condition, metric) for cell in (first_cell, second_cell))
                     stats = paired_difference_ci(first, second, metric=metric)
-                    out.comparisons.append({"design": designs[first_cell[1]].spec, "capture": first_cell[0],
-                                            "versus": designs[second_cell[1]].spec, "versus_capture": second_cell[0],
+                    out.comparisons.append({"design": specs[first_cell[1]], "capture": first_cell[0],
+                                            "versus": specs[second_cell[1]], "versus_capture": second_cell[0],
                                             "obstruction": kind, "condition": condition, "metric": metric,
                                             "difference": stats["mean"], "ci": stats["ci"], "n": stats["n"]})

@@ -184,17 +184,18 @@ def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_le
 def score(estimate_linear: np.ndarray, clean_linear: np.ndarray, lpips_model=None, match: str = "luminance") -> dict:
     """PSNR (dB) and SSIM of a capture against the clean image after the global gain/bias
     match (``match``: the paper's luminance mean/std match of Suppl. Note 11, or least squares),
-    computed on sRGB-encoded images clipped to 0..1 (display values); also ``lpips`` on the
-    same images when ``lpips_model`` (:class:`~metalens_cli.imaging.lpips.Lpips`) is given."""
+    computed on sRGB-encoded images clipped to 0..1 (display values), PSNR capped at 100 dB for
+    an exact match (``metrics.reported_psnr``); also ``lpips`` on the same images when
+    ``lpips_model`` (:class:`~metalens_cli.imaging.lpips.Lpips`) is given."""
     from metalens_cli.imaging.images import linear_to_srgb
-    from metalens_cli.imaging.metrics import photometric_match, psnr, ssim
+    from metalens_cli.imaging.metrics import photometric_match, psnr, reported_psnr, ssim
 
     estimate = torch.as_tensor(estimate_linear, dtype=torch.float64)
     clean = torch.as_tensor(clean_linear, dtype=torch.float64)
     matched, gain, bias = photometric_match(estimate, clean, match)
     x = torch.as_tensor(linear_to_srgb(matched.numpy()), dtype=torch.float64)
     y = torch.as_tensor(linear_to_srgb(clean.numpy()), dtype=torch.float64)
-    out = {"psnr_db": float(psnr(x, y)), "ssim": float(ssim(x, y)), "gain": float(gain), "bias": float(bias)}
+    out = {"psnr_db": reported_psnr(psnr(x, y)), "ssim": float(ssim(x, y)), "gain": float(gain), "bias": float(bias)}
     if lpips_model is not None:
         from metalens_cli.imaging.lpips import lpips_distance
 

@@ -1,0 +1,199 @@
+"""The paper's metric table from real captures (``metalens evaluate --pairs DIR``).
+
+Layout (names: file stems; PNG, JPEG, TIFF 8/16-bit taken as sRGB-encoded, EXR as linear)::
+
+    DIR/gt/NAME.png                          the reference (compound lens) of scene NAME
+    DIR/DESIGN/unobstructed/NAME.png         the capture through lens DESIGN without obstruction
+    DIR/DESIGN/obstructed/NAME.png           ... with the obstruction (or obstructed-KIND/, one per kind)
+    DIR/DESIGN/recon-unobstructed/NAME.png   optional: the reconstructions of those captures
+    DIR/DESIGN/recon-obstructed[-KIND]/NAME.png
+
+Every design must hold every scene of ``gt`` in every folder it has. Alignment (``align``):
+``unobstructed`` (default) registers each scene's unobstructed capture onto its reference
+(:func:`metalens_cli.imaging.registration.register`) and applies that warp to the scene's
+other captures of the same design (same camera and set-up; an obstruction would mislead the
+matching); ``each`` registers every capture on its own; ``none`` takes the captures as aligned
+(same size as the reference). The metrics are computed over the largest rectangle that every
+aligned capture of the scene covers, after the photometric match (``pipeline.score``).
+
+Units are scenes; the statistics are those of simulated evaluation
+(:mod:`metalens_cli.imaging.evaluation`): means with 95 % bootstrap intervals, Δ per scene,
+paired differences between designs on the same scenes.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.evaluation import Evaluation, metric_names, summarise
+from metalens_cli.imaging.images import read_linear
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
+ALIGN_MODES = ("unobstructed", "each", "none")
+_FOLDER = re.compile(r"(recon-)?(unobstructed|obstructed(?:-([A-Za-z0-9_]+))?)")
+LAYOUT = "DIR/gt/NAME.png and DIR/DESIGN/{unobstructed,obstructed[-KIND],recon-unobstructed,recon-obstructed[-KIND]}/NAME.png"
+
+
+@dataclass(frozen=True)
+class PairLayout:
+    """What a pairs folder holds: scene ``names`` (sorted), ``gt`` paths by name, the
+    ``designs`` (sorted folder names), obstruction ``kinds``, and ``captures[design][(capture,
+    condition)]`` = paths by name, capture "raw" or "recon", condition "unobstructed" or a kind."""
+
+    names: list[str]
+    gt: dict[str, Path]
+    designs: list[str]
+    kinds: list[str]
+    captures: dict[str, dict[tuple[str, str], dict[str, Path]]]
+
+    def has_recon(self, design: str) -> bool:
+        return any(capture == "recon" for capture, _ in self.captures[design])
+
+
+def read_layout(folder: str | Path) -> PairLayout:
+    """The layout of ``folder``, checked: every design has its unobstructed captures and at least
+    one obstructed folder, each folder holds exactly the scenes of ``gt``, the obstruction kinds
+    are the same for every design."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("--pairs", f"{str(folder)!r} is not a folder", LAYOUT)
+    gt = _images(folder / "gt", "--pairs")
+    if not gt:
+        raise InputError("--pairs", f"no images in {str(folder / 'gt')!r}", LAYOUT)
+    designs, kinds, captures = [], None, {}
+    for design_folder in sorted(p for p in folder.iterdir() if p.is_dir() and p.name != "gt" and not p.name.startswith(".")):
+        found = {}
+        for sub in sorted(p for p in design_folder.iterdir() if p.is_dir()):
+            m = _FOLDER.fullmatch(sub.name)
+            if m is None:
+                raise InputError("--pairs", f"unexpected folder {sub.relative_to(folder)}", LAYOUT)
+            capture = "recon" if m.group(1) else "raw"
+            condition = "unobstructed" if m.group(2) == "unobstructed" else (m.group(3) or "obstructed")
+            images = _images(sub, "--pairs")
+            if sorted(images) != sorted(gt):
+                extra, missing = sorted(set(images) - set(gt)), sorted(set(gt) - set(images))
+                what = f"lacks {', '.join(missing[:3])}" if missing else f"has {', '.join(extra[:3])} without a gt image"
+                raise InputError("--pairs", f"{sub.relative_to(folder)} {what}", "every folder holding the scenes of gt/, by name")
+            found[capture, condition] = images
+        design_kinds = sorted({c for _, c in found if c != "unobstructed"})
+        if ("raw", "unobstructed") not in found or not design_kinds:
+            raise InputError("--pairs", f"{design_folder.name}/ lacks unobstructed/ or obstructed/", LAYOUT)
+        missing_recon = [c for c in ("unobstructed", *design_kinds) if ("recon", c) not in found]
+        if any(capture == "recon" for capture, _ in found) and missing_recon:
+            raise InputError("--pairs", f"{design_folder.name}/ has recon captures but not for {', '.join(missing_recon)}",
+                             "recon-unobstructed/ and recon-obstructed[-KIND]/ together")
+        if kinds is not None and design_kinds != kinds:
+            raise InputError("--pairs", f"{design_folder.name}/ has obstructions {design_kinds}, another design {kinds}",
+                             "the same obstructed folders for every design")
+        kinds = design_kinds
+        designs.append(design_folder.name)
+        captures[design_folder.name] = found
+    if not designs:
+        raise InputError("--pairs", f"no design folders in {str(folder)!r}", LAYOUT)
+    return PairLayout(sorted(gt), gt, designs, kinds, captures)
+
+
+def _images(folder: Path, field: str) -> dict[str, Path]:
+    """Image files of a folder by stem; two files of one stem are refused."""
+    if not folder.is_dir():
+        return {}
+    out: dict[str, Path] = {}
+    for path in sorted(folder.iterdir()):
+        if path.suffix.lower() in IMAGE_SUFFIXES and path.is_file():
+            if path.stem in out:
+                raise InputError(field, f"{out[path.stem].name} and {path.name} in {folder} name one scene", "one image per scene")
+            out[path.stem] = path
+    return out
+
+
+def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = "luminance", align: str = "unobstructed",
+                   refine: str = "flow", on_progress: Callable[[int, int], None] | None = None) -> Evaluation:
+    """Score every capture of ``layout`` against its reference (see the module docstring); the
+    result is that of simulated evaluation with ``alignments`` (one report per registration)
+    and no ``psfs``."""
+    from metalens_cli.imaging.pipeline import score
+
+    if align not in ALIGN_MODES:
+        raise InputError("--align", repr(align), " or ".join(ALIGN_MODES))
+    out = Evaluation(images=list(layout.names))
+    out.panels = {design: [] for design in layout.designs}
+    metrics = metric_names(lpips_model)
+    scores: dict[tuple, dict] = {}
+    total = len(layout.designs) * len(layout.names)
+    for d, design in enumerate(layout.designs):
+        for index, name in enumerate(layout.names):
+            clean = read_linear(layout.gt[name], f"--pairs: {layout.gt[name]}")
+            aligned = _aligned_captures(layout, design, name, clean, align, refine, out)
+            box = _common_box([valid for _, valid in aligned.values()])
+            reference = clean[:, box[0]:box[1], box[2]:box[3]]
+            for (capture, condition), (image, _) in aligned.items():
+                crop = image[:, box[0]:box[1], box[2]:box[3]]
+                scores[capture, d, condition, 0, index] = score(crop, reference, lpips_model, match)
+                if index == 0:
+                    if not out.panels[design]:
+                        out.panels[design].append(("gt", reference))
+                    prefix = "recon, " if capture == "recon" else ""
+                    out.panels[design].append((f"{prefix}{condition}", crop))
+            for capture in ("raw", "recon") if layout.has_recon(design) else ("raw",):
+                for kind in layout.kinds:
+                    out.units.append({"design": design, "capture": capture, "obstruction": kind, "seed": None, "image": name,
+                                      "unobstructed": scores[capture, d, "unobstructed", 0, index],
+                                      "obstructed": scores[capture, d, kind, 0, index]})
+            if on_progress is not None:
+                on_progress(d * len(layout.names) + index + 1, total)
+    recon = [layout.has_recon(design) or None for design in layout.designs]
+    summarise(out, layout.designs, recon, layout.kinds, [0], len(layout.names), metrics, scores)
+    return out
+
+
+def _aligned_captures(layout: PairLayout, design: str, name: str, clean: np.ndarray, align: str, refine: str,
+                      out: Evaluation) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
+    """(capture, condition) → (aligned (3, H, W) linear capture on the reference grid, valid mask)."""
+    from metalens_cli.imaging.registration import register
+
+    reference = np.transpose(clean, (1, 2, 0))
+    shared = None
+    aligned = {}
+    for key, paths in sorted(layout.captures[design].items(), key=lambda item: (item[0][0] != "raw", item[0][1] != "unobstructed")):
+        path = paths[name]
+        image = read_linear(path, f"--pairs: {path}")
+        if align == "none":
+            if image.shape != clean.shape:
+                raise InputError("--pairs", f"{path} is {image.shape[2]} × {image.shape[1]}, its gt {clean.shape[2]} × {clean.shape[1]}",
+                                 "captures of the reference's size with --align none")
+            aligned[key] = (image, np.ones(clean.shape[1:], bool))
+            continue
+        if align == "each" or shared is None:
+            registration = register(reference, np.transpose(image, (1, 2, 0)), refine=refine, field=f"--pairs: {path}")
+            out.alignments.append({"design": design, "image": name, "capture": key[0], "condition": key[1], **registration.to_report()})
+            out.warnings += [f"{design}/{name}: {w}" for w in registration.warnings()]
+            shared = registration
+        warped = shared.apply(np.transpose(image, (1, 2, 0)))
+        aligned[key] = (np.transpose(warped, (2, 0, 1)), shared.valid_mask())
+    return aligned
+
+
+def _common_box(masks: list[np.ndarray]) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right) of a large rectangle inside which every mask is True: the
+    edge with the most invalid pixels is moved in, one row or column at a time."""
+    valid = np.logical_and.reduce(masks)
+    top, bottom, left, right = 0, valid.shape[0], 0, valid.shape[1]
+    while bottom - top > 16 and right - left > 16:
+        box = valid[top:bottom, left:right]
+        counts = [np.count_nonzero(~box[0]), np.count_nonzero(~box[-1]), np.count_nonzero(~box[:, 0]), np.count_nonzero(~box[:, -1])]
+        if max(counts) == 0:
+            if box.all():
+                return top, bottom, left, right
+            top, bottom, left, right = top + 1, bottom - 1, left + 1, right - 1  # a hole inside: close in from all sides
+            continue
+        side = int(np.argmax(counts))
+        top, bottom = top + (side == 0), bottom - (side == 1)
+        left, right = left + (side == 2), right - (side == 3)
+    raise InputError("--pairs", "the aligned captures share under 16 × 16 pixels with their reference",
+                     "captures that cover their reference")
