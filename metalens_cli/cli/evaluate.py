@@ -6,7 +6,8 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import announce, json_option, max_memory_option, MetalensCommand, OutputFile, plot_option, SeedList
+from metalens_cli.cli.options import (announce, json_option, max_memory_option, MetalensCommand, OutputFile, plot_option,
+                                      refuse_overwriting, SeedList)
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.cli.simulate import capture_options, setup
 
@@ -144,6 +145,8 @@ def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, 
         names = ["DESIGN" if not given else max(given[0].opts, key=len)]
         raise click.UsageError(f"{names[0]} does not apply to --pairs (the designs are the folders of DIR)")
     layout = read_layout(folder)
+    refuse_overwriting([("--csv", csv_path), ("--plot", plot_path)],
+                       [*layout.gt.values(), *(p for d in layout.captures.values() for paths in d.values() for p in paths.values())])
     lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
     lpips_model = Lpips.from_files(lpips_paths.alexnet, lpips_paths.lin) if lpips_paths else None
     metrics = metric_names(lpips_model)

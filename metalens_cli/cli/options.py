@@ -264,6 +264,17 @@ class MetalensCommand(click.Command):
             raise InputError(_option_name(param), exc.message, exc.expected) from None
 
 
+def refuse_overwriting(outputs: list[tuple[str, str | None]], inputs: list) -> None:
+    """Refuse an output (option, path) naming one of ``inputs``: files a command reads that its
+    command line does not show (frames of a manifest, images of a folder), which
+    :class:`MetalensCommand` cannot check."""
+    for option, path in outputs:
+        clash = next((item for item in inputs if path is not None and same_file(path, item)), None)
+        if clash is not None:
+            raise InputError(option, f"{path!r} is also an input ({str(clash)!r}); it would be overwritten",
+                             "an output path apart from the inputs")
+
+
 class MetalensGroup(click.Group):
     """A subcommand group whose commands are :class:`MetalensCommand`."""
 

@@ -18,6 +18,7 @@ from metalens_cli.cli.options import (
     Number,
     OutputFile,
     plot_option,
+    refuse_overwriting,
 )
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.errors import InputError
@@ -79,6 +80,8 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
     from metalens_cli.io.resources import Estimate
 
     m = read_manifest(manifest, pattern)
+    refuse_overwriting([("-o", output), ("--plot", plot_path)],
+                       [f.path for f in m.frames] + [p for p in (dark_path, m.settings.get("dark")) if p is not None])
     pitch = pixel_pitch_m or m.settings.get("pixel_pitch_m")
     if pitch is None:
         raise InputError("--pixel-pitch", "the camera's pixel pitch is not given", "--pixel-pitch 3.45um or pixel_pitch in a TOML manifest")

@@ -71,6 +71,15 @@ def bench(tmp_path_factory):
     _png_header(root / "bomb.png", 60000, 60000)
     write_exr_rgb(root / "nan.exr", np.full((3, 32, 32), np.nan, np.float32))
     write_exr_rgb(root / "negative.exr", np.full((3, 32, 32), -0.5, np.float32))
+    for name, frame in (("bomb", "bomb.png"), ("nanframe", "nan.npy"), ("hugeframe", "huge.npy"), ("fifoframe", "fifo.csv")):
+        (root / f"m_{name}.csv").write_text(f"file,wavelength,depth\n{frame},530nm,inf\n")
+    (root / "m_ok.csv").write_text("file,wavelength,depth\nmask.png,530nm,inf\n")
+    (root / "nopairs").mkdir()
+    (root / "pairs" / "gt").mkdir(parents=True)
+    cv2_write(root / "pairs" / "gt" / "a.png", np.zeros((8, 8), np.uint8))
+    for folder in ("unobstructed", "obstructed"):
+        (root / "pairs" / "lens" / folder).mkdir(parents=True)
+        cv2_write(root / "pairs" / "lens" / folder / "a.png", np.zeros((8, 8), np.uint8))
     (root / "imgs").mkdir()
     write_exr_rgb(root / "imgs" / "grey.exr", np.full((3, 32, 32), 0.5, np.float32))
     assert run([*SCAN, "-o", str(root / "cube.exr"), "--quiet"]) == 0
@@ -158,6 +167,24 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
                                          "at most 16 rows"),
     "obstruction 1 nm away": (["obstruction", "preview", "--pixels", "16", "--z-near", "1nm", "-o", "{tmp}/o.png"], 2, "spans"),
     "preset: name escaping runs/": (["preset", "show", "{name_toml}"], 2, "not a plain name"),
+    "psf import: manifest /dev/zero": (["psf", "import", "/dev/zero", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "not a regular file"),
+    "psf import: manifest a FIFO": (["psf", "import", "{fifo_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "not a regular file"),
+    "psf import: a decompression bomb frame": (["psf", "import", "{m_bomb_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "megapixels"),
+    "psf import: a NaN frame": (["psf", "import", "{m_nanframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "NaN"),
+    "psf import: a frame claiming 4 TB": (["psf", "import", "{m_hugeframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "claims"),
+    "psf import: a FIFO as frame": (["psf", "import", "{m_fifoframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "not a frame format"),
+    "psf import --pixel-pitch nan": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "nan"], 2, "--pixel-pitch"),
+    "psf import --magnification inf": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um",
+                                        "--magnification", "inf"], 2, "--magnification"),
+    "psf import -o onto /dev/full": (["psf", "import", "{m_ok_csv}", "-o", "/dev/full", "--pixel-pitch", "2um"], 2, "does not end in .exr"),
+    "psf import --plot onto a frame": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um",
+                                        "--plot", "{mask_png}"], 2, "also an input"),
+    "psf compare of garbage": (["psf", "compare", "{garbage_exr}", "{cube_exr}"], 2, "not a readable OpenEXR file"),
+    "psf compare --csv onto a FIFO": (["psf", "compare", "{cube_exr}", "{cube_exr}", "--csv", "{fifo_csv}"], 2, "not a regular file"),
+    "evaluate --pairs of a file": (["evaluate", "--pairs", "{a_file}"], 2, "is a file"),
+    "evaluate --pairs --plot onto a capture": (["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/lens/obstructed/a.png"], 2,
+                                                "also an input"),
+    "evaluate --pairs of an empty folder": (["evaluate", "--pairs", "{nopairs}"], 2, "no images in"),
     # 4. estimates before big jobs
     "psf-scan 8192 px": (["psf-scan", "--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--pixels", "8192",
                           "-o", "{tmp}/big.exr"], 2, "over the memory available"),
@@ -167,6 +194,8 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "symmetry --validate of a 1 m lens": (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate", "--aperture", "1m"], 2, "TiB"),
     "export-gds of a 1 m lens": ([*GDS[:3], "--f", "1m", "--aperture", "1m", *GDS[7:], "-o", "{tmp}/big.gds"], 2, "TiB on disk"),
     "optimize over --max-memory": (["optimize", str(TINY), "-o", "{tmp}/run", "--max-memory", "1MiB"], 2, "--max-memory"),
+    "psf import over --max-memory": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um", "--max-memory", "1kB"],
+                                     2, "--max-memory"),
 }
 
 
