@@ -12,7 +12,6 @@ LPIPS (:mod:`metalens_cli.imaging.lpips`) needs network weights that this packag
 
 from __future__ import annotations
 
-import math
 
 import torch
 
