@@ -6,8 +6,10 @@ It fabricates what a bench would give, with known answers, in the layout the com
 
 - ``OUT/bench/``: PSF frames of the hyperbolic 532 nm lens at 457, 530 and 628 nm and at 45 mm
   and infinity, as a 16-bit camera behind a 2× relay would record them (3.7 µm camera pixels,
-  so 1.85 µm in the lens' sensor plane): the simulated PSFs at a random sub-pixel position,
-  Poisson photons, a background, a dark offset with read noise, five hot pixels; a stack of
+  so 1.85 µm in the lens' sensor plane): the simulated PSFs at a random whole-pixel position
+  (the in-focus PSF is undersampled at 1.85 µm, and a sub-pixel shift of an undersampled PSF
+  cannot be made from its samples; sub-pixel centring is tested on well-sampled spots in
+  tests/analysis/test_measured_psf.py), exposed to fill 60 % of the 16-bit range, Poisson photons, a background, a dark offset with read noise, five hot pixels; a stack of
   dark frames; one over-exposed frame (``psf_530nm_inf_long.png``); the manifest ``psf.csv``.
 - ``OUT/pairs/``: photographs of the built-in scenes through two lenses (``metalens simulate``),
   as a second camera that is not quite where the reference was would record them: warped by
@@ -40,7 +42,8 @@ DEPTHS = ("45mm", "inf")
 DESIGNS = ("hyperbolic:532nm", "hyperbolic:457nm")
 CAMERA_PITCH, MAGNIFICATION = "3.7um", 2
 FRAME = 384                 # camera frame side, pixels
-PHOTONS = 3e6               # photo-electrons in a 10 ms frame's PSF
+WINDOW = 161                # PSF window: holds the 45 mm blur disc (~121 pixels across) of the f = 4 mm lens
+FILL = 0.6                  # each frame's exposure puts its brightest pixel at this fraction of full scale
 HOT = [(40, 51), (200, 330), (300, 77), (191, 203), (350, 350)]
 
 
@@ -68,10 +71,13 @@ def bench_frames(simulated: Path, folder: Path, rng: np.random.Generator) -> Non
     dark_offset = 800.0
     for i, depth in enumerate(DEPTHS):
         for j, wavelength in enumerate(WAVELENGTHS_NM):
-            takes = [("", 0.010)] + ([("_long", 0.040)] if (wavelength, depth) == (530, "inf") else [])
-            for suffix, exposure in takes:
+            psf = cube.psf[i, j]
+            photons = FILL * 65535 / (psf.max() / psf.sum())  # a 10 ms exposure's photo-electrons
+            takes = [("", 1.0)] + ([("_long", 4.0)] if (wavelength, depth) == (530, "inf") else [])
+            for suffix, factor in takes:
+                exposure = 0.010 * factor
                 name = f"psf_{wavelength}nm_{depth}{suffix}.png"
-                frame = _frame(cube.psf[i, j], exposure / 0.010 * PHOTONS, dark_offset, rng)
+                frame = _frame(psf, factor * photons, dark_offset, rng)
                 cv2.imwrite(str(folder / name), frame)
                 rows.append(f"{name},{wavelength}nm,{depth},{exposure * 1e3:g}ms")
     darks = np.stack([_frame(None, 0.0, dark_offset, rng) for _ in range(5)])
@@ -81,24 +87,18 @@ def bench_frames(simulated: Path, folder: Path, rng: np.random.Generator) -> Non
 
 
 def _frame(psf: np.ndarray | None, photons: float, dark_offset: float, rng: np.random.Generator) -> np.ndarray:
-    """One 16-bit frame: the PSF at a random sub-pixel place near the centre, Poisson photons on a
+    """One 16-bit frame: the PSF at a random place near the centre, Poisson photons on a
     background, the dark offset, read noise, the hot pixels."""
     light = np.zeros((FRAME, FRAME))
     if psf is not None:
         n = psf.shape[-1]
-        top = FRAME // 2 - n // 2 + int(rng.integers(-20, 21))
-        left = FRAME // 2 - n // 2 + int(rng.integers(-20, 21))
-        light[top : top + n, left : left + n] = _subpixel(np.clip(psf, 0, None) / psf.sum(), rng.uniform(-0.5, 0.5, 2))
+        top = FRAME // 2 - n // 2 + int(rng.integers(-30, 31))
+        left = FRAME // 2 - n // 2 + int(rng.integers(-30, 31))
+        light[top : top + n, left : left + n] = np.clip(psf, 0, None) / psf.sum()
     signal = rng.poisson(np.clip(light, 0, None) * photons + 40.0) + dark_offset + rng.normal(0, 5, light.shape)
     for y, x in HOT:
         signal[y, x] += 9000
     return np.clip(np.rint(signal), 0, 65535).astype(np.uint16)
-
-
-def _subpixel(image: np.ndarray, shift) -> np.ndarray:
-    ky = np.fft.fftfreq(image.shape[0])[:, None]
-    kx = np.fft.fftfreq(image.shape[1])[None, :]
-    return np.real(np.fft.ifft2(np.fft.fft2(image) * np.exp(-2j * np.pi * (ky * shift[0] + kx * shift[1]))))
 
 
 def photographs(simulated: dict[str, Path], folder: Path) -> None:
@@ -140,11 +140,11 @@ def main() -> None:
 
     simulated = out / "simulated.exr"
     metalens("psf-scan", "--design", DESIGNS[0], "--preset", PRESET, "--wavelengths", ",".join(f"{w}nm" for w in WAVELENGTHS_NM),
-             "--depths", ",".join(DEPTHS), "--pixels", 96, "-o", simulated, "--quiet")
+             "--depths", ",".join(DEPTHS), "--pixels", WINDOW, "-o", simulated, "--quiet")
     bench_frames(simulated, out / "bench", rng)
     measured = out / "measured.exr"
     import_args = ["--dark", out / "bench" / "dark.npy", "--pixel-pitch", CAMERA_PITCH, "--magnification", MAGNIFICATION,
-                   "--pixels", 96, "-o", measured, "--quiet"]
+                   "--pixels", WINDOW, "-o", measured, "--quiet"]
     metalens("psf", "import", out / "bench" / "psf.csv", *import_args, expect=2)  # the over-exposed frame is refused
     imported = metalens("psf", "import", out / "bench" / "psf_no_long.csv", *import_args, "--plot", out / "measured.png")
     curves = metalens("mtf", measured)["curves"]
@@ -167,7 +167,7 @@ def main() -> None:
         print(f"  MTF50 at {c['wavelength_m'] * 1e9:.0f} nm, {depth}: {c['mtf50_lpmm'] or float('nan'):.1f} lp/mm")
     for p in comparison["pairs"]:
         print(f"psf compare {p['wavelength_m'] * 1e9:.0f} nm: peak ratio {p['peak_ratio']:.3f}, relative L2 {p['relative_l2']:.3f}")
-    report = aligned["pairs"][0] if "pairs" in aligned else aligned
+    report = aligned["pairs"][0]["registration"]
     print(f"align {first}: {report.get('inliers')} inliers, residual {report.get('residual_px', float('nan')):.2f} px")
     for row in table["rows"]:
         print(f"evaluate --pairs {row['design']} {row['condition']}: PSNR {row['psnr_db']:.2f} dB, SSIM {row['ssim']:.3f}")

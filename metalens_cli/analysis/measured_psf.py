@@ -12,9 +12,10 @@ Per frame (values as stored; colour frames averaged over R, G, B, alpha dropped)
    is subtracted; the noise σ is 1.4826 × the strip's median absolute deviation.
 4. **Hot pixels**: pixels standing more than k·σ (k = ``hot_pixel_sigma``, 6) above the median
    of their 3 × 3 neighbourhood in the dark frame, or in 90 % of the frames and on a dark
-   background (their neighbourhood's median below 3σ) in at least one, are replaced by that
-   median. A sharp PSF core is never a spike on a dark background, so it is left alone; a hot
-   pixel inside the light of every frame can only be found with a dark frame.
+   background (their neighbourhood's median below 3σ) in half of them, are replaced by that
+   median. Photon noise inside the light stands above the background's σ in many frames, but
+   not on a dark background; a sharp PSF core spikes in its own frames only. A hot pixel
+   inside the light of most frames can only be found with a dark frame.
 5. **Centre**: the light's centroid (pixels above 3σ, weighted by their excess over 3σ, in a
    disc around the brightest smoothed spot, iterated) or its peak (a Gaussian fitted through
    the maximum and its four neighbours), in frame pixels. The window is moved by whole pixels
@@ -50,6 +51,7 @@ LIGHT_FRACTION = 0.995     # of the light above LIGHT_SIGMA inside the automatic
 WINDOW_MARGIN = 4          # pixels a side beyond the light radius in the automatic window
 CROP_MARGIN = 8            # pixels kept a side around the light for centring
 HOT_FRAME_FRACTION = 0.9   # a hot pixel spikes in this fraction of the frames
+HOT_ISOLATED_FRACTION = 0.5  # ... and on a dark background in this fraction
 LOW_SNR = 20.0             # peak / σ below this is warned about
 
 
@@ -266,7 +268,8 @@ def _hot_pixels(frames: list[_Frame], shape: tuple[int, int], dark_hot: np.ndarr
     size = shape[0] * shape[1]
     spikes = np.bincount(np.concatenate([f.spikes for f in frames]), minlength=size) if frames else np.zeros(size)
     isolated = np.bincount(np.concatenate([f.isolated for f in frames]), minlength=size) if frames else np.zeros(size)
-    found = np.flatnonzero((spikes >= math.ceil(HOT_FRAME_FRACTION * len(frames))) & (isolated > 0))
+    found = np.flatnonzero((spikes >= math.ceil(HOT_FRAME_FRACTION * len(frames)))
+                           & (isolated >= max(1, math.ceil(HOT_ISOLATED_FRACTION * len(frames)))))
     return np.union1d(found, dark_hot)
 
 

@@ -114,6 +114,30 @@ def test_hot_pixels_are_replaced_and_a_sharp_core_is_kept(tmp_path):
     assert kept.hot_pixels == 0 and kept.psf[0, 0].max() > 5 * cube.psf[0, 0].max()  # the hot pixel in the window dominates
 
 
+def test_photon_noise_in_bright_light_is_not_taken_for_hot_pixels(tmp_path):
+    """Four bright blurred frames (photon noise far above the background's σ, so about 40 % of
+    their pixels stand 6σ over their neighbours' median) and one sharp frame with a speckled
+    halo (isolated bright pixels on a dark background, like a lens' faint rings): a speckle that
+    also spikes in every blurred frame looks hot in every frame but is isolated in one only.
+    Only the planted hot pixels are found."""
+    rng = np.random.default_rng(9)
+    hot = [(15, 15), (140, 30), (30, 150)]
+    angle, radius = rng.uniform(0, 2 * np.pi, 300), rng.uniform(8, 25, 300)
+    speckles = (np.rint(80 + radius * np.sin(angle)).astype(int), np.rint(85 + radius * np.cos(angle)).astype(int))
+    rows = ["file,wavelength,depth"]
+    for k, w in enumerate((450, 500, 550, 600, 650)):
+        sharp = w == 550
+        frame = bench_frame(gaussian_spot(*SHAPE, (80.0, 85.0), 0.8 if sharp else 12.0), rng, photons=2e4 if sharp else 4.5e7)
+        if sharp:
+            frame[speckles] += np.uint16(300)
+        for y, x in hot:
+            frame[y, x] += 15000
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), frame)
+        rows.append(f"f{k}.png,{w}nm,inf")
+    (tmp_path / "psf.csv").write_text("\n".join(rows) + "\n")
+    assert import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH, pixels=41)).hot_pixels == len(hot)
+
+
 def test_repeats_are_averaged_after_scaling_by_exposure(tmp_path):
     spot = gaussian_spot(*SHAPE, (80, 80), 2.0)
     rng = np.random.default_rng(6)
