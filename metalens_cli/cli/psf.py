@@ -27,7 +27,7 @@ NORMALIZATIONS = ("sum-to-one", "peak-one")  # analysis.measured_psf.NORMALIZATI
 CENTRINGS = ("centroid", "peak")
 WORKERS = 2
 BYTES_PER_FRAME_PIXEL = 48       # float32 working copies of one frame (values, median, smoothed, masks)
-SECONDS_PER_FRAME_PIXEL = 2.5e-8  # read and first pass, 2 cores (benchmarks/bench_psf_import.py)
+SECONDS_PER_FRAME_PIXEL = 2.5e-8  # measured 1.5e-8 (16-bit PNG, 2 cores: docs/benchmarks.md), with a margin
 
 
 @click.group("psf", cls=MetalensGroup, context_settings={"help_option_names": ["-h", "--help"]})
