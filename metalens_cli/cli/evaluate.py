@@ -67,7 +67,7 @@ def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z
     refinement), the metrics over the region every capture of the scene covers.
     """
     if pairs is not None:
-        return _evaluate_pairs(ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, as_json, plot_path)
+        return _evaluate_pairs(ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path)
     if not specs:
         raise click.UsageError("give at least one DESIGN, or --pairs DIR for captured photographs")
     from metalens_cli.imaging.evaluation import EvaluationSettings, evaluate as run_evaluation, metric_names
@@ -133,9 +133,10 @@ def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, 
                                  LABELS[c["condition"]], _ci(c["difference"], c["ci"], 2, lines=False)] for c in pairs]))
 
 
-def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, as_json, plot_path) -> None:
+def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path) -> None:
     """evaluate --pairs: the table of captured photographs (imaging.captured_pairs)."""
-    from metalens_cli.imaging.captured_pairs import evaluate_pairs, read_layout
+    from metalens_cli.imaging.captured_pairs import estimate_pairs, evaluate_pairs, read_layout
+    from metalens_cli.io.resources import Estimate
     from metalens_cli.imaging.evaluation import metric_names
     from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
 
@@ -147,6 +148,9 @@ def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, 
     layout = read_layout(folder)
     refuse_overwriting([("--csv", csv_path), ("--plot", plot_path)],
                        [*layout.gt.values(), *(p for d in layout.captures.values() for paths in d.values() for p in paths.values())])
+    memory, seconds = estimate_pairs(layout)
+    announce(Estimate(f"evaluate --pairs of {len(layout.designs)} design(s) × {len(layout.names)} scene(s)", memory,
+                      "--pairs", seconds), max_memory)
     lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
     lpips_model = Lpips.from_files(lpips_paths.alexnet, lpips_paths.lin) if lpips_paths else None
     metrics = metric_names(lpips_model)

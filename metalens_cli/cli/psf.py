@@ -4,6 +4,7 @@ sets a measured cube beside a simulated one."""
 from __future__ import annotations
 
 import math
+import time
 
 import click
 
@@ -97,8 +98,10 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
     if dark_source is not None:
         values, _ = read_frame_file(Path(dark_source), None, "--dark")
         dark = dark_frame(values, hot_pixel_sigma)
+    start = time.perf_counter()
     with progress_bar("psf import", quiet) as update:
         cube = import_psfs(m, settings, dark, update, WORKERS)
+    seconds = time.perf_counter() - start
     name = design or m.settings.get("design") or f"measured: {click.format_filename(manifest)}"
     extra = {"source": "measured", "camera_pixel_pitch_m": pitch, "magnification": settings.magnification,
              "centring": centring, "hot_pixels": cube.hot_pixels, "dark": None if dark_source is None else str(dark_source),
@@ -116,13 +119,13 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
         render.emit_json({"file": str(output), "design": name, "pixels": int(cube.psf.shape[-1]), "pixel_pitch_m": cube.pixel_pitch_m,
                           "wavelengths_m": cube.wavelengths_m.tolist(),
                           "depths_m": [None if math.isinf(d) else float(d) for d in cube.depths_m],
-                          "normalization": normalization, **extra, "warnings": cube.warnings,
+                          "normalization": normalization, **extra, "seconds": seconds, "warnings": cube.warnings,
                           **({"plot": str(plot_path)} if plot_path else {})})
         return
-    _render_import(cube, output)
+    _render_import(cube, output, seconds)
 
 
-def _render_import(cube, output) -> None:
+def _render_import(cube, output, seconds: float) -> None:
     from metalens_cli.io.units import format_length
 
     rows = [[f["file"], render.nm(f["wavelength_m"], 1), format_length(math.inf if f["depth_m"] is None else f["depth_m"]),
@@ -132,7 +135,7 @@ def _render_import(cube, output) -> None:
     con.print(render.table(f"Frames imported into {output}", ["file", "λ (nm)", "depth", "peak/σ", "noise σ", "saturated", "centre (row, col)"], rows))
     n = cube.psf.shape[-1]
     con.print(f"{len(cube.depths_m)} depths × {len(cube.wavelengths_m)} wavelengths of {n} × {n} pixels at "
-              f"{cube.pixel_pitch_m * 1e6:.4g} µm; {cube.hot_pixels} hot pixel(s) replaced")
+              f"{cube.pixel_pitch_m * 1e6:.4g} µm; {cube.hot_pixels} hot pixel(s) replaced; {seconds:.2f} s")
 
 
 @psf.command("compare")

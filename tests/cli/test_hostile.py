@@ -194,6 +194,7 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "symmetry --validate of a 1 m lens": (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate", "--aperture", "1m"], 2, "TiB"),
     "export-gds of a 1 m lens": ([*GDS[:3], "--f", "1m", "--aperture", "1m", *GDS[7:], "-o", "{tmp}/big.gds"], 2, "TiB on disk"),
     "optimize over --max-memory": (["optimize", str(TINY), "-o", "{tmp}/run", "--max-memory", "1MiB"], 2, "--max-memory"),
+    "evaluate --pairs over --max-memory": (["evaluate", "--pairs", "{pairs}", "--max-memory", "1kB"], 2, "--max-memory"),
     "psf import over --max-memory": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um", "--max-memory", "1kB"],
                                      2, "--max-memory"),
 }
