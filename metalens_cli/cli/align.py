@@ -13,9 +13,9 @@ import click
 from metalens_cli.cli import render
 from metalens_cli.cli.options import json_option, MetalensCommand, OutputFile, OutputFolder
 from metalens_cli.errors import InputError
+from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 REFINES = ("flow", "tps", "none")  # imaging.registration's (not imported here: it loads OpenCV)
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 OUTPUT_SUFFIXES = (".png", ".tif", ".tiff", ".exr")
 WARP_SUFFIX = ".warp.npz"
 

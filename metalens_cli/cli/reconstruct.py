@@ -23,8 +23,7 @@ from metalens_cli.cli.options import (
 )
 from metalens_cli.cli.progress import run_training
 from metalens_cli.errors import InputError
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")  # imaging.images.SUFFIXES (not imported: it pulls in numpy/cv2)
+from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 
 @click.group("reconstruct", cls=MetalensGroup)

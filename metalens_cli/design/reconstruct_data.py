@@ -29,7 +29,7 @@ import torch
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
-from metalens_cli.imaging.images import SUFFIXES
+from metalens_cli.io.input_files import IMAGE_SUFFIXES
 from metalens_cli.imaging.network import pixel_positions
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import ChannelPsfs, channel_psfs
@@ -159,7 +159,7 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
         raise InputError("--pairs", f"{str(root)!r} lacks gt/ or captures/", "a folder with gt/NAME.png and captures/NAME[@K].png")
 
     def files(d: Path) -> list[Path]:
-        return sorted(p for p in d.iterdir() if p.suffix.lower() in SUFFIXES and not p.name.startswith("."))
+        return sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
 
     gts = {p.stem: p for p in files(gt_dir)}
     pairs = [(p.stem.split("@")[0], p) for p in files(capture_dir)]
@@ -167,7 +167,7 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
     if missing:
         raise InputError("--pairs", f"captures/{missing[0]}* has no gt/{missing[0]} image", "a gt image for every captured scene")
     if not pairs:
-        raise InputError("--pairs", f"{str(capture_dir)!r} holds no images", f"files ending in {', '.join(SUFFIXES)}")
+        raise InputError("--pairs", f"{str(capture_dir)!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}")
     scenes = sorted({name for name, _ in pairs})
     held = set(scenes[len(scenes) - max(1, len(scenes) // 10):]) if len(scenes) > 1 else set()
     loaded = []

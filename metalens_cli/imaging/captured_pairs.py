@@ -33,8 +33,8 @@ import numpy as np
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.evaluation import Evaluation, metric_names, summarise
 from metalens_cli.imaging.images import read_linear
+from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 BYTES_PER_PIXEL = 500       # peak memory per pixel of the largest image: float64 SSIM/PSNR copies, the warp
 SECONDS_PER_PIXEL = 2.5e-6  # per pixel of each capture: registration and scoring, 2 cores
 BASE_MEMORY = 300 << 20     # torch, OpenCV and the interpreter

@@ -18,8 +18,8 @@ import numpy as np
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
 from metalens_cli.io.image_files import read_image_file
+from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
-SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 BUILTIN = "builtin"
 BUILTIN_COUNT = 24                                            # photographs + dead-leaves charts
 PHOTOGRAPHS = ("grace_hopper.jpg",)  # the photograph in matplotlib's sample data (its other images are drawings)
@@ -116,16 +116,16 @@ def image_paths(source: str | Path | None, limit: int | None = None) -> list[Pat
     if source is None or str(source) == BUILTIN:
         return None
     if not str(source).strip():
-        raise InputError("--images", "is empty", f"a folder of {', '.join(SUFFIXES)} images, one file, or builtin")
+        raise InputError("--images", "is empty", f"a folder of {', '.join(IMAGE_SUFFIXES)} images, one file, or builtin")
     path = Path(source)
     if path.is_file():
         files = [path]
     elif path.is_dir():
-        files = sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES and not p.name.startswith("."))
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
     else:
-        raise InputError("--images", f"no such folder {str(source)!r}", f"a folder of {', '.join(SUFFIXES)} images, or builtin")
+        raise InputError("--images", f"no such folder {str(source)!r}", f"a folder of {', '.join(IMAGE_SUFFIXES)} images, or builtin")
     if not files:
-        raise InputError("--images", f"{str(source)!r} holds no images", f"files ending in {', '.join(SUFFIXES)}")
+        raise InputError("--images", f"{str(source)!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}")
     return files[: limit or None]
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from metalens_cli.errors import InputError
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")  # image files the tool reads
 MAX_TEXT_BYTES = 4 << 20         # presets, CSV tables, JSON run files
 MAX_ARRAY_BYTES = 4 << 30        # a .npy θ map (the paper's lens in float64: 0.3 GB)
 MAX_IMAGE_PIXELS = 150_000_000   # one image, all channels aside (a 12 000² frame; below 2 × Pillow's bomb limit)
