@@ -87,7 +87,7 @@ def main() -> None:
         f"Command: `python benchmarks/bench_psf_import.py --repeat {args.repeat} --format {args.format}`; {os.cpu_count()} CPUs "
         f"(1-min load average {load:.1f} when started), Python {platform.python_version()}, numpy {np.__version__}, OpenCV "
         f"{cv2.__version__}. 88 frames (2 depths × 44 wavelengths) of {SIDE} × {SIDE} 16-bit {args.format.upper()} "
-        f"({size:.0f} MiB on disk), read with 2 threads. Target: ≤ 10 s.",
+        f"({size:.0f} MiB on disk), read in one thread while 2 threads process. Target: ≤ 10 s.",
         "",
         "| step | wall median (s) | wall min (s) | per frame (ms) |",
         "|---|---|---|---|",

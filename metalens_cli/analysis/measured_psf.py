@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -143,18 +144,23 @@ def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.nda
     total = len(manifest.frames) * 2
     frames: list[_Frame] = []
     shape = None if dark is None else dark[0].shape
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        jobs = pool.map(lambda entry: _first_pass(entry, settings, None if dark is None else dark[0]), manifest.frames)
-        for frame in jobs:
-            frame_shape = (frame.report["height"], frame.report["width"])
-            if shape is not None and frame_shape != shape:
-                raise InputError(frame.entry.where, f"{frame.entry.name} is {frame_shape[1]} × {frame_shape[0]} pixels, "
-                                 f"{'the dark frame' if dark is not None else 'the first frame'} {shape[1]} × {shape[0]}",
-                                 "frames (and the dark frame) of one size")
-            shape = frame_shape
-            frames.append(frame)
-            if on_progress is not None:
-                on_progress(len(frames), total)
+    pending: deque = deque()
+    with ThreadPoolExecutor(max_workers=workers) as pool:  # this thread reads (C-library output is captured per read), the pool processes
+        for entry in [*manifest.frames, None]:
+            if entry is not None:
+                values, full_scale = read_frame(entry)
+                pending.append(pool.submit(_first_pass, entry, values, full_scale, settings, None if dark is None else dark[0]))
+            while pending and (entry is None or len(pending) > workers):
+                frame = pending.popleft().result()
+                frame_shape = (frame.report["height"], frame.report["width"])
+                if shape is not None and frame_shape != shape:
+                    raise InputError(frame.entry.where, f"{frame.entry.name} is {frame_shape[1]} × {frame_shape[0]} pixels, "
+                                     f"{'the dark frame' if dark is not None else 'the first frame'} {shape[1]} × {shape[0]}",
+                                     "frames (and the dark frame) of one size")
+                shape = frame_shape
+                frames.append(frame)
+                if on_progress is not None:
+                    on_progress(len(frames), total)
     hot = _hot_pixels(frames, shape, dark[1] if dark is not None else np.zeros(0, np.int64), settings.hot_pixel_sigma)
     n = settings.pixels or _automatic_window(frames, shape)
     warnings = [w for f in frames for w in _frame_warnings(f, settings)]
@@ -174,9 +180,10 @@ def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.nda
                         settings.pixel_pitch_m, [f.report for f in frames], int(hot.size), warnings)
 
 
-def _first_pass(entry: FrameEntry, settings: ImportSettings, dark: np.ndarray | None) -> _Frame:
-    """Read one frame; count saturation; subtract dark and background; find its light."""
-    values, full_scale = read_frame(entry)
+def _first_pass(entry: FrameEntry, values: np.ndarray, full_scale: float | None, settings: ImportSettings,
+                dark: np.ndarray | None) -> _Frame:
+    """One frame as read (:func:`read_frame`): count saturation; subtract dark and background;
+    find its light."""
     level = settings.saturation if settings.saturation is not None else full_scale
     colour = values[:, :, :3] if values.shape[2] >= 3 else values
     saturated = 0 if level is None else int(np.count_nonzero((colour >= level).any(axis=2)))

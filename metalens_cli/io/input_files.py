@@ -12,6 +12,7 @@ import os
 import stat
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -139,10 +140,21 @@ class _Said:
     text = ""
 
 
+_CAPTURE = threading.RLock()  # file descriptors 1 and 2 are the process's: one capture at a time
+
+
 @contextmanager
 def library_output() -> Iterator[_Said]:
     """Capture what C libraries write to file descriptors 1 and 2 (OpenEXR warns on stdout,
-    which would break ``--json``); the text is on the yielded object afterwards."""
+    which would break ``--json``); the text is on the yielded object afterwards. Captures are
+    serialised: two threads swapping the descriptors at once could leave stdout on a
+    temporary file."""
+    with _CAPTURE, _captured() as said:
+        yield said
+
+
+@contextmanager
+def _captured() -> Iterator[_Said]:
     said = _Said()
     sys.stdout.flush()
     sys.stderr.flush()

@@ -100,3 +100,17 @@ def test_compare_refuses_cubes_with_nothing_in_common(capsys, bench):
                  {"psf.d00.w000": np.ones((9, 9), np.float32)}).write(str(other))
     code, out, err = invoke(capsys, "psf", "compare", cube, other)
     assert code == 2 and err.count("\n") == 1 and "no simulated PSF at this depth" in err
+
+
+def test_json_reaches_a_pipe(bench):
+    """Frames are read while others are processed: C-library output is captured per read, and
+    standard output must come back to the pipe (two threads swapping descriptors once left it
+    on a temporary file: `psf import --json | jq` printed nothing)."""
+    import subprocess
+    import sys
+
+    rows = (bench / "psf.csv").read_text().splitlines()
+    (bench / "many.csv").write_text("\n".join([rows[0], *rows[1:] * 3]) + "\n")  # repeats: 12 frames, more than the workers
+    done = subprocess.run([sys.executable, "-m", "metalens_cli", "psf", "import", str(bench / "many.csv"), "--pixel-pitch", "2um",
+                           "-o", str(bench / "piped.exr"), "--json"], capture_output=True, text=True, check=True)
+    assert len(json.loads(done.stdout)["frames"]) == 12
