@@ -8,14 +8,18 @@ Per frame (values as stored; colour frames averaged over R, G, B, alpha dropped)
 2. **Dark frame** subtracted (taken at the same exposure: that is the bench's business), then
    the frame is divided by its exposure when given (counts per second), so that repeats taken
    with different exposures average correctly.
-3. **Background**: the median of a border strip (5 % of the smaller side, at least 4 pixels)
-   is subtracted; the noise σ is 1.4826 × the strip's median absolute deviation.
+3. **Background**: a plane a + b·x + c·y fitted to a border strip (5 % of the smaller side,
+   at least 4 pixels; pixels beyond 5σ left out) is subtracted, so stray light tilting across
+   the frame does not pull the centroid; the noise σ is 1.4826 × the strip's median absolute
+   deviation about the plane. Light in the strip (the PSF wider than the frame: the sides'
+   middles stand above the corners) is warned about: its wings are taken for background.
 4. **Hot pixels**: pixels standing more than k·σ (k = ``hot_pixel_sigma``, 6) above the median
    of their 3 × 3 neighbourhood in the dark frame, or in 90 % of the frames and on a dark
    background (their neighbourhood's median below 3σ) in half of them, are replaced by that
    median. Photon noise inside the light stands above the background's σ in many frames, but
-   not on a dark background; a sharp PSF core spikes in its own frames only. A hot pixel
-   inside the light of most frames can only be found with a dark frame.
+   not on a dark background; a sharp PSF core spikes in its own frames only. Without a dark
+   frame this needs at least 3 frames; a hot pixel inside the light of most frames can only
+   be found with a dark frame.
 5. **Centre**: the light's centroid (pixels above 3σ, weighted by their excess over 3σ, in a
    disc around the brightest smoothed spot, iterated) or its peak (a Gaussian fitted through
    the maximum and its four neighbours), in frame pixels. The window is moved by whole pixels
@@ -54,6 +58,9 @@ CROP_MARGIN = 8            # pixels kept a side around the light for centring
 HOT_FRAME_FRACTION = 0.9   # a hot pixel spikes in this fraction of the frames
 HOT_ISOLATED_FRACTION = 0.5  # ... and on a dark background in this fraction
 LOW_SNR = 20.0             # peak / σ below this is warned about
+BORDER_BULGE_SIGMA = 1.0   # side middles above corners of the border strip, in σ: the PSF's wings are in the background
+MIN_FRAMES_FOR_HOT = 3     # without a dark frame, hot pixels are told from light by recurring in this many frames
+KEPT_LIGHT = 0.99          # a given window keeping less of a frame's light is warned about
 
 
 @dataclass(frozen=True)
@@ -107,16 +114,41 @@ class _Frame:
     isolated: np.ndarray      # ... of those on a dark background
 
 
-def frame_stats(frame: np.ndarray) -> tuple[float, float]:
-    """(background, σ) of a frame (H, W): the median of its border strip and 1.4826 × the
-    strip's median absolute deviation."""
-    h, w = frame.shape
+def border_mask(shape: tuple[int, int], field: str = "frame") -> np.ndarray:
+    """(H, W) bool: the border strip, 5 % of the smaller side wide (at least 4 pixels)."""
+    h, w = shape
     b = max(4, round(0.05 * min(h, w)))
     if 2 * b >= min(h, w):
-        raise InputError("frame", f"{w} × {h} pixels", "frames of at least 16 × 16 pixels (the border gives the background)")
-    strip = np.concatenate([frame[:b].ravel(), frame[-b:].ravel(), frame[b:-b, :b].ravel(), frame[b:-b, -b:].ravel()])
-    background = float(np.median(strip))
-    return background, MAD_TO_SIGMA * float(np.median(np.abs(strip - background)))
+        raise InputError(field, f"{w} × {h} pixels", "frames of at least 16 × 16 pixels (the border gives the background)")
+    mask = np.ones(shape, dtype=bool)
+    mask[b:-b, b:-b] = False
+    return mask
+
+
+def frame_stats(frame: np.ndarray, field: str = "frame") -> tuple[np.ndarray, float, float]:
+    """(background plane (H, W) float32, σ, bulge) of a frame: the plane a + b·x + c·y fitted by
+    least squares to its border strip (refitted without the pixels beyond 5σ: hot pixels,
+    stray light), 1.4826 × the median absolute deviation of the strip about it, and how far
+    (in σ) the middles of the strip's sides stand above its corners after the fit: light that
+    reaches the border (a PSF wider than the frame) makes a bulge no plane takes out."""
+    mask = border_mask(frame.shape, field)
+    rows, cols = np.nonzero(mask)
+    values = frame[rows, cols].astype(np.float64)
+    design = np.stack([np.ones_like(values), cols / frame.shape[1], rows / frame.shape[0]], axis=1)
+    keep = np.ones(values.size, dtype=bool)
+    for _ in range(2):
+        coefficients = np.linalg.lstsq(design[keep], values[keep], rcond=None)[0]
+        residual = values - design @ coefficients
+        sigma = MAD_TO_SIGMA * float(np.median(np.abs(residual[keep] - np.median(residual[keep]))))
+        keep = np.abs(residual) <= 5 * max(sigma, 1e-30)
+    h, w = frame.shape
+    b = max(4, round(0.05 * min(h, w)))
+    corner = ((rows < b) | (rows >= h - b)) & ((cols < b) | (cols >= w - b))
+    middle = ((np.abs(rows - h / 2) < h / 6) | (np.abs(cols - w / 2) < w / 6)) & ~corner
+    bulge = float(np.median(residual[middle]) - np.median(residual[corner])) / max(sigma, 1e-30)
+    yy, xx = np.indices(frame.shape, dtype=np.float32)
+    plane = coefficients[0] + coefficients[1] * xx / frame.shape[1] + coefficients[2] * yy / frame.shape[0]
+    return plane.astype(np.float32), sigma, bulge
 
 
 def dark_frame(values: np.ndarray, hot_pixel_sigma: float) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +156,7 @@ def dark_frame(values: np.ndarray, hot_pixel_sigma: float) -> tuple[np.ndarray, 
     frame = _monochrome(values)
     if hot_pixel_sigma <= 0:
         return frame, np.zeros(0, dtype=np.int64)
-    _, sigma = frame_stats(frame)
+    _, sigma, _ = frame_stats(frame, "--dark")
     excess = frame - _median3(frame)
     return frame, np.flatnonzero(excess > hot_pixel_sigma * max(sigma, _floor(frame)))
 
@@ -161,6 +193,9 @@ def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.nda
                 frames.append(frame)
                 if on_progress is not None:
                     on_progress(len(frames), total)
+    if settings.pixels is not None and settings.pixels > min(shape):
+        raise InputError("pixels", f"a {settings.pixels}-pixel window is larger than the {shape[1]} × {shape[0]} frames",
+                         f"at most {min(shape)} pixels")
     hot = _hot_pixels(frames, shape, dark[1] if dark is not None else np.zeros(0, np.int64), settings.hot_pixel_sigma)
     n = settings.pixels or _automatic_window(frames, shape)
     warnings = [w for f in frames for w in _frame_warnings(f, settings)]
@@ -168,8 +203,11 @@ def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.nda
     sums = np.zeros((len(depths), len(wavelengths), n, n))
     counts = np.zeros((len(depths), len(wavelengths)), dtype=int)
     for k, frame in enumerate(frames):
-        psf, centre = _centred(frame, hot, shape, n, settings.centring)
+        psf, centre, kept = _centred(frame, hot, shape, n, settings.centring)
         frame.report["centre_px"] = [round(c, 4) for c in centre]
+        frame.report["light_in_window"] = kept
+        if kept < KEPT_LIGHT:
+            warnings.append(f"{frame.entry.where}: the {n}-pixel window keeps {100 * kept:.1f} % of the light (--pixels)")
         i, j = depths.index(frame.entry.depth_m), wavelengths.index(frame.entry.wavelength_m)
         sums[i, j] += psf
         counts[i, j] += 1
@@ -194,9 +232,13 @@ def _first_pass(entry: FrameEntry, values: np.ndarray, full_scale: float | None,
     if dark is not None and frame.shape == dark.shape:
         frame = frame - dark
     if entry.exposure_s is not None:
-        frame = frame / np.float32(entry.exposure_s)
-    background, noise = frame_stats(frame)
-    frame = frame - np.float32(background)
+        with np.errstate(over="ignore"):
+            frame = frame / np.float32(entry.exposure_s)
+    _check_finite(frame, entry)
+    background, noise, bulge = frame_stats(frame, entry.where)
+    with np.errstate(over="ignore", invalid="ignore"):
+        frame = frame - background
+    _check_finite(frame, entry)
     noise = max(noise, _floor(frame))
     median = _median3(frame)
     spikes = np.flatnonzero(frame - median > settings.hot_pixel_sigma * noise) if settings.hot_pixel_sigma > 0 else np.zeros(0, np.int64)
@@ -212,9 +254,18 @@ def _first_pass(entry: FrameEntry, values: np.ndarray, full_scale: float | None,
         "file": entry.name, "where": entry.where, "wavelength_m": entry.wavelength_m,
         "depth_m": None if entry.depth_m == math.inf else entry.depth_m, "exposure_s": entry.exposure_s,
         "height": frame.shape[0], "width": frame.shape[1], "saturated_pixels": saturated,
-        "background": background, "noise": noise, "peak_snr": peak / noise, "light_radius_px": radius,
+        "background": float(background.mean()), "background_tilt": float(background[-1, -1] - background[0, 0]),
+        "noise": noise, "peak_snr": peak / noise, "light_radius_px": radius,
+        "border_bulge_sigma": bulge,
     }
     return _Frame(entry, crop, origin, (rough[0] - origin[0], rough[1] - origin[1]), radius, noise, report, spikes, isolated)
+
+
+def _check_finite(frame: np.ndarray, entry: FrameEntry) -> None:
+    """Refuse a frame whose values overflowed single precision (huge values, tiny exposures)."""
+    if not np.isfinite(frame).all():
+        raise InputError(entry.where, f"{entry.name}'s values overflow single precision (after the exposure)",
+                         "frame values and exposures whose ratio stays below 1e38")
 
 
 def _monochrome(values: np.ndarray) -> np.ndarray:
@@ -272,6 +323,8 @@ def _hot_pixels(frames: list[_Frame], shape: tuple[int, int], dark_hot: np.ndarr
     """Flat frame indices of the hot pixels (see the module docstring)."""
     if sigma <= 0:
         return np.zeros(0, dtype=np.int64)
+    if len(frames) < MIN_FRAMES_FOR_HOT:
+        return np.asarray(dark_hot, dtype=np.int64)
     size = shape[0] * shape[1]
     spikes = np.bincount(np.concatenate([f.spikes for f in frames]), minlength=size) if frames else np.zeros(size)
     isolated = np.bincount(np.concatenate([f.isolated for f in frames]), minlength=size) if frames else np.zeros(size)
@@ -287,9 +340,10 @@ def _automatic_window(frames: list[_Frame], shape: tuple[int, int]) -> int:
     return min(n, min(shape) - (1 - min(shape) % 2))
 
 
-def _centred(frame: _Frame, hot: np.ndarray, shape: tuple[int, int], n: int, centring: str) -> tuple[np.ndarray, tuple[float, float]]:
-    """The frame's N × N PSF with its centre on pixel (N//2, N//2), and that centre in frame
-    pixels (row, column)."""
+def _centred(frame: _Frame, hot: np.ndarray, shape: tuple[int, int], n: int,
+             centring: str) -> tuple[np.ndarray, tuple[float, float], float]:
+    """The frame's N × N PSF with its centre on pixel (N//2, N//2), that centre in frame pixels
+    (row, column), and the fraction of the crop's light above LIGHT_SIGMA·σ the window keeps."""
     crop = frame.crop.copy()
     if hot.size:
         _replace_hot(crop, frame.origin, hot, shape)
@@ -302,8 +356,10 @@ def _centred(frame: _Frame, hot: np.ndarray, shape: tuple[int, int], n: int, cen
         crop = np.pad(crop, need)
         iy, ix = iy + need, ix + need
     shifted = fourier_shift(crop, -fy, -fx)
-    out = shifted[iy - half : iy - half + n, ix - half : ix - half + n]
-    return out, (frame.origin[0] + cy, frame.origin[1] + cx)
+    window = (slice(iy - half, iy - half + n), slice(ix - half, ix - half + n))
+    light = np.clip(shifted - LIGHT_SIGMA * frame.noise, 0, None)
+    kept = float(light[window].sum() / light.sum()) if light.any() else 1.0
+    return shifted[window], (frame.origin[0] + cy, frame.origin[1] + cx), kept
 
 
 def _replace_hot(crop: np.ndarray, origin: tuple[int, int], hot: np.ndarray, shape: tuple[int, int]) -> None:
@@ -368,4 +424,7 @@ def _frame_warnings(frame: _Frame, settings: ImportSettings) -> list[str]:
     y, x = frame.origin[0] + frame.rough[0], frame.origin[1] + frame.rough[1]
     if min(y, x, r["height"] - 1 - y, r["width"] - 1 - x) < frame.radius:
         out.append(f"{frame.entry.where}: the light reaches the frame's edge; the PSF is clipped")
+    elif r["border_bulge_sigma"] > BORDER_BULGE_SIGMA:
+        out.append(f"{frame.entry.where}: the border strip bulges {r['border_bulge_sigma']:.1f}σ between its corners: the PSF's "
+                   "wings reach it and are taken for background (use a larger frame)")
     return out

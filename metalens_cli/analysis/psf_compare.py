@@ -16,9 +16,10 @@ axis) and a Fourier shift, repeated on the residual (up to 4 rounds: the parabol
 away from a sample, not near one); the total shift is reported.
 
 Metrics per pair: ``peak_ratio`` = peak(measured)/peak(simulated), a Strehl-like ratio with the
-simulated lens as the reference (1 for identical PSFs); FWHM (metres, the mean of the central
-row's and column's) of each; encircled energy (fraction of the window) inside discs of the
-given radii around the axis; ``relative_l2`` = ‖measured − simulated‖₂/‖simulated‖₂; MTF50
+simulated lens as the reference (1 for identical PSFs); FWHM (metres, the mean of the row's and
+the column's through its maximum) of each; encircled energy (fraction of the window) inside
+discs of the given radii around each PSF's own centroid (so each PSF's figures do not depend on
+the other); ``relative_l2`` = ‖measured − simulated‖₂/‖simulated‖₂ after registration; MTF50
 (lp/mm, ``analysis.mtf``) of each.
 """
 
@@ -61,6 +62,9 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
     radii = list(radii_m) if radii_m else [2 * pitch, 5 * pitch, 10 * pitch]
     sim_psf, resampled = _on_pitch(simulated.psf, simulated.pixel_pitch_m, pitch, measured.psf.shape[-1])
     n = min(measured.psf.shape[-1], sim_psf.shape[-1])
+    if n < 3:
+        which = "MEASURED" if measured.psf.shape[-1] < 3 else "SIMULATED"
+        raise InputError(which, f"PSFs of {n} × {n} pixels on the common grid", "at least 3 × 3 pixels")
     meas_psf = _crop(measured.psf, n)
     sim_psf = _crop(sim_psf, n)
     grid = radial_grid(n, pitch)
@@ -173,17 +177,13 @@ def _compare_pair(measured: np.ndarray, simulated: np.ndarray, pitch: float, rad
             break
         dy, dx = dy + ry, dx + rx
         aligned = fourier_shift(measured, -dy, -dx)
-    n = measured.shape[-1]
-    yy, xx = np.indices((n, n)) - n // 2
-    r = np.hypot(yy, xx) * pitch
     mtf = psf_mtf(np.stack([aligned, simulated]).astype(np.float32), grid)
     m50 = mtf50(grid.frequencies_lpmm, mtf)
     record = {
         "shift_px": [float(dy), float(dx)],
         "peak_ratio": float(aligned.max() / simulated.max()),
-        "fwhm_m": {"measured": _fwhm(aligned, pitch), "simulated": _fwhm(simulated, pitch)},
-        "encircled_energy": {"measured": [float(aligned[r <= radius].sum()) for radius in radii],
-                             "simulated": [float(simulated[r <= radius].sum()) for radius in radii]},
+        "fwhm_m": {"measured": _fwhm(measured, pitch), "simulated": _fwhm(simulated, pitch)},
+        "encircled_energy": {"measured": _encircled(measured, pitch, radii), "simulated": _encircled(simulated, pitch, radii)},
         "relative_l2": float(np.linalg.norm(aligned - simulated) / np.linalg.norm(simulated)),
         "mtf50_lpmm": {"measured": None if np.isnan(m50[0]) else float(m50[0]), "simulated": None if np.isnan(m50[1]) else float(m50[1])},
     }
@@ -191,10 +191,23 @@ def _compare_pair(measured: np.ndarray, simulated: np.ndarray, pitch: float, rad
 
 
 def _fwhm(psf: np.ndarray, pitch: float) -> float | None:
-    """Mean FWHM (metres) of the central row and column; None if either has none."""
+    """Mean FWHM (metres) of the row and the column through the PSF's maximum; None if either
+    does not fall to half inside the window."""
+    iy, ix = np.unravel_index(int(np.argmax(psf)), psf.shape)
     c = psf.shape[-1] // 2
-    widths = [fwhm_pixels(psf[c]), fwhm_pixels(psf[:, c])]
+    centred = np.roll(psf, (c - iy, c - ix), axis=(0, 1))
+    widths = [fwhm_pixels(centred[c]), fwhm_pixels(centred[:, c])]
     return None if None in widths else float(np.mean(widths)) * pitch
+
+
+def _encircled(psf: np.ndarray, pitch: float, radii: list[float]) -> list[float]:
+    """Fraction of the window's power inside discs of ``radii`` (metres) around the PSF's own
+    centroid (pixels whose centres lie inside)."""
+    yy, xx = np.indices(psf.shape, dtype=np.float64)
+    total = psf.sum()
+    cy, cx = (psf * yy).sum() / total, (psf * xx).sum() / total
+    r = np.hypot(yy - cy, xx - cx) * pitch
+    return [float(psf[r <= radius].sum() / total) for radius in radii]
 
 
 def _correlation_shift(moving: np.ndarray, fixed: np.ndarray) -> tuple[float, float]:

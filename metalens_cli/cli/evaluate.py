@@ -107,9 +107,9 @@ def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, 
     """Notes and warnings on stderr, the CSV and figure, then the JSON or the tables."""
     err = render.console(stderr=True)
     for note in notes:
-        err.print(f"note: {note}")
+        err.print(f"note: {note}", markup=False, soft_wrap=True)
     for warning in result.warnings:
-        err.print(f"warning: {warning}")
+        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
     if csv_path:
         _write_csv(csv_path, result.rows, metrics)
     if plot_path:
@@ -135,6 +135,9 @@ def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, 
 
 def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path) -> None:
     """evaluate --pairs: the table of captured photographs (imaging.captured_pairs)."""
+    from pathlib import Path
+
+    from metalens_cli.errors import InputError
     from metalens_cli.imaging.captured_pairs import estimate_pairs, evaluate_pairs, read_layout
     from metalens_cli.io.resources import Estimate
     from metalens_cli.imaging.evaluation import metric_names
@@ -146,6 +149,10 @@ def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, 
         names = ["DESIGN" if not given else max(given[0].opts, key=len)]
         raise click.UsageError(f"{names[0]} does not apply to --pairs (the designs are the folders of DIR)")
     layout = read_layout(folder)
+    for option, path in (("--csv", csv_path), ("--plot", plot_path)):
+        if path is not None and Path(folder).resolve() in Path(path).resolve().parents:
+            raise InputError(option, f"{path!r} is inside --pairs {folder!r}; a later run would read it as a capture",
+                             "an output path outside the pairs folder")
     refuse_overwriting([("--csv", csv_path), ("--plot", plot_path)],
                        [*layout.gt.values(), *(p for d in layout.captures.values() for paths in d.values() for p in paths.values())])
     memory, seconds = estimate_pairs(layout)

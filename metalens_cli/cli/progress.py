@@ -88,7 +88,7 @@ def run_training(name: str, quiet: bool, resume_command: str, start: Callable[["
         return None
     console = _stderr_console()
     for note in summary.report.get("notes", []):
-        console.print(f"note: {note}")
+        console.print(f"note: {note}", markup=False, soft_wrap=True)
     return summary.report
 
 

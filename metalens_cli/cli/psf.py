@@ -36,6 +36,13 @@ def psf():
     """Measured PSFs: import bench frames into a PSF cube, compare it with a simulation."""
 
 
+def _hot_sigma(ctx, param, value: float) -> float:
+    """0 (off) or at least 3: below, noise itself would be replaced."""
+    if 0 < value < 3:
+        raise click.BadParameter(f"{value:g} would take noise for hot pixels (expected 0 to turn removal off, or at least 3)")
+    return value
+
+
 @psf.command("import")
 @click.argument("manifest", type=click.Path())
 @click.option("--pattern", help="MANIFEST is a folder: file names such as psf_{wavelength}_{depth}.png ({exposure} optional; "
@@ -53,8 +60,8 @@ def psf():
 @click.option("--saturation", type=Number(0, 1e30, min_open=True),
               help="Saturation level in the frames' units, e.g. 4095 for 12-bit data in 16-bit files [the file's full scale].")
 @click.option("--allow-saturated", is_flag=True, help="Import frames with saturated pixels (reported) instead of refusing them.")
-@click.option("--hot-pixel-sigma", type=Number(0, 1e3), default=6.0, show_default=True,
-              help="Hot pixels stand this many σ above their neighbours; 0 turns removal off.")
+@click.option("--hot-pixel-sigma", type=Number(0, 1e3), default=6.0, show_default=True, callback=_hot_sigma,
+              help="Hot pixels stand this many σ (at least 3) above their neighbours; 0 turns removal off.")
 @click.option("--design", help="What was measured, stored as the cube's design [manifest's design, else 'measured: MANIFEST'].")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
@@ -88,6 +95,10 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
         raise InputError("--pixel-pitch", "the camera's pixel pitch is not given", "--pixel-pitch 3.45um or pixel_pitch in a TOML manifest")
     settings = ImportSettings(pitch, magnification or m.settings.get("magnification", 1.0), pixels, normalization, centring,
                               saturation or m.settings.get("saturation"), allow_saturated, hot_pixel_sigma)
+    if not 1e-12 <= settings.pixel_pitch_m <= 1e-2:
+        raise InputError("--magnification" if magnification or "magnification" in m.settings else "--pixel-pitch",
+                         f"the cube's pitch {settings.pixel_pitch_m:.3g} m (camera pitch / magnification) is not a pixel's",
+                         "a camera pitch and magnification giving 1 pm to 1 cm")
     dark_source = dark_path or m.settings.get("dark")
     height, width = frame_shape(m.frames[0])
     announce(Estimate(f"psf import of {len(m.frames)} frames of {width} × {height} pixels",
@@ -96,7 +107,7 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
                       disk_bytes=len(m.depths_m) * len(m.wavelengths_m) * (pixels or 64) ** 2 * 4), max_memory, output)
     dark = None
     if dark_source is not None:
-        values, _ = read_frame_file(Path(dark_source), None, "--dark")
+        values, _ = read_frame_file(Path(dark_source), None, "--dark" if dark_path else f"{Path(manifest).name}: dark")
         dark = dark_frame(values, hot_pixel_sigma)
     start = time.perf_counter()
     with progress_bar("psf import", quiet) as update:
@@ -114,7 +125,7 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
         plot_psf_scan(plot_path, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m)
     err = render.console(stderr=True)
     for warning in cube.warnings:
-        err.print(f"warning: {warning}", markup=False)
+        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
     if as_json:
         render.emit_json({"file": str(output), "design": name, "pixels": int(cube.psf.shape[-1]), "pixel_pitch_m": cube.pixel_pitch_m,
                           "wavelengths_m": cube.wavelengths_m.tolist(),

@@ -104,7 +104,7 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
         plot_psf_scan(plot_path, scan.psf, wavelengths_m, depths_m, pixel_pitch_m, bands)
     err = render.console(stderr=True)
     for warning in scan.warnings:
-        err.print(f"[yellow]warning:[/] {warning}")
+        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
     if as_json:
         render.emit_json({
             "file": str(output),

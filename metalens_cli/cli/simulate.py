@@ -150,7 +150,7 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
         (staging / "simulate.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     err = render.console(stderr=True)
     for warning in warnings:
-        err.print(f"warning: {warning}")
+        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
     if as_json:
         render.emit_json(report)
         return

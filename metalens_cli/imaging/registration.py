@@ -221,6 +221,11 @@ def load_warp(path: str | os.PathLike[str], field: str = "--warp") -> Registrati
     """A registration saved by :func:`save_warp`; a file that is not one is an
     :class:`InputError` naming ``field``."""
     w = read_warp_file(path, field)
+    why = _degenerate(w["homography"], w["reference_shape"], w["target_shape"])
+    if why is None and w["flow_nodes"] is not None and np.abs(w["flow_nodes"]).max() > max(w["target_shape"]):
+        why = f"its refinement moves pixels by up to {np.abs(w['flow_nodes']).max():.3g} pixels, beyond the target's size"
+    if why is not None:
+        raise InputError(field, f"the warp in {os.fspath(path)!r} is degenerate ({why})", "a warp saved by metalens align --warp-out")
     flow = None if w["flow_nodes"] is None else expand_flow(w["flow_nodes"], w["flow_step"], w["reference_shape"])
     return Registration(w["homography"], flow, w["reference_shape"], w["target_shape"], w["matches"], w["inliers"],
                         w["residual_px"], w["refine"], max(w["flow_step"], 1), w["refined_residual_px"])
@@ -352,36 +357,39 @@ def _matches(reference, target) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_homography(h: np.ndarray, inlier_points: np.ndarray, reference_shape, target_shape, field: str) -> None:
-    """ResultFailed when H folds the reference (w ≤ 0), mirrors it, changes scale beyond
-    ``MAX_SCALE`` or ``MAX_ANISOTROPY`` at its corners or centre, its inliers cluster, or the
-    target covers too little of the reference."""
+    """ResultFailed when H is degenerate (:func:`_degenerate`) or its inliers cluster."""
     rows, columns = reference_shape
-    why = None
-    for x, y in ((0, 0), (columns - 1, 0), (0, rows - 1), (columns - 1, rows - 1), ((columns - 1) / 2, (rows - 1) / 2)):
-        w, jacobian = _jacobian(h, x, y)
-        if w <= 0:
-            why = "it folds the image over the horizon"
-            break
-        stretches = np.linalg.svd(jacobian, compute_uv=False)
-        if np.linalg.det(jacobian) <= 0:
-            why = "it mirrors the image"
-        elif stretches[0] > MAX_SCALE or stretches[1] < 1 / MAX_SCALE:
-            why = f"scale change ×{stretches[0]:.3g}/×{stretches[1]:.3g}, beyond ×{MAX_SCALE:g}"
-        elif stretches[0] > MAX_ANISOTROPY * stretches[1]:
-            why = f"it stretches one direction {stretches[0] / stretches[1]:.3g} times more than the other"
-        if why:
-            break
+    why = _degenerate(h, reference_shape, target_shape)
     if why:
         raise ResultFailed(f"{field}: the homography onto REFERENCE is degenerate ({why}); the images may not show the same scene")
     hull = cv2.contourArea(cv2.convexHull(inlier_points.astype(np.float32)))
     if hull < MIN_SPREAD * rows * columns:
         raise ResultFailed(f"{field}: the consistent feature matches cover only {100 * hull / (rows * columns):.1f} % of REFERENCE "
                            f"(need ≥ {100 * MIN_SPREAD:g} %); the homography cannot be trusted")
+
+
+def _degenerate(h: np.ndarray, reference_shape, target_shape) -> str | None:
+    """Why H cannot be a camera's view of the reference, or None: it folds the reference (w ≤
+    0), mirrors it, changes scale beyond ``MAX_SCALE`` or ``MAX_ANISOTROPY`` at its corners or
+    centre, or the target covers under ``MIN_OVERLAP`` of the reference."""
+    rows, columns = reference_shape
+    for x, y in ((0, 0), (columns - 1, 0), (0, rows - 1), (columns - 1, rows - 1), ((columns - 1) / 2, (rows - 1) / 2)):
+        w, jacobian = _jacobian(h, x, y)
+        if w <= 0:
+            return "it folds the image over the horizon"
+        stretches = np.linalg.svd(jacobian, compute_uv=False)
+        if np.linalg.det(jacobian) <= 0:
+            return "it mirrors the image"
+        if stretches[0] > MAX_SCALE or stretches[1] < 1 / MAX_SCALE:
+            return f"scale change ×{stretches[0]:.3g}/×{stretches[1]:.3g}, beyond ×{MAX_SCALE:g}"
+        if stretches[0] > MAX_ANISOTROPY * stretches[1]:
+            return f"it stretches one direction {stretches[0] / stretches[1]:.3g} times more than the other"
     gx, gy = np.meshgrid(np.linspace(0, columns - 1, 65), np.linspace(0, rows - 1, 65))
     tx, ty = _project(h, gx, gy)
     overlap = float(np.mean((tx >= 0) & (tx <= target_shape[1] - 1) & (ty >= 0) & (ty <= target_shape[0] - 1)))
     if overlap < MIN_OVERLAP:
-        raise ResultFailed(f"{field}: covers only {100 * overlap:.0f} % of REFERENCE (need ≥ {100 * MIN_OVERLAP:.0f} %)")
+        return f"the target covers only {100 * overlap:.0f} % of REFERENCE (need ≥ {100 * MIN_OVERLAP:.0f} %)"
+    return None
 
 
 def _normalise_locally(y: np.ndarray, sigma: float) -> np.ndarray:

@@ -65,7 +65,8 @@ def atomic_folder(target: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a fresh hidden folder beside ``target`` to write a command's files into; on success
     it becomes ``target`` (renamed when ``target`` does not exist, else its files are moved in one
     by one), on any exception (Ctrl-C, SIGTERM included) it is removed: ``target`` never holds
-    part of one run's files. Missing parents of ``target`` are created."""
+    part of one run's files. Missing parents of ``target`` are created; a new ``target`` gets the
+    permissions of a folder made by ``mkdir`` (the staging folder is private while written)."""
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".metalens-", suffix=".tmp", dir=target.parent))
@@ -76,10 +77,18 @@ def atomic_folder(target: str | os.PathLike[str]) -> Iterator[Path]:
                 os.replace(item, target / item.name)
             staging.rmdir()
         else:
+            os.chmod(staging, 0o777 & ~_umask())
             os.rename(staging, target)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+
+
+def _umask() -> int:
+    """The process's file-creation mask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def check_output_file(path: str | os.PathLike[str], field: str, *, suffixes: Iterable[str] | None = None) -> Path:

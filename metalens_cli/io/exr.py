@@ -190,6 +190,9 @@ def _positive_list(field: str, metadata: dict[str, Any], key: str, *, allow_null
             continue
         if not _is_number(value) or not 0 < value < math.inf:
             raise InputError(field, f"{key} holds {value!r}", "positive finite metres" + (" or null" if allow_null else ""))
+    repeated = next((value for k, value in enumerate(values) if value in values[:k]), False)
+    if repeated is not False:
+        raise InputError(field, f"{key} holds {'null' if repeated is None else repeated!r} twice", "distinct values")
     return values
 
 

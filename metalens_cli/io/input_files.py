@@ -52,7 +52,7 @@ def read_text(path: str | os.PathLike[str], field: str, expected: str, limit: in
     if len(data) > limit:
         raise InputError(field, f"{path.name} is larger than {limit >> 20} MiB", expected)
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")  # a byte-order mark (Excel's "CSV UTF-8") is dropped
     except UnicodeDecodeError:
         raise InputError(field, f"{path.name} is not UTF-8 text", f"{expected} in UTF-8") from None
 

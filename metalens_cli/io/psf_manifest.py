@@ -40,6 +40,9 @@ REQUIRED_COLUMNS = COLUMNS[:3]
 TOML_SETTINGS = ("pixel_pitch", "magnification", "dark", "saturation", "design")
 FRAME_SUFFIXES = (".png", ".tif", ".tiff", ".exr", ".npy")
 MAX_FRAMES = 10_000
+EXPOSURE_RANGE_S = (1e-9, 1e6)
+MAGNIFICATION_RANGE = (1e-4, 1e4)  # the --magnification option's
+SATURATION_MAX = 1e30              # the --saturation option's
 _SECONDS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 _EXPOSURE = re.compile(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*(s|ms|us|µs|ns)?\s*")
 _PLACEHOLDER = re.compile(r"\{(wavelength|depth|exposure)(?::([a-zµ]+))?\}")
@@ -167,11 +170,11 @@ def _toml_settings(path: Path, data: dict) -> dict:
     settings = {}
     if "pixel_pitch" in data:
         settings["pixel_pitch_m"] = parse_length(str(data["pixel_pitch"]), f"{path.name}: pixel_pitch")
-    for key in ("magnification", "saturation"):
+    for key, (lo, hi) in (("magnification", MAGNIFICATION_RANGE), ("saturation", (0, SATURATION_MAX))):
         if key in data:
             value = data[key]
-            if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < math.inf:
-                raise InputError(f"{path.name}: {key}", repr(value), "a positive number")
+            if isinstance(value, bool) or not isinstance(value, int | float) or not lo < value <= hi:
+                raise InputError(f"{path.name}: {key}", repr(value), f"a number above {lo:g}, at most {hi:g}")
             settings[key] = float(value)
     for key in ("dark", "design"):
         if key in data:
@@ -195,9 +198,9 @@ def _from_pattern(folder: Path, pattern: str) -> list[FrameEntry]:
     frames = []
     for path in sorted(folder.iterdir()):
         match = regex.fullmatch(path.name)
-        if match is None or not path.is_file():
+        if match is None or not path.is_file() or path.name.startswith("."):
             continue
-        values = {key: text + units[key] for key, text in match.groupdict().items()}
+        values = {key: text + ("" if text.lower() == "inf" else units[key]) for key, text in match.groupdict().items()}
         frames.append(_entry(folder, {"file": path.name, **values}, path.name))
     if not frames:
         raise InputError("--pattern", f"no file in {str(folder)!r} matches {pattern!r}", "a pattern matching the frames' names")
@@ -218,24 +221,37 @@ def _entry(folder: Path, values: dict[str, str], where: str) -> FrameEntry:
         raise InputError(where, f"file {name!r} is not a frame format", f"a {', '.join(FRAME_SUFFIXES)} file (stack.npy#K for a stack frame)")
     if not path.is_file():
         raise InputError(where, f"no such file {str(path)!r}", "frame paths relative to the manifest's folder")
-    wavelength = parse_length(values.get("wavelength", ""), f"{where}: wavelength")
+    for key in REQUIRED_COLUMNS[1:]:
+        if not values.get(key):
+            raise InputError(where, f"{key} is missing", "file, wavelength and depth for every frame")
+    wavelength = parse_length(values["wavelength"], f"{where}: wavelength")
     check_wavelengths([wavelength], f"{where}: wavelength")
-    depth = parse_length(values.get("depth", ""), f"{where}: depth", allow_inf=True)
+    depth = parse_length(values["depth"], f"{where}: depth", allow_inf=True)
     exposure = _exposure(values["exposure"], where) if values.get("exposure") else None
     return FrameEntry(path, index, wavelength, depth, exposure, where)
 
 
 def _exposure(text: str, where: str) -> float:
-    """``10ms``, ``0.5s``, ``200us`` or a bare number: seconds, positive and finite."""
+    """``10ms``, ``0.5s``, ``200us`` or a bare number: seconds, from 1 ns to 1e6 s."""
     m = _EXPOSURE.fullmatch(text)
     value = float(m.group(1)) * _SECONDS[m.group(2) or "s"] if m else 0.0
-    if not 0 < value < math.inf:
-        raise InputError(f"{where}: exposure", repr(text), "a positive time such as 10ms, 0.5s, 200us (bare numbers are seconds)")
+    if not EXPOSURE_RANGE_S[0] <= value <= EXPOSURE_RANGE_S[1]:
+        raise InputError(f"{where}: exposure", repr(text), "a time from 1ns to 1e6s such as 10ms, 0.5s, 200us (bare numbers are seconds)")
     return value
 
 
 def _check_grid(manifest: Manifest) -> None:
-    """Every wavelength at every depth at least once."""
+    """Every wavelength at every depth at least once, within a cube's limits; exposures for
+    every frame or for none (repeats are weighted by them)."""
+    from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS
+
+    for what, values, limit in (("wavelengths", manifest.wavelengths_m, MAX_WAVELENGTHS), ("depths", manifest.depths_m, MAX_DEPTHS)):
+        if len(values) > limit:
+            raise InputError(manifest.source, f"names {len(values)} {what}; a PSF cube holds at most {limit}", f"at most {limit} {what}")
+    given = [f.exposure_s is not None for f in manifest.frames]
+    if any(given) and not all(given):
+        missing = next(f for f in manifest.frames if f.exposure_s is None)
+        raise InputError(missing.where, "has no exposure while other frames have one", "an exposure for every frame, or for none")
     present = {(f.depth_m, f.wavelength_m) for f in manifest.frames}
     missing = [(d, w) for d in manifest.depths_m for w in manifest.wavelengths_m if (d, w) not in present]
     if missing:
@@ -248,12 +264,13 @@ def _check_grid(manifest: Manifest) -> None:
 def read_frame(entry: FrameEntry) -> tuple[np.ndarray, float | None]:
     """One frame as (H, W, C) float32 values as stored (integer codes, or floats) and its
     full-scale code (65535.0 for 16-bit files, an integer .npy's dtype maximum; None for floats)."""
-    return read_frame_file(entry.path, entry.index, entry.where)
+    return read_frame_file(entry.path, entry.index, entry.where, stack_mean=False)
 
 
-def read_frame_file(path: Path, index: int | None, field: str) -> tuple[np.ndarray, float | None]:
+def read_frame_file(path: Path, index: int | None, field: str, stack_mean: bool = True) -> tuple[np.ndarray, float | None]:
     """A frame file (image or .npy, a stack's frame ``index``) as in :func:`read_frame`; a .npy
-    stack without an index is averaged over its frames (e.g. a stack of dark frames)."""
+    stack without an index is averaged over its frames when ``stack_mean`` (a stack of dark
+    frames), else refused."""
     if path.suffix.lower() != ".npy":
         if index is not None:
             raise InputError(field, f"{path.name}#{index}: only .npy stacks have frames", "name#K for a .npy stack")
@@ -264,6 +281,8 @@ def read_frame_file(path: Path, index: int | None, field: str) -> tuple[np.ndarr
         raise InputError(field, f"{path.name} has shape {array.shape}", "a (H, W) frame or a (F, H, W) stack")
     full_scale = float(np.iinfo(array.dtype).max) if array.dtype.kind in "iu" else None
     if array.ndim == 3:
+        if index is None and not stack_mean:
+            raise InputError(field, f"{path.name} is a stack of {array.shape[0]} frames", f"{path.name}#K for its frame K")
         if index is None:
             array = array.mean(axis=0)
         elif index >= array.shape[0]:

@@ -160,6 +160,9 @@ def test_repeats_are_averaged_after_scaling_by_exposure(tmp_path):
     ("file,wavelength,depth\nf.png,530nm,inf\nf.png,630nm,45mm\n", "has no frame at 530 nm, depth 45 mm"),
     ("file,wavelength,depth\nf.txt,530nm,inf\n", "is not a frame format"),
     ("file,wavelength,depth\n", "lists no frames"),
+    ("file,wavelength,depth,exposure\nf.png,530nm,inf,1e-300\n", "exposure: '1e-300'"),
+    ("file,wavelength,depth,exposure\nf.png,530nm,inf,\nf.png,530nm,inf,10ms\n", "line 2: has no exposure while other frames have one"),
+    ("file,wavelength,depth\nf.png,,inf\n", "wavelength is missing"),
 ])
 def test_bad_manifests_are_one_line_errors(tmp_path, text, message):
     cv2.imwrite(str(tmp_path / "f.png"), np.zeros((20, 20), np.uint16))
@@ -168,6 +171,53 @@ def test_bad_manifests_are_one_line_errors(tmp_path, text, message):
     with pytest.raises(InputError, match=re.escape(message)) as caught:
         read_manifest(tmp_path / "psf.csv")
     assert "\n" not in str(caught.value)
+
+
+def test_a_byte_order_mark_and_a_stack_without_index(tmp_path):
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((20, 20), np.uint16))
+    (tmp_path / "psf.csv").write_bytes("\ufefffile,wavelength,depth\nf.png,530nm,inf\n".encode("utf-8"))
+    assert len(read_manifest(tmp_path / "psf.csv").frames) == 1  # Excel's "CSV UTF-8" starts with a byte-order mark
+    np.save(tmp_path / "s.npy", np.zeros((3, 20, 20), np.uint16))
+    (tmp_path / "s.csv").write_text("file,wavelength,depth\ns.npy,530nm,inf\n")
+    with pytest.raises(InputError, match="s.npy is a stack of 3 frames"):  # a dark stack is averaged; a frame must be named
+        import_psfs(read_manifest(tmp_path / "s.csv"), ImportSettings(PITCH))
+
+
+def test_values_overflowing_single_precision_are_refused(tmp_path):
+    import OpenEXR
+
+    frame = np.full((64, 64), 1.0, np.float32)
+    frame[30:34, 30:34] = 3e38
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, {"Y": frame}).write(str(tmp_path / "f.exr"))
+    (tmp_path / "psf.csv").write_text("file,wavelength,depth,exposure\nf.exr,530nm,inf,10ms\n")
+    with pytest.raises(InputError, match="overflow single precision"):
+        import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH))
+
+
+def test_a_tilted_background_does_not_pull_the_centroid(tmp_path):
+    """Stray light rising 20 counts per pixel across the frame: the plane fitted to the border
+    takes it out (a median would leave a ramp that moves the centroid by ~0.4 px)."""
+    rng = np.random.default_rng(12)
+    truth = (81.2, 77.6)
+    spot = gaussian_spot(*SHAPE, truth, 2.2)
+    ramp = 20.0 * np.arange(SHAPE[1])[None, :] + np.zeros(SHAPE)
+    frame = np.clip(bench_frame(spot, rng).astype(float) + ramp, 0, 65535).astype(np.uint16)
+    cv2.imwrite(str(tmp_path / "f.png"), frame)
+    (tmp_path / "psf.csv").write_text("file,wavelength,depth\nf.png,530nm,inf\n")
+    cube = import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH, pixels=41))
+    assert np.allclose(cube.frames[0]["centre_px"], truth, atol=0.05)
+
+
+def test_light_in_the_border_and_a_window_too_small_or_too_large_are_said(tmp_path):
+    manifest = read_manifest(write_bench(tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 85), 30.0))], np.random.default_rng(13),
+                                         photons=5e7))
+    wide = import_psfs(manifest, ImportSettings(PITCH))
+    assert any("border strip bulges" in w for w in wide.warnings)
+    narrow = import_psfs(read_manifest(write_bench(tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 85), 2.0))],
+                                                   np.random.default_rng(14))), ImportSettings(PITCH, pixels=3))
+    assert any("window keeps" in w for w in narrow.warnings)
+    with pytest.raises(InputError, match="larger than the 170 × 160 frames"):
+        import_psfs(manifest, ImportSettings(PITCH, pixels=161))
 
 
 def test_toml_and_pattern_manifests_name_the_same_frames(tmp_path):

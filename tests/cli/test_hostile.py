@@ -183,7 +183,8 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "psf compare --csv onto a FIFO": (["psf", "compare", "{cube_exr}", "{cube_exr}", "--csv", "{fifo_csv}"], 2, "not a regular file"),
     "evaluate --pairs of a file": (["evaluate", "--pairs", "{a_file}"], 2, "is a file"),
     "evaluate --pairs --plot onto a capture": (["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/lens/obstructed/a.png"], 2,
-                                                "also an input"),
+                                                "inside --pairs"),
+    "evaluate --pairs --plot into gt/": (["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/gt/new.png"], 2, "inside --pairs"),
     "evaluate --pairs of an empty folder": (["evaluate", "--pairs", "{nopairs}"], 2, "no images in"),
     # 4. estimates before big jobs
     "psf-scan 8192 px": (["psf-scan", "--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--pixels", "8192",

@@ -187,3 +187,19 @@ def test_load_warp_refuses_what_is_not_a_warp(tmp_path, rippled):
         with pytest.raises(InputError) as failure:
             load_warp(path)
         assert failure.value.field == "--warp" and text_in_message in failure.value.message, (path.name, str(failure.value))
+
+
+@pytest.mark.parametrize(("homography", "why"), [
+    ([[-1.0, 0, 255], [0, 1, 0], [0, 0, 1]], "mirrors"),
+    ([[1e-9, 0, 0], [0, 1e-9, 0], [0, 0, 1]], "scale change"),
+    ([[1.0, 0, 0], [0, 1, 0], [-0.01, 0, 1]], "horizon"),
+])
+def test_a_degenerate_saved_warp_is_refused(tmp_path, homography, why):
+    """A warp file is input: --warp refuses what registration itself would never produce."""
+    from metalens_cli.errors import InputError
+    from metalens_cli.imaging.registration import load_warp, Registration, save_warp
+
+    path = tmp_path / "w.npz"
+    save_warp(path, Registration(np.array(homography), None, (256, 256), (256, 256), 100, 80, 0.5, "none"))
+    with pytest.raises(InputError, match=why):
+        load_warp(path)

@@ -53,3 +53,16 @@ def test_check_output_folder_creates_nothing(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="not a folder"):
         check_output_folder(tmp_path / "file" / "out", "-o")
+
+
+def test_a_published_folder_has_the_permissions_of_mkdir(tmp_path):
+    from metalens_cli.io.atomic import atomic_folder
+
+    old = os.umask(0o022)
+    try:
+        with atomic_folder(tmp_path / "out") as staging:
+            (staging / "a.txt").write_text("x")
+        (tmp_path / "made").mkdir()
+    finally:
+        os.umask(old)
+    assert (tmp_path / "out").stat().st_mode & 0o777 == (tmp_path / "made").stat().st_mode & 0o777 == 0o755

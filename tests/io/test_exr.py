@@ -127,6 +127,8 @@ def test_float64_input_is_stored_as_float32(tmp_path):
         (valid_metadata(depths_m=[]), one_channel(), "depths_m is not a list"),
         (valid_metadata(pixel_pitch_m="1.85um"), one_channel(), "pixel_pitch_m"),
         (valid_metadata(design=3), one_channel(), "design"),
+        (valid_metadata(wavelengths_m=[530e-9, 530e-9]), {**one_channel(), "psf.d00.w001": np.zeros((5, 5), np.float32)},
+         "wavelengths_m holds 5.3e-07 twice"),
     ],
 )
 def test_broken_files_are_refused_with_one_line(tmp_path, metadata, channels, reason):
