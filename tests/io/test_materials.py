@@ -1,0 +1,116 @@
+"""Parsing the material a user names: built-ins, constant indices, Cauchy coefficients, CSV tables."""
+
+import numpy as np
+import pytest
+
+from metalens_cli.errors import InputError
+from metalens_cli.io.input_files import MAX_TEXT_BYTES
+from metalens_cli.io.materials import MATERIAL_FORM, parse_material
+from metalens_cli.optics.materials import BUILTIN, Cauchy, Constant, Tabulated
+
+NM = 1e-9
+FIELD = "--material"
+
+
+@pytest.mark.parametrize("text, name", [("sinx", "sinx"), ("fused-silica", "fused-silica"), ("tio2", "tio2"),
+                                        ("a-si", "a-si"), ("air", "air"), (" SiNx ", "sinx"), ("vacuum", "vacuum")])
+def test_builtin_names(text, name):
+    assert parse_material(text, FIELD) is BUILTIN[name]
+
+
+@pytest.mark.parametrize("text, index", [("2.0", 2.0), ("2", 2.0), ("2.0+0.01j", 2.0 + 0.01j), ("1.5 + 1e-3j", 1.5 + 1e-3j),
+                                         ("2.0+0j", 2.0), ("3.5+0.2J", 3.5 + 0.2j)])
+def test_numbers_are_constant_indices(text, index):
+    material = parse_material(text, FIELD)
+    assert isinstance(material, Constant)
+    assert material.index(532 * NM) == index
+
+
+@pytest.mark.parametrize("text, coefficients", [("cauchy:1.9,0.012", (1.9, 0.012, 0.0)),
+                                                ("cauchy: 1.9, 0.012, 1e-4", (1.9, 0.012, 1e-4)),
+                                                ("Cauchy:1.5,.004", (1.5, 0.004, 0.0))])
+def test_cauchy(text, coefficients):
+    material = parse_material(text, FIELD)
+    assert isinstance(material, Cauchy)
+    assert (material.a, material.b, material.c) == coefficients
+
+
+def write(tmp_path, text, name="film.csv"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_csv_table_round_trips(tmp_path):
+    wavelengths_nm = np.array([400.0, 450.5, 532.0, 700.0])
+    n, k = np.array([2.10, 2.07, 2.04, 2.01]), np.array([0.03, 0.01, 0.0, 0.0])
+    lines = ["# PECVD SiNx, ellipsometry", "wavelength_nm,n,k"] + [f"{w!r},{a!r},{b!r}" for w, a, b in zip(wavelengths_nm.tolist(), n.tolist(), k.tolist())]
+    material = parse_material(str(write(tmp_path, "\n".join(lines) + "\n")), FIELD)
+    assert isinstance(material, Tabulated)
+    assert np.array_equal(material.index(wavelengths_nm / 1e9), n + 1j * k)
+    assert material.index(425.25 * NM) == pytest.approx((2.10 + 2.07) / 2 + 0.02j, abs=1e-14)
+    assert material.source.endswith("film.csv")
+
+
+def test_csv_without_k_or_header(tmp_path):
+    material = parse_material(str(write(tmp_path, "400,2.0\n\n700,1.9\n")), FIELD)
+    assert material.index([400 * NM, 700 * NM]).tolist() == [2.0, 1.9]
+
+
+def check_one_line_error(text, match, field=FIELD):
+    with pytest.raises(InputError) as info:
+        parse_material(text, field)
+    message = str(info.value)
+    assert info.value.field == field and message.startswith(f"{field}: ") and "\n" not in message
+    assert match in message, message
+    return message
+
+
+def test_unknown_name_lists_the_accepted_forms():
+    message = check_one_line_error("unobtainium", "'unobtainium' is not a material")
+    assert message == f"{FIELD}: 'unobtainium' is not a material (expected {MATERIAL_FORM})"
+    check_one_line_error("", "no material given", field="lens.material")
+
+
+@pytest.mark.parametrize("text, match", [("2.0-0.1j", "gain"), ("0", "n > 0"), ("-1.5", "n > 0"), ("nan", "not a finite"),
+                                         ("inf", "not a finite"), ("2.0+infj", "not a finite"), ("1e400", "not a finite"),
+                                         ("0.01j", "not a material")])
+def test_bad_numbers(text, match):
+    check_one_line_error(text, match)
+
+
+@pytest.mark.parametrize("text, match", [("cauchy:1.5", "1 coefficient"), ("cauchy:a,b", "'a' in 'cauchy:a,b' is not a number"),
+                                         ("cauchy:1,2,3,4", "4 coefficients"), ("cauchy:", "1 coefficient"),
+                                         ("cauchy:nan,0.01", "is not a number"), ("cauchy:-1.5,0.01", "not positive"),
+                                         ("cauchy:1.5,1e999", "out of float range")])
+def test_bad_cauchy(text, match):
+    assert "cauchy:A,B[,C]" in check_one_line_error(text, match)
+
+
+@pytest.mark.parametrize("content, match", [
+    ("wavelength_nm,n,k\nfoo,bar,baz\n", "not a number"),
+    ("wavelength_nm,n\n500,2.0\n", "fewer than 2 data rows"),
+    ("wavelength_nm,n\n600,2.0\n500,2.1\n", "not strictly increasing"),
+    ("wavelength_nm,n\n500,2.0\n500,2.1\n", "not strictly increasing"),
+    ("wavelength_nm,n\n400,2.0\n500,-2.1\n", "n = -2.1 at 500 nm"),
+    ("wavelength_nm,n,k\n400,2.0,0.0\n500,2.0,-0.01\n", "k = -0.01 at 500 nm"),
+    ("wavelength_nm,n,k\n400,2.0,0\n500,2.0\n", "2 columns"),
+    ("wavelength_um,n\n0.4,2.0\n0.5,2.1\n", "do not look like nm"),
+    ("wavelength_nm,n\n400,nan\n500,2.1\n", "non-finite"),
+    ("wavelength_nm\n400\n", "1 columns"),
+    ("# only a comment\n", "no rows"),
+    (b"\xff\xfe garbage", "not UTF-8"),
+])
+def test_bad_csv_tables(tmp_path, content, match):
+    path = tmp_path / "bad.csv"
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    check_one_line_error(str(path), match)
+
+
+def test_missing_and_oversized_csv(tmp_path):
+    check_one_line_error(str(tmp_path / "missing.csv"), "no such file")
+    check_one_line_error(str(tmp_path), "is a folder")
+    big = tmp_path / "big.csv"
+    row = "500,2.0\n"
+    big.write_text("wavelength_nm,n\n" + row * (MAX_TEXT_BYTES // len(row) + 1))
+    check_one_line_error(str(big), "larger than 4 MiB")
