@@ -56,6 +56,7 @@ COMMANDS = {
     "symmetry": ("symmetry", "Depth-wavelength symmetry: the depth each wavelength focuses from, and back."),
     "bands": ("bands", "Multi-band filter checks (bands check)."),
     "preset": ("preset", "Inspect presets (preset show)."),
+    "nanofin": ("nanofin", "The meta-atom: conversion efficiency η(λ) by RCWA (nanofin efficiency)."),
     "obstruction": ("obstruction", "Obstruction generators (obstruction preview)."),
     "align": ("align", "Register captured photographs onto a reference (homography, then a smooth refinement)."),
     "export-gds": ("export_gds", "Nanofin layout of a design as GDSII or OASIS for e-beam lithography."),
