@@ -9,7 +9,7 @@ from metalens_cli.cli.options import announce, json_option, Length, max_memory_o
 from metalens_cli.cli.progress import progress_bar
 
 MAX_HARMONICS = 41
-TYPICAL_HARMONICS = 15
+TYPICAL_HARMONICS = 17
 BYTES_PER_UNKNOWN_SQUARED = 16 * 12  # complex128 matrices of (2·N²)² that meent holds at once
 
 
@@ -37,7 +37,7 @@ def nanofin():
 @click.option("--substrate", default="fused-silica", show_default=True, help="Substrate, in the forms of --material (its real index is used).")
 @click.option("--wavelengths", type=WavelengthList(), multiple=True, help="Wavelengths [430:660:10nm].")
 @click.option("--harmonics", default="auto", show_default=True, callback=_harmonics,
-              help="Fourier harmonics N per axis (odd), or auto: the smallest N whose η moves < --tolerance to N + 2.")
+              help="Fourier harmonics N per axis (odd), or auto: the first N whose η is within --tolerance of N − 2's.")
 @click.option("--max-harmonics", type=click.IntRange(3, MAX_HARMONICS), default=25, show_default=True, help="auto: the largest N tried.")
 @click.option("--tolerance", type=Number(1e-6, 0.1), default=1e-3, show_default=True, help="auto: the change of η that counts as converged.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
@@ -51,8 +51,8 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     co-polarised |t_xx + t_yy|²/4, T and R, by RCWA with Li's factorisation (meent).
 
     With --harmonics auto, η at the middle wavelength is computed for N = 5, 7, … (the
-    convergence report: η and seconds per N) and the smallest N whose η moves less than
-    --tolerance is used for every wavelength.
+    convergence report: η and seconds per N) and the first N whose η is within --tolerance of
+    the N − 2 result is used for every wavelength.
     """
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.resources import Estimate
@@ -65,7 +65,7 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
     n_fin, n_sub = fin_material.index(wavelengths_m, "--material"), substrate_material.index(wavelengths_m, "--substrate")
     worst = harmonics or max_harmonics
-    typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)  # auto: Li's factorisation converges near N = 15
+    typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)  # auto: Li's factorisation converges near N = 17
     seconds = estimate_seconds(typical, len(wavelengths_m)) + (0 if harmonics else sum(estimate_seconds(n, 1) for n in range(5, typical + 3, 2)))
     announce(Estimate(f"nanofin efficiency at {len(wavelengths_m)} wavelengths, up to {worst} × {worst} harmonics",
                       BYTES_PER_UNKNOWN_SQUARED * (2 * worst**2) ** 2, "--harmonics", seconds), max_memory)
