@@ -5,10 +5,14 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import announce, json_option, Length, max_memory_option, MetalensGroup, Number, plot_option, WavelengthList
+from metalens_cli.cli.options import (announce, BandSpec, json_option, Length, LengthList, max_memory_option, MetalensGroup, Number,
+                                      OutputFolder, plot_option, WavelengthList)
 from metalens_cli.cli.progress import progress_bar
+from metalens_cli.errors import InputError
 
 MAX_HARMONICS = 41
+PAPER_BANDS = ((457e-9, 22e-9), (530e-9, 20e-9), (628e-9, 28e-9))  # the tri-band filter (presets/split-spectrum.toml)
+MAX_FINS = 10_000
 TYPICAL_HARMONICS = 17
 BYTES_PER_UNKNOWN_SQUARED = 16 * 12  # complex128 matrices of (2·N²)² that meent holds at once
 
@@ -110,3 +114,90 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
         con.print("convergence at " + render.nm(wavelengths_m[len(wavelengths_m) // 2], 1) + " nm: "
                   + ", ".join(f"N = {t['harmonics']}: η {t['conversion']:.4f} ({t['seconds']:.2f} s)" for t in table))
     con.print(f"{r.seconds.sum():.1f} s for {r.wavelengths_m.size} wavelengths")
+
+
+@nanofin.command("sweep")
+@click.option("--width", "width_m", type=LengthList(), required=True, help="Fin widths, e.g. 210:360:5nm.")
+@click.option("--length", "length_m", type=LengthList(), required=True, help="Fin lengths, e.g. 40:190:5nm.")
+@click.option("--period", "period_m", type=Length(), default="395nm", show_default=True, help="Square lattice period.")
+@click.option("--height", "height_m", type=Length(), default="700nm", show_default=True, help="Fin height.")
+@click.option("--material", default="sinx", show_default=True, help="Fin material, as for nanofin efficiency.")
+@click.option("--substrate", default="fused-silica", show_default=True, help="Substrate material.")
+@click.option("--band", "bands", type=BandSpec(), multiple=True,
+              help="Pass band CENTER:FWHM, repeatable [the paper's 457nm:22nm, 530nm:20nm, 628nm:28nm].")
+@click.option("--harmonics", type=click.IntRange(1, MAX_HARMONICS), default=9, show_default=True,
+              help="Fourier harmonics per axis for the map (odd; the chosen fin is recomputed converged).")
+@click.option("--fabrication-tolerance", "tolerance_m", type=Length(), default="10nm", show_default=True,
+              help="The recommended fin keeps --keep of its η for every grid fin within ± this in width and length.")
+@click.option("--keep", type=Number(0, 1, min_open=True), default=0.95, show_default=True)
+@click.option("-o", "--output", type=OutputFolder(), required=True, help="Folder for sweep.npz, sweep.csv, sweep.png, sweep.json.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@max_memory_option
+@json_option
+def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, harmonics, tolerance_m, keep, output, quiet, max_memory,
+          as_json):
+    """η over a grid of fin widths × lengths, per pass band and their mean (the paper's Suppl.
+    Note 7), and the recommended fin: the best mean η whose neighbours within
+    --fabrication-tolerance keep --keep of it, recomputed with converged harmonics."""
+    import json
+
+    import numpy as np
+
+    from metalens_cli.design.fin_choice import band_wavelengths, fin_map, recommend
+    from metalens_cli.io.atomic import atomic_folder
+    from metalens_cli.io.materials import parse_material
+    from metalens_cli.io.resources import Estimate
+    from metalens_cli.optics.nanofin import check_harmonics, converge, estimate_seconds, Fin, fin_response
+
+    check_harmonics(harmonics)
+    widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
+    if len(widths_m) * len(lengths_m) > MAX_FINS:
+        raise InputError("--width", f"{len(widths_m)} × {len(lengths_m)} fins", f"at most {MAX_FINS} fins")
+    bands_m = list(bands) or list(PAPER_BANDS)
+    waves = band_wavelengths(bands_m).ravel()
+    fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
+    fin_material.index(waves, "--material"), substrate_material.index(waves, "--substrate")
+    Fin(period_m, height_m, min(widths_m), min(lengths_m)).check()
+    announce(Estimate(f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} harmonics",
+                      BYTES_PER_UNKNOWN_SQUARED * (2 * harmonics**2) ** 2, "--harmonics",
+                      estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m))), max_memory)
+    with progress_bar("nanofin sweep", quiet) as update:
+        m = fin_map(period_m, height_m, widths_m, lengths_m, bands_m, lambda w: fin_material.index(w, "--material"),
+                    lambda w: substrate_material.index(w, "--substrate"), harmonics, update)
+    choice = recommend(m, tolerance_m, keep)
+    centres = np.array([c for c, _ in bands_m])
+    fin = Fin(period_m, height_m, choice["width_m"], choice["length_m"])
+    n_mid = len(centres) // 2
+    chosen, table = converge(fin, fin_material.index(centres, "--material")[n_mid], substrate_material.index(centres, "--substrate")[n_mid],
+                             centres[n_mid], 5, 25, 1e-3)
+    converged = fin_response(fin, fin_material.index(centres, "--material"), substrate_material.index(centres, "--substrate"), centres,
+                             chosen or table[-1]["harmonics"])
+    choice["converged"] = {"harmonics": converged.harmonics, "band_centres_m": centres.tolist(),
+                           "conversion_efficiency": converged.conversion.tolist(), "convergence": table}
+    report = {"period_m": period_m, "height_m": height_m, "material": fin_material.describe(), "substrate": substrate_material.describe(),
+              "bands_m": [list(b) for b in bands_m], "wavelengths_m": m.wavelengths_m.tolist(), "harmonics": harmonics,
+              "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds,
+              "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json"], "output": str(output)}
+    from metalens_cli.io.json_files import jsonable
+    from metalens_cli.plotting.nanofin import plot_fin_map
+
+    with atomic_folder(output) as folder:
+        np.savez_compressed(folder / "sweep.npz", widths_m=m.widths_m, lengths_m=m.lengths_m, wavelengths_m=m.wavelengths_m,
+                            bands_m=np.array(bands_m), eta=m.eta, score=m.score)
+        rows = ["width_nm,length_nm," + ",".join(f"eta_{c * 1e9:g}nm" for c, _ in bands_m) + ",eta_mean"]
+        for i, length in enumerate(m.lengths_m):
+            for j, width in enumerate(m.widths_m):
+                rows.append(f"{width * 1e9:g},{length * 1e9:g}," + ",".join(f"{v:.6f}" for v in m.eta[i, j]) + f",{m.score[i, j]:.6f}")
+        (folder / "sweep.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+        plot_fin_map(folder / "sweep.png", m, choice)
+        (folder / "sweep.json").write_text(json.dumps(jsonable(report), allow_nan=False, indent=1) + "\n", encoding="utf-8")
+    if as_json:
+        render.emit_json(report)
+        return
+    c = choice
+    con = render.console()
+    con.print(f"recommended fin: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.4f} at {harmonics} harmonics "
+              f"(worst within ±{tolerance_m * 1e9:g} nm: {c['worst_neighbour']:.4f}{'' if c['robust'] else '; no fin keeps ' + format(keep, 'g')})")
+    con.print("converged (" + f"{converged.harmonics} harmonics): η " + " / ".join(f"{v:.4f}" for v in converged.conversion)
+              + " at " + " / ".join(f"{w * 1e9:g}" for w in centres) + " nm")
+    con.print(f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds:.1f} s of RCWA)")

@@ -107,12 +107,12 @@ def fin_response(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, w
     check_harmonics(harmonics)
     wavelengths = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
     order = (harmonics - 1) // 2
-    p = fin.period_m * NM
+    p = float(fin.period_m * NM)  # meent tests type(x) is float: numpy scalars would not do
     out = {key: [] for key in ("t_xx", "t_yy", "transmittance", "reflectance", "seconds")}
     for k, wavelength in enumerate(wavelengths):
         start = time.perf_counter()
         n_fin, n_sub = complex(fin_index[k]), complex(substrate_index[k])
-        cell = [[1.0, [["rectangle", p / 2, p / 2, fin.width_m * NM, fin.length_m * NM, n_fin.conjugate(), 0]]]]
+        cell = [[1.0, [["rectangle", p / 2, p / 2, float(fin.width_m * NM), float(fin.length_m * NM), n_fin.conjugate(), 0]]]]
         solver = meent.call_mee(backend=0, pol=0, n_top=n_sub.real, n_bot=1.0, theta=0, phi=0, fto=[order, order],
                                 wavelength=wavelength * NM, period=[p, p], ucell=cell, thickness=[fin.height_m * NM])
         result = solver.conv_solve()

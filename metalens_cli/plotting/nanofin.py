@@ -34,3 +34,23 @@ def plot_efficiency(path: str | Path, response, convergence: list[dict]) -> Path
         ax.set_title("convergence (middle wavelength)", fontsize=9)
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def plot_fin_map(path: str | Path, fin_map, choice: dict) -> Path:
+    """Heatmaps of η over fin width × length: one per pass band and their mean, the recommended
+    fin marked."""
+    import numpy as np
+
+    panels = [(f"{c * 1e9:g} nm band", fin_map.eta[:, :, k]) for k, (c, _) in enumerate(fin_map.bands_m)]
+    panels.append(("mean over the bands", fin_map.score))
+    fig, axes = new_figure(1, len(panels), figsize=(3.6 * len(panels), 3.4), squeeze=False)
+    w, length = fin_map.widths_m * 1e9, fin_map.lengths_m * 1e9
+    extent = (w[0], w[-1], length[0], length[-1]) if w.size > 1 and length.size > 1 else None
+    for ax, (title, values) in zip(axes[0], panels):
+        image = ax.imshow(np.ma.masked_invalid(values), origin="lower", aspect="auto", extent=extent, vmin=0, vmax=1, cmap="viridis")
+        ax.plot(choice["width_m"] * 1e9, choice["length_m"] * 1e9, "r+", markersize=12)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("width (nm)")
+        ax.set_ylabel("length (nm)")
+    fig.colorbar(image, ax=axes[0].tolist(), label="η")
+    return save_figure(fig, path)

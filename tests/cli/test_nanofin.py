@@ -52,3 +52,18 @@ def test_auto_harmonics_report_their_convergence(capsys):
 def test_bad_input_is_one_line_exit_2(capsys, args, message):
     code, out, err = invoke(capsys, "nanofin", "efficiency", *args)
     assert code == 2 and out == "" and err.count("\n") == 1 and message in err, err
+
+
+def test_sweep_writes_its_map_and_recommends_a_fin(capsys, tmp_path):
+    out = tmp_path / "sweep"
+    code, stdout, err = invoke(capsys, "nanofin", "sweep", "--width", "250nm,300nm", "--length", "100nm,150nm", "--harmonics", "3",
+                               "--band", "530nm:20nm", "-o", out, "--json")
+    assert code == 0, err
+    r = json.loads(stdout)
+    assert sorted(p.name for p in out.iterdir()) == ["sweep.csv", "sweep.json", "sweep.npz", "sweep.png"]
+    assert (out / "sweep.csv").read_text().count("\n") == 5
+    c = r["recommended"]
+    assert c["width_m"] in (250e-9, 300e-9) and c["length_m"] in (100e-9, 150e-9)
+    assert c["converged"]["harmonics"] >= 5 and 0 < c["converged"]["conversion_efficiency"][0] < 1
+    code, _, err = invoke(capsys, "nanofin", "sweep", "--width", "400nm", "--length", "100nm", "-o", tmp_path / "x")
+    assert code == 2 and "--width: 400 nm is larger than the 395 nm period" in err
