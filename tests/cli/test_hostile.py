@@ -186,6 +186,13 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
                                                 "inside --pairs"),
     "evaluate --pairs --plot into gt/": (["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/gt/new.png"], 2, "inside --pairs"),
     "evaluate --pairs of an empty folder": (["evaluate", "--pairs", "{nopairs}"], 2, "no images in"),
+    "nanofin --material /dev/zero": (["nanofin", "efficiency", "--material", "/dev/zero"], 2, "--material"),
+    "nanofin --material a FIFO": (["nanofin", "efficiency", "--material", "{fifo_csv}"], 2, "--material"),
+    "nanofin --width nan": (["nanofin", "efficiency", "--width", "nan"], 2, "--width"),
+    "nanofin sweep -o under a file": (["nanofin", "sweep", "--width", "300nm", "--length", "100nm", "-o", "{a_file}/out"], 2,
+                                      "not a folder"),
+    "nanofin sweep of 10^6 fins": (["nanofin", "sweep", "--width", "1:395:0.4nm", "--length", "1:395:0.4nm", "-o", "{tmp}/sw"], 2,
+                                   "at most"),
     # 4. estimates before big jobs
     "psf-scan 8192 px": (["psf-scan", "--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--pixels", "8192",
                           "-o", "{tmp}/big.exr"], 2, "over the memory available"),
