@@ -64,3 +64,13 @@ def warp(image: np.ndarray, homography: np.ndarray, ripple_px: float = 0.0, size
     u += ripple_px * np.sin(2 * np.pi * y / h) * np.cos(np.pi * x / w)
     v += ripple_px * np.cos(2 * np.pi * x / w) * np.sin(np.pi * y / h)
     return cv2.remap(image, u.astype(np.float32), v.astype(np.float32), cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+
+
+def save_png(path, image: np.ndarray, bits: int = 8) -> None:
+    """Write an (H, W) or (H, W, 3) RGB image of 0..1 values as an 8- or 16-bit PNG, making its folder."""
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    top = 255 if bits == 8 else 65535
+    pixels = np.round(np.clip(image, 0, 1) * top).astype(np.uint8 if bits == 8 else np.uint16)
+    cv2.imwrite(str(path), pixels[:, :, ::-1] if pixels.ndim == 3 else pixels)

@@ -13,7 +13,7 @@ import pytest
 from metalens_cli.cli.main import run
 from metalens_cli.imaging.registration import load_warp, register
 from metalens_cli.io.image_files import read_exr_rgb, read_image_file, write_exr_rgb
-from synthetic import texture, warp
+from synthetic import save_png, texture, warp
 
 SIDE = 256
 ANGLE = math.radians(3)
@@ -26,13 +26,6 @@ def invoke(capsys, *args):
     code = run([str(a) for a in args])
     out, err = capsys.readouterr()
     return code, out, err
-
-
-def save_png(path, image, bits=8):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    top = 255 if bits == 8 else 65535
-    pixels = np.round(np.clip(image, 0, 1) * top).astype(np.uint8 if bits == 8 else np.uint16)
-    cv2.imwrite(str(path), pixels[:, :, ::-1] if pixels.ndim == 3 else pixels)
 
 
 def capture(scene, seed=0):

@@ -5,14 +5,13 @@ lens sharper than the other) and, when obstructed, shaded by a dark blob."""
 import json
 import math
 
-import cv2
 import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
 from metalens_cli.cli.main import run
 from metalens_cli.imaging.images import linear_to_srgb
-from synthetic import texture, warp
+from synthetic import save_png, texture, warp
 
 SIDE = 256
 HOMOGRAPHY = np.array([[1.02, 0.03, -6.0], [-0.02, 0.99, 4.0], [2e-5, -1e-5, 1.0]])
@@ -20,9 +19,8 @@ BLUR = {"sharp": 0.8, "blurry": 2.5}
 
 
 def save(path, linear):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    encoded = np.round(linear_to_srgb(np.clip(linear, 0, 1)) * 65535).astype(np.uint16)
-    cv2.imwrite(str(path), encoded[:, :, ::-1])
+    """Linear RGB as a 16-bit sRGB-encoded PNG."""
+    save_png(path, linear_to_srgb(np.clip(linear, 0, 1)), bits=16)
 
 
 def occluder(seed):

@@ -100,3 +100,19 @@ def test_luminance_match_of_a_flat_estimate_and_unknown_method():
     assert (matched == bias).all()  # 0·estimate + b: the reference's mean luminance, exactly
     with pytest.raises(InputError, match="luminance or lstsq"):
         photometric_match(ref, ref, method="histogram")
+
+
+def test_a_grey_wall_imaged_as_grey_scores_the_psnr_ceiling():
+    """A uniform grey capture of a uniform grey wall (any gain: the match takes it out) is an
+    exact match: PSNR at its 100 dB ceiling, not +∞ (which broke the statistics), SSIM 1."""
+    import numpy as np
+
+    from metalens_cli.imaging.metrics import PSNR_CEILING_DB
+    from metalens_cli.imaging.pipeline import score
+
+    wall = np.full((3, 32, 32), 0.18, np.float32)
+    result = score(0.5 * wall, wall)
+    assert result["psnr_db"] == PSNR_CEILING_DB and abs(result["ssim"] - 1) < 1e-12
+    ramp = wall * np.linspace(0.5, 1.5, 32, dtype=np.float32)  # a scene with something to get wrong
+    noisy = ramp + 0.01 * np.random.default_rng(0).random(wall.shape, dtype=np.float32)
+    assert 30 < score(noisy, ramp)["psnr_db"] < PSNR_CEILING_DB
