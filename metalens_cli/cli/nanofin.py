@@ -5,16 +5,19 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import (announce, BandSpec, json_option, Length, LengthList, max_memory_option, MetalensGroup, Number,
-                                      OutputFolder, plot_option, WavelengthList)
+from metalens_cli.cli.options import (announce, BandSpec, device_option, json_option, Length, LengthList, max_memory_option,
+                                      MetalensGroup, Number, OutputFolder, plot_option, torch_device, WavelengthList)
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.errors import InputError
 
 MAX_HARMONICS = 41
 PAPER_BANDS = ((457e-9, 22e-9), (530e-9, 20e-9), (628e-9, 28e-9))  # the tri-band filter (presets/split-spectrum.toml)
 MAX_FINS = 10_000
-TYPICAL_HARMONICS = 17
-BYTES_PER_UNKNOWN_SQUARED = 16 * 12  # complex128 matrices of (2·N²)² that meent holds at once
+TYPICAL_HARMONICS = 25  # what auto picks for the paper's fin (docs/benchmarks.md)
+SOLVERS = {"modes": "fin_modes (this package's RCWA, mirror symmetries, Li's factorisation)",
+           "meent": "meent (RCWA, Li's factorisation; the reference)"}
+solver_option = click.option("--solver", type=click.Choice(tuple(SOLVERS)), default="modes", show_default=True,
+                             help="RCWA: modes (fast, symmetric subspaces, --device) or meent (the slower reference, CPU).")
 
 
 def _harmonics(ctx, param, text: str) -> int | None:
@@ -41,27 +44,29 @@ def nanofin():
 @click.option("--substrate", default="fused-silica", show_default=True, help="Substrate, in the forms of --material (its real index is used).")
 @click.option("--wavelengths", type=WavelengthList(), multiple=True, help="Wavelengths [430:660:10nm].")
 @click.option("--harmonics", default="auto", show_default=True, callback=_harmonics,
-              help="Fourier harmonics N per axis (odd), or auto: the first N whose η is within --tolerance of N − 2's.")
-@click.option("--max-harmonics", type=click.IntRange(3, MAX_HARMONICS), default=25, show_default=True, help="auto: the largest N tried.")
+              help="Fourier harmonics N per axis (odd), or auto: the first N whose η moves less than --tolerance from N − 2 and N − 4.")
+@click.option("--max-harmonics", type=click.IntRange(3, MAX_HARMONICS), default=35, show_default=True, help="auto: the largest N tried.")
 @click.option("--tolerance", type=Number(1e-6, 0.1), default=1e-3, show_default=True, help="auto: the change of η that counts as converged.")
+@solver_option
+@device_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 @plot_option
 def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavelengths, harmonics, max_harmonics, tolerance,
-               quiet, max_memory, as_json, plot_path):
+               solver, device, quiet, max_memory, as_json, plot_path):
     """η(λ) of a rectangular fin in air on a substrate, light from the substrate at normal
     incidence: η = |t_xx − t_yy|²/4 (power into the opposite circular polarisation),
-    co-polarised |t_xx + t_yy|²/4, T and R, by RCWA with Li's factorisation (meent).
+    co-polarised |t_xx + t_yy|²/4, T and R, by RCWA with Li's factorisation.
 
-    With --harmonics auto, η at the middle wavelength is computed for N = 5, 7, … (the
-    convergence report: η and seconds per N) and the first N whose η is within --tolerance of
-    the N − 2 result is used for every wavelength.
+    With --harmonics auto, η at every wavelength is computed for N = 5, 7, … (the convergence
+    report: the largest change of η and the seconds per N) until it moves less than
+    --tolerance at every wavelength from both N − 2 and N − 4; the last N is the answer.
     """
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.resources import Estimate
     from metalens_cli.io.units import parse_length_list
-    from metalens_cli.optics.nanofin import converge, estimate_seconds, Fin, fin_response
+    from metalens_cli.optics.nanofin import converge, estimate_bytes, estimate_seconds, Fin, fin_response
 
     fin = Fin(period_m, height_m, width_m, length_m)
     fin.check()
@@ -69,21 +74,23 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
     n_fin, n_sub = fin_material.index(wavelengths_m, "--material"), substrate_material.index(wavelengths_m, "--substrate")
     worst = harmonics or max_harmonics
-    typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)  # auto: Li's factorisation converges near N = 17
-    seconds = estimate_seconds(typical, len(wavelengths_m)) + (0 if harmonics else sum(estimate_seconds(n, 1) for n in range(5, typical + 3, 2)))
+    typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)
+    tried = [typical] if harmonics else range(5, typical + 1, 2)
+    seconds = sum(estimate_seconds(n, len(wavelengths_m), solver) for n in tried)
     announce(Estimate(f"nanofin efficiency at {len(wavelengths_m)} wavelengths, up to {worst} × {worst} harmonics",
-                      BYTES_PER_UNKNOWN_SQUARED * (2 * worst**2) ** 2, "--harmonics", seconds), max_memory)
+                      estimate_bytes(worst, solver), "--harmonics", seconds), max_memory)
     table, chosen = [], harmonics
     warnings = []
-    if harmonics is None:
-        middle = len(wavelengths_m) // 2
-        chosen, table = converge(fin, n_fin[middle], n_sub[middle], wavelengths_m[middle], 5, max_harmonics, tolerance)
-        if chosen is None:
-            chosen = table[-1]["harmonics"]
-            warnings.append(f"η moved {abs(table[-1]['conversion'] - table[-2]['conversion']):.2g} from N = {table[-2]['harmonics']} "
-                            f"to {chosen}, more than --tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)")
     with progress_bar("nanofin efficiency", quiet) as update:
-        r = fin_response(fin, n_fin, n_sub, wavelengths_m, chosen, update)
+        if harmonics is None:
+            chosen, table, r = converge(fin, n_fin, n_sub, wavelengths_m, 5, max_harmonics, tolerance, torch_device(device), solver,
+                                        update)
+            if chosen is None:
+                chosen = table[-1]["harmonics"]
+                warnings.append(f"η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}, more than "
+                                f"--tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)")
+        else:
+            r = fin_response(fin, n_fin, n_sub, wavelengths_m, chosen, update, torch_device(device), solver)
     if plot_path:
         from metalens_cli.plotting.nanofin import plot_efficiency
 
@@ -98,7 +105,7 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
         "co_polarized": r.co_polarized.tolist(), "transmittance": r.transmittance.tolist(), "reflectance": r.reflectance.tolist(),
         "t_xx": [[z.real, z.imag] for z in r.t_xx.tolist()], "t_yy": [[z.real, z.imag] for z in r.t_yy.tolist()],
         "harmonics": chosen, "convergence": table, "tolerance": tolerance if harmonics is None else None,
-        "solver": "meent (RCWA, Li's factorisation)", "seconds": float(r.seconds.sum()), "warnings": warnings,
+        "solver": SOLVERS[solver], "seconds": float(r.seconds.sum() + sum(t["seconds"] for t in table[:-1])), "warnings": warnings,
         **({"plot": str(plot_path)} if plot_path else {}),
     }
     if as_json:
@@ -111,9 +118,9 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
                            f"{fin_material.name} on {substrate_material.name}, {chosen} × {chosen} harmonics",
                            ["λ (nm)", "η conversion", "co-polarised", "T", "R"], rows))
     if table:
-        con.print("convergence at " + render.nm(wavelengths_m[len(wavelengths_m) // 2], 1) + " nm: "
-                  + ", ".join(f"N = {t['harmonics']}: η {t['conversion']:.4f} ({t['seconds']:.2f} s)" for t in table))
-    con.print(f"{r.seconds.sum():.1f} s for {r.wavelengths_m.size} wavelengths")
+        con.print("convergence (largest change of η over the wavelengths from N − 2): "
+                  + ", ".join(f"N = {t['harmonics']}: {t['max_change']:.1e} ({t['seconds']:.2f} s)" for t in table[1:]))
+    con.print(f"{report['seconds']:.1f} s for {r.wavelengths_m.size} wavelengths")
 
 
 @nanofin.command("sweep")
@@ -126,16 +133,21 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
 @click.option("--band", "bands", type=BandSpec(), multiple=True,
               help="Pass band CENTER:FWHM, repeatable [the paper's 457nm:22nm, 530nm:20nm, 628nm:28nm].")
 @click.option("--harmonics", type=click.IntRange(1, MAX_HARMONICS), default=9, show_default=True,
-              help="Fourier harmonics per axis for the map (odd; the chosen fin is recomputed converged).")
+              help="Fourier harmonics per axis for the map (odd; the chosen fin and its neighbours are recomputed converged).")
+@click.option("--max-harmonics", type=click.IntRange(3, MAX_HARMONICS), default=35, show_default=True,
+              help="The largest N tried when converging the chosen fin.")
+@click.option("--samples-per-band", type=click.IntRange(1, 64), default=8, show_default=True,
+              help="Wavelengths evenly across each band's FWHM whose η is averaged (3 bands × 8: 24 wavelengths).")
 @click.option("--fabrication-tolerance", "tolerance_m", type=Length(), default="10nm", show_default=True,
               help="The recommended fin keeps --keep of its η for every grid fin within ± this in width and length.")
 @click.option("--keep", type=Number(0, 1, min_open=True), default=0.95, show_default=True)
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Folder for sweep.npz, sweep.csv, sweep.png, sweep.json.")
+@device_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
-def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, harmonics, tolerance_m, keep, output, quiet, max_memory,
-          as_json):
+def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, harmonics, max_harmonics, samples_per_band, tolerance_m,
+          keep, output, device, quiet, max_memory, as_json):
     """η over a grid of fin widths × lengths, per pass band and their mean (the paper's Suppl.
     Note 7), and the recommended fin: the best mean η whose neighbours within
     --fabrication-tolerance keep --keep of it, recomputed with converged harmonics."""
@@ -143,40 +155,66 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
 
     import numpy as np
 
-    from metalens_cli.design.fin_choice import band_wavelengths, fin_map, recommend
+    from metalens_cli.design.fin_choice import band_wavelengths, fin_map, FinMap, recommend, refine
+    from metalens_cli.io import cache
     from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.resources import Estimate
-    from metalens_cli.optics.nanofin import check_harmonics, converge, estimate_seconds, Fin, fin_response
+    from metalens_cli.optics.nanofin import check_harmonics, converge, estimate_bytes, estimate_seconds, Fin, SOLVER
 
     check_harmonics(harmonics)
     widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
     if len(widths_m) * len(lengths_m) > MAX_FINS:
         raise InputError("--width", f"{len(widths_m)} × {len(lengths_m)} fins", f"at most {MAX_FINS} fins")
     bands_m = list(bands) or list(PAPER_BANDS)
-    waves = band_wavelengths(bands_m).ravel()
+    waves = band_wavelengths(bands_m, samples_per_band).ravel()
     fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
-    fin_material.index(waves, "--material"), substrate_material.index(waves, "--substrate")
+
+    def n_fin(w):
+        return fin_material.index(w, "--material")
+
+    def n_sub(w):
+        return substrate_material.index(w, "--substrate")
+
+    n_fin(waves), n_sub(waves)
     Fin(period_m, height_m, min(widths_m), min(lengths_m)).check()
+    neighbours = (2 * int(tolerance_m / min(np.diff(widths_m), default=1.0) + 1e-9) + 1) * (
+        2 * int(tolerance_m / min(np.diff(lengths_m), default=1.0) + 1e-9) + 1)
+    fine = sum(estimate_seconds(n, waves.size) for n in range(5, TYPICAL_HARMONICS + 1, 2)) + estimate_seconds(TYPICAL_HARMONICS, waves.size * neighbours)
     announce(Estimate(f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} harmonics",
-                      BYTES_PER_UNKNOWN_SQUARED * (2 * harmonics**2) ** 2, "--harmonics",
-                      estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m))), max_memory)
-    with progress_bar("nanofin sweep", quiet) as update:
-        m = fin_map(period_m, height_m, widths_m, lengths_m, bands_m, lambda w: fin_material.index(w, "--material"),
-                    lambda w: substrate_material.index(w, "--substrate"), harmonics, update)
+                      estimate_bytes(max(harmonics, TYPICAL_HARMONICS)), "--harmonics",
+                      estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m)) + fine), max_memory)
+    key = cache.input_key({"period_m": period_m, "height_m": height_m, "widths_m": widths_m, "lengths_m": lengths_m,
+                           "wavelengths_m": waves, "fin_index": fin_material.index(waves, "--material"),
+                           "substrate_index": substrate_material.index(waves, "--substrate"), "harmonics": harmonics, "solver": SOLVER})
+    stored = cache.load("nanofin-sweep", key)
+    if stored is None:
+        with progress_bar("nanofin sweep", quiet) as update:
+            m = fin_map(period_m, height_m, widths_m, lengths_m, bands_m, n_fin, n_sub, harmonics, update, samples_per_band,
+                        torch_device(device))
+        cache.store("nanofin-sweep", key, {"eta": m.eta, "seconds": np.array(m.seconds)})
+    else:
+        m = FinMap(np.array(widths_m), np.array(lengths_m), bands_m, waves.reshape(len(bands_m), -1), stored["eta"], harmonics,
+                   float(stored["seconds"]))
     choice = recommend(m, tolerance_m, keep)
-    centres = np.array([c for c, _ in bands_m])
     fin = Fin(period_m, height_m, choice["width_m"], choice["length_m"])
-    n_mid = len(centres) // 2
-    chosen, table = converge(fin, fin_material.index(centres, "--material")[n_mid], substrate_material.index(centres, "--substrate")[n_mid],
-                             centres[n_mid], 5, 25, 1e-3)
-    converged = fin_response(fin, fin_material.index(centres, "--material"), substrate_material.index(centres, "--substrate"), centres,
-                             chosen or table[-1]["harmonics"])
-    choice["converged"] = {"harmonics": converged.harmonics, "band_centres_m": centres.tolist(),
-                           "conversion_efficiency": converged.conversion.tolist(), "convergence": table}
+    warnings = []
+    with progress_bar("converging the chosen fin", quiet) as update:
+        chosen, table, _ = converge(fin, n_fin(waves), n_sub(waves), waves, 5, max_harmonics, 1e-3, torch_device(device), on_progress=update)
+    if chosen is None:
+        chosen = table[-1]["harmonics"]
+        warnings.append(f"the chosen fin's η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}; "
+                        "raise --max-harmonics")
+    choice["converged"] = {**refine(m, choice, period_m, height_m, n_fin, n_sub, chosen, torch_device(device)), "convergence": table}
+    if not choice["converged"]["robust"] and choice["robust"]:
+        warnings.append(f"converged at N = {chosen}, a neighbour of the chosen fin keeps less than {keep:g} of its η")
+    err = render.console(stderr=True)
+    for warning in warnings:
+        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
     report = {"period_m": period_m, "height_m": height_m, "material": fin_material.describe(), "substrate": substrate_material.describe(),
               "bands_m": [list(b) for b in bands_m], "wavelengths_m": m.wavelengths_m.tolist(), "harmonics": harmonics,
-              "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds,
+              "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds, "cached": stored is not None,
+              "solver": SOLVERS["modes"], "warnings": warnings,
               "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json"], "output": str(output)}
     from metalens_cli.io.json_files import jsonable
     from metalens_cli.plotting.nanofin import plot_fin_map
@@ -198,6 +236,7 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
     con = render.console()
     con.print(f"recommended fin: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.4f} at {harmonics} harmonics "
               f"(worst within ±{tolerance_m * 1e9:g} nm: {c['worst_neighbour']:.4f}{'' if c['robust'] else '; no fin keeps ' + format(keep, 'g')})")
-    con.print("converged (" + f"{converged.harmonics} harmonics): η " + " / ".join(f"{v:.4f}" for v in converged.conversion)
-              + " at " + " / ".join(f"{w * 1e9:g}" for w in centres) + " nm")
-    con.print(f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds:.1f} s of RCWA)")
+    f = c["converged"]
+    con.print(f"converged ({f['harmonics']} harmonics): mean η {f['score']:.4f}, per band " + " / ".join(f"{v:.4f}" for v in f["eta_per_band"])
+              + f"; worst of {f['fins']} fins within ±{tolerance_m * 1e9:g} nm: {f['worst_neighbour']:.4f}")
+    con.print(f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds + f['seconds']:.1f} s of RCWA)")

@@ -2,12 +2,13 @@
 fabricate (Suppl. Note 7 of the paper).
 
 Per geometry (width w along x, length l along y) and pass band (centre c, FWHM b): η is
-averaged over ``BAND_SAMPLES`` wavelengths evenly across [c − b/2, c + b/2]; the score of a
+averaged over ``samples_per_band`` wavelengths evenly across [c − b/2, c + b/2]; the score of a
 fin is the mean of its band efficiencies. The recommended fin has the best score among those
 whose neighbourhood (every grid fin within ± ``tolerance_m`` in both w and l: the fabrication
 tolerance) keeps at least ``keep`` of that score; the neighbourhood is cut at the grid's edges.
-The map is computed with a cheap truncation; ``metalens nanofin sweep`` then recomputes the
-chosen fin with a converged one.
+The map is computed with a cheap truncation, all fins of a row of the grid in one batch
+(:func:`metalens_cli.optics.fin_modes.fin_responses_symmetric`); :func:`refine` recomputes the
+chosen fin and its neighbourhood with a converged one (coarse to fine).
 """
 
 from __future__ import annotations
@@ -18,15 +19,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from metalens_cli.errors import InputError
-from metalens_cli.optics.nanofin import Fin, fin_response
+from metalens_cli.optics.fin_modes import fin_responses_symmetric
+from metalens_cli.optics.nanofin import Fin
 
-BAND_SAMPLES = 3
+BAND_SAMPLES = 8  # 3 bands × 8: the 24 wavelengths of issue 17's benchmark
 
 
 @dataclass
 class FinMap:
     """``eta`` (L, W, B): band-mean η per fin length (rows), width (columns) and band; ``score``
-    (L, W) its mean over the bands; the grid in metres; ``wavelengths_m`` (B, BAND_SAMPLES)."""
+    (L, W) its mean over the bands; the grid in metres; ``wavelengths_m`` (B, samples per band)."""
 
     widths_m: np.ndarray
     lengths_m: np.ndarray
@@ -41,32 +43,64 @@ class FinMap:
         return self.eta.mean(axis=-1)
 
 
-def band_wavelengths(bands_m: list[tuple[float, float]]) -> np.ndarray:
-    """(B, BAND_SAMPLES) wavelengths evenly across each band's FWHM (centre included)."""
-    return np.array([np.linspace(c - b / 2, c + b / 2, BAND_SAMPLES) for c, b in bands_m])
+def band_wavelengths(bands_m: list[tuple[float, float]], samples: int = BAND_SAMPLES) -> np.ndarray:
+    """(B, samples) wavelengths evenly across each band's FWHM (one sample: the centre)."""
+    if samples == 1:
+        return np.array([[c] for c, _ in bands_m])
+    return np.array([np.linspace(c - b / 2, c + b / 2, samples) for c, b in bands_m])
 
 
 def fin_map(period_m: float, height_m: float, widths_m, lengths_m, bands_m, fin_index: Callable, substrate_index: Callable,
-            harmonics: int, on_progress: Callable[[int, int], None] | None = None) -> FinMap:
+            harmonics: int, on_progress: Callable[[int, int], None] | None = None, samples_per_band: int = BAND_SAMPLES,
+            device=None) -> FinMap:
     """η of every (length, width) fin of the grid that fits in its cell (others NaN), averaged per
-    band; ``fin_index``/``substrate_index`` map wavelengths (m) to complex indices."""
+    band; ``fin_index``/``substrate_index`` map wavelengths (m) to complex indices; ``device``
+    a torch device (None: cpu)."""
     widths, lengths = np.asarray(widths_m, float), np.asarray(lengths_m, float)
-    waves = band_wavelengths(bands_m)
+    waves = band_wavelengths(bands_m, samples_per_band)
     flat = waves.ravel()
     n_fin, n_sub = fin_index(flat), substrate_index(flat)
     eta = np.full((lengths.size, widths.size, len(bands_m)), np.nan)
-    total, seconds = lengths.size * widths.size, 0.0
+    seconds = 0.0
     for i, length in enumerate(lengths):
-        for j, width in enumerate(widths):
-            if width <= period_m and length <= period_m:
-                r = fin_response(Fin(period_m, height_m, width, length), n_fin, n_sub, flat, harmonics)
-                eta[i, j] = r.conversion.reshape(waves.shape).mean(axis=1)
-                seconds += float(r.seconds.sum())
-            if on_progress is not None:
-                on_progress(i * widths.size + j + 1, total)
+        columns = [j for j, width in enumerate(widths) if width <= period_m and length <= period_m]
+        if columns:
+            fins = [Fin(period_m, height_m, widths[j], length) for j in columns]
+            responses = fin_responses_symmetric(fins, n_fin, n_sub, flat, harmonics, device)
+            eta[i, columns] = [r.conversion.reshape(waves.shape).mean(axis=1) for r in responses]
+            seconds += sum(float(r.seconds.sum()) for r in responses)
+        if on_progress is not None:
+            on_progress((i + 1) * widths.size, lengths.size * widths.size)
     if np.isnan(eta).all():
         raise InputError("width", "no fin of the grid fits in its cell", "widths and lengths up to the period")
     return FinMap(widths, lengths, list(bands_m), waves, eta, harmonics, seconds)
+
+
+def _neighbourhood(m: FinMap, i: int, j: int, tolerance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column masks of the grid fins within ± ``tolerance_m`` of fin (i, j)."""
+    rows = np.abs(m.lengths_m - m.lengths_m[i]) <= tolerance_m * (1 + 1e-9)
+    cols = np.abs(m.widths_m - m.widths_m[j]) <= tolerance_m * (1 + 1e-9)
+    return rows, cols
+
+
+def refine(m: FinMap, choice: dict, period_m: float, height_m: float, fin_index: Callable, substrate_index: Callable,
+           harmonics: int, device=None) -> dict:
+    """The recommended fin (``choice`` from :func:`recommend`) and every grid fin of its
+    neighbourhood recomputed with ``harmonics`` at the map's wavelengths: ``harmonics``,
+    ``score``, ``eta_per_band``, ``worst_neighbour``, ``robust`` (the keep rule at this
+    truncation), ``fins`` recomputed and ``seconds``."""
+    i, j = int(np.argmin(np.abs(m.lengths_m - choice["length_m"]))), int(np.argmin(np.abs(m.widths_m - choice["width_m"])))
+    rows, cols = _neighbourhood(m, i, j, choice["tolerance_m"])
+    sites = [(r, c) for r in np.nonzero(rows)[0] for c in np.nonzero(cols)[0]
+             if m.widths_m[c] <= period_m and m.lengths_m[r] <= period_m]
+    flat = m.wavelengths_m.ravel()
+    fins = [Fin(period_m, height_m, m.widths_m[c], m.lengths_m[r]) for r, c in sites]
+    responses = fin_responses_symmetric(fins, fin_index(flat), substrate_index(flat), flat, harmonics, device)
+    per_band = [r.conversion.reshape(m.wavelengths_m.shape).mean(axis=1) for r in responses]
+    centre = per_band[sites.index((i, j))]
+    score, worst = float(centre.mean()), float(min(p.mean() for p in per_band))
+    return {"harmonics": harmonics, "score": score, "eta_per_band": centre.tolist(), "worst_neighbour": worst,
+            "robust": worst >= choice["keep"] * score, "fins": len(fins), "seconds": sum(float(r.seconds.sum()) for r in responses)}
 
 
 def recommend(m: FinMap, tolerance_m: float = 10e-9, keep: float = 0.95) -> dict:
@@ -78,8 +112,7 @@ def recommend(m: FinMap, tolerance_m: float = 10e-9, keep: float = 0.95) -> dict
     for i, j in sorted(np.ndindex(score.shape), key=lambda ij: -score[ij]):
         if not np.isfinite(score[i, j]):
             break
-        rows = np.abs(m.lengths_m - m.lengths_m[i]) <= tolerance_m * (1 + 1e-9)
-        cols = np.abs(m.widths_m - m.widths_m[j]) <= tolerance_m * (1 + 1e-9)
+        rows, cols = _neighbourhood(m, i, j, tolerance_m)
         worst = float(score[np.ix_(rows, cols)].min())
         if best is None:
             best = (i, j, worst, False)

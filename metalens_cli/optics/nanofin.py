@@ -1,11 +1,18 @@
-"""Conversion efficiency of a rectangular nanofin (the meta-atom) by RCWA, through meent.
+"""Conversion efficiency of a rectangular nanofin (the meta-atom) by RCWA.
+
+Two solvers give the same quantities. :func:`fin_response` uses :mod:`metalens_cli.optics.fin_modes`,
+this package's RCWA of this one geometry, which splits the eigenproblem by the fin's two
+mirror symmetries and batches wavelengths and fins (torch; ``device``): 24 wavelengths of the
+paper's fin at N = 25 take 4.4 s on 2 cores. :func:`fin_response_meent` runs the maintained
+package meent, the slower reference it is tested against (tests/optics/test_fin_modes.py); the
+two agree within 4e-4 on η at N = 21 and converge to the same limit.
 
 Geometry. A square lattice of period p; in each cell a rectangular fin of width w along x and
 length l along y, height h, of material ``fin`` surrounded by air, standing on a substrate.
 Light arrives at normal incidence from the substrate side and leaves into air (meent's upper
 half-space is the substrate, its lower one air). meent builds the permittivity's Fourier
 matrices with Li's factorisation rules, which converge for this high-contrast grating where the
-plain Laurent rule does not (issue 17).
+plain Laurent rule does not (issue 17); so does fin_modes, which also treats x and y alike.
 
 Jones coefficients. ``t_xx`` is the zeroth transmitted order's x field for x-polarised
 incidence, ``t_yy`` likewise for y; both are scaled by √(n_out/n_in) so that |t|² is a fraction
@@ -23,13 +30,14 @@ here. The homogeneous layer (w = l = p), where t_xx = t_yy must hold, fixes that
 absorbing fin losing power fixes the time convention (tests/optics/test_nanofin.py). The
 substrate is taken lossless (its real index).
 
-Symmetry. meent's factorisation does not treat x and y alike at finite N: a square fin
+Symmetry. fin_modes converts exactly nothing with a square fin and swaps t_xx and t_yy exactly
+for a fin turned by 90°. meent's factorisation does not treat x and y alike at finite N: a square fin
 converts 2e-5 at N = 5, 2e-6 at N = 9, 4e-7 at N = 13 (0 in the limit), and turning the paper's
 fin by 90° changes η by 5e-3, 2e-3, 1e-3 at N = 5, 9, 13. Both vanish as N grows.
 
-Cost: one eigenproblem of 2·N² for N × N harmonics per wavelength: 0.65 s at N = 15, 1.3 s at
-N = 17, about 14 s at N = 25 on 2 cores (meent 0.13, numpy backend, the fin given as a
-rectangle rather than a raster).
+Cost per wavelength on 2 cores: fin_modes solves two eigenproblems of (N² + 1)/2 (real for a
+lossless fin): 0.03 s at N = 17, 0.19 s at N = 25; meent one of 2·N²: 1.2 s at N = 17, 9.5 s at
+N = 25 (meent 0.13, numpy backend, the fin given as a rectangle rather than a raster).
 """
 
 from __future__ import annotations
@@ -42,7 +50,11 @@ import numpy as np
 
 from metalens_cli.errors import InputError
 
-SECONDS_PER_UNKNOWN_CUBED = 7e-9  # wall seconds per (2·N²)³: 1.3 s at N = 17 (meent 0.13, vector cell, 2 cores)
+SOLVER = "fin_modes/1"  # names the numbers a cache entry holds: change it when they change
+SECONDS_PER_UNKNOWN_CUBED = 1e-8  # fin_modes, both polarisations, per ((N² + 1)/2)³: 0.03 s at N = 17, 0.19 s at N = 25 (lossy ×1.7)
+MEENT_SECONDS_PER_UNKNOWN_CUBED = 7e-9  # meent, per (2·N²)³: 1.3 s at N = 17 (meent 0.13, vector cell, 2 cores)
+DEFAULT_HARMONICS = 25  # η of the paper's fin within 8e-4 of N = 41 at 24 wavelengths (docs/benchmarks.md)
+PROGRESS_CHUNK = 8  # wavelengths per batch when a progress callback is given
 NM = 1e9
 
 
@@ -85,9 +97,22 @@ class FinResponse:
     seconds: np.ndarray
 
 
-def estimate_seconds(harmonics: int, wavelengths: int) -> float:
-    """Wall seconds of :func:`fin_response` (2 cores)."""
-    return SECONDS_PER_UNKNOWN_CUBED * (2 * harmonics**2) ** 3 * wavelengths
+def estimate_seconds(harmonics: int, wavelengths: int, solver: str = "modes") -> float:
+    """Wall seconds of :func:`fin_response` (``solver`` "modes") or :func:`fin_response_meent`
+    ("meent") for ``wavelengths`` solves (2 cores)."""
+    if solver == "meent":
+        return MEENT_SECONDS_PER_UNKNOWN_CUBED * (2 * harmonics**2) ** 3 * wavelengths
+    return SECONDS_PER_UNKNOWN_CUBED * ((harmonics**2 + 1) / 2) ** 3 * wavelengths
+
+
+def estimate_bytes(harmonics: int, solver: str = "modes") -> int:
+    """Peak bytes of one solve batch: complex128 matrices of the unknowns squared (about 16 held
+    at once by fin_modes over its batch of problems, 12 by meent)."""
+    if solver == "meent":
+        return 16 * 12 * (2 * harmonics**2) ** 2
+    from metalens_cli.optics.fin_modes import CHUNK_ELEMENTS
+
+    return 16 * 16 * max(CHUNK_ELEMENTS, ((harmonics**2 + 1) // 2) ** 2)
 
 
 def check_harmonics(harmonics: int) -> None:
@@ -97,10 +122,35 @@ def check_harmonics(harmonics: int) -> None:
 
 
 def fin_response(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, harmonics: int,
-                 on_progress=None) -> FinResponse:
+                 on_progress=None, device=None, solver: str = "modes") -> FinResponse:
     """The Jones coefficients and efficiencies of ``fin`` at each wavelength (metres), with
     complex indices ``fin_index`` and ``substrate_index`` (one per wavelength, n + ik, k ≥ 0 for
-    loss) and N = ``harmonics`` Fourier orders per axis (see the module docstring)."""
+    loss) and N = ``harmonics`` Fourier orders per axis (see the module docstring), by
+    ``solver`` "modes" (fin_modes, on torch ``device``) or "meent" (the reference, CPU).
+    ``on_progress(done, total)`` is called after each batch of wavelengths."""
+    if solver == "meent":
+        return fin_response_meent(fin, fin_index, substrate_index, wavelengths_m, harmonics, on_progress)
+    from metalens_cli.optics.fin_modes import fin_response_symmetric
+
+    wavelengths = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
+    n_fin, n_sub = (np.broadcast_to(np.asarray(v, dtype=complex), wavelengths.shape) for v in (fin_index, substrate_index))
+    step = PROGRESS_CHUNK if on_progress is not None else max(1, wavelengths.size)
+    parts = []
+    for first in range(0, wavelengths.size, step):
+        part = slice(first, first + step)
+        parts.append(fin_response_symmetric(fin, n_fin[part], n_sub[part], wavelengths[part], harmonics, device))
+        if on_progress is not None:
+            on_progress(min(first + step, wavelengths.size), wavelengths.size)
+    if len(parts) == 1:
+        return parts[0]
+    joined = {key: np.concatenate([getattr(r, key) for r in parts]) for key in
+              ("wavelengths_m", "t_xx", "t_yy", "conversion", "co_polarized", "transmittance", "reflectance", "seconds")}
+    return FinResponse(harmonics=harmonics, **joined)
+
+
+def fin_response_meent(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, harmonics: int,
+                       on_progress=None) -> FinResponse:
+    """:func:`fin_response` by meent: one wavelength at a time, on the CPU."""
     import meent
 
     fin.check()
@@ -130,17 +180,28 @@ def fin_response(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, w
                        np.array(out["transmittance"]), np.array(out["reflectance"]), harmonics, np.array(out["seconds"]))
 
 
-def converge(fin: Fin, fin_index: complex, substrate_index: complex, wavelength_m: float, start: int = 5, stop: int = 25,
-             tolerance: float = 1e-3) -> tuple[int | None, list[dict]]:
-    """η at one wavelength for N = start, start + 2, … ≤ stop: the first N whose η is within
-    ``tolerance`` of the N − 2 result (the larger of the pair: η oscillates as N grows, and for
-    the paper's fin at 530 nm N = 15 is 1.3e-3 from N = 29 where N = 17 is 5e-4; None when no
-    pair agrees up to ``stop``) and the table (``harmonics``, ``conversion``, ``seconds``)."""
-    table, chosen = [], None
+def converge(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, start: int = 5, stop: int = 41,
+             tolerance: float = 1e-3, device=None, solver: str = "modes",
+             on_progress=None) -> tuple[int | None, list[dict], FinResponse]:
+    """η at every wavelength for N = start, start + 2, … ≤ stop, until η moves less than
+    ``tolerance`` at every wavelength from both N − 2 and N − 4 to N. Returns that N (None when
+    none does up to ``stop``), the table (``harmonics``; ``max_change``, the largest change of η
+    over the wavelengths from N − 2; ``conversion``, η at the middle wavelength; ``seconds`` for
+    all wavelengths) and the last response (at the chosen N). η oscillates as N grows, and one
+    pair can agree by chance: for the paper's fin at n = 2.0, N = 17 is within 1e-3 of N = 15 at
+    all 24 wavelengths 430-660 nm but 2.3e-3 from N = 41; two pairs rarely agree by chance.
+    ``on_progress(n, stop)`` is called after each N."""
+    table, chosen, responses = [], None, []
+    middle = np.atleast_1d(wavelengths_m).size // 2
     for n in range(start, stop + 1, 2):
-        r = fin_response(fin, np.array([fin_index]), np.array([substrate_index]), [wavelength_m], n)
-        table.append({"harmonics": n, "conversion": float(r.conversion[0]), "seconds": float(r.seconds[0])})
-        if len(table) > 1 and abs(table[-1]["conversion"] - table[-2]["conversion"]) < tolerance:
-            chosen = table[-1]["harmonics"]
+        r = fin_response(fin, fin_index, substrate_index, wavelengths_m, n, device=device, solver=solver)
+        changes = [float(np.abs(r.conversion - earlier.conversion).max()) for earlier in responses[-2:]]
+        table.append({"harmonics": n, "max_change": changes[-1] if changes else None, "conversion": float(r.conversion[middle]),
+                      "seconds": float(r.seconds.sum())})
+        responses.append(r)
+        if on_progress is not None:
+            on_progress(n, stop)
+        if len(changes) == 2 and max(changes) < tolerance:
+            chosen = n
             break
-    return chosen, table
+    return chosen, table, responses[-1]

@@ -9,8 +9,9 @@ from metalens_cli.plotting.common import new_figure, save_figure
 
 
 def plot_efficiency(path: str | Path, response, convergence: list[dict]) -> Path:
-    """Left: the efficiencies (power fractions) against λ; right (when given): η and seconds
-    per wavelength against N harmonics per axis."""
+    """Left: the efficiencies (power fractions) against λ; right (when given): the largest
+    change of η over the wavelengths from N − 2, and the seconds for all wavelengths, against N
+    harmonics per axis (speed against error)."""
     fig, axes = new_figure(1, 2 if convergence else 1, figsize=(10 if convergence else 5.5, 3.8), squeeze=False)
     ax = axes[0, 0]
     wl = response.wavelengths_m * 1e9
@@ -24,14 +25,15 @@ def plot_efficiency(path: str | Path, response, convergence: list[dict]) -> Path
     ax.legend(fontsize=8)
     if convergence:
         ax = axes[0, 1]
-        n = [c["harmonics"] for c in convergence]
-        ax.plot(n, [c["conversion"] for c in convergence], marker="o", label="η")
+        rows = [c for c in convergence if c["max_change"] is not None]
+        n = [c["harmonics"] for c in rows]
+        ax.semilogy(n, [max(c["max_change"], 1e-12) for c in rows], marker="o", label="largest change of η")
         ax.set_xlabel("harmonics N per axis")
-        ax.set_ylabel("η")
+        ax.set_ylabel("largest |η(N) − η(N − 2)| over λ")
         twin = ax.twinx()
-        twin.semilogy(n, [c["seconds"] for c in convergence], marker="s", color="0.5", label="seconds")
-        twin.set_ylabel("seconds per wavelength")
-        ax.set_title("convergence (middle wavelength)", fontsize=9)
+        twin.semilogy(n, [c["seconds"] for c in rows], marker="s", color="0.5", label="seconds")
+        twin.set_ylabel("seconds, all wavelengths")
+        ax.set_title("convergence", fontsize=9)
     fig.tight_layout()
     return save_figure(fig, path)
 

@@ -29,6 +29,35 @@ def test_a_neighbour_outside_the_cell_makes_a_fin_fragile():
 
 
 def test_band_wavelengths_span_each_band():
-    waves = band_wavelengths([(457e-9, 22e-9), (628e-9, 28e-9)])
+    waves = band_wavelengths([(457e-9, 22e-9), (628e-9, 28e-9)], 3)
     np.testing.assert_allclose(waves[:, [0, -1]], [[446e-9, 468e-9], [614e-9, 642e-9]])
     np.testing.assert_allclose(waves[:, 1], [457e-9, 628e-9])
+    assert band_wavelengths([(457e-9, 22e-9)]).shape == (1, 8)
+    np.testing.assert_allclose(band_wavelengths([(457e-9, 22e-9)], 1), [[457e-9]])
+
+
+def test_refine_recomputes_the_chosen_fin_and_its_neighbourhood():
+    """Coarse to fine: the map at N = 3, the chosen fin and its ±10 nm neighbours at N = 7; the
+    refined score against fin_response of the chosen fin alone at N = 7, averaged per band."""
+    from metalens_cli.design.fin_choice import fin_map as compute_map, refine
+    from metalens_cli.optics.nanofin import Fin, fin_response
+
+    bands = [(457e-9, 22e-9), (628e-9, 28e-9)]
+
+    def index(w):
+        return np.full(np.shape(w), 2.0 + 0j)
+
+    def substrate(w):
+        return np.full(np.shape(w), 1.46 + 0j)
+
+    m = compute_map(395e-9, 700e-9, [250e-9, 260e-9, 270e-9, 400e-9], [100e-9, 110e-9], bands, index, substrate, 3, samples_per_band=2)
+    assert np.isnan(m.eta[:, 3]).all() and not np.isnan(m.eta[:, :3]).any()  # 400 nm does not fit in the cell
+    choice = recommend(m)
+    fine = refine(m, choice, 395e-9, 700e-9, index, substrate, 7)
+    assert fine["fins"] == len({(l, w) for l in m.lengths_m for w in m.widths_m[:3]
+                                if abs(l - choice["length_m"]) <= 10.001e-9 and abs(w - choice["width_m"]) <= 10.001e-9})
+    waves = m.wavelengths_m
+    alone = fin_response(Fin(395e-9, 700e-9, choice["width_m"], choice["length_m"]), index(waves.ravel()), substrate(waves.ravel()),
+                         waves.ravel(), 7)
+    np.testing.assert_allclose(fine["eta_per_band"], alone.conversion.reshape(waves.shape).mean(axis=1), atol=1e-12)
+    assert fine["worst_neighbour"] <= fine["score"] and fine["harmonics"] == 7
