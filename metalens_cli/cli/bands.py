@@ -66,7 +66,7 @@ def _window_text(window) -> str:
     return "none" if window is None else f"{format_length(window[0])} < · < {format_length(window[1])}"
 
 
-def _render(report: model.BandsReport) -> None:
+def _render(report: model.BandsReport, efficiency: dict | None) -> None:
     con = render.console()
     z_lo, z_hi = report.z_near_m
     depth = format_length(z_lo) if z_lo == z_hi else f"{format_length(z_lo)} to {format_length(z_hi)}"
@@ -83,6 +83,12 @@ def _render(report: model.BandsReport) -> None:
     con.print(f"z_near window at this f: {_window_text(report.z_near_window_m)}")
     con.print(f"f window at this z_near: {_window_text(report.f_window_m)}")
     failed = [c.name for c in report.conditions if not c.ok]
+    if efficiency is not None:
+        source = efficiency["source"]
+        how = (f"RCWA, {efficiency['material']} on {efficiency['substrate']}, N = {efficiency['harmonics']}" if source == "rcwa"
+               else "the preset's table" if source == "table" else efficiency["file"])
+        means = ", ".join(f"{b.label} {v:.3f}" for b, v in zip(report.bands, efficiency["band_mean"]))
+        con.print(f"Nanofin conversion efficiency η, mean per pass band ({how}): {means}", markup=False)
     con.print("[green]All conditions hold.[/]" if not failed else f"[red]Failing:[/] {', '.join(failed)}")
 
 
@@ -105,15 +111,22 @@ def check(ctx, preset_path, band_specs, filter_csv, threshold, f_m, z_near, sens
     z_near = pick(z_near, preset, lambda p: p.scene.z_near_m, "--z-near", INTERVAL_FORM)
     sensor_range = sensor_range or (preset.sensor.wavelength_range_m if preset else (400e-9, 700e-9))
     report = model.check_bands(filter_bands, f_m, z_near, sensor_range)
+    efficiency = None
+    if preset is not None:
+        from metalens_cli.cli.progress import efficiency_used
+
+        efficiency = efficiency_used(preset, bands_m=[(b.lo_m, b.hi_m) for b in report.bands])
     if plot_path:
         from metalens_cli.plotting.bands import plot_bands
 
         plot_bands(plot_path, report)
     if as_json:
         out = report_json(report)
+        if efficiency is not None:
+            out["efficiency"] = efficiency
         if plot_path:
             out["plot"] = str(plot_path)
         render.emit_json(out)
     else:
-        _render(report)
+        _render(report, efficiency)
     ctx.exit(0 if report.ok else 1)

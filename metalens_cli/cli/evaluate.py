@@ -8,7 +8,7 @@ import click
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (announce, json_option, max_memory_option, MetalensCommand, OutputFile, plot_option,
                                       refuse_overwriting, SeedList)
-from metalens_cli.cli.progress import progress_bar
+from metalens_cli.cli.progress import efficiency_used, progress_bar
 from metalens_cli.cli.simulate import capture_options, setup
 
 MATCH_METHODS = ("luminance", "lstsq")  # imaging.metrics.MATCH_METHODS (not imported: it pulls in torch)
@@ -92,6 +92,7 @@ def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z
     announce(Estimate(f"evaluate of {len(s['designs'])} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} obstruction(s)",
                       max(memory for memory, _ in costs), "--psf-pixels" if psf_pixels else "--pixels",
                       len(seeds) * len(kinds) * sum(seconds for _, seconds in costs)), max_memory)
+    efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s["designs"]}
     with progress_bar("evaluate", quiet) as update:
         result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update, reconstructors)
     notes = [n for n in (lpips_skip,) if n]
@@ -99,7 +100,7 @@ def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z
     what = "Raw and reconstructed captures" if any(reconstructors) else "Raw captures"
     _report(result, [d.spec for d in s["designs"]], kinds, metrics, notes, csv_path, plot_path, as_json,
             {"photometric_match": match, "psfs": result.psfs, "seeds": seeds, "formation": formation,
-             "recon": [None if r is None else r.source for r in reconstructors]},
+             "recon": [None if r is None else r.source for r in reconstructors], "efficiency": efficiency},
             f"{what} vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units")
 
 

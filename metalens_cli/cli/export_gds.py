@@ -90,8 +90,22 @@ def export_gds(ctx, spec, preset_path, f_m, aperture_m, pitch_m, width_m, length
         from metalens_cli.io.layout_verify import verify_layout
 
         checked = verify_layout(output, design, geometry, angles)
+    efficiency, warnings = None, []
+    if in_force is not None:
+        from metalens_cli.cli.progress import efficiency_used
+
+        efficiency = efficiency_used(in_force, quiet)
+        fin = in_force.nanofin
+        if (geometry.width_m, geometry.length_m, geometry.pitch_m) != (fin.width_m, fin.length_m, fin.pitch_m):
+            warnings.append(f"the layout's fin ({geometry.width_m * 1e9:g} × {geometry.length_m * 1e9:g} nm at {geometry.pitch_m * 1e9:g} nm) "
+                            f"is not the preset's ({fin.width_m * 1e9:g} × {fin.length_m * 1e9:g} nm at {fin.pitch_m * 1e9:g} nm), "
+                            "whose η the optics used")
+    err = render.console(stderr=True)
+    for warning in warnings:
+        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
     if as_json:
-        render.emit_json({**report.to_dict(), **({"verify": checked.to_dict()} if checked else {})})
+        render.emit_json({**report.to_dict(), "efficiency": efficiency, "warnings": warnings,
+                          **({"verify": checked.to_dict()} if checked else {})})
     else:
         _render(report, checked)
     ctx.exit(1 if checked is not None and not checked.ok else 0)

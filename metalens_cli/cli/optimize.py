@@ -9,7 +9,7 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import announce, max_memory_option, MetalensCommand, OutputFolder, torch_device, training_options
-from metalens_cli.cli.progress import run_training
+from metalens_cli.cli.progress import efficiency_used, run_training
 
 
 @click.command("optimize", cls=MetalensCommand)
@@ -42,6 +42,7 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
     planned = run.load_preset() if resume and run.preset_path.is_file() else preset  # a resumed run goes on with its own
     planned = dataclasses.replace(planned, optimize=dataclasses.replace(
         planned.optimize, **{k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}))
+    efficiency_used(planned, quiet)  # RCWA η, when the preset asks for it, before the estimate and the run
     memory, seconds = estimate_training(planned)
     announce(Estimate(f"optimize of {planned.optimize.steps} steps, batch {planned.optimize.batch_size}", memory,
                       "optimize.batch_size" if seconds is not None else "lens.aperture (its 2-D θ grid)", seconds), max_memory)

@@ -25,6 +25,19 @@ def progress_bar(description: str, quiet: bool = False) -> Iterator[Callable[[in
         yield update
 
 
+def efficiency_used(preset, quiet: bool = False, bands_m: list[tuple[float, float]] | None = None) -> dict:
+    """The JSON saying which nanofin η(λ) a preset's results use (``efficiency_report``); computes
+    and caches it first, under a progress bar, when the preset asks for RCWA and the cache lacks
+    it. Without a preset, S^c has no η factor: ``{"source": "none"}`` (ideal conversion)."""
+    if preset is None:
+        return {"source": "none"}
+    from metalens_cli.io.preset_spectra import efficiency_report, preset_efficiency
+
+    with progress_bar("nanofin η(λ) by RCWA (cached after)", quiet) as update:
+        efficiency = preset_efficiency(preset.nanofin, preset.sensor.wavelength_range_m, update)
+    return efficiency_report(preset, bands_m, efficiency)
+
+
 class TrainingProgress:
     """Progress of a training loop: a rich bar with the running loss and ETA on an interactive
     stderr, otherwise a line every 10 % of the steps; ``stage(text)`` names the setup stages."""

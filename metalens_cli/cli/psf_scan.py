@@ -23,7 +23,7 @@ from metalens_cli.cli.options import (
     torch_device,
     WavelengthList,
 )
-from metalens_cli.cli.progress import progress_bar
+from metalens_cli.cli.progress import efficiency_used, progress_bar
 from metalens_cli.errors import InputError
 
 PROPAGATORS = ("auto", "asm", "radial", "rs")
@@ -77,6 +77,7 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
                         getattr(torch, dtype), force)
     announce(Estimate(f"psf-scan of {len(wavelengths_m) * len(depths_m)} PSFs of {pixels}² pixels", cost.memory_bytes,
                       "--pixels", cost.seconds, disk_bytes=len(wavelengths_m) * len(depths_m) * pixels**2 * 4), max_memory, output)
+    efficiency = efficiency_used(design.preset, quiet)
     with progress_bar("psf-scan", quiet) as update:
         scan = run_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, propagator,
                         getattr(torch, dtype), torch_device(device), force, check_accuracy, update)
@@ -92,6 +93,7 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
         "timing_s": scan.timing_s,
         "accuracy": scan.accuracy,
         "spectra": scan.spectra,
+        "efficiency": efficiency,
     }
     write_psf_cube(output, scan.psf, wavelengths_m, depths_m, pixel_pitch_m, design.describe(), rgb=scan.rgb, extra=render.jsonable(metadata))
     if plot_path:

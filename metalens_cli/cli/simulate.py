@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
+from metalens_cli.cli.progress import efficiency_used
 from metalens_cli.cli.options import (
     announce,
     max_memory_option,
@@ -115,6 +116,7 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
                                         image_count(images, limit), psf_pixels)
     announce(Estimate(f"simulate on {s['pixels']}² pixels", memory, "--psf-pixels" if psf_pixels else "--pixels", seconds),
              max_memory)
+    efficiency = efficiency_used(design.preset)
     psfs = channel_psfs(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], device=s["device"], window=psf_pixels)
     clean = load_images(images, (s["pixels"], s["pixels"]), limit, psfs.margin)
     captures = simulate_captures(clean, kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed, params=s["obstruction_params"],
@@ -141,6 +143,7 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
             "alpha_gain": alpha_gain, "photons": photons, "read_noise": read_noise,
             **psfs.report(),
             "spectral_coverage": dict(zip("RGB", psfs.coverage)),
+            "efficiency": efficiency,
             "images": [{"name": c.name, "obstruction_coverage": c.obstruction.coverage, "alpha_coverage": c.alpha_coverage,
                         "obstruction_settings": c.obstruction.settings, "seconds": c.seconds} for c in captures],
             "timing_s": {"psf": psfs.seconds, "captures": sum(c.seconds for c in captures), "total": time.perf_counter() - start},

@@ -15,6 +15,7 @@ from metalens_cli.imaging.pipeline import KEPT_WARNING
 from metalens_cli.io.designs import Design
 from metalens_cli.io.exr import write_psf_cube
 from metalens_cli.io.json_files import jsonable, write_json
+from metalens_cli.io.preset_spectra import efficiency_report
 from metalens_cli.io.presets import to_dict
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.scan import run_scan
@@ -80,6 +81,7 @@ def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[st
     report = {
         "metalens_version": __version__,
         "preset": to_dict(preset),
+        "efficiency": efficiency_report(preset),
         "settings": {"steps": summary.steps, "seed": preset.optimize.seed, "device": device, "world_size": world, "threads": threads,
                      "parameterization": preset.lens.parameterization, "init": preset.optimize.init,
                      "theta_shape": list(theta.shape), "resumed_from_step": summary.resumed_from},

@@ -43,7 +43,8 @@ from metalens_cli.optics.blur import kept_fraction, psf_window
 from metalens_cli.io.presets import to_toml
 from metalens_cli.optics.psf import compute_psf
 from metalens_cli.optics.sampling import check_lens_sampling
-from metalens_cli.optics.spectra import mix_channels, preset_sensitivity, sample_wavelengths
+from metalens_cli.io.preset_spectra import preset_sensitivity
+from metalens_cli.optics.spectra import mix_channels, sample_wavelengths
 
 DEFAULT_LAMBDA_D_M = 532e-9
 PLAN_HEADROOM = 1.25

@@ -68,7 +68,8 @@ def draw_depths(z_near_m: tuple[float, float], z_far_m: tuple[float, float], see
 
 def channel_weights(design, wavelengths_m):
     """(3, W) R, G, B quadrature weights: the preset's S^c, or the default camera without a filter."""
-    from metalens_cli.optics.spectra import camera_response, preset_sensitivity, quadrature_weights, spectral_sensitivity, wavelength_grid
+    from metalens_cli.io.preset_spectra import preset_sensitivity
+    from metalens_cli.optics.spectra import camera_response, quadrature_weights, spectral_sensitivity, wavelength_grid
 
     if design.preset is not None:
         sensitivity = preset_sensitivity(design.preset)

@@ -70,6 +70,14 @@ def parse_material(text: str, field: str) -> Material:
     return _table(Path(s), field)
 
 
+def material_file(text: str) -> str | None:
+    """The path ``text`` names when it is the CSV form (not a built-in, a number or Cauchy), else None."""
+    s = str(text).strip()
+    if not s or s.lower() in BUILTIN or s.lower().startswith("cauchy:") or _NUMBER_RE.fullmatch(re.sub(r"\s+", "", s)):
+        return None
+    return s if _looks_like_path(s) else None
+
+
 def _constant(compact: str, raw: str, field: str) -> Constant:
     try:
         value = complex(compact)

@@ -22,6 +22,7 @@ from typing import Any
 from metalens_cli.errors import InputError
 from metalens_cli.io.input_files import read_text
 from metalens_cli.io import units
+from metalens_cli.optics.nanofin import DEFAULT_HARMONICS
 
 
 def toml_key(toml_key: str, kind: str, *, default: Any = dataclasses.MISSING, **limits: Any) -> Any:
@@ -47,15 +48,22 @@ class LensConfig:
 
 @dataclass(frozen=True)
 class NanofinConfig:
-    """SiNx nanofin meta-atoms on a square grid; efficiency η(λ) as a table."""
+    """Nanofin meta-atoms on a square grid, and their conversion efficiency η(λ): a table
+    (``efficiency`` = fractions at ``efficiency_wavelengths``), a CSV (``efficiency_csv``), or
+    ``efficiency = "rcwa"``: computed for this fin of ``material`` on ``substrate`` with
+    ``harmonics`` Fourier orders per axis, once, then read from the cache
+    (:mod:`metalens_cli.io.preset_spectra`). Materials take the forms of ``--material``."""
 
     pitch_m: float = toml_key("pitch", "length")
     height_m: float = toml_key("height", "length")
     width_m: float = toml_key("width", "length")
     length_m: float = toml_key("length", "length")
-    efficiency_wavelengths_m: tuple[float, ...] = toml_key("efficiency_wavelengths", "length_list")
-    efficiency: tuple[float, ...] = toml_key("efficiency", "fraction_list")
+    material: str = toml_key("material", "material", default="sinx")
+    substrate: str = toml_key("substrate", "material", default="fused-silica")
+    efficiency: tuple[float, ...] | str = toml_key("efficiency", "efficiency", default="rcwa")
+    efficiency_wavelengths_m: tuple[float, ...] = toml_key("efficiency_wavelengths", "length_list", default=())
     efficiency_csv: str | None = toml_key("efficiency_csv", "path", default=None)  # replaces the table
+    harmonics: int = toml_key("harmonics", "odd_int", lo=1, hi=41, default=DEFAULT_HARMONICS)
 
 
 @dataclass(frozen=True)
@@ -214,6 +222,21 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
         if not isinstance(value, list) or not value:
             raise InputError(path, "expected a non-empty array of numbers in (0, 1]", "[0.784, 0.729]")
         return tuple(_number(v, path, lo=0.0, hi=1.0, form="numbers in (0, 1]", open_lo=True) for v in value)
+    if kind == "efficiency":
+        if value == "rcwa":
+            return value
+        if not isinstance(value, list):
+            raise InputError(path, f"expected \"rcwa\" or an array of fractions, got {value!r}", '"rcwa" or [0.784, 0.729, 0.669]')
+        return _convert(value, {"kind": "fraction_list"}, path)
+    if kind == "odd_int":
+        number = _convert(value, {**meta, "kind": "int"}, path)
+        if number % 2 == 0:
+            raise InputError(path, f"{number} is even", "an odd number of Fourier harmonics per axis, e.g. 21")
+        return number
+    if kind == "material":
+        from metalens_cli.io.materials import MATERIAL_FORM
+
+        return _material(as_str(value, path, MATERIAL_FORM), path)
     if kind == "fraction":
         return _number(value, path, lo=0.0, hi=1.0, form="a number in (0, 1]", open_lo=True)
     if kind == "float":
@@ -235,6 +258,16 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
             raise InputError(path, f"{value!r} is not allowed", "one of " + ", ".join(choices))
         return value
     raise AssertionError(f"unknown kind {kind}")
+
+
+def _material(text: str, path: str) -> str:
+    """A material's text, checked now unless it names a file (checked once resolved against the
+    preset's folder, in :func:`_resolve_paths`)."""
+    from metalens_cli.io.materials import material_file, parse_material
+
+    if material_file(text) is None:
+        parse_material(text, path)
+    return text.strip()
 
 
 def _number(value: Any, path: str, *, lo=None, hi=None, form: str, open_lo: bool = False) -> float:
@@ -292,8 +325,13 @@ def _check_consistency(p: Preset) -> None:
         raise InputError("sensor.camera_response", f"unknown camera {camera!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV path")
     if p.lens.design == "hyperbolic" and p.lens.design_wavelength_m is None:
         raise InputError("lens.design_wavelength", "missing (required when lens.design = 'hyperbolic')", units.LENGTH_FORM)
-    if len(p.nanofin.efficiency) != len(p.nanofin.efficiency_wavelengths_m):
+    if p.nanofin.efficiency == "rcwa" and p.nanofin.efficiency_wavelengths_m:
+        raise InputError("nanofin.efficiency_wavelengths", 'given with efficiency = "rcwa"', "either a table (efficiency = [...]) or rcwa")
+    if p.nanofin.efficiency != "rcwa" and len(p.nanofin.efficiency) != len(p.nanofin.efficiency_wavelengths_m):
         raise InputError("nanofin.efficiency", "needs one value per nanofin.efficiency_wavelengths entry", "equal lengths")
+    for key in ("width", "length"):
+        if getattr(p.nanofin, f"{key}_m") > p.nanofin.pitch_m:
+            raise InputError(f"nanofin.{key}", "is larger than nanofin.pitch", "a fin inside its cell")
     if p.nanofin.pitch_m * 2 > p.lens.aperture_m:
         raise InputError("nanofin.pitch", "is larger than half the aperture", "a pitch far below lens.aperture")
     if p.filter is not None:
@@ -376,7 +414,9 @@ def _resolve_paths(preset: Preset, folder: Path) -> Preset:
             raise InputError(key, f"no such file {str(full)!r}", "a CSV path relative to the preset")
         return str(full)
 
-    nanofin = dataclasses.replace(preset.nanofin, efficiency_csv=resolved(preset.nanofin.efficiency_csv, "nanofin.efficiency_csv"))
+    nanofin = dataclasses.replace(preset.nanofin, efficiency_csv=resolved(preset.nanofin.efficiency_csv, "nanofin.efficiency_csv"),
+                                  material=_resolved_material(preset.nanofin.material, folder, "nanofin.material"),
+                                  substrate=_resolved_material(preset.nanofin.substrate, folder, "nanofin.substrate"))
     band_filter = preset.filter
     if band_filter is not None:
         band_filter = dataclasses.replace(band_filter, csv=resolved(band_filter.csv, "filter.csv"))
@@ -392,6 +432,17 @@ def _resolve_paths(preset: Preset, folder: Path) -> Preset:
             raise InputError("optimize.images", f"no such folder {str(folder_path)!r}", "a folder of images relative to the preset")
         optimize = dataclasses.replace(optimize, images=str(folder_path))
     return dataclasses.replace(preset, nanofin=nanofin, filter=band_filter, sensor=sensor, loss=loss, optimize=optimize)
+
+
+def _resolved_material(text: str, folder: Path, key: str) -> str:
+    """A material naming a CSV file: the file's absolute path (relative to the preset), checked."""
+    from metalens_cli.io.materials import material_file, parse_material
+
+    if material_file(text) is None:
+        return text
+    full = str((folder / text).resolve())
+    parse_material(full, key)
+    return full
 
 
 def to_toml(preset: Preset, **overrides: dict[str, Any]) -> str:

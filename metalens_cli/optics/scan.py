@@ -48,7 +48,8 @@ def relative_l2(a: np.ndarray, reference: np.ndarray) -> float:
 
 
 def _channel_weights(design: Design, wavelengths_m, warnings: list[str]):
-    from metalens_cli.optics.spectra import CHANNELS, preset_sensitivity, quadrature_weights
+    from metalens_cli.io.preset_spectra import preset_sensitivity
+    from metalens_cli.optics.spectra import CHANNELS, quadrature_weights
 
     weights = quadrature_weights(preset_sensitivity(design.preset), np.asarray(wavelengths_m))
     coverage = [float(c) for c in weights.coverage]

@@ -357,25 +357,3 @@ def _read_csv(path: Path, columns: int, field: str) -> np.ndarray:
 def _fraction(values: np.ndarray, field: str, path: Path) -> np.ndarray:
     """Fractions in 0..1 from a column in 0..1 or in percent (maximum above 1.5)."""
     return np.array(as_fractions(values.tolist(), field, path))
-
-
-def preset_sensitivity(preset, wavelengths_m: np.ndarray | None = None) -> SpectralSensitivity:
-    """S^c of a preset's camera: its camera response (a colour-science name or a CSV) × its
-    filter (bands or CSV; none: 1) × the nanofin efficiency (table or CSV).
-
-    ``wavelengths_m`` defaults to a 1 nm grid over 380-780 nm.
-    """
-    grid = wavelength_grid() if wavelengths_m is None else np.asarray(wavelengths_m, dtype=float)
-    band_filter, nanofin = preset.filter, preset.nanofin
-    transmission = None
-    if band_filter is not None and band_filter.csv is not None:
-        transmission = filter_from_csv(band_filter.csv, grid)
-    elif band_filter is not None:
-        transmission = bandpass_transmission(
-            grid, band_filter.centers_m, band_filter.widths_m, edge_width_m=band_filter.edge_width_m, peak=band_filter.peak_transmission
-        )
-    if nanofin.efficiency_csv is not None:
-        efficiency = efficiency_from_csv(nanofin.efficiency_csv, grid)
-    else:
-        efficiency = efficiency_from_table(grid, nanofin.efficiency_wavelengths_m, nanofin.efficiency)
-    return spectral_sensitivity(grid, camera_response(grid, preset.sensor.camera_response), transmission, efficiency)

@@ -14,7 +14,7 @@ pytest.importorskip("klayout")
 PRESETS = Path(__file__).parents[2] / "presets"
 SMALL = ["--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "30um", "--pitch", "395nm", "--width", "305nm",
          "--length", "125nm"]
-KEYS = {"atoms", "file", "bytes", "format", "max_phase_error_rad", "seconds"}
+KEYS = {"atoms", "file", "bytes", "format", "max_phase_error_rad", "seconds", "efficiency", "warnings"}
 
 
 def invoke(capsys, *args):

@@ -1,10 +1,13 @@
 """`metalens nanofin efficiency` end to end: the JSON interface, the convergence report, errors."""
 
 import json
+from pathlib import Path
 
 import pytest
 
 from metalens_cli.cli.main import run
+
+PRESETS = Path(__file__).parents[2] / "presets"
 
 
 def invoke(capsys, *args):
@@ -57,13 +60,53 @@ def test_bad_input_is_one_line_exit_2(capsys, args, message):
 def test_sweep_writes_its_map_and_recommends_a_fin(capsys, tmp_path):
     out = tmp_path / "sweep"
     code, stdout, err = invoke(capsys, "nanofin", "sweep", "--width", "250nm,300nm", "--length", "100nm,150nm", "--harmonics", "3",
-                               "--band", "530nm:20nm", "-o", out, "--json")
+                               "--max-harmonics", "11", "--band", "530nm:20nm", "-o", out, "--json")
     assert code == 0, err
     r = json.loads(stdout)
     assert sorted(p.name for p in out.iterdir()) == ["sweep.csv", "sweep.json", "sweep.npz", "sweep.png"]
     assert (out / "sweep.csv").read_text().count("\n") == 5
     c = r["recommended"]
     assert c["width_m"] in (250e-9, 300e-9) and c["length_m"] in (100e-9, 150e-9)
-    assert c["converged"]["harmonics"] >= 5 and 0 < c["converged"]["conversion_efficiency"][0] < 1
+    f = c["converged"]
+    assert f["harmonics"] >= 9 and 0 < f["eta_per_band"][0] < 1 and f["fins"] == 1 and f["worst_neighbour"] == f["score"]
+    assert not r["cached"] and len(r["wavelengths_m"][0]) == 8
+    code, again, err = invoke(capsys, "nanofin", "sweep", "--width", "250nm,300nm", "--length", "100nm,150nm", "--harmonics", "3",
+                              "--max-harmonics", "11", "--band", "530nm:20nm", "-o", tmp_path / "again", "--json")
+    again = json.loads(again)
+    assert code == 0 and again["cached"] and again["recommended"]["score"] == c["score"]  # the map comes from the cache
     code, _, err = invoke(capsys, "nanofin", "sweep", "--width", "400nm", "--length", "100nm", "-o", tmp_path / "x")
     assert code == 2 and "--width: 400 nm is larger than the 395 nm period" in err
+
+
+def test_one_fin_for_optics_and_layout(capsys, tmp_path):
+    """A preset with efficiency = "rcwa": bands check, psf-scan and export-gds all say that they
+    used RCWA η of the preset's fin (computed once: the later commands find it cached), psf-scan's
+    channel mix changes with it, and export-gds draws that fin (and warns when told another)."""
+    text = (PRESETS / "quick-split-spectrum.toml").read_text()
+    text = text.replace('efficiency_wavelengths = ["457nm", "530nm", "628nm"]   # RCWA conversion efficiency\n'
+                        'efficiency = [0.784, 0.729, 0.669]', 'material = "sinx"\nefficiency = "rcwa"\nharmonics = 3')
+    assert 'efficiency = "rcwa"' in text
+    (tmp_path / "rcwa.toml").write_text(text)
+    preset = tmp_path / "rcwa.toml"
+    code, out, err = invoke(capsys, "bands", "check", "--preset", preset, "--json")
+    assert code == 0, err
+    first = json.loads(out)["efficiency"]
+    assert first["source"] == "rcwa" and first["harmonics"] == 3 and len(first["band_mean"]) == 3 and not first["cached"]
+    scan = ["psf-scan", "--design", "hyperbolic:532nm", "--aperture", "60um", "--pixels", "16", "--wavelengths", "450:640:10nm",
+            "--depths", "inf", "--json"]
+    code, out, err = invoke(capsys, *scan, "--preset", preset, "-o", tmp_path / "rcwa.exr")
+    assert code == 0, err
+    used = json.loads(out)["efficiency"]
+    assert used["cached"] and used["conversion"] == first["conversion"]
+    code, out, err = invoke(capsys, *scan, "--preset", PRESETS / "quick-split-spectrum.toml", "-o", tmp_path / "table.exr")
+    assert code == 0 and json.loads(out)["efficiency"]["source"] == "table"
+    from metalens_cli.io.exr import read_psf_cube
+
+    rcwa_rgb, table_rgb = (read_psf_cube(tmp_path / name).rgb for name in ("rcwa.exr", "table.exr"))
+    assert abs(rcwa_rgb - table_rgb).max() > 5e-3 * table_rgb.max()  # another η weighs each channel's wavelengths differently
+    gds = ["export-gds", "--design", "hyperbolic:532nm", "--aperture", "20um", "--preset", preset, "--json"]
+    code, out, err = invoke(capsys, *gds, "-o", tmp_path / "lens.gds")
+    report = json.loads(out)
+    assert code == 0 and report["efficiency"]["source"] == "rcwa" and report["warnings"] == []
+    code, out, err = invoke(capsys, *gds, "--width", "290nm", "-o", tmp_path / "other.gds")
+    assert code == 0 and "is not the preset's (305 × 125 nm" in json.loads(out)["warnings"][0]

@@ -50,6 +50,7 @@ def test_run_directory_contents(tiny, tmp_path):
     report = json.loads((run / "run.json").read_text())
     assert report["settings"]["steps"] == 3 and report["cost"]["seconds_per_step_median"] > 0
     assert len(report["psf"]["energy_center_5x5"]) == 2  # near and far
+    assert report["efficiency"]["source"] == "table"  # which η the run used
     theta = np.load(run / "theta.npy")
     np.testing.assert_array_equal(theta, summary.theta)
     # the run directory is a design spec carrying its lens and preset
@@ -96,7 +97,7 @@ def test_validation_loss_is_deterministic(tiny):
 def test_gradient_reaches_every_ring_inside_the_pupil(tiny):
     from metalens_cli.design.training import draw_step, plan_windows, step_psfs
     from metalens_cli.imaging.pipeline import crop_window
-    from metalens_cli.optics.spectra import preset_sensitivity
+    from metalens_cli.io.preset_spectra import preset_sensitivity
 
     model = build_model(tiny)
     sensitivity = preset_sensitivity(tiny)

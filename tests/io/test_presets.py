@@ -83,7 +83,7 @@ def test_filter_and_efficiency_from_csv_relative_to_preset(tmp_path):
     import numpy as np
 
     from metalens_cli.analysis.bands import bands_from_transmission, read_filter_csv
-    from metalens_cli.optics.spectra import preset_sensitivity
+    from metalens_cli.io.preset_spectra import preset_sensitivity
 
     nm = np.arange(380, 781)
     inside = ((nm >= 446) & (nm <= 468)) | ((nm >= 520) & (nm <= 540)) | ((nm >= 614) & (nm <= 642))
