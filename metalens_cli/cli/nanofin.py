@@ -199,13 +199,26 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
     choice = recommend(m, tolerance_m, keep)
     fin = Fin(period_m, height_m, choice["width_m"], choice["length_m"])
     warnings = []
-    with progress_bar("converging the chosen fin", quiet) as update:
-        chosen, table, _ = converge(fin, n_fin(waves), n_sub(waves), waves, 5, max_harmonics, 1e-3, torch_device(device), on_progress=update)
-    if chosen is None:
-        chosen = table[-1]["harmonics"]
-        warnings.append(f"the chosen fin's η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}; "
-                        "raise --max-harmonics")
-    choice["converged"] = {**refine(m, choice, period_m, height_m, n_fin, n_sub, chosen, torch_device(device)), "convergence": table}
+    fine_key = cache.input_key({"map": key, "fin_m": [choice["width_m"], choice["length_m"]], "tolerance_m": tolerance_m, "keep": keep,
+                                "max_harmonics": max_harmonics})
+    stored_fine = cache.load("nanofin-refine", fine_key)
+    if stored_fine is not None:
+        choice["converged"] = json.loads(str(stored_fine["report"]))
+    else:
+        with progress_bar("converging the chosen fin", quiet) as update:
+            chosen, table, _ = converge(fin, n_fin(waves), n_sub(waves), waves, 5, max_harmonics, 1e-3, torch_device(device),
+                                        on_progress=update)
+        choice["converged"] = {"harmonics": chosen or table[-1]["harmonics"], "convergence": table, "converged": chosen is not None}
+        choice["converged"].update(refine(m, choice, period_m, height_m, n_fin, n_sub, choice["converged"]["harmonics"],
+                                          torch_device(device)))
+        cache.store("nanofin-refine", fine_key, {"report": np.array(json.dumps(choice["converged"]))})
+    table = choice["converged"]["convergence"]
+    if not choice["converged"]["converged"]:
+        warnings.append(f"the chosen fin's η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to "
+                        f"{table[-1]['harmonics']}; raise --max-harmonics")
+    if choice["width_m"] in (widths_m[0], widths_m[-1]) or choice["length_m"] in (lengths_m[0], lengths_m[-1]):
+        warnings.append(f"the recommended fin ({choice['width_m'] * 1e9:g} × {choice['length_m'] * 1e9:g} nm) lies on the grid's edge: "
+                        "a better one may lie beyond it; widen --width/--length")
     if not choice["converged"]["robust"] and choice["robust"]:
         warnings.append(f"converged at N = {chosen}, a neighbour of the chosen fin keeps less than {keep:g} of its η")
     err = render.console(stderr=True)
@@ -214,6 +227,7 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
     report = {"period_m": period_m, "height_m": height_m, "material": fin_material.describe(), "substrate": substrate_material.describe(),
               "bands_m": [list(b) for b in bands_m], "wavelengths_m": m.wavelengths_m.tolist(), "harmonics": harmonics,
               "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds, "cached": stored is not None,
+              "converged_cached": stored_fine is not None,
               "solver": SOLVERS["modes"], "warnings": warnings,
               "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json"], "output": str(output)}
     from metalens_cli.io.json_files import jsonable

@@ -161,6 +161,16 @@ def _p_matrix(f: _Fields, kx: torch.Tensor, ky: torch.Tensor, ez_inverse: torch.
     return turn + e_from_ez @ ez_from_h
 
 
+def _batched(function, *arrays: torch.Tensor) -> torch.Tensor:
+    """``function`` (``torch.linalg.inv`` or ``solve``) over a batch of problems. On the CPU one
+    problem at a time: torch's batched LU there calls LAPACK's getrf from several threads at
+    once, which MKL does not allow (pytorch/pytorch#142815: after ``torch.set_num_threads``,
+    invalid pivots, errors or wrong results; tests/optics/test_fin_modes.py)."""
+    if arrays[0].device.type != "cpu":
+        return function(*arrays)
+    return torch.stack([function(*(a[i] for a in arrays)) for i in range(arrays[0].shape[0])])
+
+
 def _layer_matrices(f: _Fields, kx, ky, eps, width, length, harmonics):
     """P and Q of the fin layer (``eps`` (B,) the fin's permittivity, ``width``, ``length`` (B,)
     fractions of the period), with Li's rules (module docstring)."""
@@ -168,12 +178,12 @@ def _layer_matrices(f: _Fields, kx, ky, eps, width, length, harmonics):
     ones = torch.ones_like(kx)
     tx, ty = _rect(width, harmonics), _rect(length, harmonics)
     contrast = (1 / eps - 1)[:, None, None]
-    inverse_x = torch.linalg.inv(eye + contrast * tx) - eye  # inverse rule along x, less air's
-    inverse_y = torch.linalg.inv(eye + contrast * ty) - eye
+    inverse_x = _batched(torch.linalg.inv, eye + contrast * tx) - eye  # inverse rule along x, less air's
+    inverse_y = _batched(torch.linalg.inv, eye + contrast * ty) - eye
     eps_x = _diagonal(f.ex, f.ex, ones) + _convolution(f.ex, f.ex, ty, inverse_x)
     eps_y = _diagonal(f.ey, f.ey, ones) + _convolution(f.ey, f.ey, inverse_y, tx)
     laurent = _diagonal(f.ez, f.ez, ones) + (eps - 1)[:, None, None] * _convolution(f.ez, f.ez, ty, tx)
-    return _p_matrix(f, kx, ky, torch.linalg.inv(laurent)), _q_matrix(f, kx, ky, eps_x, eps_y)
+    return _p_matrix(f, kx, ky, _batched(torch.linalg.inv, laurent)), _q_matrix(f, kx, ky, eps_x, eps_y)
 
 
 def _half_space(f: _Fields, kx, ky, eps):
@@ -217,7 +227,7 @@ def _solve(f: _Fields, harmonics: int, period_wl, thickness_k0, width, length, e
     v_air, up_air = _half_space(f, kx, ky, torch.ones_like(eps_sub))
     system = _blocks([[v_sub @ w + v, v_sub @ (w * x) - v * x], [v_air @ (w * x) - v * x, v_air @ w + v]])
     inc = incident.expand(len(eps), -1, -1)
-    amplitudes = torch.linalg.solve(system, torch.cat([2 * v_sub @ inc, torch.zeros_like(inc)], dim=-2))
+    amplitudes = _batched(torch.linalg.solve, system, torch.cat([2 * v_sub @ inc, torch.zeros_like(inc)], dim=-2))
     up, down = amplitudes.split(w.shape[-1], dim=-2)
     t = (w * x) @ up + w @ down
     r = w @ up + (w * x) @ down - inc

@@ -70,10 +70,12 @@ def test_sweep_writes_its_map_and_recommends_a_fin(capsys, tmp_path):
     f = c["converged"]
     assert f["harmonics"] >= 9 and 0 < f["eta_per_band"][0] < 1 and f["fins"] == 1 and f["worst_neighbour"] == f["score"]
     assert not r["cached"] and len(r["wavelengths_m"][0]) == 8
+    assert any("lies on the grid's edge" in w for w in r["warnings"])  # a 2 × 2 grid is all edge
     code, again, err = invoke(capsys, "nanofin", "sweep", "--width", "250nm,300nm", "--length", "100nm,150nm", "--harmonics", "3",
                               "--max-harmonics", "11", "--band", "530nm:20nm", "-o", tmp_path / "again", "--json")
     again = json.loads(again)
-    assert code == 0 and again["cached"] and again["recommended"]["score"] == c["score"]  # the map comes from the cache
+    assert code == 0 and again["cached"] and again["converged_cached"]  # the map and the refinement come from the cache
+    assert again["recommended"] == c
     code, _, err = invoke(capsys, "nanofin", "sweep", "--width", "400nm", "--length", "100nm", "-o", tmp_path / "x")
     assert code == 2 and "--width: 400 nm is larger than the 395 nm period" in err
 

@@ -179,3 +179,26 @@ def test_meent_agrees_at_the_same_and_at_high_order():
 def test_bad_input_is_refused(fin, harmonics, message):
     with pytest.raises(InputError, match=message):
         response(fin, harmonics=harmonics)
+
+
+def test_the_numbers_do_not_depend_on_torch_set_num_threads():
+    """pytorch/pytorch#142815: once torch.set_num_threads has been called, torch's batched LU on
+    the CPU runs LAPACK's getrf from several threads at once and MKL returns invalid pivots (an
+    error) or wrong numbers for matrices above ~14 × 14. fin_modes factorises one problem at a
+    time on the CPU: the full path at N = 9 (324 × 324 systems, 3 wavelengths) gives the same
+    numbers in a fresh process and after set_num_threads(2), to 1e-12."""
+    import json
+    import subprocess
+    import sys
+
+    code = ("import json, sys, numpy as np, torch\n"
+            "if sys.argv[1] == 'set': torch.set_num_threads(2)\n"
+            "from metalens_cli.optics.fin_modes import fin_response_symmetric\n"
+            "from metalens_cli.optics.nanofin import Fin\n"
+            "r = fin_response_symmetric(Fin(395e-9, 700e-9, 305e-9, 125e-9), np.full(3, 2.0), np.full(3, 1.46),"
+            " np.array([457e-9, 530e-9, 628e-9]), 9, symmetric=False)\n"
+            "print(json.dumps(r.conversion.tolist()))\n")
+    runs = [subprocess.run([sys.executable, "-c", code, mode], capture_output=True, text=True, timeout=120) for mode in ("fresh", "set")]
+    assert all(run.returncode == 0 for run in runs), runs[-1].stderr[-500:]
+    fresh, after = (np.array(json.loads(run.stdout)) for run in runs)
+    np.testing.assert_allclose(after, fresh, rtol=1e-12)
