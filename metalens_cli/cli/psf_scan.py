@@ -61,7 +61,7 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
     from metalens_cli.io.resources import Estimate
     from metalens_cli.optics.psf import estimate_psf
     from metalens_cli.io.units import parse_length_list
-    from metalens_cli.optics.scan import run_scan
+    from metalens_cli.imaging.psf_scan import run_scan
 
     preset = load_preset_option(preset_path)
     design = resolve_design(spec, preset, f_m, aperture_m, pitch_m)

@@ -18,7 +18,7 @@ from metalens_cli.io.json_files import jsonable, write_json
 from metalens_cli.io.preset_spectra import efficiency_report
 from metalens_cli.io.presets import to_dict
 from metalens_cli.optics.lens import Metalens
-from metalens_cli.optics.scan import run_scan
+from metalens_cli.imaging.psf_scan import run_scan
 
 PSF_STEP_M = 5e-9
 FINAL_WINDOW = 50  # steps averaged into the final loss

@@ -21,8 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from metalens_cli.io import cache
-from metalens_cli.optics.spectra import (bandpass_transmission, camera_response, efficiency_from_csv, efficiency_from_table,
-                                         filter_from_csv, spectral_sensitivity, SpectralSensitivity, wavelength_grid)
+from metalens_cli.io.spectra_files import camera_from_csv, efficiency_from_csv, filter_from_csv
+from metalens_cli.optics.spectra import (bandpass_transmission, camera_response, efficiency_from_table, spectral_sensitivity,
+                                         SpectralSensitivity, wavelength_grid)
 
 RCWA_STEP_M = 10e-9  # first sampling of η(λ); refined where η is not predictable from its samples
 RCWA_TOLERANCE = 1e-3  # refine an interval whose midpoint η differs from the interpolation by more
@@ -172,4 +173,6 @@ def preset_sensitivity(preset, wavelengths_m: np.ndarray | None = None) -> Spect
             grid, band_filter.centers_m, band_filter.widths_m, edge_width_m=band_filter.edge_width_m, peak=band_filter.peak_transmission
         )
     efficiency = preset_efficiency(preset.nanofin, preset.sensor.wavelength_range_m).at(grid)
-    return spectral_sensitivity(grid, camera_response(grid, preset.sensor.camera_response), transmission, efficiency)
+    camera = preset.sensor.camera_response
+    crf = camera_from_csv(camera, grid) if camera.lower().endswith(".csv") else camera_response(grid, camera)
+    return spectral_sensitivity(grid, crf, transmission, efficiency)

@@ -303,7 +303,8 @@ def build_section(cls: type, table: Any, section: str) -> Any:
 def _check_consistency(p: Preset) -> None:
     """Cross-field rules that no single key can express, and the physics checks every command
     would otherwise make later (bands disjoint, a known camera, optical wavelengths)."""
-    from metalens_cli.io.tables import CAMERA_NAMES, check_bands, check_wavelengths
+    from metalens_cli.io.tables import check_wavelengths
+    from metalens_cli.optics.band_rules import CAMERA_NAMES, check_bands
 
 
     if not NAME_PATTERN.fullmatch(p.name):

@@ -3,12 +3,12 @@
 S^c(λ) = CRF^c(λ) · T_filter(λ) · η(λ) for the channels c in ``CHANNELS`` = ("R", "G", "B"):
 every array of this module with a leading axis of length 3 is indexed R, G, B in that order.
 
-- CRF^c: the camera's relative spectral response (colour-science's shipped data or a CSV).
-- T_filter: the multi-band filter's transmission in 0..1 (smooth band model or a CSV).
-- η: the meta-atoms' polarisation-conversion efficiency in 0..1 (a table or a CSV).
+- CRF^c: the camera's relative spectral response (colour-science's shipped data or a table).
+- T_filter: the multi-band filter's transmission in 0..1 (smooth band model or a table).
+- η: the meta-atoms' polarisation-conversion efficiency in 0..1 (a table).
 
-Wavelengths are SI metres at every interface; CSV files hold nanometres and are converted on
-reading. S^c is tabulated on a wavelength grid and treated as linear between grid points.
+Wavelengths are SI metres at every interface. This module reads no files: measured spectra
+in CSV files are read by :mod:`metalens_cli.io.spectra_files`. S^c is tabulated on a wavelength grid and treated as linear between grid points.
 colour-science (slow to import) and torch are imported only inside the functions that need them.
 """
 
@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.tables import CAMERA_NAMES, as_fractions, check_bands, read_spectrum_csv
+from metalens_cli.optics.band_rules import CAMERA_NAMES, check_bands
 
 CHANNELS = ("R", "G", "B")
 DEFAULT_CAMERA = "Nikon 5100 (NPL)"
@@ -70,21 +69,22 @@ def wavelength_grid(start_m: float = 380e-9, stop_m: float = 780e-9, step_m: flo
 # ---------------------------------------------------------------------------- camera response
 
 
-def camera_response(wavelengths_m: np.ndarray, source: str | Path = DEFAULT_CAMERA) -> np.ndarray:
+def camera_response(wavelengths_m: np.ndarray, name: str = DEFAULT_CAMERA) -> np.ndarray:
     """CRF^c(λ) of a camera at ``wavelengths_m``, shape (3, L), channels R, G, B.
 
-    ``source`` is one of ``CAMERA_NAMES`` (colour-science's ``MSDS_CAMERA_SENSITIVITIES``,
-    each channel normalised to peak 1) or a CSV file with columns wavelength_nm, r, g, b
-    (header line optional). Linear interpolation; zero outside the tabulated range (no
-    measured response). Negative CSV values (measurement noise) are clipped to zero.
+    ``name`` is one of ``CAMERA_NAMES`` (colour-science's ``MSDS_CAMERA_SENSITIVITIES``, each
+    channel normalised to peak 1; a measured response in a CSV is read by
+    :mod:`metalens_cli.io.spectra_files`). Linear interpolation; zero outside the tabulated
+    range (no measured response).
     """
-    if isinstance(source, str) and source in CAMERA_NAMES:
-        table_nm, table = _colour_camera(source)
-    elif Path(source).is_file():
-        data = _read_csv(Path(source), 4, "camera")
-        table_nm, table = data[:, 0], np.clip(data[:, 1:].T, 0.0, None)
-    else:
-        raise InputError("camera", f"unknown camera {str(source)!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV file")
+    if name not in CAMERA_NAMES:
+        raise InputError("camera", f"unknown camera {str(name)!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV file")
+    return tabulated_response(wavelengths_m, *_colour_camera(name))
+
+
+def tabulated_response(wavelengths_m: np.ndarray, table_nm: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """(C, L): each row of ``table`` (C, T), tabulated at ``table_nm`` (T,), interpolated
+    linearly at ``wavelengths_m``, zero outside the table."""
     grid_nm = np.asarray(wavelengths_m, dtype=float) / _NM
     return np.stack([np.interp(grid_nm, table_nm, row, left=0.0, right=0.0) for row in table])
 
@@ -152,18 +152,6 @@ def _logistic(t: np.ndarray | float) -> np.ndarray | float:
     return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(t)))
 
 
-def filter_from_csv(path: str | Path, wavelengths_m: np.ndarray) -> np.ndarray:
-    """Transmission (L,) from a CSV (wavelength_nm, transmission; header optional).
-
-    Transmission in 0..1, or in percent when the column's maximum exceeds 1.5. Values are
-    clipped to [0, 1] after a tolerance of 0.05 for measurement noise. Linear interpolation;
-    zero outside the tabulated range (light there is taken as blocked).
-    """
-    data = _read_csv(Path(path), 2, "filter")
-    values = _fraction(data[:, 1], "filter", Path(path))
-    return np.interp(np.asarray(wavelengths_m, dtype=float) / _NM, data[:, 0], values, left=0.0, right=0.0)
-
-
 # ---------------------------------------------------------------------------- efficiency
 
 
@@ -184,16 +172,6 @@ def efficiency_from_table(
     if not (np.all(table_eta >= 0) and np.all(table_eta <= 1)):
         raise InputError("efficiency", "efficiencies outside 0..1", "fractions, e.g. 0.784 for 78.4 %")
     return np.interp(np.asarray(wavelengths_m, dtype=float), table_wl, table_eta)
-
-
-def efficiency_from_csv(path: str | Path, wavelengths_m: np.ndarray) -> np.ndarray:
-    """η(λ) (L,) from a CSV (wavelength_nm, efficiency as a fraction or in percent; header optional).
-
-    Percent is detected as for ``filter_from_csv``; linear interpolation, flat extrapolation.
-    """
-    data = _read_csv(Path(path), 2, "efficiency")
-    values = _fraction(data[:, 1], "efficiency", Path(path))
-    return efficiency_from_table(wavelengths_m, data[:, 0] * _NM, values)
 
 
 # ---------------------------------------------------------------------------- assembly
@@ -344,16 +322,3 @@ def mix_channels(psf_mono, weights):
         shapes = f"weights {tuple(mix.shape)} for PSFs {tuple(psf_mono.shape)}"
         raise InputError("weights", shapes, "weights (3, W) for PSFs (..., W, N, N)")
     return torch.einsum("...wij,cw->...cij", psf_mono, mix)
-
-
-# ---------------------------------------------------------------------------- CSV
-
-
-def _read_csv(path: Path, columns: int, field: str) -> np.ndarray:
-    """(rows, columns) float64, wavelength still in nm (rules: :mod:`metalens_cli.io.tables`)."""
-    return np.array(read_spectrum_csv(path, columns, field), dtype=float)
-
-
-def _fraction(values: np.ndarray, field: str, path: Path) -> np.ndarray:
-    """Fractions in 0..1 from a column in 0..1 or in percent (maximum above 1.5)."""
-    return np.array(as_fractions(values.tolist(), field, path))

@@ -109,7 +109,7 @@ def test_simulated_airy_psf_against_diffraction_limit():
     # accuracy (~1e-3). The pixel aperture changes the curve by 0.037, well beyond that.
     torch = pytest.importorskip("torch")
     from metalens_cli.io.designs import resolve_design
-    from metalens_cli.optics.scan import run_scan
+    from metalens_cli.imaging.psf_scan import run_scan
 
     n, lam, f, na = 129, 532e-9, 4e-3, 0.07
     aperture = 2 * f * na / math.sqrt(1 - na**2)

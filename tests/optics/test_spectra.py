@@ -95,29 +95,6 @@ def test_filter_refuses_overlapping_or_too_narrow_bands():
         spectra.bandpass_transmission(grid, [500 * NM, 600 * NM], [20 * NM])
 
 
-def test_filter_csv_in_percent_with_header(tmp_path):
-    path = tmp_path / "filter.csv"
-    path.write_text("wavelength_nm,transmission_percent\n500,0\n510,80\n520,90\n530,0\n")
-    transmission = spectra.filter_from_csv(path, np.array([490, 505, 515, 520, 540]) * NM)
-    # Linear interpolation of exact decimal inputs: float64 rounding only.
-    assert_allclose(transmission, [0.0, 0.4, 0.85, 0.9, 0.0], atol=1e-12)
-
-
-def test_filter_csv_refuses_garbage(tmp_path):
-    path = tmp_path / "filter.csv"
-    path.write_text("wavelength_nm,t\n500,0.1\n490,0.2\n")
-    with pytest.raises(InputError, match="increasing"):
-        spectra.filter_from_csv(path, spectra.wavelength_grid())
-    path.write_text("500,0.1\n510,abc\n")
-    with pytest.raises(InputError, match="not a number"):
-        spectra.filter_from_csv(path, spectra.wavelength_grid())
-    path.write_text("5.0e-7,0.1\n5.1e-7,0.2\n")
-    with pytest.raises(InputError, match="nm"):
-        spectra.filter_from_csv(path, spectra.wavelength_grid())
-    with pytest.raises(InputError, match="no such file"):
-        spectra.filter_from_csv(tmp_path / "missing.csv", spectra.wavelength_grid())
-
-
 # ---------------------------------------------------------------------------- efficiency, camera
 
 
@@ -126,14 +103,6 @@ def test_efficiency_is_linear_with_flat_extrapolation():
     eta = spectra.efficiency_from_table(wavelengths, *PAPER_ETA)
     # Exact table values, the midpoint of 457-530 nm, flat beyond both ends (float64 rounding).
     assert_allclose(eta, [0.784, 0.784, (0.784 + 0.729) / 2, 0.729, 0.669, 0.669], atol=1e-12)
-
-
-def test_efficiency_csv_and_refusals(tmp_path):
-    path = tmp_path / "eta.csv"
-    path.write_text("# RCWA\n457,78.4\n530,72.9\n628,66.9\n")
-    assert_allclose(spectra.efficiency_from_csv(path, PAPER_CENTRES), PAPER_ETA[1], atol=1e-12)
-    with pytest.raises(InputError, match="0..1"):
-        spectra.efficiency_from_table(PAPER_CENTRES, PAPER_CENTRES, [78.4, 72.9, 66.9])
 
 
 def test_named_camera_matches_colour_science_and_is_ordered_rgb():
@@ -149,14 +118,6 @@ def test_named_camera_matches_colour_science_and_is_ordered_rgb():
     peaks = grid[np.argmax(crf, axis=1)]
     assert peaks[0] > peaks[1] > peaks[2]  # R peaks at the longest wavelength, B at the shortest
     assert np.all(spectra.camera_response(np.array([300, 900]) * NM) == 0)  # nothing outside the data
-
-
-def test_camera_csv_and_unknown_name(tmp_path):
-    path = tmp_path / "crf.csv"
-    path.write_text("wavelength_nm,r,g,b\n400,0,0,1\n600,1,0.5,-0.01\n")
-    assert_allclose(spectra.camera_response(np.array([500 * NM]), path), [[0.5], [0.25], [0.5]], atol=1e-12)
-    with pytest.raises(InputError, match="unknown camera"):
-        spectra.camera_response(spectra.wavelength_grid(), "Canon 5D")
 
 
 def test_paper_chain_puts_each_channel_peak_in_its_own_band():
