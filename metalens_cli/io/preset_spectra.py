@@ -93,7 +93,8 @@ def preset_efficiency(nanofin, wavelength_range_m: tuple[float, float],
                       on_progress: Callable[[int, int], None] | None = None) -> FinEfficiency:
     """η(λ) of a preset's ``[nanofin]`` (a :class:`~metalens_cli.io.presets.NanofinConfig`),
     RCWA over ``wavelength_range_m`` (the sensor's) when it says ``efficiency = "rcwa"``;
-    ``on_progress(done, total)`` is called per wavelength while RCWA runs (not on a cache hit)."""
+    ``on_progress(done, total)`` is called after each batch of wavelengths while RCWA runs (not
+    on a cache hit), ``total`` one ahead of ``done``: the refinement decides how many there are."""
     if nanofin.efficiency_csv is not None:
         grid = wavelength_grid()
         return FinEfficiency(grid, efficiency_from_csv(nanofin.efficiency_csv, grid),
