@@ -155,12 +155,11 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
 
     import numpy as np
 
-    from metalens_cli.design.fin_choice import band_wavelengths, fin_map, FinMap, recommend, refine
-    from metalens_cli.io import cache
+    from metalens_cli.design.fin_choice import band_wavelengths, sweep_fins
     from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.resources import Estimate
-    from metalens_cli.optics.nanofin import check_harmonics, converge, estimate_bytes, estimate_seconds, Fin, SOLVER
+    from metalens_cli.optics.nanofin import check_harmonics, estimate_bytes, estimate_seconds, Fin
 
     check_harmonics(harmonics)
     widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
@@ -176,7 +175,7 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
     def n_sub(w):
         return substrate_material.index(w, "--substrate")
 
-    n_fin(waves), n_sub(waves)
+    n_fin(waves), n_sub(waves)  # refuse wavelengths outside a material's table before any work
     Fin(period_m, height_m, min(widths_m), min(lengths_m)).check()
     neighbours = (2 * int(tolerance_m / min(np.diff(widths_m), default=1.0) + 1e-9) + 1) * (
         2 * int(tolerance_m / min(np.diff(lengths_m), default=1.0) + 1e-9) + 1)
@@ -184,50 +183,16 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
     announce(Estimate(f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} harmonics",
                       estimate_bytes(max(harmonics, TYPICAL_HARMONICS)), "--harmonics",
                       estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m)) + fine), max_memory)
-    key = cache.input_key({"period_m": period_m, "height_m": height_m, "widths_m": widths_m, "lengths_m": lengths_m,
-                           "wavelengths_m": waves, "fin_index": fin_material.index(waves, "--material"),
-                           "substrate_index": substrate_material.index(waves, "--substrate"), "harmonics": harmonics, "solver": SOLVER})
-    stored = cache.load("nanofin-sweep", key)
-    if stored is None:
-        with progress_bar("nanofin sweep", quiet) as update:
-            m = fin_map(period_m, height_m, widths_m, lengths_m, bands_m, n_fin, n_sub, harmonics, update, samples_per_band,
-                        torch_device(device))
-        cache.store("nanofin-sweep", key, {"eta": m.eta, "seconds": np.array(m.seconds)})
-    else:
-        m = FinMap(np.array(widths_m), np.array(lengths_m), bands_m, waves.reshape(len(bands_m), -1), stored["eta"], harmonics,
-                   float(stored["seconds"]))
-    choice = recommend(m, tolerance_m, keep)
-    fin = Fin(period_m, height_m, choice["width_m"], choice["length_m"])
-    warnings = []
-    fine_key = cache.input_key({"map": key, "fin_m": [choice["width_m"], choice["length_m"]], "tolerance_m": tolerance_m, "keep": keep,
-                                "max_harmonics": max_harmonics})
-    stored_fine = cache.load("nanofin-refine", fine_key)
-    if stored_fine is not None:
-        choice["converged"] = json.loads(str(stored_fine["report"]))
-    else:
-        with progress_bar("converging the chosen fin", quiet) as update:
-            chosen, table, _ = converge(fin, n_fin(waves), n_sub(waves), waves, 5, max_harmonics, 1e-3, torch_device(device),
-                                        on_progress=update)
-        choice["converged"] = {"harmonics": chosen or table[-1]["harmonics"], "convergence": table, "converged": chosen is not None}
-        choice["converged"].update(refine(m, choice, period_m, height_m, n_fin, n_sub, choice["converged"]["harmonics"],
-                                          torch_device(device)))
-        cache.store("nanofin-refine", fine_key, {"report": np.array(json.dumps(choice["converged"]))})
-    table = choice["converged"]["convergence"]
-    if not choice["converged"]["converged"]:
-        warnings.append(f"the chosen fin's η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to "
-                        f"{table[-1]['harmonics']}; raise --max-harmonics")
-    if choice["width_m"] in (widths_m[0], widths_m[-1]) or choice["length_m"] in (lengths_m[0], lengths_m[-1]):
-        warnings.append(f"the recommended fin ({choice['width_m'] * 1e9:g} × {choice['length_m'] * 1e9:g} nm) lies on the grid's edge: "
-                        "a better one may lie beyond it; widen --width/--length")
-    if not choice["converged"]["robust"] and choice["robust"]:
-        warnings.append(f"converged at N = {chosen}, a neighbour of the chosen fin keeps less than {keep:g} of its η")
+    result = sweep_fins(period_m, height_m, widths_m, lengths_m, bands_m, n_fin, n_sub, harmonics, samples_per_band, tolerance_m, keep,
+                        max_harmonics, torch_device(device), lambda stage: progress_bar(stage, quiet))
+    m, choice, warnings = result.map, result.choice, result.warnings
     err = render.console(stderr=True)
     for warning in warnings:
         err.print(f"warning: {warning}", markup=False, soft_wrap=True)
     report = {"period_m": period_m, "height_m": height_m, "material": fin_material.describe(), "substrate": substrate_material.describe(),
               "bands_m": [list(b) for b in bands_m], "wavelengths_m": m.wavelengths_m.tolist(), "harmonics": harmonics,
-              "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds, "cached": stored is not None,
-              "converged_cached": stored_fine is not None,
+              "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds, "cached": result.cached,
+              "converged_cached": result.converged_cached,
               "solver": SOLVERS["modes"], "warnings": warnings,
               "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json"], "output": str(output)}
     from metalens_cli.io.json_files import jsonable

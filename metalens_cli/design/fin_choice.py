@@ -8,19 +8,23 @@ whose neighbourhood (every grid fin within ± ``tolerance_m`` in both w and l: t
 tolerance) keeps at least ``keep`` of that score; the neighbourhood is cut at the grid's edges.
 The map is computed with a cheap truncation, all fins of a row of the grid in one batch
 (:func:`metalens_cli.optics.fin_modes.fin_responses_symmetric`); :func:`refine` recomputes the
-chosen fin and its neighbourhood with a converged one (coarse to fine).
+chosen fin and its neighbourhood with a converged one (coarse to fine); :func:`sweep_fins` does
+all of it, the map and the refinement cached on disk (:mod:`metalens_cli.io.cache`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from metalens_cli.errors import InputError
+from metalens_cli.io import cache
 from metalens_cli.optics.fin_modes import fin_responses_symmetric
-from metalens_cli.optics.nanofin import Fin
+from metalens_cli.optics.nanofin import converge, Fin, SOLVER
 
 BAND_SAMPLES = 8  # 3 bands × 8: the 24 wavelengths of issue 17's benchmark
 
@@ -123,3 +127,72 @@ def recommend(m: FinMap, tolerance_m: float = 10e-9, keep: float = 0.95) -> dict
     return {"width_m": float(m.widths_m[j]), "length_m": float(m.lengths_m[i]), "score": float(score[i, j]),
             "worst_neighbour": worst, "eta_per_band": m.eta[i, j].tolist(), "robust": robust,
             "tolerance_m": tolerance_m, "keep": keep}
+
+
+@dataclass
+class Sweep:
+    """A sweep's map, the recommended fin (:func:`recommend`'s dict with ``converged``, from
+    :func:`refine` and the convergence table), whether the map and the refinement came from the
+    cache, and warnings for the user."""
+
+    map: FinMap
+    choice: dict
+    cached: bool
+    converged_cached: bool
+    warnings: list[str] = field(default_factory=list)
+
+
+def sweep_fins(period_m: float, height_m: float, widths_m, lengths_m, bands_m, fin_index: Callable, substrate_index: Callable,
+               harmonics: int, samples_per_band: int = BAND_SAMPLES, tolerance_m: float = 10e-9, keep: float = 0.95,
+               max_harmonics: int = 35, device=None, progress: Callable = lambda stage: contextlib.nullcontext(None)) -> Sweep:
+    """The map at ``harmonics`` (:func:`fin_map`), the recommended fin (:func:`recommend`), its
+    converged N (:func:`~metalens_cli.optics.nanofin.converge` at the map's wavelengths, up to
+    ``max_harmonics``) and its neighbourhood at that N (:func:`refine`), each read from the disk
+    cache when it holds them. ``progress(stage)`` gives a context manager yielding an
+    ``update(done, total)`` callback or None."""
+    widths, lengths = np.asarray(widths_m, float), np.asarray(lengths_m, float)
+    waves = band_wavelengths(bands_m, samples_per_band)
+    flat = waves.ravel()
+    key = cache.input_key({"period_m": period_m, "height_m": height_m, "widths_m": widths, "lengths_m": lengths, "wavelengths_m": flat,
+                           "fin_index": fin_index(flat), "substrate_index": substrate_index(flat), "harmonics": harmonics,
+                           "solver": SOLVER})
+    stored = cache.load("nanofin-sweep", key)
+    if stored is None:
+        with progress("nanofin sweep") as update:
+            m = fin_map(period_m, height_m, widths, lengths, bands_m, fin_index, substrate_index, harmonics, update, samples_per_band,
+                        device)
+        cache.store("nanofin-sweep", key, {"eta": m.eta, "seconds": np.array(m.seconds)})
+    else:
+        m = FinMap(widths, lengths, list(bands_m), waves, stored["eta"], harmonics, float(stored["seconds"]))
+    choice = recommend(m, tolerance_m, keep)
+    fine_key = cache.input_key({"map": key, "fin_m": [choice["width_m"], choice["length_m"]], "tolerance_m": tolerance_m, "keep": keep,
+                                "max_harmonics": max_harmonics})
+    stored_fine = cache.load("nanofin-refine", fine_key)
+    if stored_fine is not None:
+        choice["converged"] = json.loads(str(stored_fine["report"]))
+    else:
+        fin = Fin(period_m, height_m, choice["width_m"], choice["length_m"])
+        with progress("converging the chosen fin") as update:
+            chosen, table, _ = converge(fin, fin_index(flat), substrate_index(flat), flat, 5, max_harmonics, 1e-3, device,
+                                        on_progress=update)
+        choice["converged"] = {"harmonics": chosen or table[-1]["harmonics"], "convergence": table, "converged": chosen is not None}
+        choice["converged"].update(refine(m, choice, period_m, height_m, fin_index, substrate_index, choice["converged"]["harmonics"],
+                                          device))
+        cache.store("nanofin-refine", fine_key, {"report": np.array(json.dumps(choice["converged"]))})
+    return Sweep(m, choice, stored is not None, stored_fine is not None, _warnings(m, choice))
+
+
+def _warnings(m: FinMap, choice: dict) -> list[str]:
+    """What the user should know about a sweep's answer: no convergence, a fin on the grid's
+    edge, a neighbourhood that keeps less at converged N than on the map."""
+    fine, warnings = choice["converged"], []
+    table = fine["convergence"]
+    if not fine["converged"]:
+        warnings.append(f"the chosen fin's η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to "
+                        f"{table[-1]['harmonics']}; raise --max-harmonics")
+    if choice["width_m"] in (m.widths_m[0], m.widths_m[-1]) or choice["length_m"] in (m.lengths_m[0], m.lengths_m[-1]):
+        warnings.append(f"the recommended fin ({choice['width_m'] * 1e9:g} × {choice['length_m'] * 1e9:g} nm) lies on the grid's edge: "
+                        "a better one may lie beyond it; widen --width/--length")
+    if not fine["robust"] and choice["robust"]:
+        warnings.append(f"converged at N = {fine['harmonics']}, a neighbour of the chosen fin keeps less than {choice['keep']:g} of its η")
+    return warnings

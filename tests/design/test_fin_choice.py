@@ -61,3 +61,18 @@ def test_refine_recomputes_the_chosen_fin_and_its_neighbourhood():
                          waves.ravel(), 7)
     np.testing.assert_allclose(fine["eta_per_band"], alone.conversion.reshape(waves.shape).mean(axis=1), atol=1e-12)
     assert fine["worst_neighbour"] <= fine["score"] and fine["harmonics"] == 7
+
+
+def test_a_sweep_warns_of_no_convergence_an_edge_fin_and_a_fragile_converged_neighbourhood():
+    from metalens_cli.design.fin_choice import _warnings
+
+    m = fin_map(np.full((3, 3), 0.7))
+    table = [{"harmonics": 33, "max_change": 3e-3}, {"harmonics": 35, "max_change": 2e-3}]
+    inner = {"width_m": m.widths_m[1], "length_m": m.lengths_m[1], "robust": True, "keep": 0.95,
+             "converged": {"converged": True, "convergence": table, "robust": True, "harmonics": 35}}
+    assert _warnings(m, inner) == []
+    edge = {**inner, "width_m": m.widths_m[0]}
+    assert "lies on the grid's edge" in _warnings(m, edge)[0]
+    fragile = {**inner, "converged": {**inner["converged"], "converged": False, "robust": False}}
+    said = _warnings(m, fragile)
+    assert "moved up to 0.002 from N = 33 to 35" in said[0] and "converged at N = 35, a neighbour" in said[1]
