@@ -6,14 +6,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from launch import run_metalens
 
 from metalens_cli.design.reconstruct_data import Camera, Pool, batch, read_pairs, strata
 from metalens_cli.design.reconstruct_training import display, learning_rate_factor, train_reconstruction
@@ -121,19 +119,14 @@ def test_resume_repeats_an_uninterrupted_run(tmp_path):
         train_reconstruction(_design(), CAMERA, preset, tmp_path / "parts")
 
 
-def _train_cli(launcher: list[str], out: Path) -> dict:
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = launcher + ["-m", "metalens_cli", "reconstruct", "train", "hyperbolic:532nm", "--f", "1mm", "--aperture", "0.2mm",
-                      "--preset", str(TINY), "-o", str(out), "--steps", "3", "--threads", "1", "--quiet"]
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-2000:]
-    return _states(out)
+def _train_cli(out: Path, ranks: int) -> dict:
+    args = ["reconstruct", "train", "hyperbolic:532nm", "--f", "1mm", "--aperture", "0.2mm", "--preset", str(TINY), "--steps", "3"]
+    return _states(run_metalens(args, out, ranks=ranks))
 
 
 def test_two_process_torchrun_equals_one_process(tmp_path):
-    single = _train_cli([sys.executable], tmp_path / "one")
-    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]
-    parallel = _train_cli(torchrun, tmp_path / "two")
+    single = _train_cli(tmp_path / "one", 1)
+    parallel = _train_cli(tmp_path / "two", 2)
     # the batch of 2 split 1 + 1, gradients summed by all_reduce: only the summation order differs
     for k in single:
         torch.testing.assert_close(parallel[k], single[k], rtol=0, atol=1e-5)
