@@ -66,7 +66,7 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.resources import Estimate
     from metalens_cli.io.units import parse_length_list
-    from metalens_cli.optics.nanofin import converge, estimate_bytes, estimate_seconds, Fin, fin_response
+    from metalens_cli.optics.nanofin import converge, convergence_seconds, estimate_bytes, estimate_seconds, Fin, fin_response
 
     fin = Fin(period_m, height_m, width_m, length_m)
     fin.check()
@@ -75,10 +75,12 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     n_fin, n_sub = fin_material.index(wavelengths_m, "--material"), substrate_material.index(wavelengths_m, "--substrate")
     worst = harmonics or max_harmonics
     typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)
-    tried = [typical] if harmonics else range(5, typical + 1, 2)
-    seconds = sum(estimate_seconds(n, len(wavelengths_m), solver) for n in tried)
+    if harmonics:
+        seconds = longest = estimate_seconds(harmonics, len(wavelengths_m), solver)
+    else:
+        seconds, longest = (convergence_seconds(n, len(wavelengths_m), solver) for n in (typical, worst))
     announce(Estimate(f"nanofin efficiency at {len(wavelengths_m)} wavelengths, up to {worst} × {worst} harmonics",
-                      estimate_bytes(worst, solver), "--harmonics", seconds), max_memory)
+                      estimate_bytes(worst, solver), "--harmonics", seconds, seconds_max=longest), max_memory)
     table, chosen = [], harmonics
     warnings = []
     with progress_bar("nanofin efficiency", quiet) as update:
@@ -159,7 +161,7 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
     from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.resources import Estimate
-    from metalens_cli.optics.nanofin import check_harmonics, estimate_bytes, estimate_seconds, Fin
+    from metalens_cli.optics.nanofin import check_harmonics, convergence_seconds, estimate_bytes, estimate_seconds, Fin
 
     check_harmonics(harmonics)
     widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
@@ -179,10 +181,12 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
     Fin(period_m, height_m, min(widths_m), min(lengths_m)).check()
     neighbours = (2 * int(tolerance_m / min(np.diff(widths_m), default=1.0) + 1e-9) + 1) * (
         2 * int(tolerance_m / min(np.diff(lengths_m), default=1.0) + 1e-9) + 1)
-    fine = sum(estimate_seconds(n, waves.size) for n in range(5, TYPICAL_HARMONICS + 1, 2)) + estimate_seconds(TYPICAL_HARMONICS, waves.size * neighbours)
+    coarse = estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m))
+    # the chosen fin converges (N = 5, 7, …), then its neighbourhood is recomputed at that N
+    typical, worst = ((coarse + convergence_seconds(n, waves.size) + estimate_seconds(n, waves.size * neighbours))
+                      for n in (min(TYPICAL_HARMONICS, max_harmonics), max_harmonics))
     announce(Estimate(f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} harmonics",
-                      estimate_bytes(max(harmonics, TYPICAL_HARMONICS)), "--harmonics",
-                      estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m)) + fine), max_memory)
+                      estimate_bytes(max(harmonics, max_harmonics)), "--harmonics", typical, seconds_max=worst), max_memory)
     result = sweep_fins(period_m, height_m, widths_m, lengths_m, bands_m, n_fin, n_sub, harmonics, samples_per_band, tolerance_m, keep,
                         max_harmonics, torch_device(device), lambda stage: progress_bar(stage, quiet))
     m, choice, warnings = result.map, result.choice, result.warnings

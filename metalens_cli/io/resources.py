@@ -23,13 +23,16 @@ MEMORY_SHARE = 0.9       # of the available memory a job may plan to use
 @dataclass(frozen=True)
 class Estimate:
     """A job's planned peak memory (bytes), output size on disk (bytes) and run time (s; None when
-    it cannot be long). ``what`` says what is computed; ``option`` names what shrinks it."""
+    it cannot be long; ``seconds_max`` where the work depends on what it finds, e.g. a convergence
+    loop, is the longest it can take). ``what`` says what is computed; ``option`` names what
+    shrinks it."""
 
     what: str
     memory_bytes: int
     option: str
     seconds: float | None = None
     disk_bytes: int = 0
+    seconds_max: float | None = None
 
     def describe(self) -> str:
         parts = [f"about {_size(self.memory_bytes)} of memory"]
@@ -37,6 +40,8 @@ class Estimate:
             parts.append(f"{_size(self.disk_bytes)} on disk")
         if self.seconds is not None:
             parts.append(f"about {_duration(self.seconds)}")
+            if self.seconds_max is not None and self.seconds_max > 1.5 * self.seconds:
+                parts[-1] += f" (up to {_duration(self.seconds_max)})"
         return f"{self.what}: " + ", ".join(parts)
 
 
@@ -82,7 +87,9 @@ def check(estimate: Estimate, max_memory: int | None = None, output: str | os.Pa
 
 
 def is_long(estimate: Estimate) -> bool:
-    return estimate.seconds is not None and estimate.seconds > LONG_JOB_SECONDS
+    """Whether the job may take over LONG_JOB_SECONDS (its longest, where it has a range)."""
+    longest = estimate.seconds if estimate.seconds_max is None else estimate.seconds_max
+    return longest is not None and longest > LONG_JOB_SECONDS
 
 
 def _size(size: float) -> str:

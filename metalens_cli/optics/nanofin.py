@@ -51,7 +51,10 @@ import numpy as np
 from metalens_cli.errors import InputError
 
 SOLVER = "fin_modes/1"  # names the numbers a cache entry holds: change it when they change
-SECONDS_PER_UNKNOWN_CUBED = 1e-8  # fin_modes, both polarisations, per ((N² + 1)/2)³: 0.03 s at N = 17, 0.19 s at N = 25 (lossy ×1.7)
+# fin_modes, one wavelength and fin, both polarisations, on 2 cores: SOLVE_SECONDS + SOLVE_SCALE·u^2.4
+# for u = (N² + 1)/2 unknowns (measured N = 5…35: 2.6 ms at N = 9, 0.18 s at N = 25, 0.94 s at
+# N = 35, each within 25 %; eig and LU scale below u³ at these sizes; a lossy fin ×1.7)
+SOLVE_SECONDS, SOLVE_SCALE = 5e-4, 1.9e-7
 MEENT_SECONDS_PER_UNKNOWN_CUBED = 7e-9  # meent, per (2·N²)³: 1.3 s at N = 17 (meent 0.13, vector cell, 2 cores)
 DEFAULT_HARMONICS = 25  # η of the paper's fin within 8e-4 of N = 41 at 24 wavelengths (docs/benchmarks.md)
 PROGRESS_CHUNK = 8  # wavelengths per batch when a progress callback is given
@@ -102,7 +105,12 @@ def estimate_seconds(harmonics: int, wavelengths: int, solver: str = "modes") ->
     ("meent") for ``wavelengths`` solves (2 cores)."""
     if solver == "meent":
         return MEENT_SECONDS_PER_UNKNOWN_CUBED * (2 * harmonics**2) ** 3 * wavelengths
-    return SECONDS_PER_UNKNOWN_CUBED * ((harmonics**2 + 1) / 2) ** 3 * wavelengths
+    return (SOLVE_SECONDS + SOLVE_SCALE * ((harmonics**2 + 1) / 2) ** 2.4) * wavelengths
+
+
+def convergence_seconds(stop: int, wavelengths: int, solver: str = "modes", start: int = 5) -> float:
+    """Wall seconds of :func:`converge` when it ends at N = ``stop``."""
+    return sum(estimate_seconds(n, wavelengths, solver) for n in range(start, stop + 1, 2))
 
 
 def estimate_bytes(harmonics: int, solver: str = "modes") -> int:

@@ -1,0 +1,21 @@
+"""Resource estimates: what a long job says before it starts, and the memory refusal."""
+
+import pytest
+
+from metalens_cli.errors import InputError
+from metalens_cli.io.resources import Estimate, LONG_JOB_SECONDS, check, is_long
+
+
+def test_a_range_is_said_only_when_the_longest_differs_and_counts_as_long():
+    converge = Estimate("η by convergence", 2**20, "--harmonics", 12.0, seconds_max=79.0)
+    assert converge.describe() == "η by convergence: about 1 MiB of memory, about 12 s (up to 79 s)"
+    assert is_long(converge)  # 79 s can be long though 12 s is typical
+    assert not is_long(Estimate("short", 1, "--x", 12.0, seconds_max=LONG_JOB_SECONDS))
+    assert Estimate("fixed", 1, "--x", 200.0, seconds_max=250.0).describe().endswith("about 3 min")  # within 1.5×: one figure
+    assert not is_long(Estimate("unknown", 1, "--x"))
+
+
+def test_memory_over_the_limit_is_refused_naming_the_option_and_the_estimate():
+    with pytest.raises(InputError, match=r"--harmonics.*about 2 MiB of memory.*--max-memory limit \(1 MiB\)"):
+        check(Estimate("η", 2 * 2**20, "--harmonics", 1.0), max_memory=2**20)
+    check(Estimate("η", 2**19, "--harmonics", 1.0), max_memory=2**20)
