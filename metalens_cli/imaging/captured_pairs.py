@@ -15,6 +15,8 @@ other captures of the same design (same camera and set-up; an obstruction would 
 matching); ``each`` registers every capture on its own; ``none`` takes the captures as aligned
 (same size as the reference). The metrics are computed over the largest rectangle that every
 aligned capture of the scene covers, after the photometric match (``pipeline.score``).
+A greyscale reference (one channel, or R = G = B) says nothing of colour: its captures are
+scored by their Rec. 709 luminance, in all three channels, and the report warns.
 
 Units are scenes; the statistics are those of simulated evaluation
 (:mod:`metalens_cli.imaging.evaluation`): means with 95 % bootstrap intervals, Δ per scene,
@@ -32,7 +34,7 @@ import numpy as np
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.evaluation import Evaluation, metric_names, summarise
-from metalens_cli.imaging.images import read_linear
+from metalens_cli.imaging.images import luminance, read_linear
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 BYTES_PER_PIXEL = 500       # peak memory per pixel of the largest image: float64 SSIM/PSNR copies, the warp
@@ -144,14 +146,20 @@ def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = "luminance
     metrics = metric_names(lpips_model)
     scores: dict[tuple, dict] = {}
     total = len(layout.designs) * len(layout.names)
+    grey_names: list[str] = []
     for d, design in enumerate(layout.designs):
         for index, name in enumerate(layout.names):
             clean = read_linear(layout.gt[name], f"--pairs: {layout.gt[name]}")
+            grey = bool((clean[0] == clean[1]).all() and (clean[1] == clean[2]).all())
+            if grey and d == 0:
+                grey_names.append(name)
             aligned = _aligned_captures(layout, design, name, clean, align, refine, out)
             box = _common_box([valid for _, valid in aligned.values()])
             reference = clean[:, box[0]:box[1], box[2]:box[3]]
             for (capture, condition), (image, _) in aligned.items():
                 crop = image[:, box[0]:box[1], box[2]:box[3]]
+                if grey:  # a monochrome reference says nothing of colour: compare luminance only
+                    crop = np.repeat(luminance(crop)[None], 3, axis=0)
                 scores[capture, d, condition, 0, index] = score(crop, reference, lpips_model, match)
                 if index == 0:
                     if not out.panels[design]:
@@ -165,6 +173,9 @@ def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = "luminance
                                       "obstructed": scores[capture, d, kind, 0, index]})
             if on_progress is not None:
                 on_progress(d * len(layout.names) + index + 1, total)
+    if grey_names:
+        out.warnings.append(f"{len(grey_names)} greyscale reference(s) ({', '.join(grey_names[:3])}{', …' if len(grey_names) > 3 else ''}): "
+                            "their captures are compared in luminance (Rec. 709 Y of linear RGB)")
     recon = [layout.has_recon(design) or None for design in layout.designs]
     summarise(out, layout.designs, recon, layout.kinds, [0], len(layout.names), metrics, scores)
     return out

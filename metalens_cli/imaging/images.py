@@ -22,6 +22,7 @@ from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 BUILTIN = "builtin"
 BUILTIN_COUNT = 24                                            # photographs + dead-leaves charts
+LUMA_709 = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear R, G, B
 PHOTOGRAPHS = ("grace_hopper.jpg",)  # the photograph in matplotlib's sample data (its other images are drawings)
 
 
@@ -52,6 +53,11 @@ def linear_to_srgb(values: np.ndarray) -> np.ndarray:
     import colour
 
     return np.asarray(colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=np.float32)
+
+
+def luminance(image: np.ndarray) -> np.ndarray:
+    """Rec. 709 luminance Y (H, W) of a (3, H, W) linear RGB image."""
+    return np.tensordot(np.asarray(LUMA_709, dtype=image.dtype), image, axes=1)
 
 
 def read_image(path: Path, keep_alpha: bool = False, field: str | None = None) -> tuple[np.ndarray, bool]:

@@ -16,9 +16,9 @@ from __future__ import annotations
 import torch
 
 from metalens_cli.errors import InputError
+from metalens_cli.imaging.images import LUMA_709
 
 SSIM_WINDOW, SSIM_SIGMA, SSIM_K1, SSIM_K2 = 11, 1.5, 0.01, 0.03  # Wang et al. 2004
-LUMA_709 = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear R, G, B
 MATCH_METHODS = ("luminance", "lstsq")
 PSNR_CEILING_DB = 100.0  # an exact match: MSE 0 (see reported_psnr)
 

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from metalens_cli.errors import InputError, ResultFailed
+from metalens_cli.imaging.images import LUMA_709
 from metalens_cli.io.warp_files import MAX_SIDE, REFINES, node_positions, read_warp_file, write_warp_file
 
 FEATURE_SIDE = 1024         # features on images downscaled to at most this many pixels a side
@@ -57,7 +58,6 @@ TPS_REACH = 4.0             # matches within this × the RANSAC threshold of H f
 TPS_SMOOTHING = 1e-3        # spline regularisation (coordinates in units of the longer side)
 MIN_SIDE = 32
 MAX_BLUR_PX = 8.0           # largest σ used to match sharpness
-LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709
 
 
 @dataclass(frozen=True, eq=False)
@@ -274,7 +274,7 @@ def _luminance(image: np.ndarray, field: str) -> np.ndarray:
     if image.ndim == 2:
         y = image
     elif image.shape[2] >= 3:
-        y = image[:, :, 0] * LUMA[0] + image[:, :, 1] * LUMA[1] + image[:, :, 2] * LUMA[2]
+        y = image[:, :, 0] * LUMA_709[0] + image[:, :, 1] * LUMA_709[1] + image[:, :, 2] * LUMA_709[2]
     else:
         y = image.mean(axis=2)
     if not np.all(np.isfinite(y)):

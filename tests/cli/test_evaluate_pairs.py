@@ -132,3 +132,19 @@ def test_physics_a_capture_equal_to_its_reference_scores_perfectly_up_to_encodin
     assert clear["ssim"] == pytest.approx(1, abs=1e-6) and clear["psnr_db"] == 100.0  # the ceiling of an exact match
     assert "2 score(s) match their reference exactly" in report["warnings"][0]
     assert math.isfinite(row(report, "identity", "obstructed")["psnr_db"]) and row(report, "identity", "obstructed")["psnr_db"] < 40
+
+
+def test_a_greyscale_reference_is_compared_with_the_captures_luminance(capsys, tmp_path):
+    """A monochrome reference of a colour scene: a colour capture whose Rec. 709 luminance is
+    the reference scores as a match (only the 16-bit encoding differs), not as a colour error."""
+    for k in range(2):
+        colour = texture(SIDE, SIDE, 20 + k)
+        grey = colour @ np.array([0.2126, 0.7152, 0.0722])  # linear Y, the reference's one channel
+        save_png(tmp_path / "gt" / f"s{k}.png", linear_to_srgb(grey), bits=16)
+        save(tmp_path / "lens" / "unobstructed" / f"s{k}.png", colour)
+        save(tmp_path / "lens" / "obstructed" / f"s{k}.png", colour * (1 - 0.8 * occluder(k)))
+    code, out, err = invoke(capsys, "evaluate", "--pairs", tmp_path, "--align", "none", "--json")
+    assert code == 0, err
+    report = json.loads(out)
+    assert row(report, "lens", "unobstructed")["psnr_db"] > 60 and row(report, "lens", "obstructed")["psnr_db"] < 40
+    assert any("2 greyscale reference(s) (s0, s1)" in w for w in report["warnings"])
