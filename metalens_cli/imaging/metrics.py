@@ -69,30 +69,35 @@ def photometric_match(estimate: torch.Tensor, reference: torch.Tensor, method: s
     and b of shape ``estimate.shape[:-3]``, applied to every channel.
 
     ``luminance`` (Suppl. Note 11; RGB images): a = σ_Y(reference)/σ_Y(estimate) and
-    b = μ_Y(reference) − a·μ_Y(estimate) over the pixels of Y = 0.2126 R + 0.7152 G + 0.0722 B;
-    a flat estimate (σ_Y ≤ 64 ε·max |Y|, round-off) gets a = 0, b = μ_Y(reference). ``lstsq``: a and b minimising
-    ‖a·estimate + b − reference‖² over all pixels and channels.
+    b = μ_Y(reference) − a·μ_Y(estimate) over the pixels of Y = 0.2126 R + 0.7152 G + 0.0722 B.
+    ``lstsq``: a and b minimising ‖a·estimate + b − reference‖² over all pixels and channels.
+    Degenerate cases (σ at round-off: ≤ 64 ε·max |value|): a flat estimate gets a = 0,
+    b = μ(reference); a flat reference (a uniform grey wall) gets the exposure only,
+    a = μ(reference)/μ(estimate), b = 0 (a = 0 for a black estimate), since a free gain would
+    flatten whatever the estimate shows, an obstruction included, into a perfect match.
     """
     dims = (-3, -2, -1)
-    if method == "lstsq":
-        mx, my = estimate.mean(dim=dims, keepdim=True), reference.mean(dim=dims, keepdim=True)
-        dx, dy = estimate - mx, reference - my
-        var = (dx * dx).mean(dim=dims, keepdim=True)
-        gain = (dx * dy).mean(dim=dims, keepdim=True) / var.clamp_min(torch.finfo(var.dtype).tiny)
-    elif method == "luminance":
+    if method == "luminance":
         if estimate.shape[-3] != 3 or reference.shape[-3] != 3:
             raise InputError("photometric match", f"{estimate.shape[-3]} and {reference.shape[-3]} channels",
                              "RGB images (3 channels) for the luminance match")
         w = torch.tensor(LUMA_709, dtype=estimate.dtype, device=estimate.device).view(3, 1, 1)
-        ye, yr = (estimate * w).sum(-3, keepdim=True), (reference * w).sum(-3, keepdim=True)
-        mx, my = ye.mean(dim=dims, keepdim=True), yr.mean(dim=dims, keepdim=True)
-        sx = ((ye - mx) ** 2).mean(dim=dims, keepdim=True).sqrt()
-        sy = ((yr - my) ** 2).mean(dim=dims, keepdim=True).sqrt()
-        flat = sx <= 64 * torch.finfo(sx.dtype).eps * ye.abs().amax(dim=dims, keepdim=True)  # to round-off
-        gain = torch.where(flat, torch.zeros_like(sy), sy / torch.where(flat, torch.ones_like(sx), sx))
+        x, y = (estimate * w).sum(-3, keepdim=True), (reference * w).sum(-3, keepdim=True)
+    elif method == "lstsq":
+        x, y = estimate, reference
     else:
         raise InputError("photometric match", repr(method), " or ".join(MATCH_METHODS))
+    mx, my = x.mean(dim=dims, keepdim=True), y.mean(dim=dims, keepdim=True)
+    dx, dy = x - mx, y - my
+    sx, sy = (dx * dx).mean(dim=dims, keepdim=True).sqrt(), (dy * dy).mean(dim=dims, keepdim=True).sqrt()
+    eps = 64 * torch.finfo(sx.dtype).eps
+    flat_x, flat_y = sx <= eps * x.abs().amax(dim=dims, keepdim=True), sy <= eps * y.abs().amax(dim=dims, keepdim=True)
+    safe_sx = torch.where(flat_x, torch.ones_like(sx), sx)
+    gain = sy / safe_sx if method == "luminance" else (dx * dy).mean(dim=dims, keepdim=True) / safe_sx**2
+    gain = torch.where(flat_x, torch.zeros_like(gain), gain)
     bias = my - gain * mx
+    exposure = torch.where(mx > 0, my / torch.where(mx > 0, mx, torch.ones_like(mx)), torch.zeros_like(mx))
+    gain, bias = torch.where(flat_y, exposure, gain), torch.where(flat_y, torch.zeros_like(bias), bias)
     return gain * estimate + bias, gain.reshape(estimate.shape[:-3]), bias.reshape(estimate.shape[:-3])
 
 

@@ -116,3 +116,22 @@ def test_a_grey_wall_imaged_as_grey_scores_the_psnr_ceiling():
     ramp = wall * np.linspace(0.5, 1.5, 32, dtype=np.float32)  # a scene with something to get wrong
     noisy = ramp + 0.01 * np.random.default_rng(0).random(wall.shape, dtype=np.float32)
     assert 30 < score(noisy, ramp)["psnr_db"] < PSNR_CEILING_DB
+
+
+@pytest.mark.parametrize("method", MATCH_METHODS)
+def test_dirt_in_front_of_a_grey_wall_is_not_matched_away(method):
+    """A flat reference leaves only the exposure to match (a = μ_ref/μ_est, b = 0): a free gain
+    would be 0 and turn a capture with an obstruction into the wall itself, a perfect score."""
+    from metalens_cli.imaging.images import linear_to_srgb
+    from metalens_cli.imaging.pipeline import score
+
+    wall = np.full((3, 64, 64), 0.18)
+    yy, xx = np.mgrid[:64, :64]
+    capture = 0.7 * wall * (1 - 0.8 * (np.hypot(yy - 32, xx - 32) < 12))  # darker exposure, one dark blob
+    result = score(capture.astype(np.float32), wall.astype(np.float32), match=method)
+    a = wall.mean() / capture.mean()
+    assert result["gain"] == pytest.approx(a, rel=1e-6) and result["bias"] == 0
+    matched, wall_srgb = linear_to_srgb(np.clip(a * capture, 0, 1)), linear_to_srgb(wall)  # scored as displayed
+    assert result["psnr_db"] == pytest.approx(-10 * np.log10(np.mean((matched - wall_srgb) ** 2)), abs=1e-4)  # 21.8 dB
+    _, gain, bias = photometric_match(torch.zeros(3, 8, 8), torch.full((3, 8, 8), 0.18), method)
+    assert float(gain) == 0 and float(bias) == 0  # black stays black: no exposure brings it to grey
