@@ -24,7 +24,9 @@ Per frame (values as stored; colour frames averaged over R, G, B, alpha dropped)
    disc around the brightest smoothed spot, iterated) or its peak (a Gaussian fitted through
    the maximum and its four neighbours), in frame pixels. The window is moved by whole pixels
    and by the remaining fraction with a Fourier shift (a phase ramp), so the centre lands on
-   the centre of pixel (N//2, N//2) (``docs/formats.md``).
+   the centre of pixel (N//2, N//2) (``docs/formats.md``). Separate patches of light off the spot (a ghost,
+   a second source: ≥ 10 % of its light, centred away from it, unlike its rings) are
+   reported (``other_spots``) and warned about: the centroid and the window take them too.
 6. **Crop** to N × N: given, or the smallest odd window holding 99.5 % of every frame's light
    above 3σ (a PSF window is as large as its light), plus 4 pixels a side. Repeats of one
    (depth, wavelength) are averaged; each PSF is normalised to sum to one or to peak at one.
@@ -62,6 +64,7 @@ LOW_SNR = 20.0             # peak / σ below this is warned about
 BORDER_BULGE_SIGMA = 1.0   # side middles above corners of the border strip, in σ: the PSF's wings are in the background
 MIN_FRAMES_FOR_HOT = 3     # without a dark frame, hot pixels are told from light by recurring in this many frames
 KEPT_LIGHT = 0.99          # a given window keeping less of a frame's light is warned about
+SPOT_SHARE = 0.1           # a separate patch of light with this share of the main spot's light is a second spot
 
 
 @dataclass(frozen=True)
@@ -261,7 +264,7 @@ def _first_pass(entry: FrameEntry, values: np.ndarray, full_scale: float | None,
     if light is None:
         raise InputError(entry.where, f"{entry.name} has no light above the background noise",
                          "a frame with a PSF brighter than 3σ of its border")
-    rough, radius = light
+    rough, radius, others = light
     crop, origin = _window(frame, rough, math.ceil(1.5 * radius) + CROP_MARGIN + (settings.pixels or 0) // 2)
     peak = float(crop.max())
     report = {
@@ -270,7 +273,7 @@ def _first_pass(entry: FrameEntry, values: np.ndarray, full_scale: float | None,
         "height": frame.shape[0], "width": frame.shape[1], "saturated_pixels": saturated,
         "background": background[0] + (background[1] + background[2]) / 2, "background_tilt": [background[1], background[2]],
         "noise": noise, "peak_snr": peak / noise, "light_radius_px": radius,
-        "border_bulge_sigma": bulge,
+        "border_bulge_sigma": bulge, "other_spots": others,
     }
     return _Frame(entry, crop, origin, (rough[0] - origin[0], rough[1] - origin[1]), radius, noise, report, spikes, isolated)
 
@@ -300,10 +303,10 @@ def _floor(frame: np.ndarray) -> float:
     return max(1e-6 * float(np.abs(frame).max()), np.finfo(np.float32).tiny)
 
 
-def _light(median: np.ndarray, noise: float) -> tuple[tuple[int, int], float] | None:
-    """The brightest smoothed spot (row, column) and the radius (pixels) around it holding
-    LIGHT_FRACTION of the light above LIGHT_SIGMA·σ, from a binned copy of the frame; None
-    without such light."""
+def _light(median: np.ndarray, noise: float) -> tuple[tuple[int, int], float, list[dict]] | None:
+    """The brightest smoothed spot (row, column), the radius (pixels) around it holding
+    LIGHT_FRACTION of the light above LIGHT_SIGMA·σ (from a binned copy of the frame) and the
+    other spots (:func:`_other_spots`); None without such light."""
     import cv2
 
     h, w = median.shape
@@ -319,7 +322,30 @@ def _light(median: np.ndarray, noise: float) -> tuple[tuple[int, int], float] | 
     order = np.argsort(r)
     cumulative = np.cumsum(excess.ravel()[order])
     radius = float(r[order][np.searchsorted(cumulative, LIGHT_FRACTION * cumulative[-1])]) + b
-    return (int(rough[0]), int(rough[1])), max(radius, 2.0)
+    return (int(rough[0]), int(rough[1])), max(radius, 2.0), _other_spots(smooth, LIGHT_SIGMA * noise, rough)
+
+
+def _other_spots(smooth: np.ndarray, level: float, rough: tuple[int, int]) -> list[dict]:
+    """Patches of light (8-connected pixels of the smoothed frame above ``level``) apart from the
+    one at ``rough`` that hold at least SPOT_SHARE of its light above ``level`` and whose
+    centroid lies beyond twice its equivalent radius (+ 2 px) from its centroid: a ghost, a
+    second source. Rings around the spot (an Airy pattern's, a defocused lens's) are centred on
+    it and are not counted. Each: ``at_px`` (frame row, column) and ``share`` of the main light."""
+    import cv2
+
+    count, labels = cv2.connectedComponents((smooth > level).astype(np.uint8), connectivity=8)
+    if count <= 2:
+        return []
+    excess = np.clip(smooth - level, 0, None).ravel().astype(np.float64)
+    flat = labels.ravel()
+    light = np.bincount(flat, excess, count)
+    yy, xx = np.indices(smooth.shape)
+    cy, cx = (np.divide(np.bincount(flat, excess * axis.ravel(), count), light, out=np.zeros(count), where=light > 0)
+              for axis in (yy, xx))  # label 0, the background, holds no excess
+    main = labels[rough]
+    reach = 2 * math.sqrt(np.count_nonzero(flat == main) / math.pi) + 2
+    return [{"at_px": [float(cy[k]), float(cx[k])], "share": float(light[k] / light[main])} for k in range(1, count)
+            if k != main and light[k] >= SPOT_SHARE * light[main] and math.hypot(cy[k] - cy[main], cx[k] - cx[main]) > reach]
 
 
 def _window(frame: np.ndarray, centre: tuple[int, int], half: int) -> tuple[np.ndarray, tuple[int, int]]:
@@ -441,4 +467,9 @@ def _frame_warnings(frame: _Frame, settings: ImportSettings) -> list[str]:
     elif r["border_bulge_sigma"] > BORDER_BULGE_SIGMA:
         out.append(f"{frame.entry.where}: the border strip bulges {r['border_bulge_sigma']:.1f}σ between its corners: the PSF's "
                    "wings reach it and are taken for background (use a larger frame)")
+    if r["other_spots"]:
+        first = max(r["other_spots"], key=lambda spot: spot["share"])
+        out.append(f"{frame.entry.where}: {1 + len(r['other_spots'])} separate spots of light (one at row {first['at_px'][0]:.0f}, "
+                   f"column {first['at_px'][1]:.0f} with {first['share']:.0%} of the brightest's light): the PSF takes them "
+                   "together; crop the frame to one spot (a ghost or a second source)")
     return out

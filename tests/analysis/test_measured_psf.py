@@ -245,3 +245,41 @@ def test_a_frame_of_a_npy_stack(tmp_path):
 
 
 
+
+
+def _airy_spot(shape, centre, first_zero_px):
+    """An Airy pattern (2·J1(v)/v)², its first zero ``first_zero_px`` from ``centre``, sampled at
+    pixel centres on 4 × 4 sub-pixels, unit sum: rings separated by dark zeros."""
+    from scipy.special import j1
+
+    sub = (np.arange(4) + 0.5) / 4 - 0.5
+    yy = np.arange(shape[0])[:, None, None, None] + sub[None, None, :, None] - centre[0]
+    xx = np.arange(shape[1])[None, :, None, None] + sub[None, None, None, :] - centre[1]
+    v = 3.8317 * np.hypot(yy, xx) / first_zero_px + 1e-12
+    spot = ((2 * j1(v) / v) ** 2).mean(axis=(2, 3))
+    return spot / spot.sum()
+
+
+def _ring(shape, centre, radius_px, width_px):
+    """A thin annulus (Gaussian profile across it) of unit sum around ``centre``."""
+    yy, xx = np.indices(shape)
+    ring = np.exp(-0.5 * ((np.hypot(yy - centre[0], xx - centre[1]) - radius_px) / width_px) ** 2)
+    return ring / ring.sum()
+
+
+def test_a_second_spot_is_warned_about_but_rings_around_one_are_not(tmp_path):
+    """A ghost at 30 % beside the spot pulls the centroid between them: the import says so. An
+    Airy pattern's first ring (cut off by a dark zero), a sharp core inside a bright rim of
+    defocused light (half of it, 30 px out) and a lone Gaussian are one spot each."""
+    rng = np.random.default_rng(21)
+    ghost = 0.77 * gaussian_spot(*SHAPE, (80, 50), 2.0) + 0.23 * gaussian_spot(*SHAPE, (80, 120), 2.0)
+    rim = 0.5 * gaussian_spot(*SHAPE, (80, 85), 2.0) + 0.5 * _ring(SHAPE, (80, 85), 30.0, 2.0)
+    frames = [(530, "inf", ghost), (630, "inf", _airy_spot(SHAPE, (80.2, 84.7), 14.0)), (450, "inf", rim),
+              (500, "inf", gaussian_spot(*SHAPE, (80, 85), 2.0))]
+    cube = import_psfs(read_manifest(write_bench(tmp_path, frames, rng)), ImportSettings(PITCH, pixels=41))
+    spots = {f["file"]: f["other_spots"] for f in cube.frames}
+    assert len(spots["frame00.png"]) == 1 and np.allclose(spots["frame00.png"][0]["at_px"], (80, 120), atol=0.5)
+    assert spots["frame00.png"][0]["share"] == pytest.approx(0.23 / 0.77, rel=0.1)  # light above the detection level
+    assert spots["frame01.png"] == spots["frame02.png"] == spots["frame03.png"] == []
+    said = [w for w in cube.warnings if "separate spots" in w]
+    assert len(said) == 1 and said[0].startswith("psf.csv line 2: 2 separate spots of light (one at row 80, column 120 with ")
