@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+SPLINE_MARGIN = 4  # samples beyond the half-maximum crossings in the spline (its end effects fade ×0.27 a sample)
+
 
 def central_energy(psf: np.ndarray, window: int = 5) -> np.ndarray:
     """Power in the central ``window`` × ``window`` pixels around (N//2, N//2); leading axes kept."""
@@ -14,25 +16,31 @@ def central_energy(psf: np.ndarray, window: int = 5) -> np.ndarray:
 def fwhm_pixels(row: np.ndarray) -> float | None:
     """Full width at half maximum (pixels) of a 1-D profile through its centre pixel N//2.
 
-    Linear interpolation between pixel centres on each side of the centre; None when the
-    profile does not fall to half its central value inside the window or peaks off-centre.
+    A cubic spline through the samples; its maximum within a pixel of the centre; the nearest
+    half-maximum crossings on each side. A pixel-integrated Gaussian of σ ≥ 1.5 px comes out
+    within 0.4 % of its FWHM at any sub-pixel offset (linear interpolation between samples,
+    from the centre sample: up to 2.7 % wide); below, a profile sampled this coarsely has no
+    well-defined width (σ = 0.7 px: up to 12 %). None when the profile does not fall to half
+    its maximum inside the window on both sides, or has no light at the centre.
     """
+    from scipy.interpolate import CubicSpline
+
+    row = np.asarray(row, dtype=np.float64)
     c = row.shape[0] // 2
-    half = row[c] / 2
     if row[c] <= 0:
         return None
-
-    def crossing(direction: int) -> float | None:
-        i = c
-        while 0 <= i + direction < row.shape[0]:
-            j = i + direction
-            if row[j] <= half:
-                return i + direction * (row[i] - half) / (row[i] - row[j])
-            i = j
+    below = np.flatnonzero(row < 0.45 * row[max(c - 1, 0):c + 2].max())  # under any half maximum the spline can have
+    left, right = below[below < c], below[below > c]
+    if not left.size or not right.size:
         return None
-
-    left, right = crossing(-1), crossing(+1)
-    return None if left is None or right is None else float(right - left)
+    lo, hi = max(left[-1] - SPLINE_MARGIN, 0), min(right[0] + SPLINE_MARGIN, row.shape[0] - 1)  # a spline of the light only
+    spline = CubicSpline(np.arange(lo, hi + 1), row[lo:hi + 1])
+    stationary = spline.derivative().roots(extrapolate=False)
+    candidates = np.concatenate([[c], stationary[np.abs(stationary - c) <= 1]])
+    top = candidates[int(np.argmax(spline(candidates)))]
+    crossings = spline.solve(float(spline(top)) / 2, extrapolate=False)
+    left, right = crossings[crossings < top], crossings[crossings > top]
+    return None if not left.size or not right.size else float(right.min() - left.max())
 
 
 def summarize(psf: np.ndarray, pixel_pitch_m: float) -> dict:
