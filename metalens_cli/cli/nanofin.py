@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import (announce, BandSpec, device_option, json_option, Length, LengthList, max_memory_option,
-                                      MetalensGroup, Number, OutputFolder, plot_option, torch_device, WavelengthList)
+from metalens_cli.cli.options import (announce, BandSpec, device_option, json_option, Length, LengthList, load_preset_option,
+                                      max_memory_option, MetalensGroup, Number, OutputFolder, plot_option, torch_device, WavelengthList)
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.errors import InputError
 
@@ -128,12 +128,15 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
 @nanofin.command("sweep")
 @click.option("--width", "width_m", type=LengthList(), required=True, help="Fin widths, e.g. 210:360:5nm.")
 @click.option("--length", "length_m", type=LengthList(), required=True, help="Fin lengths, e.g. 40:190:5nm.")
-@click.option("--period", "period_m", type=Length(), default="395nm", show_default=True, help="Square lattice period.")
-@click.option("--height", "height_m", type=Length(), default="700nm", show_default=True, help="Fin height.")
-@click.option("--material", default="sinx", show_default=True, help="Fin material, as for nanofin efficiency.")
-@click.option("--substrate", default="fused-silica", show_default=True, help="Substrate material.")
+@click.option("--preset", "preset_path", type=click.Path(dir_okay=False),
+              help="Preset whose [nanofin] and filter bands are the defaults below; OUTPUT/preset.toml is this preset with the "
+                   "recommended fin.")
+@click.option("--period", "period_m", type=Length(), help="Square lattice period [the preset's nanofin.pitch, else 395nm].")
+@click.option("--height", "height_m", type=Length(), help="Fin height [the preset's, else 700nm].")
+@click.option("--material", help="Fin material, as for nanofin efficiency [the preset's, else sinx].")
+@click.option("--substrate", help="Substrate material [the preset's, else fused-silica].")
 @click.option("--band", "bands", type=BandSpec(), multiple=True,
-              help="Pass band CENTER:FWHM, repeatable [the paper's 457nm:22nm, 530nm:20nm, 628nm:28nm].")
+              help="Pass band CENTER:FWHM, repeatable [the preset's filter bands, else the paper's 457nm:22nm, 530nm:20nm, 628nm:28nm].")
 @click.option("--harmonics", type=click.IntRange(1, MAX_HARMONICS), default=9, show_default=True,
               help="Fourier harmonics per axis for the map (odd; the chosen fin and its neighbours are recomputed converged).")
 @click.option("--max-harmonics", type=click.IntRange(3, MAX_HARMONICS), default=35, show_default=True,
@@ -143,31 +146,43 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
 @click.option("--fabrication-tolerance", "tolerance_m", type=Length(), default="10nm", show_default=True,
               help="The recommended fin keeps --keep of its η for every grid fin within ± this in width and length.")
 @click.option("--keep", type=Number(0, 1, min_open=True), default=0.95, show_default=True)
-@click.option("-o", "--output", type=OutputFolder(), required=True, help="Folder for sweep.npz, sweep.csv, sweep.png, sweep.json.")
+@click.option("-o", "--output", type=OutputFolder(), required=True,
+              help="Folder for sweep.npz, sweep.csv, sweep.png, sweep.json, nanofin.toml (and preset.toml with --preset).")
 @device_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
-def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, harmonics, max_harmonics, samples_per_band, tolerance_m,
-          keep, output, device, quiet, max_memory, as_json):
+def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrate, bands, harmonics, max_harmonics, samples_per_band,
+          tolerance_m, keep, output, device, quiet, max_memory, as_json):
     """η over a grid of fin widths × lengths, per pass band and their mean (the paper's Suppl.
     Note 7), and the recommended fin: the best mean η whose neighbours within
-    --fabrication-tolerance keep --keep of it, recomputed with converged harmonics."""
+    --fabrication-tolerance keep --keep of it, recomputed with converged harmonics.
+
+    OUTPUT/nanofin.toml is that fin as a preset's [nanofin] (η by RCWA at the converged
+    harmonics); with --preset, OUTPUT/preset.toml is the preset with it, for every later command
+    (psf-scan, optimize, simulate, export-gds) to use that fin."""
     import json
 
     import numpy as np
 
-    from metalens_cli.design.fin_choice import band_wavelengths, sweep_fins
+    from metalens_cli.design.fin_choice import band_wavelengths, recommended_nanofin, sweep_fins
     from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.materials import parse_material
+    from metalens_cli.io.presets import section_toml, to_toml
     from metalens_cli.io.resources import Estimate
     from metalens_cli.optics.nanofin import check_harmonics, convergence_seconds, estimate_bytes, estimate_seconds, Fin
 
     check_harmonics(harmonics)
+    preset = load_preset_option(preset_path)
+    fin0 = preset.nanofin if preset is not None else None
+    period_m = period_m if period_m is not None else (fin0.pitch_m if fin0 else 395e-9)
+    height_m = height_m if height_m is not None else (fin0.height_m if fin0 else 700e-9)
+    material, substrate = material or (fin0.material if fin0 else "sinx"), substrate or (fin0.substrate if fin0 else "fused-silica")
+    preset_bands = list(zip(preset.filter.centers_m, preset.filter.widths_m)) if preset is not None and preset.filter else []
     widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
     if len(widths_m) * len(lengths_m) > MAX_FINS:
         raise InputError("--width", f"{len(widths_m)} × {len(lengths_m)} fins", f"at most {MAX_FINS} fins")
-    bands_m = list(bands) or list(PAPER_BANDS)
+    bands_m = list(bands) or preset_bands or list(PAPER_BANDS)
     waves = band_wavelengths(bands_m, samples_per_band).ravel()
     fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
 
@@ -198,7 +213,9 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
               "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds, "cached": result.cached,
               "converged_cached": result.converged_cached,
               "solver": SOLVERS["modes"], "warnings": warnings,
-              "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json"], "output": str(output)}
+              "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json", "nanofin.toml"] + (["preset.toml"] if preset else []),
+              "output": str(output), "preset": preset_path}
+    section = recommended_nanofin(period_m, height_m, material, substrate, choice)
     from metalens_cli.io.json_files import jsonable
     from metalens_cli.plotting.nanofin import plot_fin_map
 
@@ -212,6 +229,10 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
         (folder / "sweep.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
         plot_fin_map(folder / "sweep.png", m, choice)
         (folder / "sweep.json").write_text(json.dumps(jsonable(report), allow_nan=False, indent=1) + "\n", encoding="utf-8")
+        (folder / "nanofin.toml").write_text("# the recommended fin of metalens nanofin sweep, for a preset\n" + section_toml("nanofin", section),
+                                             encoding="utf-8")
+        if preset is not None:
+            (folder / "preset.toml").write_text(to_toml(preset, nanofin=vars(section)), encoding="utf-8")
     if as_json:
         render.emit_json(report)
         return
@@ -222,4 +243,5 @@ def sweep(width_m, length_m, period_m, height_m, material, substrate, bands, har
     f = c["converged"]
     con.print(f"converged ({f['harmonics']} harmonics): mean η {f['score']:.4f}, per band " + " / ".join(f"{v:.4f}" for v in f["eta_per_band"])
               + f"; worst of {f['fins']} fins within ±{tolerance_m * 1e9:g} nm: {f['worst_neighbour']:.4f}")
-    con.print(f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds + f['seconds']:.1f} s of RCWA)")
+    con.print(f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds + f['seconds']:.1f} s of RCWA), nanofin.toml "
+              "(the fin as a preset's [nanofin])" + (f", preset.toml ({preset.name} with that fin)" if preset else ""), markup=False)

@@ -9,7 +9,9 @@ tolerance) keeps at least ``keep`` of that score; the neighbourhood is cut at th
 The map is computed with a cheap truncation, all fins of a row of the grid in one batch
 (:func:`metalens_cli.optics.fin_modes.fin_responses_symmetric`); :func:`refine` recomputes the
 chosen fin and its neighbourhood with a converged one (coarse to fine); :func:`sweep_fins` does
-all of it, the map and the refinement cached on disk (:mod:`metalens_cli.io.cache`).
+all of it, the map and the refinement cached on disk (:mod:`metalens_cli.io.cache`);
+:func:`recommended_nanofin` makes the result a preset's ``[nanofin]``, so that the optics and
+the layout use the fin that was chosen.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 
 from metalens_cli.errors import InputError
 from metalens_cli.io import cache
+from metalens_cli.io.presets import NanofinConfig
 from metalens_cli.optics.fin_modes import fin_responses_symmetric
 from metalens_cli.optics.nanofin import converge, Fin, SOLVER
 
@@ -196,3 +199,18 @@ def _warnings(m: FinMap, choice: dict) -> list[str]:
     if not fine["robust"] and choice["robust"]:
         warnings.append(f"converged at N = {fine['harmonics']}, a neighbour of the chosen fin keeps less than {choice['keep']:g} of its η")
     return warnings
+
+
+def recommended_nanofin(period_m: float, height_m: float, material: str, substrate: str, choice: dict) -> NanofinConfig:
+    """The recommended fin (``choice`` of :func:`sweep_fins`) as a preset's ``[nanofin]``: η by
+    RCWA at the harmonics its refinement converged at; a material CSV by its absolute path."""
+    from pathlib import Path
+
+    from metalens_cli.io.materials import material_file
+
+    def spec(text: str) -> str:
+        return str(Path(text).resolve()) if material_file(text) else text
+
+    return NanofinConfig(pitch_m=period_m, height_m=height_m, width_m=choice["width_m"], length_m=choice["length_m"],
+                         material=spec(material), substrate=spec(substrate), efficiency="rcwa",
+                         harmonics=int(choice["converged"]["harmonics"]))

@@ -453,14 +453,18 @@ def to_toml(preset: Preset, **overrides: dict[str, Any]) -> str:
     lines = [f"name = {toml_value(preset.name)}", f"description = {toml_value(preset.description)}"]
     for section in SECTIONS:
         config = getattr(preset, section)
-        if config is None:
-            continue
-        config = dataclasses.replace(config, **overrides.get(section, {}))
-        lines += ["", f"[{section}]"]
-        for f in dataclasses.fields(config):
-            value = getattr(config, f.name)
-            if value is not None:
-                lines.append(f"{f.metadata['key']} = {toml_field(value, f.metadata['kind'])}")
+        if config is not None:
+            lines += ["", section_toml(section, dataclasses.replace(config, **overrides.get(section, {}))).rstrip("\n")]
+    return "\n".join(lines) + "\n"
+
+
+def section_toml(section: str, config: Any) -> str:
+    """One preset section (``[section]`` and its keys) as :func:`to_toml` writes it."""
+    lines = [f"[{section}]"]
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if value is not None:
+            lines.append(f"{f.metadata['key']} = {toml_field(value, f.metadata['kind'])}")
     return "\n".join(lines) + "\n"
 
 

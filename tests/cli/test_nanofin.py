@@ -63,7 +63,7 @@ def test_sweep_writes_its_map_and_recommends_a_fin(capsys, tmp_path):
                                "--max-harmonics", "11", "--band", "530nm:20nm", "-o", out, "--json")
     assert code == 0, err
     r = json.loads(stdout)
-    assert sorted(p.name for p in out.iterdir()) == ["sweep.csv", "sweep.json", "sweep.npz", "sweep.png"]
+    assert sorted(p.name for p in out.iterdir()) == ["nanofin.toml", "sweep.csv", "sweep.json", "sweep.npz", "sweep.png"]
     assert (out / "sweep.csv").read_text().count("\n") == 5
     c = r["recommended"]
     assert c["width_m"] in (250e-9, 300e-9) and c["length_m"] in (100e-9, 150e-9)
@@ -78,6 +78,31 @@ def test_sweep_writes_its_map_and_recommends_a_fin(capsys, tmp_path):
     assert again["recommended"] == c
     code, _, err = invoke(capsys, "nanofin", "sweep", "--width", "400nm", "--length", "100nm", "-o", tmp_path / "x")
     assert code == 2 and "--width: 400 nm is larger than the 395 nm period" in err
+
+
+def test_the_recommended_fin_goes_into_the_preset(capsys, tmp_path):
+    """--preset: its [nanofin] and filter bands are the sweep's defaults, and OUTPUT/preset.toml is
+    that preset with the recommended fin (η by RCWA at the converged N), which export-gds then
+    draws without being told; OUTPUT/nanofin.toml is the section alone."""
+    from metalens_cli.io.presets import load_preset
+
+    source = PRESETS / "quick-split-spectrum.toml"
+    code, out, err = invoke(capsys, "nanofin", "sweep", "--preset", source, "--width", "250nm,300nm", "--length", "100nm,150nm",
+                            "--harmonics", "3", "--max-harmonics", "9", "-o", tmp_path / "sweep", "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    original, chosen = load_preset(source), load_preset(tmp_path / "sweep" / "preset.toml")
+    assert r["bands_m"] == [[c, w] for c, w in zip(original.filter.centers_m, original.filter.widths_m)] and r["period_m"] == 395e-9
+    fin = chosen.nanofin
+    assert (fin.width_m, fin.length_m) == (r["recommended"]["width_m"], r["recommended"]["length_m"])
+    assert fin.efficiency == "rcwa" and fin.harmonics == r["recommended"]["converged"]["harmonics"] and fin.material == original.nanofin.material
+    assert chosen.lens == original.lens and chosen.sensor == original.sensor and chosen.filter == original.filter
+    section = (tmp_path / "sweep" / "nanofin.toml").read_text()
+    assert section.count("[nanofin]") == 1 and 'efficiency = "rcwa"' in section
+    code, out, err = invoke(capsys, "export-gds", "--design", "hyperbolic:532nm", "--aperture", "20um", "--preset",
+                            tmp_path / "sweep" / "preset.toml", "-o", tmp_path / "lens.gds", "--json")
+    report = json.loads(out)
+    assert code == 0 and report["warnings"] == [] and report["efficiency"]["fin"]["width_m"] == fin.width_m
 
 
 def test_one_fin_for_optics_and_layout(capsys, tmp_path):
