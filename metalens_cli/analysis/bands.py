@@ -135,6 +135,14 @@ def bands_from_transmission(
     return label_bands(intervals)
 
 
+def filter_bands(config) -> tuple[Band, ...]:
+    """The pass bands of a preset's ``[filter]`` (:class:`~metalens_cli.io.presets.FilterConfig`):
+    where its CSV transmission exceeds its threshold, else its centres and widths."""
+    if config.csv is not None:
+        return bands_from_transmission(*read_filter_csv(config.csv), threshold=config.threshold)
+    return bands_from_centers(list(config.centers_m), list(config.widths_m), field="filter.centers")
+
+
 def _condition(name: str, lhs: float, relation: str, rhs: float, depth: float) -> Condition:
     margin = lhs - rhs if relation == ">" else rhs - lhs
     return Condition(name, lhs, relation, rhs, depth, margin, margin > 0)

@@ -36,10 +36,8 @@ def _filter_bands(preset, band_specs, filter_csv, threshold):
         return model.bands_from_centers([c for c, _ in band_specs], [w for _, w in band_specs])
     if filter_csv:
         return model.bands_from_transmission(*model.read_filter_csv(filter_csv), threshold=threshold)
-    if preset is not None and preset.filter is not None and preset.filter.csv is not None:
-        return model.bands_from_transmission(*model.read_filter_csv(preset.filter.csv), threshold=preset.filter.threshold)
     if preset is not None and preset.filter is not None:
-        return model.bands_from_centers(list(preset.filter.centers_m), list(preset.filter.widths_m), field="filter.centers")
+        return model.filter_bands(preset.filter)
     where = f" (preset {preset.name} has no [filter])" if preset is not None else ""
     raise InputError("--band", f"no filter given{where}", "--band CENTER:WIDTH (repeatable), --filter-csv FILE or --preset FILE")
 

@@ -165,6 +165,7 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
 
     import numpy as np
 
+    from metalens_cli.analysis.bands import filter_bands
     from metalens_cli.design.fin_choice import band_wavelengths, recommended_nanofin, sweep_fins
     from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.materials import parse_material
@@ -178,7 +179,8 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
     period_m = period_m if period_m is not None else (fin0.pitch_m if fin0 else 395e-9)
     height_m = height_m if height_m is not None else (fin0.height_m if fin0 else 700e-9)
     material, substrate = material or (fin0.material if fin0 else "sinx"), substrate or (fin0.substrate if fin0 else "fused-silica")
-    preset_bands = list(zip(preset.filter.centers_m, preset.filter.widths_m)) if preset is not None and preset.filter else []
+    preset_bands = [] if preset is None or preset.filter is None else [((b.lo_m + b.hi_m) / 2, b.hi_m - b.lo_m)
+                                                                        for b in filter_bands(preset.filter)]
     widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
     if len(widths_m) * len(lengths_m) > MAX_FINS:
         raise InputError("--width", f"{len(widths_m)} × {len(lengths_m)} fins", f"at most {MAX_FINS} fins")

@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from metalens_cli.cli.main import run
@@ -92,7 +93,7 @@ def test_the_recommended_fin_goes_into_the_preset(capsys, tmp_path):
     assert code == 0, err
     r = json.loads(out)
     original, chosen = load_preset(source), load_preset(tmp_path / "sweep" / "preset.toml")
-    assert r["bands_m"] == [[c, w] for c, w in zip(original.filter.centers_m, original.filter.widths_m)] and r["period_m"] == 395e-9
+    assert np.allclose(r["bands_m"], list(zip(original.filter.centers_m, original.filter.widths_m)), rtol=1e-9) and r["period_m"] == 395e-9
     fin = chosen.nanofin
     assert (fin.width_m, fin.length_m) == (r["recommended"]["width_m"], r["recommended"]["length_m"])
     assert fin.efficiency == "rcwa" and fin.harmonics == r["recommended"]["converged"]["harmonics"] and fin.material == original.nanofin.material
