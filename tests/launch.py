@@ -18,9 +18,10 @@ def run_metalens(args: list[str], out: Path, *, ranks: int = 1) -> Path:
 
     With ``ranks=2`` it runs under torchrun and keeps each rank's stdout and stderr beside ``out``
     (torchrun's own summary names a failed rank's signal, not what the rank printed). A rank that
-    dies by SIGABRT without a Python error is a native crash inside torch's gloo backend (seen once
-    in CI, at 1 in ~100 runs or rarer here): that run is repeated once, in a fresh folder, with a
-    warning that carries its logs. Any other failure, or a second crash, fails.
+    dies by SIGABRT without a Python error crashed in native code below this package, most likely
+    torch's gloo backend (seen once in CI; not reproduced in ~100 runs here): that run is repeated
+    once, in a fresh folder, with a warning that carries its logs. Any other failure, or a second
+    crash, fails.
     """
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}  # a native crash prints the Python stack
 
