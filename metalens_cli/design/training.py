@@ -151,9 +151,10 @@ def estimate_training(preset) -> tuple[int, float | None]:
     """(peak bytes, seconds) of a run of ``preset``: one step's PSFs (``optics.psf.estimate_psf``
     at the plan's wavelength range, kept for the backward pass: ×2) and its batch of captures on
     the canvas (about 20 float32 planes of 3 channels per image, forward and backward); time from
-    the PSF plan (×3 with its backward pass) and the canvas FFTs (×1.5), times the steps. On the
-    quick preset: 48 min estimated, 36 min measured (run.json of runs/quick-split-spectrum). A 2-D
-    θ grid over 1 GiB is estimated alone, without building anything (time None)."""
+    the PSF plan (×3 with its backward pass) and the canvas FFTs, times the steps. On the quick
+    preset: 36 min estimated; measured 36 min in an earlier run and 18 min (0.71 s a step, of which
+    scenes, formation and their backward about 0.35 s) on an idle 2-core machine. A 2-D θ grid
+    over 1 GiB is estimated alone, without building anything (time None)."""
     from metalens_cli.optics.psf import FFT_RATE, estimate_psf
 
     o = preset.optimize
@@ -169,7 +170,7 @@ def estimate_training(preset) -> tuple[int, float | None]:
                        max(windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m)
     canvas = preset.sensor.pixels + 2 * windows.margin
     captures = o.batch_size * 20 * 3 * canvas**2 * 4
-    per_step = 3 * (psf.seconds - psf.setup_seconds) + 1.5 * o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
+    per_step = 3 * (psf.seconds - psf.setup_seconds) + o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
     return 2 * psf.memory_bytes + captures, psf.setup_seconds + o.steps * per_step
 
 
