@@ -336,12 +336,12 @@ def _other_spots(smooth: np.ndarray, level: float, rough: tuple[int, int]) -> li
     count, labels = cv2.connectedComponents((smooth > level).astype(np.uint8), connectivity=8)
     if count <= 2:
         return []
-    excess = np.clip(smooth - level, 0, None).ravel().astype(np.float64)
-    flat = labels.ravel()
+    lit = np.flatnonzero(labels)  # only the light: a frame's worth of index arrays is not needed
+    flat, excess = labels.ravel()[lit], (smooth.ravel()[lit] - level).astype(np.float64)
     light = np.bincount(flat, excess, count)
-    yy, xx = np.indices(smooth.shape)
-    cy, cx = (np.divide(np.bincount(flat, excess * axis.ravel(), count), light, out=np.zeros(count), where=light > 0)
-              for axis in (yy, xx))  # label 0, the background, holds no excess
+    rows, cols = np.divmod(lit, smooth.shape[1])
+    cy, cx = (np.divide(np.bincount(flat, excess * axis, count), light, out=np.zeros(count), where=light > 0)
+              for axis in (rows, cols))  # label 0, the background, holds no light
     main = labels[rough]
     reach = 2 * math.sqrt(np.count_nonzero(flat == main) / math.pi) + 2
     return [{"at_px": [float(cy[k]), float(cx[k])], "share": float(light[k] / light[main])} for k in range(1, count)
