@@ -3,6 +3,12 @@
 - ``RadialTheta``: θ(r_k) at r_k = k·p (p: meta-atom pitch), k = 0..K, the lens's own radial form
   (``Metalens.theta`` 1-D): one parameter per meta-atom ring, or G design samples spread evenly
   over r_0..r_K and interpolated linearly to the rings (G < K + 1: a smoother, cheaper design).
+- ``SplineTheta`` (``theta_basis = "spline"``): the initial radial profile plus a smooth
+  deviation, a cubic B-spline with G coefficients on uniform knots in (r/r_K)² (smooth at the
+  axis; knots closest where Fresnel zones are, at the rim). Adam moves every sample of a
+  ``RadialTheta`` by about its learning rate each step, independently: a ±0.1 rad step between
+  samples 8 rings apart tilts rays by ~0.01 rad and moves them ~20 pixels at f = 4 mm, so the
+  light spreads within a few steps (docs/training.md); the spline's steps are smooth.
 - ``GridTheta``: θ on a G × G design grid spanning the M × M meta-atom grid (axis at the centre
   site of both), bilinearly upsampled to the meta-atom grid (G = M: one parameter per site).
 
@@ -50,6 +56,36 @@ class RadialTheta(_Theta):
         return torch.nn.functional.interpolate(self.theta[None, None], size=self.size, mode="linear", align_corners=True)[0, 0]
 
 
+class SplineTheta(torch.nn.Module):
+    """θ(r_k) = θ0(r_k) + Σ_g c_g·B_g((r_k/r_K)²) on the rings r_k: ``theta`` holds the G spline
+    coefficients c (rad, 0 at the start), ``base`` θ0 and ``basis`` B (rings × G) are fixed."""
+
+    def __init__(self, base: np.ndarray, coefficients: int, pitch_m: float, aperture_m: float, focal_length_m: float):
+        super().__init__()
+        self.register_buffer("base", torch.as_tensor(np.asarray(base), dtype=torch.float64))
+        self.register_buffer("basis", torch.from_numpy(spline_basis(base.size, coefficients)))
+        self.theta = torch.nn.Parameter(torch.zeros(coefficients, dtype=torch.float64))
+        self.pitch_m, self.aperture_m, self.focal_length_m = pitch_m, aperture_m, focal_length_m
+
+    def full_theta(self) -> torch.Tensor:
+        return self.base + self.basis @ self.theta
+
+    def lens(self) -> Metalens:
+        return Metalens(self.full_theta(), self.pitch_m, self.aperture_m, self.focal_length_m)
+
+
+def spline_basis(rings: int, coefficients: int) -> np.ndarray:
+    """(rings × G) cubic B-splines at u = (k/K)², k = 0..K = rings − 1, on G − 3 uniform knot
+    intervals of [0, 1] (clamped ends): each column is one basis function, rows sum to 1."""
+    from scipy.interpolate import BSpline
+
+    degree = 3
+    inner = np.linspace(0.0, 1.0, coefficients - degree + 1)
+    knots = np.concatenate([np.zeros(degree), inner, np.ones(degree)])
+    u = (np.arange(rings) / (rings - 1)) ** 2
+    return BSpline.design_matrix(u, knots, degree).toarray()
+
+
 class GridTheta(_Theta):
     """θ on a G × G design grid, bilinearly upsampled (corners aligned) to the M × M meta-atom grid."""
 
@@ -78,15 +114,24 @@ def random_radial_theta(r: np.ndarray, aperture_m: float, peak_frequency: float,
 
 
 def initial_parameterization(parameterization: str, init: str, lambda_d_m: float, focal_length_m: float,
-                             aperture_m: float, pitch_m: float, design_grid: int = 0, seed: int = 0):
+                             aperture_m: float, pitch_m: float, design_grid: int = 0, seed: int = 0, basis: str = "samples"):
     """The module to optimise: ``radial`` or ``2d``, initialised ``hyperbolic`` (λd, f) or ``random``.
-    ``design_grid``: radial, the number of design samples along the radius; 2-D, the side of the
-    design grid; 0 = one parameter per meta-atom ring or site."""
+    ``design_grid``: radial, the number of design samples (``basis = "samples"``) or spline
+    coefficients (``"spline"``) along the radius; 2-D, the side of the design grid; 0 = one
+    parameter per meta-atom ring or site (samples only)."""
     if init not in ("hyperbolic", "random"):
         raise InputError("optimize.init", f"unknown initialisation {init!r}", "hyperbolic or random")
+    if basis not in ("samples", "spline") or (basis == "spline" and parameterization != "radial"):
+        raise InputError("optimize.theta_basis", f"{basis!r} for a {parameterization} θ", "samples, or spline for a radial θ")
     na = math.sin(math.atan(aperture_m / 2 / focal_length_m))
     if parameterization == "radial":
         rings = radial_radii(pitch_m, aperture_m)
+        if basis == "spline":
+            if not 4 <= design_grid <= rings.size:
+                raise InputError("optimize.design_grid", f"{design_grid} spline coefficients for {rings.size} rings", f"4..{rings.size}")
+            base = (hyperbolic_phase(rings, lambda_d_m, focal_length_m) / 2 if init == "hyperbolic"
+                    else random_radial_theta(rings, aperture_m, na / lambda_d_m, seed))
+            return SplineTheta(base, design_grid, pitch_m, aperture_m, focal_length_m)
         g = rings.size if design_grid in (0, rings.size) else design_grid
         if g < 2 or g > rings.size:
             raise InputError("optimize.design_grid", f"{design_grid} radial samples for {rings.size} rings", f"0 or 2..{rings.size}")

@@ -40,10 +40,12 @@ def channel_energies(rgb: np.ndarray, window: int) -> dict:
     return {"energy_in_window": rgb.sum(axis=(-2, -1)).tolist(), f"energy_center_{window}x{window}": central_energy(rgb, window).tolist()}
 
 
-def kept_summary(history: list[dict]) -> dict:
-    """Per depth and channel, the least and mean fraction of the light the step windows kept."""
-    keys = sorted({k for row in history for k in row if k.startswith("kept_")})
-    return {k[5:]: {"min": min(r[k] for r in history if k in r), "mean": statistics.fmean(r[k] for r in history if k in r)}
+def kept_summary(history: list[dict], prefix: str = "kept_") -> dict:
+    """Per depth and channel, the least and mean over the steps of ``prefix`` values: ``kept_``,
+    the fraction of the light through the aperture the step windows kept; ``held_``, of the
+    light on the sensor plane; ``window_``, the window sides (pixels)."""
+    keys = sorted({k for row in history for k in row if k.startswith(prefix)})
+    return {k[len(prefix):]: {"min": min(r[k] for r in history if k in r), "mean": statistics.fmean(r[k] for r in history if k in r)}
             for k in keys}
 
 
@@ -92,7 +94,9 @@ def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[st
         "final_loss": final,
         "validation_loss": validation,
         "psf": psf_report,
-        "psf_windows": {**windows, "kept": kept},
+        "psf_windows": {**windows, "kept": kept, "held": kept_summary(summary.history, "held_"),
+                        "window_px": {k: {**v, "max": max(r[f"window_{k}"] for r in summary.history if f"window_{k}" in r)}
+                                      for k, v in kept_summary(summary.history, "window_").items()}},
         "notes": notes + [f"the {name.replace('_', ' ')} PSF window kept as little as {v['min']:.3f} of the light in a step (< {KEPT_WARNING})"
                           for name, v in kept.items() if v["min"] < KEPT_WARNING],
     }

@@ -36,7 +36,8 @@ from metalens_cli.io.presets import load_preset
 
 KEEP = 2
 STATES = ("model", "optimizer", "scheduler")  # the state dicts of a checkpoint, restored by Checkpoint.restore
-LOSS_COLUMNS = ("step", "lr", "total", "l1", "ssim", "domain_adaptation", "bright", "sharp", "z_near_m", "z_far_m", "seconds")
+LOSS_COLUMNS = ("step", "lr", "total", "l1", "ssim", "domain_adaptation", "bright", "sharp", "z_near_m", "z_far_m", "seconds",
+                "window_near", "window_far")
 
 
 class RunDirectory:

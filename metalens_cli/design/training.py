@@ -39,18 +39,18 @@ from metalens_cli.errors import InputError, MetalensError, Terminated
 from metalens_cli.imaging.formation import canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import crop_window
-from metalens_cli.optics.blur import kept_fraction, psf_window
+from metalens_cli.optics.blur import psf_window
+from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, channel_psf_stack
 from metalens_cli.io.presets import to_toml
-from metalens_cli.optics.psf import compute_psf
 from metalens_cli.optics.sampling import check_lens_sampling
 from metalens_cli.io.preset_spectra import preset_sensitivity
-from metalens_cli.optics.spectra import mix_channels, sample_wavelengths
+from metalens_cli.optics.spectra import sample_wavelengths
 
 DEFAULT_LAMBDA_D_M = 532e-9
 PLAN_HEADROOM = 1.25
 THETA_GRID_COPIES = 12       # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
 LARGE_GRID_BYTES = 1 << 30   # a 2-D θ grid above this is estimated (and refused) before it is built
-WINDOW_SENSITIVITY = 1e-3  # wavelengths whose S^c exceeds this fraction of the peak size the windows
+MAX_PLAN_WINDOW = 4097     # planned windows stop growing here (pixels): the step then reports what it kept
 
 
 class TrainingInterrupted(MetalensError):
@@ -89,7 +89,8 @@ def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
     z_near = float(rng.uniform(*preset.scene.z_near_m))
     lo, hi = preset.scene.z_far_m
     z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
-    sample = sample_wavelengths(sensitivity, preset.optimize.wavelengths_per_channel, rng)
+    sample = sample_wavelengths(sensitivity, preset.optimize.wavelengths_per_channel,
+                                rng if preset.optimize.spectral_sampling == "stratified" else None)
     return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights)
 
 
@@ -101,7 +102,7 @@ def build_model(preset):
     o = preset.optimize
     return initial_parameterization(preset.lens.parameterization, "hyperbolic" if preset.lens.design == "hyperbolic" else o.init,
                                     _lambda_d(preset), preset.lens.focal_length_m, preset.lens.aperture_m, preset.nanofin.pitch_m,
-                                    o.design_grid, o.seed)
+                                    o.design_grid, o.seed, o.theta_basis)
 
 
 def _scheduler(optimizer, o):
@@ -124,8 +125,9 @@ def plan_frequency(preset) -> float:
 
 @dataclass(frozen=True)
 class Windows:
-    """The run's PSF windows (odd sides, pixels) at the near and far depths, and the canvas
-    margin (pixels) they need around the sensor."""
+    """The run's planned PSF windows (odd sides, pixels) at the near and far depths: where each
+    step looks for light (its capacity), and the canvas margin (pixels) they need around the
+    sensor. Each step's own windows come from its light (``optics.channel_psf``)."""
 
     near: int
     far: int
@@ -134,14 +136,20 @@ class Windows:
     def margin(self) -> int:
         return canvas_margin(self.near, self.far)
 
+    @property
+    def plan(self) -> int:
+        return max(self.near, self.far)
+
+    def grown(self) -> Windows:
+        """Both windows ``PLAN_HEADROOM`` times larger (odd): when a step's light outgrows them."""
+        return Windows(*(2 * math.ceil(PLAN_HEADROOM * n / 2) + 1 for n in (self.near, self.far)))
+
 
 def plan_windows(preset, sensitivity) -> Windows:
     """Windows that hold the initial design's light (``optics.blur``) at every wavelength the
-    channels respond to and both ends of each depth interval, times ``PLAN_HEADROOM`` for the
-    lens to change; each step reports what its windows kept."""
-    grid = sensitivity.wavelengths_m
-    support = grid[sensitivity.values.max(axis=0) > WINDOW_SENSITIVITY * sensitivity.values.max()]
-    waves = [float(support.min()), float(support.max())]  # the ends of the range bound every ray (optics.blur)
+    channels respond to (``spectra.WEIGHT_THRESHOLD``) and both ends of each depth interval,
+    times ``PLAN_HEADROOM`` for the lens to change; a step whose light outgrows them grows them."""
+    waves = sensitivity.support()  # the ends of the range bound every ray (optics.blur)
     lens, d, pitch = build_model(preset).lens(), preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
     near, far = preset.scene.z_near_m, preset.scene.z_far_m
     return Windows(psf_window(lens, waves, list(near), d, pitch, PLAN_HEADROOM), psf_window(lens, waves, list(far), d, pitch, PLAN_HEADROOM))
@@ -175,18 +183,23 @@ def estimate_training(preset) -> tuple[int, float | None]:
 
 
 def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None,
-              frequency: float | None = None) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """(3, N, N) near and far PSFs for one step's draw in their windows, differentiable in θ; and
-    the grid used."""
+              frequency: float | None = None) -> tuple[ChannelPsfStack, Windows]:
+    """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
+    (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ; and
+    the planned windows, grown (and the step recomputed) when its light outgrew them."""
     plan_l, plan_z = plan_range(preset)
-    result = compute_psf(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], max(windows.near, windows.far),
-                         preset.sensor.pixel_pitch_m, preset.lens.focal_length_m, "auto", torch.float32, device,
-                         plan_wavelengths_m=plan_l, plan_depths_m=plan_z, plan_frequency=frequency)
+    while True:
+        stack = channel_psf_stack(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], draw.weights,
+                                  (windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m,
+                                  plan_pixels=windows.plan, device=device, plan_wavelengths_m=plan_l,
+                                  plan_depths_m=plan_z, plan_frequency=frequency)
+        if not stack.outgrown.any() or windows.plan >= MAX_PLAN_WINDOW:
+            break
+        windows = windows.grown()
     if timing is not None:
-        for stage, seconds in result.timing_s.items():
+        for stage, seconds in stack.timing_s.items():
             timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
-    rgb = mix_channels(result.psf, draw.weights)
-    return crop_window(rgb[0], windows.near), crop_window(rgb[1], windows.far), result.grid
+    return stack, windows
 
 
 def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
@@ -249,7 +262,7 @@ class _Session:
     pool: list | None
     shard: list[int]
     frequency: float
-    windows: Windows
+    windows: Windows  # grows when a step's light outgrows it (saved in checkpoints)
     notes: list[str]
 
 
@@ -267,21 +280,24 @@ def _session(preset, ctx) -> _Session:
 def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> dict:
     """Run ``steps`` training steps of ``preset`` without a run directory and report their cost:
     seconds per step (median over the steps after the first, which builds the kernels), seconds by
-    stage, the first step's seconds, the number of θ parameters and, on CUDA, the peak memory (bytes)."""
+    stage, the first step's seconds, the number of θ parameters, the last step's PSF windows and,
+    on CUDA, the peak memory (bytes)."""
     with distributed.session(torch.device(device)) as ctx:
         session = _session(preset, ctx)
         if ctx.device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(ctx.device)
         timing: dict[str, float] = {}
         seconds = []
+        row: dict = {}
         for step in range(steps):
             t0 = time.perf_counter()
-            _one_step(session, preset, step, ctx, timing)
+            row = _one_step(session, preset, step, ctx, timing)[0]
             if ctx.device.type == "cuda":
                 torch.cuda.synchronize(ctx.device)
             seconds.append(time.perf_counter() - t0)
         report = {"steps": steps, "first_step_s": seconds[0], "seconds_per_step": statistics.median(seconds[1:] or seconds),
                   "seconds_by_stage": timing, "parameters": sum(p.numel() for p in session.model.parameters()),
+                  "windows_px": {"near": row.get("window_near"), "far": row.get("window_far")},
                   "device": str(ctx.device), "threads": torch.get_num_threads()}
         if ctx.device.type == "cuda":
             report["peak_memory_bytes"] = torch.cuda.max_memory_allocated(ctx.device)
@@ -310,6 +326,8 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     if checkpoint is not None:
         checkpoint.restore(model=model, optimizer=optimizer, scheduler=scheduler)
         history, start = checkpoint.state["history"], checkpoint.step
+        if "windows" in checkpoint.state:  # the planned windows the run had grown to
+            session.windows = Windows(*checkpoint.state["windows"])
     if ctx.is_main and resume and overrides:
         run.write_text("preset.toml", to_toml(preset))
     distributed.barrier(ctx)
@@ -325,13 +343,13 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
             if on_step is not None and ctx.is_main:
                 on_step(step + 1, o.steps, row)
             if ctx.is_main and (step + 1) % o.checkpoint_every == 0:
-                run.save_checkpoint(_state(model, optimizer, scheduler, history, step + 1))
+                run.save_checkpoint(_state(session, history, step + 1))
                 run.write_loss_csv(history)
             if ctx.is_main and (step + 1) % o.sample_every == 0:
                 _write_sample(run, sample, step)
     except (KeyboardInterrupt, Terminated):
         done = len(history)
-        path = run.save_checkpoint(_state(model, optimizer, scheduler, history, done)) if ctx.is_main else None
+        path = run.save_checkpoint(_state(session, history, done)) if ctx.is_main else None
         if ctx.is_main:
             run.write_loss_csv(history)
         raise TrainingInterrupted(done, path) from None
@@ -339,9 +357,13 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     summary = RunSummary(run.path, o.steps, start, history, _seconds_per_step(history[start:]), theta)
     if ctx.is_main:
         if o.steps > start:
-            run.save_checkpoint(_state(model, optimizer, scheduler, history, o.steps))
+            run.save_checkpoint(_state(session, history, o.steps))
         validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
-                      "final": validation_loss(model, preset, 4, ctx.device, session.frequency)}
+                      "final": validation_loss(model, preset, 4, ctx.device, session.frequency),
+                      "gradient_norms": {"initial": term_gradient_norms(build_model(preset).to(ctx.device), preset, 2, ctx.device,
+                                                                        session.frequency, session.features),
+                                         "final": term_gradient_norms(model, preset, 2, ctx.device, session.frequency,
+                                                                      session.features)}}
         summary.report = _finish(run, preset, model, summary, grid, timing, session.notes, ctx, validation, session.windows)
     return summary
 
@@ -353,12 +375,14 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     optimizer.zero_grad(set_to_none=True)
     t = time.perf_counter()
     windows = session.windows
-    near, far, grid = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
+    stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
+    near, far = stack.psfs
+    margin = canvas_margin(near.shape[-1], far.shape[-1])
     t = _lap(timing, "psf", t)
-    clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, windows.margin, ctx.device)
+    clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, margin, ctx.device)
     t = _lap(timing, "scenes", t)
-    capture = form_image(clean, colour, mask, near, far, windows.margin).obstructed
-    clean, colour, mask = (sensor_crop(x, windows.margin) for x in (clean, colour, mask))
+    capture = form_image(clean, colour, mask, near, far, margin).obstructed
+    clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
     sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
     share = len(shard) / o.batch_size
@@ -385,30 +409,57 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     w = preset.loss
     values["total"] = (w.l1 * values["l1"] + w.ssim * values["ssim"] + w.domain_adaptation * values.get("domain_adaptation", 0.0)
                        + w.bright * values["bright"] + w.sharp * values["sharp"])
-    kept = {f"kept_{depth}_{c}": float(k) for depth, psf in (("near", near), ("far", far)) for c, k in zip("RGB", kept_fraction(psf))}
-    row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m, **kept}
-    return row, grid, sample
+    kept = {f"kept_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.kept[i])}
+    held = {f"held_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.held[i])}
+    row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m,
+           "window_near": near.shape[-1], "window_far": far.shape[-1], "plan_window": session.windows.plan, **kept, **held}
+    return row, stack.grid, sample
 
 
 VALIDATION_STEP = 10**9  # draws for the fixed validation loss start here, far from any training step
+GRADIENT_TERMS = ("l1", "ssim", "domain_adaptation", "bright", "sharp")
+
+
+def _validation_parts(model, preset, draws: int, device, frequency: float | None, features=None):
+    """For each of the ``draws`` fixed validation draws (step numbers no training step uses):
+    the weighted loss and its parts on the whole batch (``design.losses.training_loss``)."""
+    sensitivity = preset_sensitivity(preset)
+    o = preset.optimize
+    windows = plan_windows(preset, sensitivity)
+    pool = _image_pool(preset, windows.margin)
+    for k in range(draws):
+        step = VALIDATION_STEP + k
+        draw = draw_step(preset, sensitivity, o.seed, step)
+        stack, windows = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
+        near, far = stack.psfs
+        margin = canvas_margin(near.shape[-1], far.shape[-1])
+        clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device)
+        capture = form_image(clean, colour, mask, near, far, margin).obstructed
+        yield training_loss(capture, sensor_crop(clean, margin), sensor_psf(far, preset), preset.loss, features)
+
+
+def term_gradient_norms(model, preset, draws: int = 4, device="cpu", frequency: float | None = None,
+                        features=None) -> dict[str, float]:
+    """‖∂(w_t·L_t)/∂c‖₂ for each weighted loss term t, c the optimiser's parameters (design
+    samples or spline coefficients), mean over the ``draws`` fixed validation draws (the whole
+    batch each): which terms steer the lens, measured rather than inherited (docs/training.md)."""
+    w = preset.loss
+    params = [p for p in model.parameters() if p.requires_grad]
+    sums: dict[str, float] = {}
+    for _, parts in _validation_parts(model, preset, draws, device, frequency, features):
+        terms = [t for t in GRADIENT_TERMS if t in parts]
+        for i, t in enumerate(terms):
+            grads = torch.autograd.grad(getattr(w, t) * parts[t], params, retain_graph=i < len(terms) - 1, allow_unused=True)
+            norm = math.sqrt(sum(float(g.double().pow(2).sum()) for g in grads if g is not None))
+            sums[t] = sums.get(t, 0.0) + norm / draws
+    return sums
 
 
 def validation_loss(model, preset, draws: int = 4, device="cpu", frequency: float | None = None) -> float:
     """Mean weighted loss (without L_DA) over ``draws`` fixed draws that training never uses:
     the same number before and after training measures progress without sampling noise."""
-    sensitivity = preset_sensitivity(preset)
-    o = preset.optimize
-    windows = plan_windows(preset, sensitivity)
-    pool = _image_pool(preset, windows.margin)
-    totals = []
     with torch.no_grad():
-        for k in range(draws):
-            step = VALIDATION_STEP + k
-            draw = draw_step(preset, sensitivity, o.seed, step)
-            near, far, _ = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
-            clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, windows.margin, device)
-            capture = form_image(clean, colour, mask, near, far, windows.margin).obstructed
-            totals.append(float(training_loss(capture, sensor_crop(clean, windows.margin), sensor_psf(far, preset), preset.loss)[0]))
+        totals = [float(total) for total, _ in _validation_parts(model, preset, draws, device, frequency)]
     return sum(totals) / len(totals)
 
 
@@ -418,8 +469,9 @@ def _lap(timing: dict, name: str, t: float) -> float:
     return now
 
 
-def _state(model, optimizer, scheduler, history, step) -> dict:
-    return {"step": step, "model": model.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+def _state(session: _Session, history, step) -> dict:
+    return {"step": step, "model": session.model.state_dict(), "optimizer": session.optimizer.state_dict(),
+            "scheduler": session.scheduler.state_dict(), "windows": [session.windows.near, session.windows.far],
             "history": history, "rng": "stateless: every draw is a function of (seed, step)"}
 
 
@@ -451,4 +503,5 @@ def _finish(run: RunDirectory, preset, model, summary: RunSummary, grid: dict, t
     from metalens_cli.design.report import write_results
 
     return write_results(run, preset, summary, grid, timing, notes, ctx.world, str(ctx.device), torch.get_num_threads(), validation,
-                         {"near_px": windows.near, "far_px": windows.far, "canvas_margin_px": windows.margin, "headroom": PLAN_HEADROOM})
+                         {"planned_px": {"near": windows.near, "far": windows.far}, "headroom": PLAN_HEADROOM,
+                          "rule": f"each step: the window holding {ENCIRCLED_ENERGY} of each channel's power on the sensor plane"})

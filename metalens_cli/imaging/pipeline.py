@@ -24,6 +24,7 @@ DEFAULT_WAVELENGTHS = "400:700:5nm"
 
 
 KEPT_WARNING = 0.99  # warn when a PSF window holds less of the light than this
+MAX_WINDOW = 4097    # PSF windows (pixels) stop growing here; the kept fractions then tell what they lose
 
 
 @dataclass
@@ -39,6 +40,7 @@ class ChannelPsfs:
     kept_far: list[float]
     coverage: list[float]
     seconds: float
+    held: dict = field(default_factory=dict)
 
     @property
     def margin(self) -> int:
@@ -48,7 +50,8 @@ class ChannelPsfs:
     def report(self) -> dict:
         """JSON-ready windows and kept fractions per depth and channel."""
         return {"psf_window_px": {"near": self.near.shape[-1], "far": self.far.shape[-1]},
-                "psf_energy": {"near": dict(zip("RGB", self.kept_near)), "far": dict(zip("RGB", self.kept_far))}}
+                "psf_energy": {"near": dict(zip("RGB", self.kept_near)), "far": dict(zip("RGB", self.kept_far))},
+                **({"psf_held": self.held} if self.held else {})}
 
     def warnings(self) -> list[str]:
         """One line per (depth, channel) whose window kept less than ``KEPT_WARNING`` of the light."""
@@ -82,24 +85,36 @@ def channel_weights(design, wavelengths_m):
 def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_pitch_m: float,
                  dtype=torch.float32, device="cpu", window: int | None = None) -> ChannelPsfs:
     """Monochromatic PSFs at both depths mixed into R, G, B, each depth in the window that holds
-    its light at every wavelength with weight (``optics.blur.psf_window``): one ``compute_psf``
-    call in the larger window, the other depth cropped to its own. ``window`` forces one N × N
-    window for both (the kept fractions then tell what it loses)."""
+    99.9 % of its light on the sensor plane (``optics.channel_psf``), looked for within the
+    window its rays need (``optics.blur.psf_window`` over the wavelengths that matter,
+    ``spectra.significant``: the rule training uses), grown while the light outgrows it.
+    ``window`` forces one N × N window for both (the kept fractions then tell what it loses)."""
     from metalens_cli.optics.blur import kept_fraction, psf_window
+    from metalens_cli.optics.channel_psf import channel_psf_stack
     from metalens_cli.optics.psf import compute_psf
-    from metalens_cli.optics.spectra import mix_channels
+    from metalens_cli.optics.spectra import mix_channels, significant
 
     start = time.perf_counter()
     weights = channel_weights(design, wavelengths_m)
-    used = [lam for lam, w in zip(wavelengths_m, weights.weights.max(axis=0)) if w > 0]
     d = design.focal_length_m
-    windows = [window or psf_window(design.lens, used, [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)]
-    result = compute_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, d, "auto", dtype, device)
-    rgb = mix_channels(result.psf, weights.weights)
-    near, far = (crop_window(rgb[i], n) for i, n in enumerate(windows))
-    kept = [kept_fraction(p).cpu().tolist() for p in (near, far)]
-    return ChannelPsfs(near, far, z_near_m, z_far_m, kept[0], kept[1], [float(c) for c in weights.coverage],
-                       time.perf_counter() - start)
+    if window:
+        result = compute_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], window, pixel_pitch_m, d, "auto", dtype, device)
+        near, far = mix_channels(result.psf, weights.weights)
+        kept = [kept_fraction(p).cpu().tolist() for p in (near, far)]
+        return ChannelPsfs(near, far, z_near_m, z_far_m, kept[0], kept[1], [float(c) for c in weights.coverage],
+                           time.perf_counter() - start)
+    used = list(np.asarray(wavelengths_m)[significant(weights.weights)])
+    capacity = [psf_window(design.lens, used, [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)]
+    while True:
+        stack = channel_psf_stack(design.lens, list(wavelengths_m), [z_near_m, z_far_m], weights.weights, capacity,
+                                  pixel_pitch_m, d, dtype=dtype, device=device)
+        if not stack.outgrown.any() or max(capacity) >= MAX_WINDOW:
+            break
+        capacity = [2 * math.ceil(1.25 * n / 2) + 1 if grow else n for n, grow in zip(capacity, stack.outgrown.any(axis=1))]
+    near, far = stack.psfs
+    held = {depth: dict(zip("RGB", stack.held[i].tolist())) for i, depth in enumerate(("near", "far"))}
+    return ChannelPsfs(near, far, z_near_m, z_far_m, stack.kept[0].tolist(), stack.kept[1].tolist(),
+                       [float(c) for c in weights.coverage], time.perf_counter() - start, held)
 
 
 def estimate_captures(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_pitch_m: float, pixels: int,

@@ -113,6 +113,8 @@ class OptimizeConfig:
     seed: int = toml_key("seed", "int", lo=0, hi=2**63 - 1, default=0)
     init: str = toml_key("init", "choice", choices=("hyperbolic", "random"), default="hyperbolic")
     design_grid: int = toml_key("design_grid", "int", lo=0, hi=100_000, default=0)  # radial samples / 2-D side; 0 = per meta-atom
+    theta_basis: str = toml_key("theta_basis", "choice", choices=("samples", "spline"), default="samples")  # see design.parameterization
+    spectral_sampling: str = toml_key("spectral_sampling", "choice", choices=("stratified", "midpoint"), default="stratified")
     obstructions: tuple[str, ...] = toml_key("obstructions", "string_list", default=("dirt",))
     images: str | None = toml_key("images", "folder", default=None)  # training images; none: procedural scenes
     checkpoint_every: int = toml_key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
@@ -129,7 +131,7 @@ class LossConfig:
     bright: float = toml_key("bright", "float", lo=0.0, hi=1e3, default=1.0)
     sharp: float = toml_key("sharp", "float", lo=0.0, hi=1e3, default=1.0)
     sharp_window: int = toml_key("sharp_window", "int", lo=1, hi=101, default=5)
-    sharp_mode: str = toml_key("sharp_mode", "choice", choices=("total", "per_channel"), default="total")  # see design.losses
+    sharp_mode: str = toml_key("sharp_mode", "choice", choices=("total", "per_channel", "log"), default="total")  # see design.losses
     domain_adaptation_weights: str | None = toml_key("domain_adaptation_weights", "path", default=None)  # DeepLabv3+ checkpoint
 
 

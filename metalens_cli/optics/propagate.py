@@ -373,7 +373,7 @@ def clear_caches() -> None:
     _HANKEL_CACHE.clear()
 
 
-def _real_matmul(mat: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+def real_matmul(mat: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
     """mat (a × b, real) @ z (b × c, complex) as one real product."""
     zr = torch.view_as_real(z).reshape(z.shape[0], -1)
     return torch.view_as_complex((mat @ zr).reshape(mat.shape[0], -1, 2).contiguous())
@@ -401,8 +401,8 @@ def radial_propagate(field_r: torch.Tensor, kernel: HankelKernel, transfer: torc
     """Propagate radial fields (Q, B) sampled at the nodes ``kernel.r`` with ``transfer`` (n, B)
     from ``radial_transfer``; returns the fields at the radii of ``out_matrix`` (rows), (J, B).
     All columns (wavelengths × depths) go through one matrix product per stage."""
-    spec = _real_matmul(kernel.forward, field_r * kernel.weight[:, None])
-    return _real_matmul(out_matrix, spec * transfer)
+    spec = real_matmul(kernel.forward, field_r * kernel.weight[:, None])
+    return real_matmul(out_matrix, spec * transfer)
 
 
 # ------------------------------------------------------------------------- Rayleigh-Sommerfeld

@@ -72,7 +72,7 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
     lams = [float(x) for x in torch.as_tensor(wavelengths_m, dtype=torch.float64).reshape(-1)]
     zs = [float(x) for x in torch.as_tensor(depths_m, dtype=torch.float64).reshape(-1)]
     d = distance_m if distance_m is not None else lens.focal_length_m
-    _validate(lams, zs, pixels, pixel_pitch_m, d, propagator, dtype, oversample)
+    validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, propagator, dtype, oversample)
     if propagator == "auto":
         propagator = "radial" if lens.radial else "asm"
     if propagator == "radial" and not lens.radial:
@@ -118,7 +118,7 @@ def estimate_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pit
     (a :class:`SamplingError` here is the one it would raise) before any large array exists."""
     lams, zs = [float(x) for x in np.ravel(wavelengths_m)], [float(x) for x in np.ravel(depths_m)]
     d = distance_m if distance_m is not None else lens.focal_length_m
-    _validate(lams, zs, pixels, pixel_pitch_m, d, propagator if propagator in PROPAGATORS else "?", dtype, oversample)
+    validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, propagator if propagator in PROPAGATORS else "?", dtype, oversample)
     propagator = ("radial" if lens.radial else "asm") if propagator == "auto" else propagator
     f_max = sampling.check_lens_sampling(lens, lams, zs, force)
     count, real = len(lams) * len(zs), 4 if dtype == torch.float32 else 8
@@ -153,7 +153,7 @@ def estimate_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pit
     return PsfCost(int(out_bytes + RS_PAIR_BYTES * max(nodes, 1 << 22) + 100 * nodes), count * nodes * outputs / RS_RATE)
 
 
-def _validate(lams, zs, pixels, pitch, d, propagator, dtype, oversample) -> None:
+def validate_psf_arguments(lams, zs, pixels, pitch, d, propagator, dtype, oversample) -> None:
     if propagator not in PROPAGATORS:
         raise InputError("propagator", f"unknown propagator {propagator!r}", "|".join(PROPAGATORS))
     if d is None or not (math.isfinite(d) and d > 0):
@@ -177,7 +177,7 @@ def _complex(dtype: torch.dtype) -> torch.dtype:
     return torch.complex64 if dtype == torch.float32 else torch.complex128
 
 
-def _pupil_field(phase_lens: torch.Tensor, r: torch.Tensor, lam: float, z: float,
+def pupil_field(phase_lens: torch.Tensor, r: torch.Tensor, lam: float, z: float,
                  dtype: torch.dtype) -> torch.Tensor:
     """amplitude·exp(i(φ_lens + φ_source)), phases summed and reduced mod 2π in the dtype of
     ``phase_lens`` and ``r``, then cast to ``dtype``."""
@@ -198,7 +198,7 @@ def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversamp
     clock.lap("kernels")
     r = kernel.r.double()
     phase_lens = lens.phase_at_radius(r.to(lens.theta.device)).to(device)
-    fields = torch.stack([_pupil_field(phase_lens, r, lam, z, dtype) for z in zs for lam in lams], 1)
+    fields = torch.stack([pupil_field(phase_lens, r, lam, z, dtype) for z in zs for lam in lams], 1)
     power = (kernel.weight[:, None] * fields.abs() ** 2).sum(0)
     sins = torch.tensor([sampling.sin_limit(f_max, [lam], 2 * oversample) for lam in lams])
     transfer = prop.radial_transfer(kernel, torch.tensor(lams, dtype=torch.float64), d,
@@ -254,7 +254,7 @@ def _call(checkpointed: bool, fn, *args):
 
 def _masked_field(phase_lens, r, mask, lam, z, dtype, radial, site_pitch_m):
     """The pupil field at (λ, z) on the whole meta-atom grid, and Σ|field|²·p² (the power it carries)."""
-    field = _pupil_field(phase_lens, r, lam, z, dtype) * mask
+    field = pupil_field(phase_lens, r, lam, z, dtype) * mask
     field = prop.mirror_quadrant(field) if radial else field
     return field, field.abs().pow(2).sum() * site_pitch_m**2
 
@@ -292,7 +292,7 @@ def _rs_radial(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, cloc
     intensities, powers = [], []
     for z in zs:
         for lam in lams:
-            f_r = _pupil_field(phase_lens, r_t, lam, z, torch.float64)
+            f_r = pupil_field(phase_lens, r_t, lam, z, torch.float64)
             powers.append((2 * math.pi * torch.from_numpy(r * dr).to(device) * f_r.abs() ** 2).sum())
             values = f_r.repeat_interleave(n_phi + 1) * ww
             intensities.append(prop.rayleigh_sommerfeld(nodes, values, lam, d, out_xy).abs() ** 2)
@@ -323,7 +323,7 @@ def _rs_grid(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, clock)
     out = []
     for z in zs:
         for lam in lams:
-            f = _pupil_field(phase_lens, r, lam, z, torch.float64)
+            f = pupil_field(phase_lens, r, lam, z, torch.float64)
             values = f * lens.pitch_m**2
             power = (f.abs() ** 2).sum() * lens.pitch_m**2
             field_out = prop.rayleigh_sommerfeld(nodes, values, lam, d, out_xy)

@@ -94,6 +94,22 @@ class RadialSensor:
         octant = torch.sparse.mm(w, intensity)
         return octant.T[:, self.index.to(intensity.device)]
 
+    def window(self, n_pixels: int) -> RadialSensor:
+        """The operator of the central n × n window (n ≤ N): a pixel's weights depend only on its
+        offset from the axis, and the octant lists pixels by their larger offset first, so the
+        smaller window's rows are a prefix of these (and its radii a prefix of the samples)."""
+        if n_pixels == self.n_pixels:
+            return self
+        if not 1 <= n_pixels <= self.n_pixels:
+            raise ValueError(f"window of {n_pixels} pixels from a {self.n_pixels}-pixel operator")
+        m = n_pixels // 2
+        rows, n_radii = (m + 1) * (m + 2) // 2, radial_sensor_radii(self.step_m, n_pixels, self.pixel_pitch_m)
+        indices, values = self.weights.indices(), self.weights.values()
+        end = int(torch.searchsorted(indices[0], torch.tensor(rows, dtype=indices.dtype)))
+        weights = torch.sparse_coo_tensor(indices[:, :end], values[:end], (rows, n_radii), is_coalesced=True,
+                                          check_invariants=False)
+        return RadialSensor(self.step_m, n_radii, n_pixels, self.pixel_pitch_m, weights, _octant_index(n_pixels))
+
 
 def radial_sensor_radii(step_m: float, n_pixels: int, pixel_pitch_m: float) -> int:
     """Number of radial samples k·δ a ``RadialSensor`` needs (window corner plus the stencil)."""
@@ -149,7 +165,11 @@ def radial_sensor(step_m: float, n_pixels: int, pixel_pitch_m: float,
     rows = np.broadcast_to(np.arange(len(ii))[:, None], j.shape)[keep]
     weights = torch.sparse_coo_tensor(np.stack([rows, j[keep]]), local[keep], (len(ii), n_radii),
                                       is_coalesced=True, check_invariants=True)
-    off = np.abs(np.arange(n_pixels) - m)
+    return RadialSensor(step_m, n_radii, n_pixels, pixel_pitch_m, weights, _octant_index(n_pixels))
+
+
+def _octant_index(n_pixels: int) -> torch.Tensor:
+    """(N, N) index of each pixel's octant row (``np.tril_indices`` order of the offsets)."""
+    off = np.abs(np.arange(n_pixels) - n_pixels // 2)
     a, b = np.maximum(off[:, None], off[None, :]), np.minimum(off[:, None], off[None, :])
-    index = torch.from_numpy(a * (a + 1) // 2 + b)                  # tril_indices order
-    return RadialSensor(step_m, n_radii, n_pixels, pixel_pitch_m, weights, index)
+    return torch.from_numpy(a * (a + 1) // 2 + b)

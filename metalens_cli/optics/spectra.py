@@ -26,6 +26,7 @@ CHANNELS = ("R", "G", "B")
 DEFAULT_CAMERA = "Nikon 5100 (NPL)"
 DEFAULT_EDGE_WIDTH_M = 2e-9
 """10-90 % rise distance of each filter band edge (typical of hard-coated interference filters)."""
+WEIGHT_THRESHOLD = 1e-3  # a wavelength matters to a channel above this fraction of its peak weight
 
 _NM = 1e-9
 
@@ -40,6 +41,20 @@ class SpectralSensitivity:
 
     wavelengths_m: np.ndarray
     values: np.ndarray
+
+    def support(self) -> list[float]:
+        """[shortest, longest] wavelength (m) where a channel's S^c exceeds ``WEIGHT_THRESHOLD``
+        of its own peak: the range whose rays PSF windows must hold."""
+        inside = self.wavelengths_m[significant(self.values)]
+        return [float(inside.min()), float(inside.max())]
+
+
+def significant(values: np.ndarray) -> np.ndarray:
+    """(L,) mask of the wavelengths where some channel of ``values`` (3, L) (a sensitivity or
+    quadrature weights) exceeds ``WEIGHT_THRESHOLD`` of that channel's peak: the one rule for the
+    filter's tails in training and evaluation."""
+    values = np.asarray(values, dtype=float)
+    return (values > WEIGHT_THRESHOLD * values.max(axis=1, keepdims=True)).any(axis=0)
 
 
 @dataclass(frozen=True)
@@ -249,12 +264,13 @@ def quadrature_weights(sensitivity: SpectralSensitivity, nodes_m: np.ndarray) ->
 
 
 def sample_wavelengths(
-    sensitivity: SpectralSensitivity, samples_per_channel: int, rng: int | np.random.Generator
+    sensitivity: SpectralSensitivity, samples_per_channel: int, rng: int | np.random.Generator | None
 ) -> ChannelWeights:
     """Stratified importance sampling of λ ∝ S^c, ``samples_per_channel`` = n per channel.
 
     For channel c and stratum k = 0..n−1, u = (k + 1 − U)/n with U ~ U[0, 1) from ``rng``
-    (a seed or a ``numpy.random.Generator``; the same seed gives the same wavelengths), and
+    (a seed or a ``numpy.random.Generator``; the same seed gives the same wavelengths; None: the
+    strata's midpoints u = (k + 0.5)/n, a fixed quadrature with no sampling noise), and
     λ = F_c⁻¹(u), where F_c is the CDF of S^c with S^c's mass in each grid cell spread
     uniformly over the cell. Exactly one sample falls in each 1/n-quantile stratum, so the
     empirical CDF is within 1/n of F_c everywhere (lower variance than independent draws).
@@ -266,10 +282,14 @@ def sample_wavelengths(
     n = int(samples_per_channel)
     if n != samples_per_channel or n < 1:
         raise InputError("samples", f"{samples_per_channel!r} samples per channel", "a positive integer")
-    generator = np.random.default_rng(rng)
     strata = np.arange(n)
+    if rng is None:
+        offsets = [np.full(n, 0.5)] * 3
+    else:
+        generator = np.random.default_rng(rng)
+        offsets = [1.0 - generator.random(n) for _ in range(3)]
     wavelengths = np.concatenate(
-        [_inverse_cdf(sensitivity.wavelengths_m, row, (strata + 1.0 - generator.random(n)) / n) for row in sensitivity.values]
+        [_inverse_cdf(sensitivity.wavelengths_m, row, (strata + u) / n) for row, u in zip(sensitivity.values, offsets)]
     )
     weights = np.kron(np.eye(3), np.full((1, n), 1.0 / n))
     return ChannelWeights(wavelengths, weights, np.ones(3))

@@ -12,22 +12,29 @@ PARTS = ("total", "l1", "ssim", "domain_adaptation", "bright", "sharp")
 
 
 def loss_figure(path: str | Path, history: list[dict], parts: tuple[str, ...] = PARTS) -> Path:
-    """Loss ``parts`` against step (log scale where positive), with a running mean of the total."""
-    fig, ax = new_figure(figsize=(7, 4))
+    """One panel per loss term against step, each on a log scale where its values are positive
+    (L_sharp falls by decades early on and the image terms by per cent later: one linear axis
+    shows only the first), the raw values thin and a running mean thick."""
+    present = [name for name in parts if any(np.isfinite(row.get(name, np.nan)) for row in history)]
+    cols = min(3, max(len(present), 1))
+    rows = -(-len(present) // cols) or 1
+    fig, axes = new_figure(rows, cols, figsize=(4 * cols, 2.8 * rows), squeeze=False)
     steps = np.array([row["step"] for row in history])
-    for name in parts:
+    k = max(len(steps) // 20, 5)
+    for ax, name in zip(axes.ravel(), present):
         values = np.array([row.get(name, np.nan) for row in history], dtype=float)
-        if np.all(np.isnan(values)):
-            continue
-        ax.plot(steps, values, lw=0.8 if name != "total" else 0.5, alpha=1.0 if name != "total" else 0.4, label=name)
-        if name == "total" and len(values) >= 10:
-            k = max(len(values) // 20, 5)
-            smooth = np.convolve(values, np.ones(k) / k, mode="valid")
-            ax.plot(steps[k - 1:], smooth, color="k", lw=1.5, label=f"total ({k}-step mean)")
-    ax.set_xlabel("step")
-    ax.set_ylabel("loss")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+        ax.plot(steps, values, lw=0.5, alpha=0.5, color="C0")
+        if len(values) >= k:
+            ax.plot(steps[k - 1:], np.convolve(values, np.ones(k) / k, mode="valid"), lw=1.5, color="k", label=f"{k}-step mean")
+            ax.legend(fontsize=6)
+        if np.nanmin(values) > 0:
+            ax.set_yscale("log")
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel("step")
+        ax.grid(alpha=0.3, which="both")
+    for ax in axes.ravel()[len(present):]:
+        ax.set_visible(False)
+    fig.tight_layout()
     return save_figure(fig, path)
 
 

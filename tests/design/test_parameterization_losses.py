@@ -115,3 +115,40 @@ def test_training_loss_weights_and_shares():
     assert float(total) == pytest.approx(float(expected)) and float(parts["total"]) == pytest.approx(float(expected))
     half, _ = training_loss(capture, clean, psf, weights, image_share=0.5, psf_share=0.25)
     assert float(half) == pytest.approx(float(0.5 * (2.0 * parts["l1"] + 0.5 * parts["ssim"]) + 0.25 * 3.0 * parts["bright"]))
+
+
+def test_spline_basis_starts_at_the_hyperbolic_lens_and_moves_smoothly():
+    """The spline deviation starts at 0 (θ is the hyperbolic profile, exactly) and one
+    coefficient's step changes θ smoothly: its second difference over the rings is O(h²) of the
+    step, not a kink like a linear sample's (which puts the whole step into one ring's slope)."""
+    from metalens_cli.design.parameterization import spline_basis
+
+    model = initial_parameterization("radial", "hyperbolic", LAM, F, D, P, design_grid=16, basis="spline")
+    np.testing.assert_array_equal(model.lens().theta.detach().numpy(), hyperbolic(LAM, F, D, P).theta.numpy())
+    basis = spline_basis(model.base.numel(), 16)
+    assert_allclose(basis.sum(axis=1), 1.0, atol=1e-12)  # partition of unity: a uniform shift of θ is exact
+    with torch.no_grad():
+        model.theta[8] += 0.1
+    step = (model.full_theta() - model.base).detach().numpy()
+    assert step.max() == pytest.approx(0.1 * basis[:, 8].max())
+    kink = np.abs(np.diff(step, 2)).max()
+    samples = initial_parameterization("radial", "hyperbolic", LAM, F, D, P, design_grid=16)
+    with torch.no_grad():
+        samples.theta[8] += 0.1
+    linear_kink = np.abs(np.diff((samples.full_theta() - torch.from_numpy(hyperbolic(LAM, F, D, P).theta.numpy())).detach().numpy(), 2)).max()
+    assert kink < linear_kink / 10
+
+
+def test_spline_basis_is_refused_where_it_does_not_apply():
+    with pytest.raises(InputError, match="optimize.theta_basis"):
+        initial_parameterization("2d", "hyperbolic", LAM, F, D, P, design_grid=51, basis="spline")
+    with pytest.raises(InputError, match="optimize.design_grid"):
+        initial_parameterization("radial", "hyperbolic", LAM, F, D, P, design_grid=3, basis="spline")
+
+
+def test_log_sharp_loss_is_the_mean_log_and_zero_when_all_light_is_in_the_core():
+    psf = torch.zeros(3, 9, 9, dtype=torch.float64)
+    psf[:, 4, 4] = torch.tensor([0.5, 0.25, 0.125])
+    assert float(sharp_loss(psf, 5, "log")) == pytest.approx(-(math.log(0.5) + math.log(0.25) + math.log(0.125)) / 3)
+    psf[:, 4, 4] = 1.0
+    assert float(sharp_loss(psf, 5, "log")) == pytest.approx(0.0, abs=1e-15)

@@ -241,3 +241,17 @@ def test_mix_channels_accepts_numpy_weights_and_checks_shapes():
     assert_allclose(mixed.numpy(), 1, rtol=1e-6)  # weights sum to 1 per channel (float32 rounding)
     with pytest.raises(InputError, match="weights"):
         spectra.mix_channels(psf, np.ones((3, 5)))
+
+
+def test_midpoint_quadrature_is_fixed_and_lies_at_the_strata_centres():
+    """rng=None: λ at the (k + 0.5)/n quantiles of S^c, the same every call: against the
+    Gaussians' exact quantiles (0.05 nm grid: the piecewise CDF is within 1e-3 nm of them)."""
+    from scipy.special import erfinv
+
+    sens, centres, sigmas = gaussian_sensitivity()
+    a, b = spectra.sample_wavelengths(sens, 4, None), spectra.sample_wavelengths(sens, 4, None)
+    np.testing.assert_array_equal(a.wavelengths_m, b.wavelengths_m)
+    u = (np.arange(4) + 0.5) / 4
+    for c in range(3):
+        exact = centres[c] + sigmas[c] * math.sqrt(2) * erfinv(2 * u - 1)
+        np.testing.assert_allclose(a.wavelengths_m[4 * c:4 * c + 4], exact, rtol=0, atol=1e-3 * NM)

@@ -1,0 +1,195 @@
+"""R, G, B sensor PSFs, each depth in a window sized by its own light (training and evaluation).
+
+For every depth the monochromatic PSFs are mixed into the channels with the spectral weights
+(3, W) *before* the pixel operator: both are linear, so this equals mixing the pixel PSFs
+(tests/optics/test_channel_psf.py) at a third of the pixel work for three samples per channel.
+
+Window rule: channel c at depth z gets the smallest odd window N_c whose inscribed disc holds
+``energy`` (default 0.999) of the channel's power that reaches the sensor plane; the depth's PSF
+is computed in N = max_c N_c. Fractions are of the power through the aperture (``compute_psf``).
+
+- Radial lenses: the encircled energy of I(ρ) before the pixel operator, against the power on
+  the sensor plane from Parseval's theorem for the Fourier-Bessel series, Σ_m c_m·|F_m·H_m|²
+  (``optics.propagate.HankelKernel``), so light beyond the radii computed counts as missing. The
+  sampling plan is made for ``plan_pixels`` (kernels and the pixel operator cached, built once
+  for a run), the field is evaluated out to the ``capacity`` window only, and only the chosen
+  window goes through the pixel operator.
+- Other propagators (2-D lenses): PSFs in the capacity window, the energy in concentric squares
+  against the capacity's total (light outside the capacity is not seen).
+
+A channel whose light is not held by the capacity is ``outgrown``: its window is the capacity,
+and a caller that can afford it asks again with a larger one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from metalens_cli.errors import InputError
+from metalens_cli.optics import propagate as prop
+from metalens_cli.optics import sampling
+from metalens_cli.optics.blur import window_pixels
+from metalens_cli.optics.lens import Metalens
+from metalens_cli.optics.psf import compute_psf, pupil_field, validate_psf_arguments
+from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
+
+ENCIRCLED_ENERGY = 0.999  # of the power reaching the sensor plane, per depth and channel
+
+
+@dataclass
+class ChannelPsfStack:
+    """Per depth: ``psfs[i]`` (3, N_i, N_i) R, G, B in fractions of the aperture power, the
+    rule's window per channel ``windows[i]`` (N_i = their max), what the window holds ``kept``
+    (depths, 3) and what reaches the sensor plane ``on_sensor`` (depths, 3), both fractions of
+    the aperture power; ``outgrown`` (depths, 3): the channel's light passes the capacity."""
+
+    psfs: tuple[torch.Tensor, ...]
+    windows: tuple[tuple[int, int, int], ...]
+    kept: np.ndarray
+    on_sensor: np.ndarray
+    outgrown: np.ndarray
+    capacity: tuple[int, ...]
+    grid: dict = field(default_factory=dict)
+    timing_s: dict = field(default_factory=dict)
+
+    @property
+    def held(self) -> np.ndarray:
+        """kept / on_sensor (depths, 3): the fraction of the light on the sensor plane that the
+        window holds (≥ the rule's energy unless outgrown)."""
+        return self.kept / np.maximum(self.on_sensor, 1e-30)
+
+
+def channel_psf_stack(lens: Metalens, wavelengths_m, depths_m, weights, capacity, pixel_pitch_m: float,
+                      distance_m: float | None = None, *, energy: float = ENCIRCLED_ENERGY,
+                      plan_pixels: int | None = None, dtype: torch.dtype = torch.float32,
+                      device: str | torch.device = "cpu", plan_wavelengths_m=None, plan_depths_m=None,
+                      plan_frequency: float | None = None) -> ChannelPsfStack:
+    """Channel PSFs at every depth, each in the window its light needs (module docstring).
+
+    ``weights`` (3, W) mix the W wavelengths into R, G, B (``optics.spectra``); ``capacity``: the
+    largest window (odd pixels) to look for light in, one for all depths or one per depth;
+    ``plan_pixels`` (≥ every capacity; default the largest) fixes the radial sampling plan so that
+    calls with changing capacities share its kernels. ``plan_*`` as in ``compute_psf``.
+    Differentiable with respect to ``lens.theta`` (the windows themselves are not).
+    """
+    start = time.perf_counter()
+    lams = [float(x) for x in np.ravel(wavelengths_m)]
+    zs = [float(x) for x in np.ravel(depths_m)]
+    d = distance_m if distance_m is not None else lens.focal_length_m
+    caps = [int(c) for c in np.broadcast_to(np.asarray(capacity), (len(zs),))]
+    plan_px = int(plan_pixels or max(caps))
+    mix = torch.as_tensor(np.asarray(weights), dtype=torch.float64)
+    if mix.shape != (3, len(lams)):
+        raise InputError("weights", f"shape {tuple(mix.shape)} for {len(lams)} wavelengths", "(3, W) channel weights")
+    if not 0 < energy < 1:
+        raise InputError("energy", f"{energy!r}", "a fraction between 0 and 1")
+    if min(caps) < 1 or plan_px < max(caps):
+        raise InputError("capacity", f"windows {caps} with a plan for {plan_px} pixels", "odd windows ≤ the plan's")
+    validate_psf_arguments(lams, zs, plan_px, pixel_pitch_m, d, "auto", dtype, 1.0)
+    if lens.radial:
+        stack = _radial_stack(lens, lams, zs, mix, caps, plan_px, pixel_pitch_m, d, energy, dtype, torch.device(device),
+                              plan_wavelengths_m, plan_depths_m, plan_frequency)
+    else:
+        stack = _grid_stack(lens, lams, zs, mix, caps, pixel_pitch_m, d, energy, dtype, device,
+                            plan_wavelengths_m, plan_depths_m, plan_frequency)
+    stack.timing_s["total"] = time.perf_counter() - start
+    return stack
+
+
+def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f):
+    clock = time.perf_counter()
+    plan_lams = lams + [float(x) for x in np.ravel(plan_l if plan_l is not None else [])]
+    plan_zs = zs + [float(x) for x in np.ravel(plan_z if plan_z is not None else [])]
+    f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, False), plan_f or 0.0)
+    plan = sampling.plan_radial(lens, plan_lams, zs, d, plan_px, pitch, f_max)
+    kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
+    radii = torch.arange(plan.n_radii, dtype=torch.float64) * plan.step_m
+    out_matrix = prop.hankel_output_matrix(kernel, radii)
+    sensor = radial_sensor(plan.step_m, plan_px, pitch)
+    timing = {"kernels": time.perf_counter() - clock}
+    clock = time.perf_counter()
+    r = kernel.r.double()
+    phase_lens = lens.phase_at_radius(r.to(lens.theta.device)).to(device)
+    fields = torch.stack([pupil_field(phase_lens, r, lam, z, dtype) for z in zs for lam in lams], 1)
+    power = (kernel.weight[:, None] * fields.abs() ** 2).sum(0)
+    sins = [sampling.sin_limit(f_max, [lam], 2.0) for lam in lams]
+    # frequencies past every wavelength's band limit carry nothing: drop them from both products
+    n_freq = int(torch.searchsorted(kernel.nu.double().cpu(), max(s / lam for s, lam in zip(sins, lams)), right=True))
+    transfer = prop.radial_transfer(kernel, torch.tensor(lams, dtype=torch.float64), d, torch.tensor(sins))[:n_freq]
+    spec = prop.real_matmul(kernel.forward[:n_freq], fields * kernel.weight[:, None]) * transfer.repeat(1, len(zs))
+    # Parseval for the Fourier-Bessel series: the power on the sensor plane (within R)
+    on_plane = (kernel.coef_out[:n_freq, None] * spec.detach().abs() ** 2).sum(0) / power.detach()
+    timing["source"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    w = len(lams)
+    mix_d = mix.to(device, dtype)
+    psfs, windows, kept, on_sensor, outgrown = [], [], [], [], []
+    for i, cap in enumerate(caps):
+        n_rows = radial_sensor_radii(plan.step_m, cap, pitch)
+        cols = slice(i * w, (i + 1) * w)
+        out = prop.real_matmul(out_matrix[:n_rows, :n_freq], spec[:, cols])
+        intensity = (out.abs() ** 2 / power[cols]) @ mix_d.T                       # (n_rows, 3) W/m² per W
+        target = (mix_d.double() @ on_plane[cols].double()).cpu().numpy()           # (3,) on the sensor plane
+        rho = radii[:n_rows].numpy()
+        ring = 2 * math.pi * rho * plan.step_m
+        ring[0] = math.pi * (plan.step_m / 2) ** 2
+        enclosed = np.cumsum(intensity.detach().double().cpu().numpy() * ring[:, None], axis=0)
+        chosen, lost = [], []
+        for c in range(3):
+            reach = np.nonzero(enclosed[:, c] >= energy * target[c])[0]
+            wanted = window_pixels(rho[reach[0]], pitch) if reach.size else cap + 2
+            lost.append(wanted > cap)
+            chosen.append(min(cap, wanted))
+        n = max(chosen)
+        op = sensor.window(n)
+        psf = op.apply(intensity[:op.n_radii])
+        psfs.append(psf)
+        windows.append(tuple(chosen))
+        kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
+        on_sensor.append(target)
+        outgrown.append(lost)
+    timing["propagate"] = time.perf_counter() - clock
+    grid = {"kind": "radial", "support_radius_m": plan.radius_m, "hankel_samples": plan.n_freq,
+            "hankel_samples_used": n_freq, "pupil_nodes": plan.n_nodes, "output_step_m": plan.step_m,
+            "plan_pixels": plan_px}
+    return ChannelPsfStack(tuple(psfs), tuple(windows), np.array(kept), np.array(on_sensor), np.array(outgrown, bool),
+                           tuple(caps), grid, timing)
+
+
+def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f):
+    """Any propagator: the PSFs in the largest capacity, mixed, each depth cropped by its light."""
+    result = compute_psf(lens, lams, zs, max(caps), pitch, d, "auto", dtype, device,
+                         plan_wavelengths_m=plan_l, plan_depths_m=plan_z, plan_frequency=plan_f)
+    rgb = torch.einsum("zwij,cw->zcij", result.psf, mix.to(result.psf.device, result.psf.dtype))
+    psfs, windows, kept, on_sensor, outgrown = [], [], [], [], []
+    for i, cap in enumerate(caps):
+        psf = _crop(rgb[i], cap)
+        squares = _square_energy(psf.detach().double().cpu().numpy())   # (3, cap//2 + 1)
+        total = squares[:, -1]
+        chosen = [2 * int(np.argmax(squares[c] >= energy * total[c])) + 1 for c in range(3)]
+        psf = _crop(psf, max(chosen))
+        psfs.append(psf)
+        windows.append(tuple(chosen))
+        kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
+        on_sensor.append(total)
+        outgrown.append([False] * 3)
+    return ChannelPsfStack(tuple(psfs), tuple(windows), np.array(kept), np.array(on_sensor), np.array(outgrown, bool),
+                           tuple(caps), result.grid, dict(result.timing_s))
+
+
+def _crop(psf: torch.Tensor, n: int) -> torch.Tensor:
+    lo = psf.shape[-1] // 2 - n // 2
+    return psf[..., lo:lo + n, lo:lo + n]
+
+
+def _square_energy(psf: np.ndarray) -> np.ndarray:
+    """(C, N, N) odd N → (C, N//2 + 1): the sum over the central (2k + 1)² pixels for k = 0..N//2."""
+    n = psf.shape[-1]
+    off = np.abs(np.arange(n) - n // 2)
+    ring = np.maximum(off[:, None], off[None, :])
+    return np.stack([np.cumsum(np.bincount(ring.ravel(), weights=p.ravel(), minlength=n // 2 + 1)) for p in psf])
