@@ -216,6 +216,26 @@ def final_runs(out: Path, reuse: bool, longer: bool) -> list[str]:
     return runs
 
 
+PASS_BANDS = {"B": (446e-9, 468e-9), "G": (520e-9, 540e-9), "R": (614e-9, 642e-9)}  # 457/22, 530/20, 628/28 nm
+
+
+def band_energy(run: str) -> dict:
+    """{depth: {channel: mean 5 × 5 energy over the pass band}} for a run directory."""
+    import torch
+
+    from metalens_cli.io.designs import resolve_design
+    from metalens_cli.optics.psf import compute_psf
+
+    design = resolve_design(run)
+    out = {"far": {}, "near": {}}
+    for channel, (lo, hi) in PASS_BANDS.items():
+        waves = list(np.arange(lo, hi + 0.5e-9, 1e-9))
+        psf = compute_psf(design.lens, waves, [math.inf, NEAR_M], 5, design.preset.sensor.pixel_pitch_m, design.focal_length_m,
+                          dtype=torch.float64).psf.sum(dim=(-2, -1)).numpy()
+        out["far"][channel], out["near"][channel] = float(psf[0].mean()), float(psf[1].mean())
+    return out
+
+
 def final_section(runs: list[str]) -> list[str]:
     """The quick runs against each other and the hyperbolic lens at 512², 3 seeds, paired CIs."""
     report = metalens("evaluate", *runs, "--pixels", "512", "--seed", "0:2", "--obstruction", "dirt,fence")
@@ -240,6 +260,14 @@ def final_section(runs: list[str]) -> list[str]:
         cells += [cell(rows[run, k, "obstructed"]["psnr_db"], rows[run, k, "obstructed"]["psnr_db_ci"]) for k in ("dirt", "fence")]
         cells += [cell(deltas[run, k]["delta_psnr_db"], deltas[run, k]["delta_psnr_db_ci"]) for k in ("dirt", "fence")]
         lines.append(f"| {label[run]} | {steps[run]} | {minutes[run]:.1f} | " + " | ".join(cells) + " |")
+    lines += ["", "Energy in the central 5 × 5 pixels (fraction of the power through the aperture), mean over each pass "
+              "band of the tri-band filter at 1 nm (the split lens's; the broadband and hyperbolic lenses measured in the "
+              "same bands), far (∞) and near (45 mm):", "",
+              "| design | " + " | ".join(f"far {c}" for c in PASS_BANDS) + " | " + " | ".join(f"near {c}" for c in PASS_BANDS) + " |",
+              "|---|" + "---|" * (2 * len(PASS_BANDS))]
+    bands = {run: band_energy(run) for run in runs}
+    for run in runs:
+        lines.append(f"| {label[run]} | " + " | ".join(f"{bands[run][d][c]:.4f}" for d in ("far", "near") for c in PASS_BANDS) + " |")
     lines += ["", "Paired PSNR differences on the same units (dB, 95 % CI):", "",
               "| design − versus | condition | dirt | fence |", "|---|---|---|---|"]
     pairs = {}
