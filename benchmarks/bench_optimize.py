@@ -97,7 +97,10 @@ def main() -> None:
         f"## Training step, {device.type} (`python benchmarks/bench_optimize.py --device {args.device}"
         f"{' --baseline DIR' if args.baseline else ''}`)",
         "",
-        ("" if args.presets.resolve() == PRESET.parent.resolve() else f"Presets from `{args.presets}` for both rows of each θ. ")
+        ("" if args.presets.resolve() == PRESET.parent.resolve() else
+         f"Presets of {commit} for both rows of each θ (the code alone differs). "
+         if args.baseline and args.presets.resolve() == (args.baseline / "presets").resolve()
+         else f"Presets from `{args.presets}` for both rows of each θ. ")
         + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2) and "
         f"`split-spectrum.toml` (512² sensor, 3 wavelengths per channel, batch 1) on {name}; radial: {args.steps} steps "
         f"from θ_init, the median of those after the first (which builds the kernels); 2-D: {args.steps_2d} step(s). "
