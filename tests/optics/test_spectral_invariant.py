@@ -11,6 +11,7 @@ broadband lens cannot double the hyperbolic lens's mean core energy over the vis
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from metalens_cli.optics.lens import Metalens, hyperbolic
@@ -40,13 +41,8 @@ def test_spectral_integral_of_axial_intensity_does_not_depend_on_the_phase():
     assert peak_spread < 0.6 * peak_sharp        # the designs differ: one is sharp, the other spread
     # the closed form up to the sinc² tails outside the band (the peak is ~±13 nm wide: ≈ 3 % of
     # the light lies beyond 380-800 nm) and the Fresnel approximation (~NA²/4 ≈ 0.6 %)
-    assert integral_sharp == pytest_approx(closed_form, 0.05)
+    assert integral_sharp == pytest.approx(closed_form, rel=0.05)
     # and the same for both designs, far closer than either is to the closed form: the tails
     # beyond the band are alike, and nothing else depends on φ
-    assert integral_spread == pytest_approx(integral_sharp, 0.01)
+    assert integral_spread == pytest.approx(integral_sharp, rel=0.01)
 
-
-def pytest_approx(value, rel):
-    import pytest
-
-    return pytest.approx(value, rel=rel)
