@@ -17,6 +17,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
 from metalens_cli.io.presets import ObstructionConfig
+from metalens_cli.optics.channel_psf import crop_window  # noqa: F401  (re-exported: callers crop here)
 
 DEFAULT_Z_NEAR_M = (0.040, 0.050)  # PHYSICS.md, Suppl. Note 4
 DEFAULT_Z_FAR_M = (1.0, 20.0)
@@ -134,13 +135,6 @@ def estimate_captures(design, z_near_m: float, z_far_m: float, wavelengths_m, pi
     kept = 6 * 3 * pixels**2 * 4 * images
     seconds = psf.seconds + images * 10 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
     return psf.memory_bytes + planes + kept, seconds
-
-
-def crop_window(psf: torch.Tensor, n: int) -> torch.Tensor:
-    """The n × n pixels (n ≤ N) of (..., N, N) PSFs around the axis pixel N//2, which becomes
-    pixel n//2 (the window convention of ``optics.sensor``)."""
-    lo = psf.shape[-1] // 2 - n // 2
-    return psf[..., lo:lo + n, lo:lo + n]
 
 
 @dataclass

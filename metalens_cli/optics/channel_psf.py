@@ -168,11 +168,11 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
     rgb = torch.einsum("zwij,cw->zcij", result.psf, mix.to(result.psf.device, result.psf.dtype))
     psfs, windows, kept, on_sensor, outgrown = [], [], [], [], []
     for i, cap in enumerate(caps):
-        psf = _crop(rgb[i], cap)
+        psf = crop_window(rgb[i], cap)
         squares = _square_energy(psf.detach().double().cpu().numpy())   # (3, cap//2 + 1)
         total = squares[:, -1]
         chosen = [2 * int(np.argmax(squares[c] >= energy * total[c])) + 1 for c in range(3)]
-        psf = _crop(psf, max(chosen))
+        psf = crop_window(psf, max(chosen))
         psfs.append(psf)
         windows.append(tuple(chosen))
         kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
@@ -182,7 +182,9 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
                            tuple(caps), result.grid, dict(result.timing_s))
 
 
-def _crop(psf: torch.Tensor, n: int) -> torch.Tensor:
+def crop_window(psf: torch.Tensor, n: int) -> torch.Tensor:
+    """The n × n pixels (n ≤ N) of (..., N, N) PSFs around the axis pixel N//2, which becomes
+    pixel n//2 (the window convention of ``optics.sensor``)."""
     lo = psf.shape[-1] // 2 - n // 2
     return psf[..., lo:lo + n, lo:lo + n]
 
