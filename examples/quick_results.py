@@ -8,12 +8,14 @@
 2. ``metalens reconstruct train`` trains one reconstruction network per design
    (presets/quick-reconstruct.toml) into ``runs/recon-NAME``; ``reconstruct apply`` puts a uniform
    grey wall through each.
-3. ``metalens evaluate`` scores raw captures of the built-in held-out images (photographs and
-   dead-leaves charts, never used in training) through all three designs, at the sensor crop the
+3. ``metalens evaluate`` scores raw captures of the held-out photographs (``--images photos``)
+   and, in tables of their own, of the dead-leaves charts (``--images charts``; never used in
+   training) through all three designs, at the sensor crop the
    quick presets train on and at the paper's full 512 × 512 sensor, over images × ``--seeds``
    draws of depths and obstructions: means with 95 % bootstrap intervals, Δ, and paired
    differences between designs, laid out like the paper's Suppl. table; at the sizes in
-   ``--recon-pixels`` (the 128 × 128 crop the networks train on) with ``--recon``: Raw and Recon rows.
+   ``--recon-pixels`` (the 128 × 128 crop the networks train on) with ``--recon``: Raw and Recon rows
+   (photographs). The verdicts are taken on the photographs.
 4. ``metalens psf-scan`` measures, per pass band of the tri-band filter, the fraction of power in
    the central 5 × 5 pixels of the far (∞) and near (45 mm) PSFs of both learned designs.
 5. The cost of a training step at the paper's resolution, radial and 2-D, is copied from the
@@ -84,17 +86,17 @@ def train_recon(runs: Path, reuse: bool) -> dict[str, dict]:
     return reports
 
 
-def evaluate(runs: Path, seeds: int, pixels: int, reuse: bool, recon: bool) -> dict:
+def evaluate(runs: Path, seeds: int, images: str, pixels: int, reuse: bool, recon: bool) -> dict:
     """One ``metalens evaluate`` of all three designs on the same images × seeds (with their
-    reconstruction networks when ``recon``), kept in ``runs/evaluate_<pixels>.json`` (``--reuse``
-    reads it back when its seeds and networks match)."""
-    saved = runs / f"evaluate_{pixels}.json"
+    reconstruction networks when ``recon``), kept in ``runs/evaluate_<images>_<pixels>.json``
+    (``--reuse`` reads it back when its seeds and networks match)."""
+    saved = runs / f"evaluate_{images}_{pixels}.json"
     networks = [str(runs / f"recon-{n}") for n in DESIGNS] if recon else []
     if reuse and saved.is_file():
         report = json.loads(saved.read_text())
         if report["seeds"] == list(range(seeds)) and [r for r in report.get("recon", []) if r] == networks:
             return report
-    report = metalens("evaluate", *(str(runs / n) for n in DESIGNS), "--obstruction", OBSTRUCTIONS, "--pixels", str(pixels),
+    report = metalens("evaluate", *(str(runs / n) for n in DESIGNS), "--images", images, "--obstruction", OBSTRUCTIONS, "--pixels", str(pixels),
                       "--seed", f"0:{seeds - 1}", "--quiet", *(("--recon", ",".join(networks)) if recon else ()))
     saved.write_text(json.dumps(report), encoding="utf-8")
     return report
@@ -118,9 +120,9 @@ def _cell(mean: float, ci, digits: int, signed: bool = False) -> str:
     return f"{f.format(mean)} [{f.format(ci[0])}, {f.format(ci[1])}]"
 
 
-def evaluation_section(pixels: int, report: dict, seeds: int) -> tuple[list[str], list[str]]:
+def evaluation_section(images: str, pixels: int, report: dict, seeds: int) -> tuple[list[str], list[str]]:
     """The Suppl.-table layout (Raw rows per design, Unobs./Obs./Δ × dirt/fence × PSNR/SSIM), the
-    paired differences, the windows' kept light; and the verdicts."""
+    paired differences, the windows' kept light; and the verdicts (photographs only)."""
     kinds = OBSTRUCTIONS.split(",")
     name = {str(Path(r["design"])): Path(r["design"]).name for r in report["rows"]}
     row = {(name[r["design"]], r.get("capture", "raw"), r["obstruction"], r["condition"]): r for r in report["rows"]}
@@ -128,11 +130,12 @@ def evaluation_section(pixels: int, report: dict, seeds: int) -> tuple[list[str]
     captures = ("raw", "recon") if any(r.get("capture") == "recon" for r in report["rows"]) else ("raw",)
     n = report["rows"][0]["n"]
     title = "Raw and reconstructed captures" if len(captures) == 2 else "Raw captures"
-    lines = ["", f"## (a) {title} of the held-out images, {pixels} × {pixels} sensor", "",
-             f"`metalens evaluate`: {len(report['images'])} built-in images × seeds 0-{seeds - 1} = {n} units per cell (each seed "
-             "draws z_near in 40-50 mm, z_far in 1-20 m, the obstructions and their placement); every design sees the same "
-             "units. PSNR (dB) and SSIM after the paper's luminance gain/bias match; mean [95 % bootstrap CI]; "
-             "Δ = Obs. − Unobs. per unit.", "",
+    what = {"photos": "photographs", "charts": "dead-leaves charts"}[images]
+    lines = ["", f"## (a) {title} of the {what}, {pixels} × {pixels} sensor", "",
+             f"`metalens evaluate --images {images}`: {len(report['images'])} {what} × seeds 0-{seeds - 1} = {n} units per cell "
+             "(each seed draws z_near in 40-50 mm, z_far in 1-20 m, the obstructions and their placement); every design sees the "
+             "same units. PSNR (dB) and SSIM after the least-squares gain/bias match (docs/images.md says why not the "
+             "paper's luminance match); mean [95 % bootstrap CI]; Δ = Obs. − Unobs. per unit.", "",
              "| design | capture | condition | " + " | ".join(f"{k} PSNR | {k} SSIM" for k in kinds) + " |",
              "|---|---|---|" + "---|---|" * len(kinds)]
     for design in DESIGNS:
@@ -151,7 +154,9 @@ def evaluation_section(pixels: int, report: dict, seeds: int) -> tuple[list[str]
                              f"{label} | " + " | ".join(cells) + " |")
     pairs = {(name[c["design"]], c.get("capture", "raw"), name[c["versus"]], c.get("versus_capture", "raw"), c["obstruction"],
               c["condition"]): c for c in report["comparisons"] if c["metric"] == "psnr_db"}
-    lines += ["", "Paired PSNR differences, learned split-spectrum − baseline on the same units (dB, 95 % CI):", "",
+    widths = [c["ci"][1] - c["ci"][0] for c in pairs.values() if c["condition"] != "delta"]
+    lines += ["", f"Paired PSNR differences, learned split-spectrum − baseline on the same units (dB, 95 % CI; the CIs of "
+              f"paired differences between designs in this evaluation are {min(widths):.2f}-{max(widths):.2f} dB wide):", "",
               "| versus | " + " | ".join(f"{k} Obs. | {k} Δ" for k in kinds) + " |", "|---|" + "---|---|" * len(kinds)]
     for capture in captures:
         for other in DESIGNS[1:]:
@@ -181,7 +186,7 @@ def evaluation_section(pixels: int, report: dict, seeds: int) -> tuple[list[str]
         lines.append(f"| {LABELS[design]} | {max(p['psf_window_px']['near'] for p in entries)} | "
                      f"{max(p['psf_window_px']['far'] for p in entries)} | {kept['near']:.4f} | {kept['far']:.4f} |")
     verdicts = []
-    for kind in kinds:
+    for kind in kinds if images == "photos" else ():
         if "recon" in captures:
             gain = pairs["hyperbolic-532", "recon", "hyperbolic-532", "raw", kind, "obstructed"]
             verdicts.append(f"- (a) {pixels}², {kind}: hyperbolic Recon obstructed PSNR − Raw {gain['difference']:+.2f} "
@@ -235,7 +240,7 @@ def recon_section(reports: dict[str, dict]) -> list[str]:
     lines = ["", "## Reconstruction networks", "",
              "`metalens reconstruct train runs/NAME --preset presets/quick-reconstruct.toml -o runs/recon-NAME`: one network per "
              "design on pairs simulated through it (dirt and fence). Validation: the run's held-out simulated pairs, PSNR after "
-             "the luminance match, raw capture → network output.", "",
+             "the least-squares match, raw capture → network output.", "",
              "| design | steps | s/step (median) | training time | setup (PSF bank + pools) | validation obstructed PSNR raw → recon "
              "| validation unobstructed PSNR raw → recon | loss terms |", "|---|---|---|---|---|---|---|---|"]
     for name in DESIGNS:
@@ -273,10 +278,10 @@ def grey_wall(runs: Path) -> dict[str, list]:
 def grey_section(walls: dict[str, list]) -> list[str]:
     lines = ["", f"A uniform grey wall (linear {GREY}) through each network (`metalens reconstruct apply`): mean R, G, B of the "
              "output and the largest standard deviation over its pixels. The raw capture of a grey wall is that grey "
-             "(PSFs sum to one). The networks brighten it and tint it (R lowest) and leave a faint pattern: a known "
+             "(PSFs sum to one). The networks tint it (R lowest) and leave a faint pattern: a known "
              "limit, not yet traced (suspects: the obstructed training inputs, 80 %, which the veil darkens; the "
-             "positional encodings and CBAM's pooling for the pattern). The evaluation's luminance match removes a "
-             "common gain, not a tint.", "",
+             "positional encodings and CBAM's pooling for the pattern). The evaluation's photometric match removes a "
+             "common gain and bias, not a tint.", "",
              "| design | size | mean R | mean G | mean B | largest std |", "|---|---|---|---|---|---|"]
     for name in DESIGNS:
         for n, means, std in walls[name]:
@@ -291,15 +296,16 @@ def write(path: Path, reports, recon_reports, walls, tables, energies, bands, se
              "## Commands", "", "```bash"]
     lines += [f"metalens optimize presets/{n}.toml -o runs/{n}" for n in DESIGNS]
     lines += [f"metalens reconstruct train runs/{n} --preset presets/quick-reconstruct.toml -o runs/recon-{n}" for n in DESIGNS]
-    lines += [f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --obstruction {OBSTRUCTIONS} "
-              f"--pixels 128 --seed 0:{seeds - 1} --recon " + ",".join(f"runs/recon-{n}" for n in DESIGNS) + " --json",
-              f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --obstruction {OBSTRUCTIONS} "
-              f"--pixels 512 --seed 0:{seeds - 1} --json",
+    lines += [f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --images {images} "
+              f"--obstruction {OBSTRUCTIONS} --pixels {pixels} --seed 0:{seeds - 1}"
+              + (" --recon " + ",".join(f"runs/recon-{n}" for n in DESIGNS) if any(r.get("capture") == "recon" for r in report["rows"]) else "")
+              + " --json" for (images, pixels), report in tables.items()]
+    lines += [
               "metalens psf-scan --design runs/{quick-split-spectrum,quick-broadband} --wavelengths "
               + ",".join(f"{lo * 1e9:.0f}:{hi * 1e9:.0f}:2nm" for _, lo, hi in bands) + f" --depths {NEAR_DEPTH},inf --pixels 64 "
               "-o runs/…/passbands.exr --json", "```", "", "## Training", "",
              "| design | steps | torch threads | s/step (median) | training time | validation loss before → after (4 fixed draws) "
-             "| PSF windows near / far (px) | least light a step's windows kept |",
+             "| a step's PSF windows near / far (px, mean and max) | least light a step's windows kept |",
              "|---|---|---|---|---|---|---|---|"]
     for name in DESIGNS:
         r = reports[name]
@@ -311,17 +317,19 @@ def write(path: Path, reports, recon_reports, walls, tables, energies, bands, se
                      else f"| {LABELS[name]} | 0 | {threads} | — |")
         windows = r.get("psf_windows") or {}
         kept = min((v["min"] for v in windows.get("kept", {}).values()), default=None)
-        lines[-1] += (f" {r['cost'].get('seconds_training', 0) / 60:.1f} min | {before_after} | {windows.get('near_px', '—')} / "
-                      f"{windows.get('far_px', '—')} | {'—' if kept is None else f'{kept:.4f}'} |")
+        sizes = windows.get("window_px")
+        lines[-1] += (f" {r['cost'].get('seconds_training', 0) / 60:.1f} min | {before_after} | "
+                      + (" / ".join(f"{sizes[d]['mean']:.0f}, {sizes[d]['max']}" for d in ("near", "far")) if sizes else "—")
+                      + f" | {'—' if kept is None else f'{kept:.4f}'} |")
+    resumed = [f"{LABELS[n]} resumed at step {reports[n]['settings']['resumed_from_step']}"
+               for n in DESIGNS if reports[n]["settings"].get("resumed_from_step")]
     lines += ["", "Threads, s/step and training time are as each run's `run.json` recorded them (a resumed run records the "
-              "steps after resuming only): "
-              + "; ".join(f"{LABELS[n]} resumed at step {reports[n]['settings']['resumed_from_step']}"
-                          for n in DESIGNS if reports[n]["settings"].get("resumed_from_step")) + ". Runs made side by side "
-              "on the one 2-core machine take longer than a run alone: (c) has the step alone with 2 threads."]
+              "steps after resuming only" + (": " + "; ".join(resumed) if resumed else "; none was resumed") + "). Runs made "
+              "side by side on the one 2-core machine take longer than a run alone: (c) has the step alone with 2 threads."]
     lines += recon_section(recon_reports) + grey_section(walls)
     verdict_a = []
-    for pixels, report in tables.items():
-        section, verdicts = evaluation_section(pixels, report, seeds)
+    for (images, pixels), report in tables.items():
+        section, verdicts = evaluation_section(images, pixels, report, seeds)
         lines += section
         verdict_a += verdicts
     lines += ["", "### Reading Δ", "",
@@ -371,7 +379,8 @@ def main() -> None:
     args = parser.parse_args()
     reports = train(args.runs, args.reuse)
     recon_reports = train_recon(args.runs, args.reuse)
-    tables = {p: evaluate(args.runs, args.seeds, p, args.reuse, p in args.recon_pixels) for p in args.pixels}
+    tables = {(images, p): evaluate(args.runs, args.seeds, images, p, args.reuse, p in args.recon_pixels and images == "photos")
+              for images in ("photos", "charts") for p in args.pixels}
     bands = pass_bands(ROOT / "presets" / "quick-split-spectrum.toml")
     write(args.output, reports, recon_reports, grey_wall(args.runs), tables, core_energy(args.runs, bands), bands, args.seeds)
     print(args.output)

@@ -44,7 +44,7 @@ def preview(preset_path, kinds, depths, f_m, pixels, pixel_pitch_m, seed, output
     Sizes are set in metres on the cover glass (preset's [obstruction]) and scale as f/z/pitch.
     """
     from metalens_cli.imaging.obstructions import make_obstruction, parse_obstructions
-    from metalens_cli.imaging.images import builtin_images
+    from metalens_cli.imaging.images import load_images
     from metalens_cli.io.units import format_length
     from metalens_cli.plotting.imaging import obstruction_sheet
 
@@ -56,7 +56,7 @@ def preview(preset_path, kinds, depths, f_m, pixels, pixel_pitch_m, seed, output
     if len(depths_m) > MAX_ROWS:
         raise InputError("--z-near", f"{len(depths_m)} depths; a sheet shows at most {MAX_ROWS} rows", f"at most {MAX_ROWS} depths")
     params = preset.obstruction if preset else None
-    clean = builtin_images((pixels, pixels), count=1)[0].linear  # rain refracts a scene
+    clean = load_images("photos", (pixels, pixels), limit=1)[0].linear  # rain refracts a scene
     rows = []
     for depth in depths_m:
         made = [make_obstruction(kind, (pixels, pixels), depth, f_m, pixel_pitch_m, seed, params, clean=clean)

@@ -46,7 +46,9 @@ DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
 def capture_options(f):
     """Options shared by simulate and evaluate: geometry, sensor, depths, PSF sampling, device."""
     options = [
-        click.option("--images", default="builtin", show_default=True, help="Folder of PNG/JPEG/TIFF/EXR images, one file, or builtin."),
+        click.option("--images", default="photos", show_default=True,
+                     help="photos (the photographs scikit-image and matplotlib ship), charts (dead-leaves), all, "
+                          "a folder of PNG/JPEG/TIFF/EXR images, or one file."),
         click.option("--limit", type=click.IntRange(1), help="Use at most this many images."),
         click.option("--z-near", "z_near_m", type=Interval(), help="Obstruction depth or interval, e.g. 45mm or 40mm:50mm [preset's, else 40mm:50mm]."),
         click.option("--z-far", "z_far_m", type=Interval(), help="Scene depth or interval, e.g. 1m or 1m:20m [preset's, else 1m:20m]."),

@@ -210,7 +210,7 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
     kinds = preset.optimize.obstructions
 
     def entry(index):
-        clean = training_scene((n + 2 * margin, n + 2 * margin), seed, step, index, pool)
+        clean = training_scene((n + 2 * margin, n + 2 * margin), seed, step, index, pool, margin)
         kind = kinds[np.random.default_rng([seed, step, index, 13]).integers(len(kinds))]
         obstruction = make_obstruction(kind, (n, n), z_near_m, preset.lens.focal_length_m, preset.sensor.pixel_pitch_m,
                                        [seed, step, index, 17], preset.obstruction, clean=clean, margin=margin)

@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from metalens_cli.errors import InputError
-from metalens_cli.imaging.evaluation import Evaluation, metric_names, summarise
+from metalens_cli.imaging.evaluation import Evaluation, metric_names, summarise, warn_few_units
 from metalens_cli.imaging.images import luminance, read_linear
+from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 BYTES_PER_PIXEL = 500       # peak memory per pixel of the largest image: float64 SSIM/PSNR copies, the warp
@@ -132,7 +133,7 @@ def _images(folder: Path, field: str) -> dict[str, Path]:
     return out
 
 
-def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = "luminance", align: str = "unobstructed",
+def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = DEFAULT_MATCH, align: str = "unobstructed",
                    refine: str = "flow", on_progress: Callable[[int, int], None] | None = None) -> Evaluation:
     """Score every capture of ``layout`` against its reference (see the module docstring); the
     result is that of simulated evaluation with ``alignments`` (one report per registration)
@@ -178,6 +179,7 @@ def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = "luminance
                             "their captures are compared in luminance (Rec. 709 Y of linear RGB)")
     recon = [layout.has_recon(design) or None for design in layout.designs]
     summarise(out, layout.designs, recon, layout.kinds, [0], len(layout.names), metrics, scores)
+    warn_few_units(out, len(layout.names), f"{len(layout.names)} scene(s)", "capture more scenes")
     return out
 
 

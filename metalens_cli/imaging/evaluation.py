@@ -18,9 +18,11 @@ from dataclasses import dataclass, field
 
 from metalens_cli.analysis.statistics import mean_ci, paired_difference_ci
 from metalens_cli.imaging.images import load_images
+from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.pipeline import ChannelPsfs, channel_psfs, draw_depths, score, simulate_captures
 
 CONDITIONS = ("unobstructed", "obstructed")
+MIN_UNITS = 20  # fewer units per cell: a warning (bootstrap CIs of a handful of units are wide and unreliable)
 
 
 @dataclass
@@ -33,11 +35,11 @@ class EvaluationSettings:
     z_near_interval_m: tuple[float, float]
     z_far_interval_m: tuple[float, float]
     wavelengths_m: list[float]
-    images: str = "builtin"
+    images: str = "photos"
     limit: int | None = None
     obstruction_params: object = None
     formation: str = "physical"
-    match: str = "luminance"
+    match: str = DEFAULT_MATCH
     alpha_gain: float | None = None
     photons: float | None = None
     read_noise: float = 0.0
@@ -127,7 +129,15 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
                 if on_progress is not None:
                     on_progress(done, total)
     summarise(out, [design.spec for design in designs], recon, kinds, seeds, len(images), metrics, scores)
+    warn_few_units(out, len(images) * len(seeds), f"{len(images)} image(s) × {len(seeds)} seed(s)", "add seeds (--seed 0:4) or images")
     return out
+
+
+def warn_few_units(out: Evaluation, units: int, what: str, advice: str) -> None:
+    """A warning in ``out`` when a cell has fewer than ``MIN_UNITS`` units."""
+    if units < MIN_UNITS:
+        out.warnings.append(f"{units} units per cell ({what}), fewer than {MIN_UNITS}: the confidence intervals are wide "
+                            f"and unreliable; {advice}")
 
 
 def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_images: int, metrics, scores) -> None:

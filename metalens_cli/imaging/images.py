@@ -3,13 +3,19 @@
 Arrays are float (C, H, W) in 0..1 (EXR: linear, unclipped). 8/16-bit files are sRGB-encoded
 and decoded to linear light with colour-science (imported lazily: it takes seconds).
 
-Built-in source (``builtin``, no download): the photographs shipped in matplotlib's sample data,
-when the installed matplotlib has them, then seeded colour dead-leaves charts (the texture chart
-of ISO 19567-2, with natural-image statistics) up to ``BUILTIN_COUNT`` images.
+Built-in sets (no download; ``--images photos|charts|all``):
+
+- ``photos``: the photographs shipped inside the scikit-image and matplotlib wheels
+  (:data:`PHOTOGRAPHS`, each with its source and licence): the set lenses are judged on.
+- ``charts``: ``CHART_COUNT`` seeded colour dead-leaves charts (the texture chart of ISO 19567-2).
+- ``all``: both, photographs first.
+
+The named sets take precedence over a folder of the same name (write ``./photos`` for the folder).
 """
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,10 +26,39 @@ from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
 from metalens_cli.io.image_files import read_image_file
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
-BUILTIN = "builtin"
-BUILTIN_COUNT = 24                                            # photographs + dead-leaves charts
+SETS = ("photos", "charts", "all")
+CHART_COUNT = 24
 LUMA_709 = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear R, G, B
-PHOTOGRAPHS = ("grace_hopper.jpg",)  # the photograph in matplotlib's sample data (its other images are drawings)
+
+
+@dataclass(frozen=True)
+class Photograph:
+    """A photograph shipped in an installed package: ``package`` (import name), ``path`` inside
+    it, who made it and under which licence, and its size as shipped (rows × columns, colour)."""
+
+    name: str
+    package: str
+    path: str
+    source: str
+    licence: str
+    size: str
+
+
+PHOTOGRAPHS = (
+    Photograph("astronaut", "skimage", "data/astronaut.png", "Eileen Collins, NASA portrait (scikit-image sample data)",
+               "public domain", "512 × 512, colour"),
+    Photograph("chelsea", "skimage", "data/chelsea.png", "Stéfan van der Walt, a cat (scikit-image)", "CC0", "300 × 451, colour"),
+    Photograph("coffee", "skimage", "data/coffee.png", "Rachel Michetti, a cup of coffee (scikit-image)", "CC0", "400 × 600, colour"),
+    Photograph("rocket", "skimage", "data/rocket.jpg", "SpaceX, DSCOVR launch on Falcon 9 (scikit-image)", "public domain",
+               "427 × 640, colour"),
+    Photograph("grace_hopper", "matplotlib", "mpl-data/sample_data/grace_hopper.jpg", "US Navy portrait (matplotlib sample data)",
+               "public domain", "600 × 512, colour"),
+    Photograph("camera", "skimage", "data/camera.png", "Lav Varshney, a photographer outdoors (scikit-image)", "CC0",
+               "512 × 512, grey"),
+    Photograph("brick", "skimage", "data/brick.png", "CC0Textures Bricks25, a brick wall (scikit-image)", "CC0", "512 × 512, grey"),
+    Photograph("grass", "skimage", "data/grass.png", "linolafett on DeviantArt, grass (scikit-image)", "CC0", "512 × 512, grey"),
+    Photograph("gravel", "skimage", "data/gravel.png", "CC0Textures Gravel04, gravel (scikit-image)", "CC0", "512 × 512, grey"),
+)
 
 
 @dataclass(frozen=True)
@@ -80,62 +115,67 @@ def read_linear(path: Path, field: str = "INPUT") -> np.ndarray:
     return image.astype(np.float32) if path.suffix.lower() == ".exr" else srgb_to_linear(image)
 
 
-def builtin_images(shape: tuple[int, int], margin: int = 0, count: int = BUILTIN_COUNT) -> list[CleanImage]:
-    """``count`` evaluation scenes: the photographs matplotlib ships (see ``PHOTOGRAPHS``), then
-    seeded colour dead-leaves charts (``dead_leaves_NN``, seed NN), on the canvas of ``margin``."""
+def photograph_path(photo: Photograph) -> Path:
+    """Where ``photo`` lies in its installed package (found without importing the package)."""
+    spec = importlib.util.find_spec(photo.package)
+    path = Path(spec.submodule_search_locations[0]) / photo.path if spec and spec.submodule_search_locations else None
+    if path is None or not path.is_file():
+        raise InputError("--images", f"photos: {photo.name} is not in the installed {photo.package}",
+                         f"an installed {photo.package} that ships {photo.path} (pip install metalens's dependencies), or a folder")
+    return path
+
+
+def chart(index: int, shape: tuple[int, int], margin: int = 0) -> CleanImage:
+    """Dead-leaves chart number ``index`` (seed ``index``) for an H × W sensor on a canvas of ``margin``."""
     from metalens_cli.imaging.dead_leaves import dead_leaves
 
-    images = []
-    for name in PHOTOGRAPHS:
-        try:
-            from matplotlib import cbook
-
-            path = Path(cbook.get_sample_data(name, asfileobj=False))
-        except (ImportError, OSError, ValueError):
-            continue
-        if path.is_file():
-            images.append(_load(path, shape, margin))
     canvas = (shape[0] + 2 * margin, shape[1] + 2 * margin)
-    for k in range(max(count - len(images), 0)):
-        images.append(CleanImage(f"dead_leaves_{k:02d}", dead_leaves(canvas, k, sensor_shape=tuple(shape)), margin))
-    return images[:count]
+    return CleanImage(f"dead_leaves_{index:02d}", dead_leaves(canvas, index, sensor_shape=tuple(shape)), margin)
 
 
-def _load(path: Path, shape, margin: int) -> CleanImage:
+def _load(path: Path, shape, margin: int, name: str | None = None) -> CleanImage:
     image, _ = read_image(path)
     image = fit_to_canvas(image[:3], shape, margin)
     linear = image if path.suffix.lower() == ".exr" else srgb_to_linear(image)
-    return CleanImage(path.stem, np.asarray(linear, dtype=np.float32), margin)
+    return CleanImage(name or path.stem, np.asarray(linear, dtype=np.float32), margin)
 
 
-def load_images(source: str | Path | None, shape: tuple[int, int], limit: int | None = None, margin: int = 0) -> list[CleanImage]:
+def load_images(source: str | Path, shape: tuple[int, int], limit: int | None = None, margin: int = 0) -> list[CleanImage]:
     """Clean images for an H × W sensor on a canvas of ``margin`` pixels (``imaging.canvas``):
-    a folder (sorted by name), one file, or ``builtin``/None (:func:`builtin_images`)."""
-    files = image_paths(source, limit)
-    if files is None:
-        return builtin_images(shape, margin)[: limit or None]
-    return [_load(p, shape, margin) for p in files]
+    a named set (:data:`SETS`), a folder (sorted by name) or one file; at most ``limit``."""
+    return [_entry_image(entry, shape, margin) for entry in image_entries(source, limit)]
 
 
-def image_paths(source: str | Path | None, limit: int | None = None) -> list[Path] | None:
-    """The files :func:`load_images` reads (at most ``limit``), or None for the built-in scenes."""
-    if source is None or str(source) == BUILTIN:
-        return None
-    if not str(source).strip():
-        raise InputError("--images", "is empty", f"a folder of {', '.join(IMAGE_SUFFIXES)} images, one file, or builtin")
+def _entry_image(entry: Path | Photograph | int, shape, margin: int) -> CleanImage:
+    if isinstance(entry, Photograph):
+        return _load(photograph_path(entry), shape, margin, entry.name)
+    if isinstance(entry, Path):
+        return _load(entry, shape, margin)
+    return chart(entry, shape, margin)
+
+
+def image_entries(source: str | Path, limit: int | None = None) -> list[Path | Photograph | int]:
+    """What :func:`load_images` reads, in order: files, :class:`Photograph` entries, chart indices."""
+    text = str(source).strip()
+    if text in SETS:
+        photos = list(PHOTOGRAPHS) if text in ("photos", "all") else []
+        charts = list(range(CHART_COUNT)) if text in ("charts", "all") else []
+        return (photos + charts)[: limit or None]
+    form = f"photos, charts, all, a folder of {', '.join(IMAGE_SUFFIXES)} images, or one file"
+    if not text:
+        raise InputError("--images", "is empty", form)
     path = Path(source)
     if path.is_file():
         files = [path]
     elif path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
     else:
-        raise InputError("--images", f"no such folder {str(source)!r}", f"a folder of {', '.join(IMAGE_SUFFIXES)} images, or builtin")
+        raise InputError("--images", f"no such folder {text!r}", form)
     if not files:
-        raise InputError("--images", f"{str(source)!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}")
+        raise InputError("--images", f"{text!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}")
     return files[: limit or None]
 
 
-def image_count(source: str | Path | None, limit: int | None = None) -> int:
+def image_count(source: str | Path, limit: int | None = None) -> int:
     """How many images :func:`load_images` will return."""
-    files = image_paths(source, limit)
-    return min(limit or BUILTIN_COUNT, BUILTIN_COUNT) if files is None else len(files)
+    return len(image_entries(source, limit))

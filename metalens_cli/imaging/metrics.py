@@ -3,9 +3,19 @@
 Torch functions on (..., C, H, W) images with values nominally in 0..1 (``data_range`` 1);
 differentiable (SSIM is used as a loss by ``optimize``). Means are over channels and pixels.
 The photometric match maps an estimate onto its reference with one gain a and bias b per image,
-the same for every channel: by default (``luminance``, the paper's) from the mean and standard
-deviation of the Rec. 709 luminance Y = 0.2126 R + 0.7152 G + 0.0722 B of linear RGB; or
-(``lstsq``) by least squares over all pixels and channels.
+the same for every channel: by default (``lstsq``) by least squares over all pixels and
+channels; or (``luminance``, the paper's Suppl. Note 11) from the mean and standard deviation
+of the Rec. 709 luminance Y = 0.2126 R + 0.7152 G + 0.0722 B of linear RGB.
+
+Why least squares by default: it is the best global exposure and black level for the estimate,
+so an obstruction drawn independently of the scene cannot lower the expected (linear) error —
+the obstructed capture (1 − α)·U + L averages, over the obstruction's placement, to an affine
+function of U plus a non-negative variance. The luminance match stretches a blurred capture's
+contrast to the scene's whatever the capture holds: its gain exceeds the least-squares one by
+1/ρ (ρ: the capture's correlation with the scene), so halo, colour offsets (each channel's
+offset from the luminance mean) and the obstruction's own pattern are amplified with the
+scene, and an obstruction moves those amplified errors by chance in either direction
+(docs/images.md, "the fence that helps").
 LPIPS (:mod:`metalens_cli.imaging.lpips`) needs network weights that this package does not ship;
 :func:`lpips_note` says why it is skipped when they are not present locally.
 """
@@ -19,7 +29,8 @@ from metalens_cli.errors import InputError
 from metalens_cli.imaging.images import LUMA_709
 
 SSIM_WINDOW, SSIM_SIGMA, SSIM_K1, SSIM_K2 = 11, 1.5, 0.01, 0.03  # Wang et al. 2004
-MATCH_METHODS = ("luminance", "lstsq")
+MATCH_METHODS = ("lstsq", "luminance")
+DEFAULT_MATCH = "lstsq"
 PSNR_CEILING_DB = 100.0  # an exact match: MSE 0 (see reported_psnr)
 
 

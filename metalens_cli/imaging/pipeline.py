@@ -15,6 +15,7 @@ import torch
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
+from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
 from metalens_cli.io.presets import ObstructionConfig
 from metalens_cli.optics.channel_psf import crop_window  # noqa: F401  (re-exported: callers crop here)
@@ -191,9 +192,10 @@ def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_le
     return captures
 
 
-def score(estimate_linear: np.ndarray, clean_linear: np.ndarray, lpips_model=None, match: str = "luminance") -> dict:
+def score(estimate_linear: np.ndarray, clean_linear: np.ndarray, lpips_model=None, match: str = DEFAULT_MATCH) -> dict:
     """PSNR (dB) and SSIM of a capture against the clean image after the global gain/bias
-    match (``match``: the paper's luminance mean/std match of Suppl. Note 11, or least squares),
+    match (``match``: least squares, or the paper's luminance mean/std match of Suppl. Note 11;
+    see ``imaging.metrics``),
     computed on sRGB-encoded images clipped to 0..1 (display values), PSNR capped at 100 dB for
     an exact match (``metrics.reported_psnr``); also ``lpips`` on the same images when
     ``lpips_model`` (:class:`~metalens_cli.imaging.lpips.Lpips`) is given."""

@@ -326,7 +326,7 @@ def test_closed_standard_streams_are_not_errors(tmp_path):
 
 
 def test_a_scene_at_1e300_m_images_like_one_at_infinity(bench, capsys):
-    far = [a.format(**bench) for a in SIM[:-1]] + ["builtin", "--limit", "1", "--seed", "0", "--json", "--quiet"]
+    far = [a.format(**bench) for a in SIM[:-1]] + ["charts", "--limit", "1", "--seed", "0", "--json", "--quiet"]
     assert run(["evaluate", *far, "--z-far", "1e300m", "--obstruction", "dirt"]) == 0
     at_1e300 = json.loads(capsys.readouterr().out)["rows"]
     assert run(["evaluate", *far, "--z-far", "1e12m", "--obstruction", "dirt"]) == 0

@@ -1,9 +1,12 @@
 """Canvases around the sensor: the source image supplies the margin, reflection only past its edge."""
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
-from metalens_cli.imaging.images import builtin_images
+from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.obstructions import make_obstruction
 
 
@@ -29,7 +32,7 @@ def test_margin_comes_from_the_source_then_reflection():
 def test_builtin_scenes_and_file_obstructions_fill_the_canvas(tmp_path):
     import cv2
 
-    images = builtin_images((32, 32), margin=20, count=4)
+    images = load_images("all", (32, 32), margin=20)[7:11]  # photographs and charts
     assert [i.linear.shape for i in images] == [(3, 72, 72)] * 4 and images[0].sensor.shape == (3, 32, 32)
     assert all(np.isfinite(i.linear).all() and i.linear.min() >= 0 for i in images)
     opaque = np.zeros((16, 16, 4), np.uint8)
@@ -38,3 +41,30 @@ def test_builtin_scenes_and_file_obstructions_fill_the_canvas(tmp_path):
     cv2.imwrite(str(tmp_path / "cover.png"), opaque)
     obstruction = make_obstruction(f"file:{tmp_path / 'cover.png'}", (32, 32), 0.045, 4e-3, 1.85e-6, 0, margin=20)
     assert obstruction.mask.shape == (1, 72, 72) and obstruction.mask.min() == 1.0 and obstruction.coverage == 1.0
+
+
+def test_image_sets_and_folders(tmp_path, monkeypatch):
+    from metalens_cli.errors import InputError
+    from metalens_cli.imaging.images import CHART_COUNT, PHOTOGRAPHS, image_count, image_entries
+
+    assert image_count("photos") == len(PHOTOGRAPHS) == 9 and image_count("charts") == CHART_COUNT
+    assert image_count("all") == len(PHOTOGRAPHS) + CHART_COUNT and image_count("all", limit=3) == 3
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    (folder / "a.png").write_bytes(b"")
+    monkeypatch.chdir(tmp_path)
+    assert image_entries("photos") == list(PHOTOGRAPHS)          # the set wins over a folder of its name
+    assert image_entries("./photos") == [Path("photos/a.png")]  # the folder, written as a path
+    for source, message in (("", "is empty"), ("nowhere", "no such folder"), (str(tmp_path / "photos" / "a.png") + "x", "no such")):
+        with pytest.raises(InputError, match=message) as error:
+            image_entries(source)
+        assert "photos, charts, all" in str(error.value)
+
+
+def test_a_photograph_missing_from_its_package_is_one_clear_error():
+    from metalens_cli.errors import InputError
+    from metalens_cli.imaging.images import Photograph, photograph_path
+
+    for package in ("skimage", "no_such_package_here"):
+        with pytest.raises(InputError, match=f"not in the installed {package}"):
+            photograph_path(Photograph("gone", package, "data/gone.png", "nobody", "none", "1 × 1"))

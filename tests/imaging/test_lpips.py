@@ -152,7 +152,7 @@ def test_layer1_against_independent_reference(tmp_path):
 def test_evaluate_reports_lpips(capsys, weights_dir, tmp_path):
     csv = tmp_path / "e.csv"
     args = ["evaluate", "hyperbolic:532nm", "--f", "4mm", "--aperture", "0.3mm", "--pixels", "64", "--wavelengths", "420:680:20nm",
-            "--z-near", "45mm", "--z-far", "1m", "--images", "builtin", "--limit", "1", "--obstruction", "dirt",
+            "--z-near", "45mm", "--z-far", "1m", "--images", "charts", "--limit", "1", "--obstruction", "dirt",
             "--lpips-weights", str(weights_dir), "--csv", str(csv), "--json"]
     code = run(args)
     out, err = capsys.readouterr()

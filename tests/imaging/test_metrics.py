@@ -98,7 +98,7 @@ def test_luminance_match_of_a_flat_estimate_and_unknown_method():
     assert float(gain) == 0.0
     assert float(bias) == pytest.approx(float(luminance.mean()), abs=1e-15)
     assert (matched == bias).all()  # 0·estimate + b: the reference's mean luminance, exactly
-    with pytest.raises(InputError, match="luminance or lstsq"):
+    with pytest.raises(InputError, match="lstsq or luminance"):
         photometric_match(ref, ref, method="histogram")
 
 
