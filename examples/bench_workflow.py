@@ -11,7 +11,7 @@ It fabricates what a bench would give, with known answers, in the layout the com
   cannot be made from its samples; sub-pixel centring is tested on well-sampled spots in
   tests/analysis/test_measured_psf.py), exposed to fill 60 % of the 16-bit range, Poisson photons, a background, a dark offset with read noise, five hot pixels; a stack of
   dark frames; one over-exposed frame (``psf_530nm_inf_long.png``); the manifest ``psf.csv``.
-- ``OUT/pairs/``: photographs of the built-in scenes through two lenses (``metalens simulate``),
+- ``OUT/pairs/``: photographs of printed dead-leaves charts through two lenses (``metalens simulate --images charts``),
   as a second camera that is not quite where the reference was would record them: warped by
   a homography and a smooth distortion of a few pixels (``gt/``, ``DESIGN/unobstructed/``,
   ``DESIGN/obstructed/``).
@@ -153,7 +153,8 @@ def main() -> None:
     scenes = {}
     for design in DESIGNS:
         scenes[design] = out / "simulate" / design.replace(":", "-")
-        metalens("simulate", design, "--preset", PRESET, "--obstruction", "dirt", "--pixels", 256, "--limit", 3, "-o", scenes[design])
+        metalens("simulate", design, "--preset", PRESET, "--obstruction", "dirt", "--images", "charts", "--pixels", 256, "--limit", 3,
+                 "-o", scenes[design])
     photographs(scenes, out / "pairs")
     first = sorted((out / "pairs" / "gt").iterdir())[0].name
     aligned = metalens("align", out / "pairs" / "gt" / first, out / "pairs" / DESIGNS[0].replace(":", "-") / "unobstructed" / first,

@@ -117,6 +117,7 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
             "pixel_pitch_m": pixel_pitch_m,
             **metadata,
             "psfs": scan.metrics,
+            "channel_psfs": scan.channel_metrics,
             "warnings": scan.warnings,
             **({"plot": str(plot_path)} if plot_path else {}),
         })
@@ -128,12 +129,17 @@ def _render(scan, design, output) -> None:
     from metalens_cli.io.units import format_length
 
     con = render.console()
-    rows = [
-        [format_length(m["depth_m"]), render.nm(m["wavelength_m"], 1), f"{m['peak']:.4f}", f"{m['energy_in_window']:.4f}",
-         f"{m['energy_center_5x5']:.4f}", "—" if m["fwhm_m"] is None else f"{m['fwhm_m'] * 1e6:.2f}"]
-        for m in scan.metrics
-    ]
-    con.print(render.table(f"PSF scan of {design.spec} ({scan.propagator})", ["depth", "λ (nm)", "peak", "in window", "centre 5×5", "FWHM (µm)"], rows))
+    columns = ["peak", "in window", "centre 5×5", "FWHM (µm)"]
+
+    def cells(m: dict) -> list[str]:
+        return [f"{m['peak']:.4f}", f"{m['energy_in_window']:.4f}", f"{m['energy_center_5x5']:.4f}",
+                "—" if m["fwhm_m"] is None else f"{m['fwhm_m'] * 1e6:.2f}"]
+
+    con.print(render.table(f"PSF scan of {design.spec} ({scan.propagator})", ["depth", "λ (nm)", *columns],
+                           [[format_length(m["depth_m"]), render.nm(m["wavelength_m"], 1), *cells(m)] for m in scan.metrics]))
+    if scan.channel_metrics:
+        con.print(render.table("Channel PSFs: the wavelengths weighted by filter × camera response", ["depth", "channel", *columns],
+                               [[format_length(m["depth_m"]), m["channel"], *cells(m)] for m in scan.channel_metrics]))
     t = scan.timing_s
     con.print(f"{len(scan.metrics)} PSFs in {t['total']:.2f} s (" + ", ".join(f"{k} {v:.2f} s" for k, v in t.items() if k != "total") + ")")
     if scan.accuracy:

@@ -2,7 +2,9 @@
 
 A scan computes psf[i, j] for depths[i] × wavelengths[j] through :func:`compute_psf`, the
 channel PSFs rgb[i, c] = Σ_j w[c, j]·psf[i, j] when a preset defines the spectra (S^c
-quadrature on the scan wavelengths), per-PSF summaries, and, on request, an accuracy report:
+quadrature on the scan wavelengths: filter × camera response, w summing to 1 per channel),
+summaries of every PSF and of every channel PSF (its centre 5 × 5 energy is the spectrally
+weighted mean of the wavelengths' own), and, on request, an accuracy report:
 the sharpest PSF recomputed with doubled sampling and, for radial designs, with the direct
 Rayleigh-Sommerfeld reference.
 """
@@ -37,6 +39,7 @@ class ScanResult:
     grid: dict
     timing_s: dict
     metrics: list[dict]
+    channel_metrics: list[dict] = field(default_factory=list)
     spectra: dict | None = None
     accuracy: dict | None = None
     warnings: list[str] = field(default_factory=list)
@@ -99,9 +102,14 @@ def run_scan(
         for i, z in enumerate(depths_m)
         for j, w in enumerate(wavelengths_m)
     ]
+    channel_metrics = [] if rgb is None else [
+        {"depth_m": z, "channel": name, **summarize(rgb[i, c], pixel_pitch_m)}
+        for i, z in enumerate(depths_m)
+        for c, name in enumerate(spectra["channels"])
+    ]
     timing["total"] = time.perf_counter() - start
     scan = ScanResult(psf, rgb, list(wavelengths_m), list(depths_m), pixel_pitch_m, result.propagator,
-                      result.grid, timing, metrics, spectra, warnings=warnings)
+                      result.grid, timing, metrics, channel_metrics, spectra, warnings=warnings)
     if check_accuracy:
         scan.accuracy = accuracy_report(design, scan, dtype, device, force)
     return scan

@@ -49,7 +49,22 @@ def test_scan_with_preset_writes_rgb(capsys, tmp_path):
     energies = cube.psf.sum(axis=(-2, -1))[0]
     for channel in cube.rgb.sum(axis=(-2, -1))[0]:
         assert energies.min() - 1e-6 <= channel <= energies.max() + 1e-6
-    assert json.loads(out)["spectra"]["channels"] == ["R", "G", "B"]
+    report = json.loads(out)
+    assert report["spectra"]["channels"] == ["R", "G", "B"]
+    # The channel summary (filter × camera response): each channel's centre 5 × 5 energy is the
+    # quadrature-weighted mean of the wavelengths' own (the 5 × 5 sum is linear), recomputed here
+    # from the per-wavelength report; the split-spectrum filter keeps each channel to its pass band.
+    from metalens_cli.io.preset_spectra import preset_sensitivity
+    from metalens_cli.io.presets import load_preset
+    from metalens_cli.optics.spectra import quadrature_weights
+
+    weights = quadrature_weights(preset_sensitivity(load_preset(PRESETS / "split-spectrum.toml")),
+                                 np.array(report["wavelengths_m"])).weights
+    per_wavelength = np.array([p["energy_center_5x5"] for p in report["psfs"]])
+    channels = {m["channel"]: m for m in report["channel_psfs"]}
+    assert list(channels) == ["R", "G", "B"] and all(m["depth_m"] is None for m in channels.values())
+    for c, name in enumerate("RGB"):
+        assert channels[name]["energy_center_5x5"] == pytest.approx(float(weights[c] @ per_wavelength), rel=1e-5)
 
 
 def test_check_accuracy_reports(capsys, tmp_path):
