@@ -148,3 +148,14 @@ def test_cli_choices_match_the_core():
     from metalens_cli.imaging import formation, metrics
 
     assert FORMATIONS == formation.FORMATIONS and MATCH_METHODS == metrics.MATCH_METHODS
+
+
+def test_evaluate_defaults_give_enough_units(capsys):
+    """The default set (the photographs) × the default seeds (0:2) gives ≥ 20 units per cell, so
+    no few-units warning; the least-squares match is the default."""
+    code, stdout, stderr = invoke(capsys, "evaluate", "hyperbolic:532nm", *SMALL, "--obstruction", "dirt", "--json", "--quiet")
+    assert code == 0, stderr
+    report = json.loads(stdout)
+    assert report["images"][:2] == ["astronaut", "chelsea"] and len(report["images"]) == 9 and report["seeds"] == [0, 1, 2]
+    assert {row["n"] for row in report["rows"]} == {27} and report["photometric_match"] == "lstsq"
+    assert not any("units per cell" in w for w in report["warnings"])
