@@ -44,7 +44,7 @@ def statistics_rows() -> list[str]:
     photos = [image.linear for image in load_images("photos", (SIZE, SIZE))]
     sets = {
         "photographs (9)": photos,
-        "colour photographs (5)": [i for p, i in zip(PHOTOGRAPHS, photos) if p.size.endswith("colour")],
+        "colour photographs (5)": [i for p, i in zip(PHOTOGRAPHS, photos) if p.colour],
         "dead-leaves charts (24)": [image.linear for image in load_images("charts", (SIZE, SIZE))],
         f"procedural training scenes ({SCENES})": [procedural_scene((SIZE, SIZE), np.random.default_rng([0, k, 11]))
                                                    for k in range(SCENES)],
@@ -125,7 +125,8 @@ def write(path: Path, pixels: int, seeds: int, ab: list[str] | None = None, ab_n
              "softer than the sensor's) and mirrored past its edges where the canvas needs more scene. The grey ones "
              "are grey scenes to a colour camera.", "",
              "| name | source | licence | as shipped (rows × columns) |", "|---|---|---|---|"]
-    lines += [f"| {p.name} | {p.source} | {p.licence} | {p.size} |" for p in PHOTOGRAPHS]
+    lines += [f"| {p.name} | {p.source} | {p.licence} | {p.shape[0]} × {p.shape[1]}, {'colour' if p.colour else 'grey'} |"
+              for p in PHOTOGRAPHS]
     lines += ["", "`--images charts`: 24 seeded colour dead-leaves charts (`dead_leaves_00`-`23`, the texture chart of "
               "ISO 19567-2: disks with radii ∝ r⁻³, a 1/f² spectrum). `--images all`: both. The verdicts of "
               "docs/results.md are taken on the photographs; the charts are the texture test.", "",

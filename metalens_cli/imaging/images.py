@@ -34,30 +34,32 @@ LUMA_709 = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear R, G
 @dataclass(frozen=True)
 class Photograph:
     """A photograph shipped in an installed package: ``package`` (import name), ``path`` inside
-    it, who made it and under which licence, and its size as shipped (rows × columns, colour)."""
+    it, who made it and under which licence, its size as shipped (rows, columns) and whether it
+    is in colour (else grey)."""
 
     name: str
     package: str
     path: str
     source: str
     licence: str
-    size: str
+    shape: tuple[int, int]
+    colour: bool = True
 
 
 PHOTOGRAPHS = (
     Photograph("astronaut", "skimage", "data/astronaut.png", "Eileen Collins, NASA portrait (scikit-image sample data)",
-               "public domain", "512 × 512, colour"),
-    Photograph("chelsea", "skimage", "data/chelsea.png", "Stéfan van der Walt, a cat (scikit-image)", "CC0", "300 × 451, colour"),
-    Photograph("coffee", "skimage", "data/coffee.png", "Rachel Michetti, a cup of coffee (scikit-image)", "CC0", "400 × 600, colour"),
+               "public domain", (512, 512)),
+    Photograph("chelsea", "skimage", "data/chelsea.png", "Stéfan van der Walt, a cat (scikit-image)", "CC0", (300, 451)),
+    Photograph("coffee", "skimage", "data/coffee.png", "Rachel Michetti, a cup of coffee (scikit-image)", "CC0", (400, 600)),
     Photograph("rocket", "skimage", "data/rocket.jpg", "SpaceX, DSCOVR launch on Falcon 9 (scikit-image)", "public domain",
-               "427 × 640, colour"),
+               (427, 640)),
     Photograph("grace_hopper", "matplotlib", "mpl-data/sample_data/grace_hopper.jpg", "US Navy portrait (matplotlib sample data)",
-               "public domain", "600 × 512, colour"),
+               "public domain", (600, 512)),
     Photograph("camera", "skimage", "data/camera.png", "Lav Varshney, a photographer outdoors (scikit-image)", "CC0",
-               "512 × 512, grey"),
-    Photograph("brick", "skimage", "data/brick.png", "CC0Textures Bricks25, a brick wall (scikit-image)", "CC0", "512 × 512, grey"),
-    Photograph("grass", "skimage", "data/grass.png", "linolafett on DeviantArt, grass (scikit-image)", "CC0", "512 × 512, grey"),
-    Photograph("gravel", "skimage", "data/gravel.png", "CC0Textures Gravel04, gravel (scikit-image)", "CC0", "512 × 512, grey"),
+               (512, 512), colour=False),
+    Photograph("brick", "skimage", "data/brick.png", "CC0Textures Bricks25, a brick wall (scikit-image)", "CC0", (512, 512), colour=False),
+    Photograph("grass", "skimage", "data/grass.png", "linolafett on DeviantArt, grass (scikit-image)", "CC0", (512, 512), colour=False),
+    Photograph("gravel", "skimage", "data/gravel.png", "CC0Textures Gravel04, gravel (scikit-image)", "CC0", (512, 512), colour=False),
 )
 
 

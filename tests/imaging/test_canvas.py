@@ -67,4 +67,14 @@ def test_a_photograph_missing_from_its_package_is_one_clear_error():
 
     for package in ("skimage", "no_such_package_here"):
         with pytest.raises(InputError, match=f"not in the installed {package}"):
-            photograph_path(Photograph("gone", package, "data/gone.png", "nobody", "none", "1 × 1"))
+            photograph_path(Photograph("gone", package, "data/gone.png", "nobody", "none", (1, 1)))
+
+
+def test_the_photographs_are_as_documented():
+    """Every photograph of the set is where its entry says, with the size and colour docs/images.md lists."""
+    from metalens_cli.imaging.images import PHOTOGRAPHS, photograph_path
+    from metalens_cli.io.image_files import read_image_file
+
+    for photo in PHOTOGRAPHS:
+        pixels, names, _ = read_image_file(photograph_path(photo), photo.name)
+        assert pixels.shape[:2] == photo.shape and (names[0] != "Y") == photo.colour, photo.name
