@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from metalens_cli.imaging.dead_leaves import srgb_decode
 from metalens_cli.imaging.noise import fractal_noise
 
 
@@ -88,8 +89,7 @@ def _colour(rng: np.random.Generator) -> np.ndarray:
     """A linear RGB colour: hue uniform, HSV saturation Beta(2, 1.5) × 0.95, value Beta(2, 2), sRGB-decoded."""
     import colorsys
 
-    srgb = np.array(colorsys.hsv_to_rgb(rng.uniform(), 0.95 * rng.beta(2.0, 1.5), rng.beta(2.0, 2.0)))
-    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    return srgb_decode(np.array(colorsys.hsv_to_rgb(rng.uniform(), 0.95 * rng.beta(2.0, 1.5), rng.beta(2.0, 2.0))))
 
 
 def random_crop(image: np.ndarray, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
