@@ -3,15 +3,17 @@ resolution (presets/split-spectrum.toml: 512 × 512 sensor, 3 wavelengths per ch
 radial θ(r) (one parameter per meta-atom ring) and 2-D θ(x, y) (one per site, 6369² as in the
 paper).
 
-Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 3] [--steps-2d 1]
-[--parameterization quick radial 2d] [--baseline DIR] [--presets DIR]. Rewrites its section of docs/benchmarks.md
-(one per device type). ``--baseline DIR`` (a checkout of an earlier commit, e.g. from
-``git worktree add DIR bfff46b``) measures the same rows with DIR's package and presets in a
-subprocess right after, so that the before/after ratios come from one sitting (with
-``--presets DIR/presets`` both time the baseline's presets: the code alone). Each step's PSF
-windows follow its light (``optics.channel_psf``), so the step's cost follows the design: the
-rows give the windows the last step needed. A 2-D step at this size takes minutes and several
-GiB on 2 CPU cores; its backward pass runs the adjoint propagation (see ``optics.psf``).
+Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4] [--steps-quick 40]
+[--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR] [--presets DIR]. Rewrites its
+section of docs/benchmarks.md (one per device type). Every row runs in a fresh process (its own
+peak memory). ``--baseline DIR`` (a checkout of an earlier commit, e.g. from ``git worktree add
+DIR HEAD``) measures each row again with DIR's package right after, on the same presets, so that
+the before/after ratios come from one sitting. Each step's PSF windows follow its light
+(``optics.channel_psf``), so the step's cost follows the design: the quick rows run long enough
+for the learned lens to spread its light (and the kernels' plan to grow, which costs seconds
+each time); the rows give the windows the last step needed. A 2-D step at this size takes
+minutes and several GiB on 2 CPU cores; its backward pass runs the adjoint propagation (see
+``optics.psf``).
 """
 
 from __future__ import annotations
@@ -29,38 +31,49 @@ import torch
 
 from metalens_cli.runtime import retain_freed_memory
 
-PRESET = Path(__file__).resolve().parents[1] / "presets" / "split-spectrum.toml"
+STEP_STAGES = ("psf", "scenes", "formation_loss", "backward", "update")  # together, a whole step
+ROOT = Path(__file__).resolve().parents[1]
+PRESET = ROOT / "presets" / "split-spectrum.toml"
 
 
-def measure(kinds, presets: Path, device: str, threads: int, steps: int, steps_2d: int) -> list[dict]:
-    """One result per kind: time_steps' report plus the peak memory."""
+def measure(kind: str, presets: Path, device: str, threads: int, steps: int) -> dict:
+    """time_steps' report for one kind, plus this process's peak memory."""
     from metalens_cli.design.training import time_steps
     from metalens_cli.io.presets import load_preset
 
     torch.set_num_threads(threads)
-    base = load_preset(presets / PRESET.name)
-    results = []
-    for kind in kinds:
-        if kind == "quick":
-            preset = load_preset(presets / "quick-split-spectrum.toml")
-        else:
-            preset = dataclasses.replace(base, lens=dataclasses.replace(base.lens, parameterization=kind),
-                                         optimize=dataclasses.replace(base.optimize, design_grid=0))
-        r = time_steps(preset, steps_2d if kind == "2d" else steps, torch.device(device))
-        r["peak_bytes"] = r.get("peak_memory_bytes") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-        r["kind"] = kind
-        results.append(r)
-        print(json.dumps({k: v for k, v in r.items() if k != "seconds_by_stage"}), file=sys.stderr, flush=True)
-    return results
+    if kind == "quick":
+        preset = load_preset(presets / "quick-split-spectrum.toml")
+    else:
+        base = load_preset(presets / PRESET.name)
+        preset = dataclasses.replace(base, lens=dataclasses.replace(base.lens, parameterization=kind),
+                                     optimize=dataclasses.replace(base.optimize, design_grid=0))
+    r = time_steps(preset, steps, torch.device(device))
+    r["peak_bytes"] = r.get("peak_memory_bytes") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    r["kind"] = kind
+    r["mean_seconds_per_step"] = sum(r["seconds_by_stage"].get(k, 0.0) for k in STEP_STAGES) / steps
+    return r
+
+
+def measure_in_subprocess(kind: str, args, steps: int, code: Path) -> dict:
+    """``measure`` in a fresh process (its own peak memory) with the package of ``code``."""
+    command = [sys.executable, __file__, "--emit-json", kind, "--presets", str(args.presets), "--device", args.device,
+               "--threads", str(args.threads), "--steps", str(steps)]
+    result = json.loads(subprocess.run(command, env={**os.environ, "PYTHONPATH": str(code)}, check=True,
+                                       capture_output=True, text=True).stdout)
+    print(json.dumps({k: v for k, v in result.items() if k != "seconds_by_stage"}), file=sys.stderr, flush=True)
+    return result
 
 
 def row(r: dict, label: str) -> str:
     stages, steps = r["seconds_by_stage"], r["steps"]
     memory = "GPU" if "peak_memory_bytes" in r else "RSS"
     windows = r.get("windows_px")
-    window_text = f"{windows['near']} / {windows['far']}" if windows else "533 / 467 (fixed)" if r["kind"] == "quick" else "fixed"
-    return (f"| {label} | {r['parameters']:,} | {'2-D ASM' if r['kind'] == '2d' else 'radial (Hankel)'} | {window_text} | "
-            f"{r['seconds_per_step']:.2f} | {r['first_step_s']:.2f} | {stages.get('psf', 0) / steps:.2f} | "
+    window_text = f"{windows['near']} / {windows['far']}" if windows and windows["near"] else "fixed"
+    mean = r["mean_seconds_per_step"]
+    return (f"| {label} | {r['parameters']:,} | {'2-D ASM' if r['kind'] == '2d' else 'radial (Hankel)'} | {steps} | {window_text} | "
+            f"{r['seconds_per_step']:.2f} | {mean:.2f} | {r['first_step_s']:.2f} | "
+            f"{stages.get('psf_kernels', 0):.1f} | {stages.get('psf', 0) / steps:.2f} | "
             f"{stages.get('backward', 0) / steps:.2f} | {r['peak_bytes'] / 2**30:.1f} GiB ({memory}) |")
 
 
@@ -68,57 +81,62 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--steps", type=int, default=3, help="radial steps")
+    parser.add_argument("--steps", type=int, default=4, help="steps at paper size (radial)")
+    parser.add_argument("--steps-quick", type=int, default=40,
+                        help="quick-preset steps from θ_init: long enough for its light to spread and the plan to grow")
     parser.add_argument("--steps-2d", type=int, default=1, help="2-D steps")
     parser.add_argument("--parameterization", nargs="+", default=["quick", "radial", "2d"], choices=["quick", "radial", "2d"],
                         help="quick: presets/quick-split-spectrum.toml as it is (128² crop)")
     parser.add_argument("--baseline", type=Path, help="a checkout of an earlier commit to measure right after")
-    parser.add_argument("--emit-json", action="store_true", help=argparse.SUPPRESS)  # the baseline's subprocess
+    parser.add_argument("--baseline-parameterization", nargs="+", choices=["quick", "radial", "2d"],
+                        help="the rows measured with the baseline too (default: all)")
+    parser.add_argument("--emit-json", choices=["quick", "radial", "2d"], help=argparse.SUPPRESS)  # one kind, in a subprocess
     parser.add_argument("--presets", type=Path, default=PRESET.parent,
-                        help="the folder of presets to time (default: this checkout's; a baseline's for like-for-like code)")
+                        help="the folder of presets both trees time (default: this checkout's)")
     args = parser.parse_args()
     retain_freed_memory()
     if args.emit_json:
-        print(json.dumps(measure(args.parameterization, args.presets, args.device, args.threads, args.steps, args.steps_2d)))
+        print(json.dumps(measure(args.emit_json, args.presets, args.device, args.threads, args.steps)))
         return
     device = torch.device(args.device)
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else f"{args.threads} CPU threads"
-    results = measure(args.parameterization, args.presets, args.device, args.threads, args.steps, args.steps_2d)
-    baseline = []
-    if args.baseline:
-        command = [sys.executable, __file__, "--emit-json", "--presets", str(args.baseline / "presets"), "--device", args.device,
-                   "--threads", str(args.threads), "--steps", str(args.steps), "--steps-2d", str(args.steps_2d),
-                   "--parameterization", *args.parameterization]
-        env = {**os.environ, "PYTHONPATH": str(args.baseline)}
-        baseline = json.loads(subprocess.run(command, env=env, check=True, capture_output=True, text=True).stdout)
+    steps = {"quick": args.steps_quick, "radial": args.steps, "2d": args.steps_2d}
+    trees = [ROOT] + ([args.baseline.resolve()] if args.baseline else [])
+    compared = args.baseline_parameterization or args.parameterization
+    results = {(tree, kind): measure_in_subprocess(kind, args, steps[kind], tree)
+               for kind in args.parameterization for tree in trees if tree == ROOT or kind in compared}
     commit = subprocess.run(["git", "-C", str(args.baseline), "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip() if args.baseline else ""
     lines = [
         f"## Training step, {device.type} (`python benchmarks/bench_optimize.py --device {args.device}"
         f"{' --baseline DIR' if args.baseline else ''}`)",
         "",
-        ("" if args.presets.resolve() == PRESET.parent.resolve() else
-         f"Presets of {commit} for both rows of each θ (the code alone differs). "
-         if args.baseline and args.presets.resolve() == (args.baseline / "presets").resolve()
-         else f"Presets from `{args.presets}` for both rows of each θ. ")
-        + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2) and "
-        f"`split-spectrum.toml` (512² sensor, 3 wavelengths per channel, batch 1) on {name}; radial: {args.steps} steps "
-        f"from θ_init, the median of those after the first (which builds the kernels); 2-D: {args.steps_2d} step(s). "
-        "Windows: what the last step's light needed (near / far, px)."
-        + (f" Baseline rows: commit {commit}, measured in a subprocess right after, on the same machine." if baseline else ""),
+        ("" if args.presets.resolve() == PRESET.parent.resolve() else f"Presets from `{args.presets}`. ")
+        + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2): {args.steps_quick} steps from θ_init, "
+        f"long enough for the light to spread and the plan to grow; `split-spectrum.toml` (512² sensor, 3 wavelengths "
+        f"per channel, batch 1): {args.steps} steps (radial), {args.steps_2d} (2-D); on {name}, each row a fresh process. "
+        "Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their total "
+        "seconds (Hankel kernel and output rows). Windows: what the last step's light needed (near / far, px)."
+        + (f" Baseline rows: commit {commit} (the same presets), each measured right after the row above it, on the same machine."
+           if args.baseline else ""),
         "",
-        "| θ | parameters | propagator | windows px | s/step | first step s | PSFs s/step (mean) | backward s/step (mean) | peak memory |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| θ | parameters | propagator | steps | windows px | median s/step | mean s/step | first step s | kernels s "
+        "| PSFs s/step | backward s/step | peak memory |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     labels = {"quick": "radial, quick preset", "radial": "radial", "2d": "2-D"}
-    for r in results:
-        lines.append(row(r, labels[r["kind"]]))
-    for b in baseline:
-        lines.append(row(b, f"{labels[b['kind']]} ({commit})"))
-    if baseline:
-        lines += ["", "| θ | s/step now / baseline |", "|---|---|"]
-        for r, b in zip(results, baseline):
-            lines.append(f"| {labels[r['kind']]} | {r['seconds_per_step'] / b['seconds_per_step']:.2f} |")
+    for kind in args.parameterization:
+        for tree in trees:
+            if (tree, kind) in results:
+                lines.append(row(results[tree, kind], labels[kind] + ("" if tree == ROOT else f" ({commit})")))
+    if args.baseline:
+        lines += ["", "| θ | median s/step now / baseline | mean s/step now / baseline | peak memory now / baseline |",
+                  "|---|---|---|---|"]
+        for kind in (k for k in args.parameterization if k in compared):
+            r, b = results[ROOT, kind], results[trees[1], kind]
+            lines.append(f"| {labels[kind]} | {r['seconds_per_step'] / b['seconds_per_step']:.2f} | "
+                         f"{r['mean_seconds_per_step'] / b['mean_seconds_per_step']:.2f} | "
+                         f"{r['peak_bytes'] / b['peak_bytes']:.2f} |")
     print("\n".join(lines), flush=True)
     from report import write_section
 

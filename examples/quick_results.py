@@ -20,7 +20,10 @@
    the central 5 × 5 pixels of the far (∞) and near (45 mm) PSFs of both learned designs; and,
    for all three designs over 400-700 nm, that far energy per wavelength across 430-650 nm and
    per channel (filter × camera response), far and near.
-5. The cost of a training step at the paper's resolution, radial and 2-D, is copied from the
+5. One medium run (presets/medium-split-spectrum.toml: a 256² crop, 1500 steps, 5 × the quick
+   schedule) is trained the same way (``--reuse`` keeps it) and scored against the quick split run
+   on the photographs at 512² (paired, same units): how far the quick run is from convergence.
+6. The cost of a training step at the paper's resolution, radial and 2-D, is copied from the
    ``optimize-cpu`` section of docs/benchmarks.md (``python benchmarks/bench_optimize.py`` writes
    it; this script does not re-run it).
 
@@ -42,6 +45,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGNS = ("quick-split-spectrum", "quick-broadband", "hyperbolic-532")
+MEDIUM = "medium-split-spectrum"
 LABELS = {"quick-split-spectrum": "learned split-spectrum", "quick-broadband": "learned broadband",
           "hyperbolic-532": "hyperbolic 532 nm"}
 OBSTRUCTIONS = "dirt,fence"
@@ -58,9 +62,9 @@ def metalens(*args: str) -> dict:
     return json.loads(done.stdout)
 
 
-def train(runs: Path, reuse: bool) -> dict[str, dict]:
+def train(runs: Path, reuse: bool, names=DESIGNS) -> dict[str, dict]:
     reports = {}
-    for name in DESIGNS:
+    for name in names:
         run = runs / name
         if reuse and (run / "run.json").is_file():
             reports[name] = json.loads((run / "run.json").read_text())
@@ -102,6 +106,47 @@ def evaluate(runs: Path, seeds: int, images: str, pixels: int, reuse: bool, reco
                       "--seed", f"0:{seeds - 1}", "--quiet", *(("--recon", ",".join(networks)) if recon else ()))
     saved.write_text(json.dumps(report), encoding="utf-8")
     return report
+
+
+def evaluate_medium(runs: Path, seeds: int, reuse: bool) -> dict:
+    """The medium split run against the quick one, photographs at 512², kept in
+    ``runs/evaluate_medium_512.json`` (``--reuse`` reads it back when its seeds match)."""
+    saved = runs / "evaluate_medium_512.json"
+    if reuse and saved.is_file():
+        report = json.loads(saved.read_text())
+        if report["seeds"] == list(range(seeds)):
+            return report
+    report = metalens("evaluate", str(runs / MEDIUM), str(runs / DESIGNS[0]), "--images", "photos", "--obstruction", OBSTRUCTIONS,
+                      "--pixels", "512", "--seed", f"0:{seeds - 1}", "--quiet")
+    saved.write_text(json.dumps(report), encoding="utf-8")
+    return report
+
+
+def medium_section(run: dict, quick: dict, report: dict) -> tuple[list[str], list[str]]:
+    """Training cost of the medium run beside the quick one, its scores, and the paired difference."""
+    kinds = OBSTRUCTIONS.split(",")
+    lines = ["", "## (a2) A medium run: how far the quick run is from convergence", "",
+             f"`metalens optimize presets/{MEDIUM}.toml` ({run['settings']['steps']} steps on a 256 × 256 crop, against the quick "
+             f"preset's {quick['settings']['steps']} on 128 × 128; same lens, losses and learning rate), scored with the quick split "
+             f"run on the same units (photographs, 512 × 512, seeds 0-{len(report['seeds']) - 1}; PSNR in dB, mean [95 % CI]).", "",
+             "| run | steps | s/step (median) | training time | validation loss before → after | "
+             + " | ".join(f"{k} Unobs. | {k} Obs." for k in kinds) + " |", "|---|---|---|---|---|" + "---|---|" * len(kinds)]
+    rows = {(Path(r["design"]).name, r["obstruction"], r["condition"]): r for r in report["rows"]}
+    for name, r in ((MEDIUM, run), (DESIGNS[0], quick)):
+        v = r["validation_loss"]
+        lines.append(f"| {name} | {r['settings']['steps']} | {r['cost']['seconds_per_step_median']:.2f} | "
+                     f"{r['cost']['seconds_training'] / 60:.1f} min | {v['initial']:.3f} → {v['final']:.3f} | "
+                     + " | ".join(_cell(rows[name, k, c]["psnr_db"], rows[name, k, c]["psnr_db_ci"], 2)
+                                  for k in kinds for c in ("unobstructed", "obstructed")) + " |")
+    pairs = {(c["obstruction"], c["condition"]): c for c in report["comparisons"]
+             if c["metric"] == "psnr_db" and Path(c["design"]).name == MEDIUM and Path(c["versus"]).name == DESIGNS[0]}
+    lines += ["", "Paired difference, medium − quick (dB, 95 % CI): " + "; ".join(
+        f"{k} {c}: {_cell(pairs[k, c]['difference'], pairs[k, c]['ci'], 2, True)}" for k in kinds for c in ("unobstructed", "obstructed"))
+        + "."]
+    worst = max(abs(p["difference"]) for (k, c), p in pairs.items() if c in ("unobstructed", "obstructed"))
+    verdicts = [f"- (a2) the quick split run scores within {worst:.2f} dB of the medium run ({run['settings']['steps']} steps) on every "
+                f"photograph cell at 512²: target within 0.5 dB {'met' if worst <= 0.5 else 'NOT met'}."]
+    return lines, verdicts
 
 
 def added_error(report: dict) -> dict:
@@ -335,17 +380,19 @@ def grey_section(walls: dict[str, list]) -> list[str]:
     return lines
 
 
-def write(path: Path, reports, recon_reports, walls, tables, energies, bands, seeds, visible) -> None:
+def write(path: Path, reports, recon_reports, walls, tables, energies, bands, seeds, visible, medium) -> None:
     lines = ["# Results: the quick presets against both baselines, raw and reconstructed", "",
              "Written by `python examples/quick_results.py` (all numbers below come from the commands it runs; "
              "re-running it rewrites this file). Machine: 2 CPU cores.", "",
              "## Commands", "", "```bash"]
-    lines += [f"metalens optimize presets/{n}.toml -o runs/{n}" for n in DESIGNS]
+    lines += [f"metalens optimize presets/{n}.toml -o runs/{n}" for n in (*DESIGNS, MEDIUM)]
     lines += [f"metalens reconstruct train runs/{n} --preset presets/quick-reconstruct.toml -o runs/recon-{n}" for n in DESIGNS]
     lines += [f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --images {images} "
               f"--obstruction {OBSTRUCTIONS} --pixels {pixels} --seed 0:{seeds - 1}"
               + (" --recon " + ",".join(f"runs/recon-{n}" for n in DESIGNS) if any(r.get("capture") == "recon" for r in report["rows"]) else "")
               + " --json" for (images, pixels), report in tables.items()]
+    lines += [f"metalens evaluate runs/{MEDIUM} runs/{DESIGNS[0]} --images photos --obstruction {OBSTRUCTIONS} --pixels 512 "
+              f"--seed 0:{seeds - 1} --json"]
     lines += [
               "metalens psf-scan --design runs/{quick-split-spectrum,quick-broadband} --wavelengths "
               + ",".join(f"{lo * 1e9:.0f}:{hi * 1e9:.0f}:2nm" for _, lo, hi in bands) + f" --depths {NEAR_DEPTH},inf --pixels 64 "
@@ -378,6 +425,9 @@ def write(path: Path, reports, recon_reports, walls, tables, energies, bands, se
         section, verdicts = evaluation_section(images, pixels, report, seeds)
         lines += section
         verdict_a += verdicts
+    section, verdicts = medium_section(*medium)
+    lines += section
+    verdict_a += verdicts
     lines += ["", "### Reading Δ", "",
               "Δ PSNR is a ratio: the error an obstruction adds, over the design's own unobstructed error. Dirt at "
               "40-50 mm blurs over hundreds of pixels with every one of these lenses (see the windows above), so it reaches "
@@ -429,12 +479,13 @@ def main() -> None:
     parser.add_argument("--output", type=Path, default=ROOT / "docs" / "results.md")
     args = parser.parse_args()
     reports = train(args.runs, args.reuse)
+    medium = (train(args.runs, args.reuse, (MEDIUM,))[MEDIUM], reports[DESIGNS[0]], evaluate_medium(args.runs, args.seeds, args.reuse))
     recon_reports = train_recon(args.runs, args.reuse)
     tables = {(images, p): evaluate(args.runs, args.seeds, images, p, args.reuse, p in args.recon_pixels and images == "photos")
               for images in ("photos", "charts") for p in args.pixels}
     bands = pass_bands(ROOT / "presets" / "quick-split-spectrum.toml")
     write(args.output, reports, recon_reports, grey_wall(args.runs), tables, core_energy(args.runs, bands), bands, args.seeds,
-          visible_scan(args.runs))
+          visible_scan(args.runs), medium)
     print(args.output)
 
 

@@ -40,7 +40,7 @@ from metalens_cli.imaging.formation import canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.optics.blur import psf_window
-from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, channel_psf_stack
+from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, channel_psf_stack, larger_window
 from metalens_cli.io.presets import to_toml
 from metalens_cli.optics.sampling import check_lens_sampling
 from metalens_cli.io.preset_spectra import preset_sensitivity
@@ -125,34 +125,59 @@ def plan_frequency(preset) -> float:
 
 @dataclass(frozen=True)
 class Windows:
-    """The run's planned PSF windows (odd sides, pixels) at the near and far depths: where each
-    step looks for light (its capacity), and the canvas margin (pixels) they need around the
-    sensor. Each step's own windows come from its light (``optics.channel_psf``)."""
+    """Where the next step looks for light (odd sides, pixels): the ``near`` and ``far``
+    capacities, the last step's windows (its light, ``optics.channel_psf``) × ``PLAN_HEADROOM``;
+    and the ``plan``, the window the radial kernels are built for (≥ both). The capacities follow
+    the light up and down (a capacity costs Hankel output rows in proportion to its side); the plan
+    only grows, ``PLAN_HEADROOM`` past the capacity that outgrew it, so that the kernels are
+    rebuilt rarely (a rebuild costs seconds, a wider plan a few per cent of every step). The
+    kernels' field ``frequency`` (cycles/m, None: each step's own) likewise only grows,
+    ``PLAN_HEADROOM`` past a lens that steepened beyond it (``plan_frequency``)."""
 
     near: int
     far: int
+    plan: int
+    frequency: float | None = None
+
+    @classmethod
+    def fitted(cls, near: int, far: int, plan: int = 0, frequency: float | None = None) -> Windows:
+        """Capacities ``near``, ``far`` (at most ``MAX_PLAN_WINDOW``) in ``plan``, grown if they pass it."""
+        near, far = min(near, MAX_PLAN_WINDOW), min(far, MAX_PLAN_WINDOW)
+        if max(near, far) > plan:
+            plan = min(larger_window(max(near, far), PLAN_HEADROOM), MAX_PLAN_WINDOW)
+        return cls(near, far, plan, frequency)
+
+    def steepened(self, frequency: float) -> Windows:
+        """The plan for a lens whose field reaches ``frequency`` (cycles/m)."""
+        if self.frequency is None or frequency <= self.frequency:
+            return self
+        return dataclasses.replace(self, frequency=PLAN_HEADROOM * frequency)
 
     @property
     def margin(self) -> int:
         return canvas_margin(self.near, self.far)
 
-    @property
-    def plan(self) -> int:
-        return max(self.near, self.far)
+    def grown(self, outgrown) -> Windows:
+        """The capacities of the depths whose light passed them (``outgrown`` (2, 3)) made larger."""
+        near, far = (larger_window(n) if grow else n for n, grow in zip((self.near, self.far), np.any(outgrown, axis=1)))
+        return Windows.fitted(near, far, self.plan, self.frequency)
 
-    def grown(self) -> Windows:
-        """Both windows ``PLAN_HEADROOM`` times larger (odd): when a step's light outgrows them."""
-        return Windows(*(2 * math.ceil(PLAN_HEADROOM * n / 2) + 1 for n in (self.near, self.far)))
+    def following(self, stack: ChannelPsfStack) -> Windows:
+        """The next step's capacities: this step's windows × ``PLAN_HEADROOM``, in the plan."""
+        near, far = (larger_window(max(w), PLAN_HEADROOM) for w in stack.windows)
+        return Windows.fitted(near, far, self.plan, self.frequency)
 
 
 def plan_windows(preset, sensitivity) -> Windows:
     """Windows that hold the initial design's light (``optics.blur``) at every wavelength the
     channels respond to (``spectra.WEIGHT_THRESHOLD``) and both ends of each depth interval,
-    times ``PLAN_HEADROOM`` for the lens to change; a step whose light outgrows them grows them."""
+    times ``PLAN_HEADROOM`` for the lens to change; the plan is the larger of them, its frequency
+    ``plan_frequency``."""
     waves = sensitivity.support()  # the ends of the range bound every ray (optics.blur)
     lens, d, pitch = build_model(preset).lens(), preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
     near, far = preset.scene.z_near_m, preset.scene.z_far_m
-    return Windows(psf_window(lens, waves, list(near), d, pitch, PLAN_HEADROOM), psf_window(lens, waves, list(far), d, pitch, PLAN_HEADROOM))
+    near_px, far_px = (psf_window(lens, waves, list(z), d, pitch, PLAN_HEADROOM) for z in (near, far))
+    return Windows(near_px, far_px, max(near_px, far_px), plan_frequency(preset))
 
 
 def estimate_training(preset) -> tuple[int, float | None]:
@@ -182,24 +207,27 @@ def estimate_training(preset) -> tuple[int, float | None]:
     return 2 * psf.memory_bytes + captures, psf.setup_seconds + o.steps * per_step
 
 
-def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None,
-              frequency: float | None = None) -> tuple[ChannelPsfStack, Windows]:
+def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device,
+              timing: dict | None = None) -> tuple[ChannelPsfStack, Windows]:
     """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
-    (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ; and
-    the planned windows, grown (and the step recomputed) when its light outgrew them."""
+    (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ, the
+    step recomputed in larger capacities while its light outgrows them; and the next step's
+    windows (``Windows.following``)."""
     plan_l, plan_z = plan_range(preset)
+    depths = [draw.z_near_m, draw.z_far_m]
+    windows = windows.steepened(check_lens_sampling(lens, [*plan_l, *draw.wavelengths_m], [*plan_z, *depths], force=False))
     while True:
-        stack = channel_psf_stack(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], draw.weights,
+        stack = channel_psf_stack(lens, draw.wavelengths_m, depths, draw.weights,
                                   (windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m,
                                   plan_pixels=windows.plan, device=device, plan_wavelengths_m=plan_l,
-                                  plan_depths_m=plan_z, plan_frequency=frequency)
-        if not stack.outgrown.any() or windows.plan >= MAX_PLAN_WINDOW:
+                                  plan_depths_m=plan_z, plan_frequency=windows.frequency)
+        if timing is not None:
+            for stage, seconds in stack.timing_s.items():
+                timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
+        if not stack.outgrown.any() or max(windows.near, windows.far) >= MAX_PLAN_WINDOW:
             break
-        windows = windows.grown()
-    if timing is not None:
-        for stage, seconds in stack.timing_s.items():
-            timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
-    return stack, windows
+        windows = windows.grown(stack.outgrown)
+    return stack, windows.following(stack)
 
 
 def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
@@ -261,8 +289,7 @@ class _Session:
     features: object
     pool: list | None
     shard: list[int]
-    frequency: float
-    windows: Windows  # grows when a step's light outgrows it (saved in checkpoints)
+    windows: Windows  # follows the light; its plan grows when the light or the lens outgrows it (saved in checkpoints)
     notes: list[str]
 
 
@@ -274,14 +301,14 @@ def _session(preset, ctx) -> _Session:
     sensitivity = preset_sensitivity(preset)
     windows = plan_windows(preset, sensitivity)
     return _Session(model, optimizer, _scheduler(optimizer, o), sensitivity, _features(preset, notes),
-                    _image_pool(preset, windows.margin), ctx.shard(o.batch_size), plan_frequency(preset), windows, notes)
+                    _image_pool(preset, windows.margin), ctx.shard(o.batch_size), windows, notes)
 
 
 def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> dict:
     """Run ``steps`` training steps of ``preset`` without a run directory and report their cost:
     seconds per step (median over the steps after the first, which builds the kernels), seconds by
-    stage, the first step's seconds, the number of θ parameters, the last step's PSF windows and,
-    on CUDA, the peak memory (bytes)."""
+    stage (totals over the steps), the first step's seconds, the number of θ parameters, the last
+    step's PSF windows and, on CUDA, the peak memory (bytes)."""
     with distributed.session(torch.device(device)) as ctx:
         session = _session(preset, ctx)
         if ctx.device.type == "cuda":
@@ -326,8 +353,10 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     if checkpoint is not None:
         checkpoint.restore(model=model, optimizer=optimizer, scheduler=scheduler)
         history, start = checkpoint.state["history"], checkpoint.step
-        if "windows" in checkpoint.state:  # the planned windows the run had grown to
-            session.windows = Windows(*checkpoint.state["windows"])
+        if "windows" in checkpoint.state:  # the windows the run had come to (older runs: capacities alone)
+            near, far, *plan = checkpoint.state["windows"]
+            session.windows = Windows(near, far, plan[0] if plan else max(near, far),
+                                      checkpoint.state.get("frequency", session.windows.frequency))
     if ctx.is_main and resume and overrides:
         run.write_text("preset.toml", to_toml(preset))
     distributed.barrier(ctx)
@@ -358,11 +387,11 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     if ctx.is_main:
         if o.steps > start:
             run.save_checkpoint(_state(session, history, o.steps))
-        validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
-                      "final": validation_loss(model, preset, 4, ctx.device, session.frequency),
+        validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.windows.frequency),
+                      "final": validation_loss(model, preset, 4, ctx.device, session.windows.frequency),
                       "gradient_norms": {"initial": term_gradient_norms(build_model(preset).to(ctx.device), preset, 2, ctx.device,
-                                                                        session.frequency, session.features),
-                                         "final": term_gradient_norms(model, preset, 2, ctx.device, session.frequency,
+                                                                        session.windows.frequency, session.features),
+                                         "final": term_gradient_norms(model, preset, 2, ctx.device, session.windows.frequency,
                                                                       session.features)}}
         summary.report = _finish(run, preset, model, summary, grid, timing, session.notes, ctx, validation, session.windows)
     return summary
@@ -375,7 +404,7 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     optimizer.zero_grad(set_to_none=True)
     t = time.perf_counter()
     windows = session.windows
-    stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
+    stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing)
     near, far = stack.psfs
     margin = canvas_margin(near.shape[-1], far.shape[-1])
     t = _lap(timing, "psf", t)
@@ -426,11 +455,12 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
     sensitivity = preset_sensitivity(preset)
     o = preset.optimize
     windows = plan_windows(preset, sensitivity)
+    windows = dataclasses.replace(windows, frequency=frequency)
     pool = _image_pool(preset, windows.margin)
     for k in range(draws):
         step = VALIDATION_STEP + k
         draw = draw_step(preset, sensitivity, o.seed, step)
-        stack, windows = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
+        stack, windows = step_psfs(model.lens(), preset, draw, windows, device)
         near, far = stack.psfs
         margin = canvas_margin(near.shape[-1], far.shape[-1])
         clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device)
@@ -471,7 +501,8 @@ def _lap(timing: dict, name: str, t: float) -> float:
 
 def _state(session: _Session, history, step) -> dict:
     return {"step": step, "model": session.model.state_dict(), "optimizer": session.optimizer.state_dict(),
-            "scheduler": session.scheduler.state_dict(), "windows": [session.windows.near, session.windows.far],
+            "scheduler": session.scheduler.state_dict(), "windows": [session.windows.near, session.windows.far, session.windows.plan],
+            "frequency": session.windows.frequency,
             "history": history, "rng": "stateless: every draw is a function of (seed, step)"}
 
 
@@ -503,5 +534,5 @@ def _finish(run: RunDirectory, preset, model, summary: RunSummary, grid: dict, t
     from metalens_cli.design.report import write_results
 
     return write_results(run, preset, summary, grid, timing, notes, ctx.world, str(ctx.device), torch.get_num_threads(), validation,
-                         {"planned_px": {"near": windows.near, "far": windows.far}, "headroom": PLAN_HEADROOM,
+                         {"planned_px": {"near": windows.near, "far": windows.far, "plan": windows.plan}, "headroom": PLAN_HEADROOM,
                           "rule": f"each step: the window holding {ENCIRCLED_ENERGY} of each channel's power on the sensor plane"})

@@ -92,7 +92,7 @@ def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_p
     ``spectra.significant``: the rule training uses), grown while the light outgrows it.
     ``window`` forces one N × N window for both (the kept fractions then tell what it loses)."""
     from metalens_cli.optics.blur import kept_fraction, psf_window
-    from metalens_cli.optics.channel_psf import channel_psf_stack
+    from metalens_cli.optics.channel_psf import channel_psf_stack, larger_window
     from metalens_cli.optics.psf import compute_psf
     from metalens_cli.optics.spectra import mix_channels, significant
 
@@ -112,7 +112,7 @@ def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_p
                                   pixel_pitch_m, d, dtype=dtype, device=device)
         if not stack.outgrown.any() or max(capacity) >= MAX_WINDOW:
             break
-        capacity = [2 * math.ceil(1.25 * n / 2) + 1 if grow else n for n, grow in zip(capacity, stack.outgrown.any(axis=1))]
+        capacity = [larger_window(n) if grow else n for n, grow in zip(capacity, stack.outgrown.any(axis=1))]
     near, far = stack.psfs
     held = {depth: dict(zip("RGB", stack.held[i].tolist())) for i, depth in enumerate(("near", "far"))}
     return ChannelPsfs(near, far, z_near_m, z_far_m, stack.kept[0].tolist(), stack.kept[1].tolist(),

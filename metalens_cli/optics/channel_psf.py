@@ -11,9 +11,10 @@ is computed in N = max_c N_c. Fractions are of the power through the aperture (`
 - Radial lenses: the encircled energy of I(ρ) before the pixel operator, against the power on
   the sensor plane from Parseval's theorem for the Fourier-Bessel series, Σ_m c_m·|F_m·H_m|²
   (``optics.propagate.HankelKernel``), so light beyond the radii computed counts as missing. The
-  sampling plan is made for ``plan_pixels`` (kernels and the pixel operator cached, built once
-  for a run), the field is evaluated out to the ``capacity`` window only, and only the chosen
-  window goes through the pixel operator.
+  sampling plan is made for ``plan_pixels`` (the Hankel kernel cached: built once while calls
+  keep the plan), the field is evaluated out to the ``capacity`` window only (cached output
+  rows, extended when a capacity grows), and only the chosen window goes through the pixel
+  operator (cut from a cached larger one, ``optics.sensor.radial_sensor_window``).
 - Other propagators (2-D lenses): PSFs in the capacity window, the energy in concentric squares
   against the capacity's total (light outside the capacity is not seen).
 
@@ -36,9 +37,15 @@ from metalens_cli.optics import sampling
 from metalens_cli.optics.blur import window_pixels
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.psf import compute_psf, pupil_field, validate_psf_arguments
-from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
+from metalens_cli.optics.sensor import radial_sensor_radii, radial_sensor_window
 
 ENCIRCLED_ENERGY = 0.999  # of the power reaching the sensor plane, per depth and channel
+GROWTH = 1.25             # an outgrown capacity is looked in again this much larger
+
+
+def larger_window(n: int, factor: float = GROWTH) -> int:
+    """The odd window about ``factor`` times the side ``n`` (pixels), at least n + 2."""
+    return max(2 * math.ceil(factor * n / 2) + 1, n + 2)
 
 
 @dataclass
@@ -108,9 +115,8 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, False), plan_f or 0.0)
     plan = sampling.plan_radial(lens, plan_lams, zs, d, plan_px, pitch, f_max)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
-    radii = torch.arange(plan.n_radii, dtype=torch.float64) * plan.step_m
-    out_matrix = prop.hankel_output_matrix(kernel, radii)
-    sensor = radial_sensor(plan.step_m, plan_px, pitch)
+    n_rows = [radial_sensor_radii(plan.step_m, cap, pitch) for cap in caps]
+    out_matrix = prop.hankel_output_rows(kernel, plan.step_m, max(n_rows))  # only the rows the capacities reach
     timing = {"kernels": time.perf_counter() - clock}
     clock = time.perf_counter()
     r = kernel.r.double()
@@ -129,13 +135,12 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     w = len(lams)
     mix_d = mix.to(device, dtype)
     psfs, windows, kept, on_sensor, outgrown = [], [], [], [], []
-    for i, cap in enumerate(caps):
-        n_rows = radial_sensor_radii(plan.step_m, cap, pitch)
+    for i, (cap, rows) in enumerate(zip(caps, n_rows)):
         cols = slice(i * w, (i + 1) * w)
-        out = prop.real_matmul(out_matrix[:n_rows, :n_freq], spec[:, cols])
+        out = prop.real_matmul(out_matrix[:rows, :n_freq], spec[:, cols])
         intensity = (out.abs() ** 2 / power[cols]) @ mix_d.T                       # (n_rows, 3) W/m² per W
         target = (mix_d.double() @ on_plane[cols].double()).cpu().numpy()           # (3,) on the sensor plane
-        rho = radii[:n_rows].numpy()
+        rho = np.arange(rows) * plan.step_m
         ring = 2 * math.pi * rho * plan.step_m
         ring[0] = math.pi * (plan.step_m / 2) ** 2
         enclosed = np.cumsum(intensity.detach().double().cpu().numpy() * ring[:, None], axis=0)
@@ -146,7 +151,7 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
             lost.append(wanted > cap)
             chosen.append(min(cap, wanted))
         n = max(chosen)
-        op = sensor.window(n)
+        op = radial_sensor_window(plan.step_m, n, pitch)
         psf = op.apply(intensity[:op.n_radii])
         psfs.append(psf)
         windows.append(tuple(chosen))

@@ -304,7 +304,9 @@ class HankelKernel:
     hard pupil edge is integrated exactly: F(ν_m) = Σ_q J0(2πν_m r_q)·w_q·f(r_q), w_q = 2πr_q·dr_q
     (``weight``, also the quadrature of ∫|f|² dA). Inverse at any ρ ≤ R by the Fourier-Bessel
     series f(ρ) = Σ_m J0(2πν_m ρ)·c_m·F(ν_m), c_m = 1/(πR²·J1(j_m)²) (Guizar-Sicairos &
-    Gutiérrez-Vega 2004). Depends on neither λ nor z.
+    Gutiérrez-Vega 2004). Depends on neither λ nor z. ``nu`` is float64 whatever the kernel's
+    dtype: phases 2πν·ρ and 2πd·√(1/λ² − ν²) reach 10⁴-10⁵ rad, where float32 would be off by
+    10⁻³ rad.
     """
 
     radius_m: float
@@ -317,6 +319,7 @@ class HankelKernel:
 
 
 HANKEL_CACHE_ENTRIES = 8
+ROW_GROWTH = 1.25   # output rows are extended at least this much at a time
 _HANKEL_CACHE: OrderedDict = OrderedDict()
 
 
@@ -341,35 +344,61 @@ def hankel_kernel(n: int, radius_m: float, aperture_radius_m: float, n_nodes: in
         j = bessel_j0_zeros(n)
         nu = j / (2 * math.pi * radius_m)
         r, dr = gauss_legendre_panels(aperture_radius_m, n_nodes)
-        forward = torch.special.bessel_j0(torch.from_numpy((2 * math.pi * nu)[:, None] * r[None, :]))
+        forward = _bessel_rows(torch.from_numpy(2 * math.pi * nu), torch.from_numpy(r), None, dtype, device)
         return HankelKernel(
             radius_m=float(radius_m),
             aperture_radius_m=float(aperture_radius_m),
             r=torch.from_numpy(r).to(device, dtype),
             weight=torch.from_numpy(2 * math.pi * r * dr).to(device, dtype),
-            nu=torch.from_numpy(nu).to(device, dtype),
+            nu=torch.from_numpy(nu).to(device),
             coef_out=torch.from_numpy(1 / (math.pi * radius_m**2 * sps.j1(j) ** 2)).to(device, dtype),
-            forward=forward.to(device, dtype),
+            forward=forward,
         )
 
     return _cached(key, build)
 
 
 def hankel_output_matrix(kernel: HankelKernel, radii_m: torch.Tensor) -> torch.Tensor:
-    """Cached (len(radii) × n) matrix J0(2πν_m ρ)·c_m: the inverse transform at ``radii_m``."""
-    key = ("out", kernel.radius_m, kernel.nu.shape[0], kernel.r.dtype, str(kernel.r.device),
-           radii_m.shape[0], float(radii_m[0]), float(radii_m[-1]))
+    """The (len(radii) × n) matrix J0(2πν_m ρ)·c_m: the inverse transform at ``radii_m`` (m)."""
+    return _bessel_rows(radii_m.double().cpu(), 2 * math.pi * kernel.nu.cpu(), kernel.coef_out.double().cpu(),
+                        kernel.r.dtype, kernel.r.device)
 
-    def build() -> torch.Tensor:
-        arg = (2 * math.pi) * radii_m.double().cpu()[:, None] * kernel.nu.double().cpu()[None, :]
-        mat = torch.special.bessel_j0(arg) * kernel.coef_out.double().cpu()
-        return mat.to(kernel.r.device, kernel.r.dtype)
 
-    return _cached(key, build)
+BESSEL_BLOCK = 1 << 22  # elements per block of J0 evaluations (32 MiB of float64 arguments)
+
+
+def _bessel_rows(rows: torch.Tensor, cols: torch.Tensor, scale: torch.Tensor | None, dtype, device) -> torch.Tensor:
+    """J0(rows[i]·cols[j])·scale[j] (float64 arguments) as a ``dtype`` matrix, built a block of
+    rows at a time so that the float64 temporaries stay small beside the result."""
+    out = torch.empty(len(rows), len(cols), dtype=dtype, device=device)
+    block = max(1, BESSEL_BLOCK // max(len(cols), 1))
+    for i in range(0, len(rows), block):
+        values = torch.special.bessel_j0(rows[i:i + block, None] * cols[None, :])
+        out[i:i + block] = (values if scale is None else values * scale).to(device, dtype)
+    return out
+
+
+def hankel_output_rows(kernel: HankelKernel, step_m: float, n_rows: int) -> torch.Tensor:
+    """Cached :func:`hankel_output_matrix` at the radii k·``step_m``, k < ``n_rows``.
+
+    The rows for fewer radii are a prefix of those for more, so one entry per (kernel, step)
+    serves every window: a request within it is a view, a larger one builds only the missing
+    rows, ``ROW_GROWTH`` times more than it has (a window that grows a little at every training
+    step then costs a few extensions, not one per step).
+    """
+    key = ("rows", kernel.radius_m, kernel.nu.shape[0], kernel.r.dtype, str(kernel.r.device), float(step_m))
+    have = _HANKEL_CACHE.get(key)
+    if have is None or have.shape[0] < n_rows:
+        start = 0 if have is None else have.shape[0]
+        end = max(n_rows, math.ceil(ROW_GROWTH * start))
+        new = hankel_output_matrix(kernel, torch.arange(start, end, dtype=torch.float64) * step_m)
+        have = new if have is None else torch.cat([have, new])
+        _HANKEL_CACHE.pop(key, None)
+    return _cached(key, lambda: have)[:n_rows]
 
 
 def clear_caches() -> None:
-    """Drop every cached Hankel kernel and output matrix."""
+    """Drop every cached Hankel kernel and output-row matrix."""
     _HANKEL_CACHE.clear()
 
 

@@ -192,8 +192,7 @@ def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversamp
     plan = sampling.plan_radial(lens, plan_lams, zs, d, pixels, pitch, f_max, oversample)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes,
                                 dtype, device)
-    radii = torch.arange(plan.n_radii, dtype=torch.float64) * plan.step_m
-    out_matrix = prop.hankel_output_matrix(kernel, radii)
+    out_matrix = prop.hankel_output_rows(kernel, plan.step_m, plan.n_radii)
     sensor = radial_sensor(plan.step_m, pixels, pitch)
     clock.lap("kernels")
     r = kernel.r.double()

@@ -111,6 +111,19 @@ class RadialSensor:
         return RadialSensor(self.step_m, n_radii, n_pixels, self.pixel_pitch_m, weights, _octant_index(n_pixels))
 
 
+SENSOR_LADDER = (33, 1.25)  # cached operators come in odd sizes 33, ×1.25, …
+
+
+def radial_sensor_window(step_m: float, n_pixels: int, pixel_pitch_m: float) -> RadialSensor:
+    """The operator of an n × n window, cut (``RadialSensor.window``) from the cached one of the
+    next size on ``SENSOR_LADDER``: windows that move a little from call to call (training steps
+    that follow the light) share one build instead of each paying for its own."""
+    size, factor = SENSOR_LADDER
+    while size < n_pixels:
+        size = max(2 * math.ceil(factor * size / 2) + 1, size + 2)
+    return radial_sensor(step_m, size, pixel_pitch_m).window(n_pixels)
+
+
 def radial_sensor_radii(step_m: float, n_pixels: int, pixel_pitch_m: float) -> int:
     """Number of radial samples k·δ a ``RadialSensor`` needs (window corner plus the stencil)."""
     m = n_pixels // 2

@@ -188,6 +188,24 @@ def test_gradients_reach_theta_2d_asm():
                                     fast_mode=True)
 
 
+def test_output_rows_grow_by_their_missing_rows_and_match_the_bessel_series():
+    """Rows for more radii extend those for fewer (a view, then only the new rows are built),
+    and every row is J0(2πν_m·kδ)·c_m with c_m = 1/(πR²·J1(j_m)²) (scipy's Bessel functions)."""
+    prop.clear_caches()
+    kernel = prop.hankel_kernel(200, 2e-4, 1e-4, 256)
+    step = 3e-7
+    few = prop.hankel_output_rows(kernel, step, 40)
+    assert prop.hankel_output_rows(kernel, step, 25).data_ptr() == few.data_ptr()   # a prefix: no new matrix
+    many = prop.hankel_output_rows(kernel, step, 90)
+    assert many.shape == (90, 200) and torch.equal(many[:40], few)
+    nu = kernel.nu.numpy()
+    jm = 2 * math.pi * nu * 2e-4
+    expect = j0(2 * math.pi * (np.arange(90) * step)[:, None] * nu) / (math.pi * 2e-4**2 * j1(jm) ** 2)
+    # torch.special.bessel_j0 agrees with scipy's j0 to about 4e-7 (absolute) at these arguments
+    assert_allclose(many.numpy(), expect, rtol=0, atol=1e-6 * np.abs(expect).max())
+    prop.clear_caches()
+
+
 def test_transfer_cache_keeps_only_the_most_recent():
     grid = prop.AsmGrid(size=64, pitch_m=0.4e-6, input_size=11, window_half=4, upsample=2)
     cache = prop.TransferCache(capacity=2)
