@@ -130,28 +130,19 @@ class Windows:
     and the ``plan``, the window the radial kernels are built for (≥ both). The capacities follow
     the light up and down (a capacity costs Hankel output rows in proportion to its side); the plan
     only grows, ``PLAN_HEADROOM`` past the capacity that outgrew it, so that the kernels are
-    rebuilt rarely (a rebuild costs seconds, a wider plan a few per cent of every step). The
-    kernels' field ``frequency`` (cycles/m, None: each step's own) likewise only grows,
-    ``PLAN_HEADROOM`` past a lens that steepened beyond it (``plan_frequency``)."""
+    rebuilt rarely (a rebuild costs seconds, a wider plan a few per cent of every step)."""
 
     near: int
     far: int
     plan: int
-    frequency: float | None = None
 
     @classmethod
-    def fitted(cls, near: int, far: int, plan: int = 0, frequency: float | None = None) -> Windows:
+    def fitted(cls, near: int, far: int, plan: int = 0) -> Windows:
         """Capacities ``near``, ``far`` (at most ``MAX_PLAN_WINDOW``) in ``plan``, grown if they pass it."""
         near, far = min(near, MAX_PLAN_WINDOW), min(far, MAX_PLAN_WINDOW)
         if max(near, far) > plan:
             plan = min(larger_window(max(near, far), PLAN_HEADROOM), MAX_PLAN_WINDOW)
-        return cls(near, far, plan, frequency)
-
-    def steepened(self, frequency: float) -> Windows:
-        """The plan for a lens whose field reaches ``frequency`` (cycles/m)."""
-        if self.frequency is None or frequency <= self.frequency:
-            return self
-        return dataclasses.replace(self, frequency=PLAN_HEADROOM * frequency)
+        return cls(near, far, plan)
 
     @property
     def margin(self) -> int:
@@ -160,24 +151,23 @@ class Windows:
     def grown(self, outgrown) -> Windows:
         """The capacities of the depths whose light passed them (``outgrown`` (2, 3)) made larger."""
         near, far = (larger_window(n) if grow else n for n, grow in zip((self.near, self.far), np.any(outgrown, axis=1)))
-        return Windows.fitted(near, far, self.plan, self.frequency)
+        return Windows.fitted(near, far, self.plan)
 
     def following(self, stack: ChannelPsfStack) -> Windows:
         """The next step's capacities: this step's windows × ``PLAN_HEADROOM``, in the plan."""
         near, far = (larger_window(max(w), PLAN_HEADROOM) for w in stack.windows)
-        return Windows.fitted(near, far, self.plan, self.frequency)
+        return Windows.fitted(near, far, self.plan)
 
 
 def plan_windows(preset, sensitivity) -> Windows:
     """Windows that hold the initial design's light (``optics.blur``) at every wavelength the
     channels respond to (``spectra.WEIGHT_THRESHOLD``) and both ends of each depth interval,
-    times ``PLAN_HEADROOM`` for the lens to change; the plan is the larger of them, its frequency
-    ``plan_frequency``."""
+    times ``PLAN_HEADROOM`` for the lens to change; the plan is the larger of them."""
     waves = sensitivity.support()  # the ends of the range bound every ray (optics.blur)
     lens, d, pitch = build_model(preset).lens(), preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
     near, far = preset.scene.z_near_m, preset.scene.z_far_m
     near_px, far_px = (psf_window(lens, waves, list(z), d, pitch, PLAN_HEADROOM) for z in (near, far))
-    return Windows(near_px, far_px, max(near_px, far_px), plan_frequency(preset))
+    return Windows(near_px, far_px, max(near_px, far_px))
 
 
 def estimate_training(preset) -> tuple[int, float | None]:
@@ -207,20 +197,18 @@ def estimate_training(preset) -> tuple[int, float | None]:
     return 2 * psf.memory_bytes + captures, psf.setup_seconds + o.steps * per_step
 
 
-def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device,
-              timing: dict | None = None) -> tuple[ChannelPsfStack, Windows]:
+def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None,
+              frequency: float | None = None) -> tuple[ChannelPsfStack, Windows]:
     """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
     (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ, the
     step recomputed in larger capacities while its light outgrows them; and the next step's
     windows (``Windows.following``)."""
     plan_l, plan_z = plan_range(preset)
-    depths = [draw.z_near_m, draw.z_far_m]
-    windows = windows.steepened(check_lens_sampling(lens, [*plan_l, *draw.wavelengths_m], [*plan_z, *depths], force=False))
     while True:
-        stack = channel_psf_stack(lens, draw.wavelengths_m, depths, draw.weights,
+        stack = channel_psf_stack(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], draw.weights,
                                   (windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m,
                                   plan_pixels=windows.plan, device=device, plan_wavelengths_m=plan_l,
-                                  plan_depths_m=plan_z, plan_frequency=windows.frequency)
+                                  plan_depths_m=plan_z, plan_frequency=frequency)
         if timing is not None:
             for stage, seconds in stack.timing_s.items():
                 timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
@@ -289,6 +277,7 @@ class _Session:
     features: object
     pool: list | None
     shard: list[int]
+    frequency: float
     windows: Windows  # follows the light; its plan grows when the light or the lens outgrows it (saved in checkpoints)
     notes: list[str]
 
@@ -301,7 +290,7 @@ def _session(preset, ctx) -> _Session:
     sensitivity = preset_sensitivity(preset)
     windows = plan_windows(preset, sensitivity)
     return _Session(model, optimizer, _scheduler(optimizer, o), sensitivity, _features(preset, notes),
-                    _image_pool(preset, windows.margin), ctx.shard(o.batch_size), windows, notes)
+                    _image_pool(preset, windows.margin), ctx.shard(o.batch_size), plan_frequency(preset), windows, notes)
 
 
 def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> dict:
@@ -355,8 +344,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
         history, start = checkpoint.state["history"], checkpoint.step
         if "windows" in checkpoint.state:  # the windows the run had come to (older runs: capacities alone)
             near, far, *plan = checkpoint.state["windows"]
-            session.windows = Windows(near, far, plan[0] if plan else max(near, far),
-                                      checkpoint.state.get("frequency", session.windows.frequency))
+            session.windows = Windows(near, far, plan[0] if plan else max(near, far))
     if ctx.is_main and resume and overrides:
         run.write_text("preset.toml", to_toml(preset))
     distributed.barrier(ctx)
@@ -387,11 +375,11 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     if ctx.is_main:
         if o.steps > start:
             run.save_checkpoint(_state(session, history, o.steps))
-        validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.windows.frequency),
-                      "final": validation_loss(model, preset, 4, ctx.device, session.windows.frequency),
+        validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
+                      "final": validation_loss(model, preset, 4, ctx.device, session.frequency),
                       "gradient_norms": {"initial": term_gradient_norms(build_model(preset).to(ctx.device), preset, 2, ctx.device,
-                                                                        session.windows.frequency, session.features),
-                                         "final": term_gradient_norms(model, preset, 2, ctx.device, session.windows.frequency,
+                                                                        session.frequency, session.features),
+                                         "final": term_gradient_norms(model, preset, 2, ctx.device, session.frequency,
                                                                       session.features)}}
         summary.report = _finish(run, preset, model, summary, grid, timing, session.notes, ctx, validation, session.windows)
     return summary
@@ -404,7 +392,7 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     optimizer.zero_grad(set_to_none=True)
     t = time.perf_counter()
     windows = session.windows
-    stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing)
+    stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
     near, far = stack.psfs
     margin = canvas_margin(near.shape[-1], far.shape[-1])
     t = _lap(timing, "psf", t)
@@ -455,12 +443,11 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
     sensitivity = preset_sensitivity(preset)
     o = preset.optimize
     windows = plan_windows(preset, sensitivity)
-    windows = dataclasses.replace(windows, frequency=frequency)
     pool = _image_pool(preset, windows.margin)
     for k in range(draws):
         step = VALIDATION_STEP + k
         draw = draw_step(preset, sensitivity, o.seed, step)
-        stack, windows = step_psfs(model.lens(), preset, draw, windows, device)
+        stack, windows = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
         near, far = stack.psfs
         margin = canvas_margin(near.shape[-1], far.shape[-1])
         clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device)
@@ -502,7 +489,6 @@ def _lap(timing: dict, name: str, t: float) -> float:
 def _state(session: _Session, history, step) -> dict:
     return {"step": step, "model": session.model.state_dict(), "optimizer": session.optimizer.state_dict(),
             "scheduler": session.scheduler.state_dict(), "windows": [session.windows.near, session.windows.far, session.windows.plan],
-            "frequency": session.windows.frequency,
             "history": history, "rng": "stateless: every draw is a function of (seed, step)"}
 
 

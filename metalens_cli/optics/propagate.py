@@ -319,17 +319,25 @@ class HankelKernel:
 
 
 HANKEL_CACHE_ENTRIES = 8
+HANKEL_CACHE_BYTES = 2 << 30  # beyond this the oldest entries go (the newest two, a plan's kernel and rows, stay)
 ROW_GROWTH = 1.25   # output rows are extended at least this much at a time
 _HANKEL_CACHE: OrderedDict = OrderedDict()
 
 
+def _entry_bytes(entry) -> int:
+    tensors = [getattr(entry, f) for f in entry.__dataclass_fields__] if isinstance(entry, HankelKernel) else [entry]
+    return sum(t.numel() * t.element_size() for t in tensors if isinstance(t, torch.Tensor))
+
+
 def _cached(key, build):
-    """LRU cache of kernels and output matrices (an optimiser whose plan moves does not pile them up)."""
+    """LRU cache of kernels and output matrices, at most ``HANKEL_CACHE_ENTRIES`` and
+    ``HANKEL_CACHE_BYTES``: an optimiser whose plan moves does not pile up stale ones."""
     if key in _HANKEL_CACHE:
         _HANKEL_CACHE.move_to_end(key)
     else:
         _HANKEL_CACHE[key] = build()
-        while len(_HANKEL_CACHE) > HANKEL_CACHE_ENTRIES:
+        while len(_HANKEL_CACHE) > 2 and (len(_HANKEL_CACHE) > HANKEL_CACHE_ENTRIES
+                                          or sum(map(_entry_bytes, _HANKEL_CACHE.values())) > HANKEL_CACHE_BYTES):
             _HANKEL_CACHE.popitem(last=False)
     return _HANKEL_CACHE[key]
 

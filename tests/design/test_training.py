@@ -130,12 +130,12 @@ def test_step_windows_follow_the_light_when_theta_is_perturbed(tiny):
     assert all(r.shape[-1] > s.shape[-1] for r, s in zip(rough.psfs, smooth.psfs))
     assert grown.plan >= planned.plan and not rough.outgrown.any()
     assert np.all(rough.held >= ENCIRCLED_ENERGY - 2e-4)  # pixel integral against the disc rule
-    small, regrown = step_psfs(build_model(tiny).lens(), tiny, draw, Windows(9, 9, 9, planned.frequency), "cpu")
+    small, regrown = step_psfs(build_model(tiny).lens(), tiny, draw, Windows(9, 9, 9), "cpu")
     assert regrown.plan > 9 and not small.outgrown.any()
     assert [p.shape[-1] for p in small.psfs] == [p.shape[-1] for p in smooth.psfs]  # the light decides, not the plan
     # the next step looks within its light × the headroom: capacities come down with the light, the plan stays
     calm, after = step_psfs(build_model(tiny).lens(), tiny, draw, grown, "cpu")
-    assert all(c.shape[-1] < r.shape[-1] for c, r in zip(calm.psfs, rough.psfs))
+    assert [p.shape[-1] for p in calm.psfs] == [p.shape[-1] for p in smooth.psfs]
     assert max(after.near, after.far) < max(grown.near, grown.far) and after.plan == grown.plan
     assert after.near >= max(calm.windows[0]) and after.far >= max(calm.windows[1])
 
