@@ -40,9 +40,10 @@ from metalens_cli.imaging.formation import canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.optics.blur import psf_window
-from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, channel_psf_stack, larger_window
+from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, channel_psf_stack
 from metalens_cli.io.presets import to_toml
 from metalens_cli.optics.sampling import check_lens_sampling
+from metalens_cli.optics.sensor import larger_window
 from metalens_cli.io.preset_spectra import preset_sensitivity
 from metalens_cli.optics.spectra import sample_wavelengths
 
@@ -137,7 +138,7 @@ class Windows:
     plan: int
 
     @classmethod
-    def fitted(cls, near: int, far: int, plan: int = 0) -> Windows:
+    def fitted(cls, near: int, far: int, plan: int) -> Windows:
         """Capacities ``near``, ``far`` (at most ``MAX_PLAN_WINDOW``) in ``plan``, grown if they pass it."""
         near, far = min(near, MAX_PLAN_WINDOW), min(far, MAX_PLAN_WINDOW)
         if max(near, far) > plan:

@@ -92,7 +92,8 @@ def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_p
     ``spectra.significant``: the rule training uses), grown while the light outgrows it.
     ``window`` forces one N × N window for both (the kept fractions then tell what it loses)."""
     from metalens_cli.optics.blur import kept_fraction, psf_window
-    from metalens_cli.optics.channel_psf import channel_psf_stack, larger_window
+    from metalens_cli.optics.channel_psf import channel_psf_stack
+    from metalens_cli.optics.sensor import larger_window
     from metalens_cli.optics.psf import compute_psf
     from metalens_cli.optics.spectra import mix_channels, significant
 

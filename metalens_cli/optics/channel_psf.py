@@ -40,12 +40,6 @@ from metalens_cli.optics.psf import compute_psf, pupil_field, validate_psf_argum
 from metalens_cli.optics.sensor import radial_sensor_radii, radial_sensor_window
 
 ENCIRCLED_ENERGY = 0.999  # of the power reaching the sensor plane, per depth and channel
-GROWTH = 1.25             # an outgrown capacity is looked in again this much larger
-
-
-def larger_window(n: int, factor: float = GROWTH) -> int:
-    """The odd window about ``factor`` times the side ``n`` (pixels), at least n + 2."""
-    return max(2 * math.ceil(factor * n / 2) + 1, n + 2)
 
 
 @dataclass

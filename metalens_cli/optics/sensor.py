@@ -111,16 +111,21 @@ class RadialSensor:
         return RadialSensor(self.step_m, n_radii, n_pixels, self.pixel_pitch_m, weights, _octant_index(n_pixels))
 
 
-SENSOR_LADDER = (33, 1.25)  # cached operators come in odd sizes 33, ×1.25, …
+def larger_window(n: int, factor: float = 1.25) -> int:
+    """The odd window about ``factor`` times the side ``n`` (pixels), at least n + 2."""
+    return max(2 * math.ceil(factor * n / 2) + 1, n + 2)
+
+
+SENSOR_LADDER = 33  # cached operators come in odd sizes 33, then each ``larger_window`` of the last
 
 
 def radial_sensor_window(step_m: float, n_pixels: int, pixel_pitch_m: float) -> RadialSensor:
     """The operator of an n × n window, cut (``RadialSensor.window``) from the cached one of the
     next size on ``SENSOR_LADDER``: windows that move a little from call to call (training steps
     that follow the light) share one build instead of each paying for its own."""
-    size, factor = SENSOR_LADDER
+    size = SENSOR_LADDER
     while size < n_pixels:
-        size = max(2 * math.ceil(factor * size / 2) + 1, size + 2)
+        size = larger_window(size)
     return radial_sensor(step_m, size, pixel_pitch_m).window(n_pixels)
 
 
