@@ -59,8 +59,8 @@ def measure_in_subprocess(kind: str, args, steps: int, code: Path) -> dict:
     """``measure`` in a fresh process (its own peak memory) with the package of ``code``."""
     command = [sys.executable, __file__, "--emit-json", kind, "--presets", str(args.presets), "--device", args.device,
                "--threads", str(args.threads), "--steps", str(steps)]
-    result = json.loads(subprocess.run(command, env={**os.environ, "PYTHONPATH": str(code)}, check=True,
-                                       capture_output=True, text=True).stdout)
+    result = json.loads(subprocess.run(command, env={**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(code), os.environ.get("PYTHONPATH")]))}, check=True,
+                                       stdout=subprocess.PIPE, text=True).stdout)  # its errors reach stderr
     print(json.dumps({k: v for k, v in result.items() if k != "seconds_by_stage"}), file=sys.stderr, flush=True)
     return result
 
