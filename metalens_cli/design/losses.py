@@ -8,7 +8,9 @@ The paper writes L_bright = 3N/ΣP − 1 and L_sharp = N/Σ_{|i|,|j|≤2} P(x_c+
 fractions of the aperture power (each channel sums to 1 when nothing is lost), i.e. P/N, so
 the N cancels: L_bright = 3/ΣP − 1 (0 when every channel keeps all its light) and
 L_sharp = 1/Σ_window P − 1 over the central w × w pixels of all channels (w = 5 in the paper);
-``loss.sharp_mode = "per_channel"`` averages 1/E_c − 1 over the channels instead (see ``sharp_loss``).
+``loss.sharp_mode = "per_channel"`` averages 1/E_c − 1 over the channels instead, ``"log"`` takes
+−mean_c log E_c, and ``"log_wavelength"`` −mean_λ log E_λ over the step's wavelength samples, each
+monochromatic far PSF's own core (see ``sharp_loss``).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ def bright_loss(psf_far: torch.Tensor) -> torch.Tensor:
     return psf_far.shape[-3] / psf_far.sum(dim=(-3, -2, -1)) - 1
 
 
-def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total") -> torch.Tensor:
+def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total", cores: torch.Tensor | None = None) -> torch.Tensor:
     """Energy E_c in the central ``window`` × ``window`` pixels (axis at N//2) of each channel c.
 
     ``total`` (the paper's): 1/Σ_c E_c − 1, which rewards the channels' sum, so the cheapest
@@ -42,7 +44,15 @@ def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total") -> t
     all its light in the window), whose gradient is largest for the weakest channel.
     ``log``: −mean_c log E_c, the same balance between channels with gradient −1/(3E_c) instead
     of −1/(3E_c²): at E_c of a few per cent, 20-50× closer to the image terms' scale.
+    ``log_wavelength``: −mean_λ log E_λ over ``cores`` (W,), each wavelength sample's energy in its
+    own central window (``optics.channel_psf``): a lens cannot raise the mean of E_λ over the
+    spectrum (docs/training.md), and for a given mean this is lowest when E_λ is flat.
     """
+    if mode == "log_wavelength":
+        if cores is None:
+            raise InputError("loss.sharp_mode", "log_wavelength needs each wavelength's core energy",
+                             "cores from optics.channel_psf_stack(..., core_window=k)")
+        return -torch.log(cores).mean(dim=-1)
     n0, n1 = psf_far.shape[-2:]
     lo0, lo1 = n0 // 2 - window // 2, n1 // 2 - window // 2
     core = psf_far[..., lo0:lo0 + window, lo1:lo1 + window].sum(dim=(-2, -1))
@@ -52,16 +62,18 @@ def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total") -> t
         return (1 / core).mean(dim=-1) - 1
     if mode == "log":
         return -torch.log(core).mean(dim=-1)
-    raise InputError("loss.sharp_mode", f"unknown mode {mode!r}", "total, per_channel or log")
+    raise InputError("loss.sharp_mode", f"unknown mode {mode!r}", "total, per_channel, log or log_wavelength")
 
 
 def training_loss(captured: torch.Tensor, clean: torch.Tensor, psf_far: torch.Tensor, weights, features=None,
-                  image_share: float = 1.0, psf_share: float = 1.0) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+                  image_share: float = 1.0, psf_share: float = 1.0,
+                  cores_far: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Weighted total and its parts (each a scalar: image terms averaged over the batch).
 
     ``weights``: a ``LossConfig``. ``features``: a DeepLabv3+ feature extractor for L_DA, or None.
     ``image_share``/``psf_share`` scale the image and PSF terms in the total only (data-parallel
     ranks: the local fraction of the global batch, and 1/world size), never the reported parts.
+    ``cores_far``: each wavelength's far core energy (``sharp_mode = "log_wavelength"``).
     """
     parts = {"l1": l1_loss(captured, clean).mean(), "ssim": ssim_loss(captured, clean).mean()}
     if features is not None:
@@ -72,7 +84,7 @@ def training_loss(captured: torch.Tensor, clean: torch.Tensor, psf_far: torch.Te
     if "domain_adaptation" in parts:
         image = image + weights.domain_adaptation * parts["domain_adaptation"]
     parts["bright"] = bright_loss(psf_far)
-    parts["sharp"] = sharp_loss(psf_far, weights.sharp_window, weights.sharp_mode)
+    parts["sharp"] = sharp_loss(psf_far, weights.sharp_window, weights.sharp_mode, cores_far)
     psf = weights.bright * parts["bright"] + weights.sharp * parts["sharp"]
     total = image_share * image + psf_share * psf
     parts["total"] = image + psf

@@ -198,6 +198,16 @@ def estimate_training(preset) -> tuple[int, float | None]:
     return 2 * psf.memory_bytes + captures, psf.setup_seconds + o.steps * per_step
 
 
+def core_window(preset) -> int | None:
+    """The window of each wavelength's own core energy, where the loss asks for it."""
+    return preset.loss.sharp_window if preset.loss.sharp_mode == "log_wavelength" else None
+
+
+def far_cores(stack: ChannelPsfStack) -> torch.Tensor | None:
+    """Each wavelength sample's far core energy (W,), when the stack holds them."""
+    return None if stack.cores is None else stack.cores[1]
+
+
 def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None,
               frequency: float | None = None) -> tuple[ChannelPsfStack, Windows]:
     """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
@@ -209,7 +219,7 @@ def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: di
         stack = channel_psf_stack(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], draw.weights,
                                   (windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m,
                                   plan_pixels=windows.plan, device=device, plan_wavelengths_m=plan_l,
-                                  plan_depths_m=plan_z, plan_frequency=frequency)
+                                  plan_depths_m=plan_z, plan_frequency=frequency, core_window=core_window(preset))
         if timing is not None:
             for stage, seconds in stack.timing_s.items():
                 timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
@@ -405,7 +415,7 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
     share = len(shard) / o.batch_size
     loss, parts = training_loss(capture, clean, sensor_psf(far, preset), preset.loss, session.features, image_share=share,
-                                 psf_share=1 / ctx.world)
+                                 psf_share=1 / ctx.world, cores_far=far_cores(stack))
     t = _lap(timing, "formation_loss", t)
     if not torch.isfinite(loss):
         raise InputError("optimize.learning_rate", f"training diverged at step {step + 1}: the loss is {float(loss)}",
@@ -453,7 +463,8 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
         margin = canvas_margin(near.shape[-1], far.shape[-1])
         clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device)
         capture = form_image(clean, colour, mask, near, far, margin).obstructed
-        yield training_loss(capture, sensor_crop(clean, margin), sensor_psf(far, preset), preset.loss, features)
+        yield training_loss(capture, sensor_crop(clean, margin), sensor_psf(far, preset), preset.loss, features,
+                            cores_far=far_cores(stack))
 
 
 def term_gradient_norms(model, preset, draws: int = 4, device="cpu", frequency: float | None = None,

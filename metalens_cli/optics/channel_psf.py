@@ -20,6 +20,10 @@ is computed in N = max_c N_c. Fractions are of the power through the aperture (`
 
 A channel whose light is not held by the capacity is ``outgrown``: its window is the capacity,
 and a caller that can afford it asks again with a larger one.
+
+With ``core_window`` k, the stack also holds each monochromatic PSF's energy in its central
+k × k pixels (``cores``), before the mixing: what a loss that asks every wavelength to be sharp
+needs (``design.losses``), at the cost of a k × k pixel operator.
 """
 
 from __future__ import annotations
@@ -47,7 +51,9 @@ class ChannelPsfStack:
     """Per depth: ``psfs[i]`` (3, N_i, N_i) R, G, B in fractions of the aperture power, the
     rule's window per channel ``windows[i]`` (N_i = their max), what the window holds ``kept``
     (depths, 3) and what reaches the sensor plane ``on_sensor`` (depths, 3), both fractions of
-    the aperture power; ``outgrown`` (depths, 3): the channel's light passes the capacity."""
+    the aperture power; ``outgrown`` (depths, 3): the channel's light passes the capacity;
+    ``cores`` (with ``core_window``): per depth, the (W,) energy of each wavelength's PSF in its
+    central k × k pixels, fractions of the aperture power, differentiable."""
 
     psfs: tuple[torch.Tensor, ...]
     windows: tuple[tuple[int, int, int], ...]
@@ -57,6 +63,7 @@ class ChannelPsfStack:
     capacity: tuple[int, ...]
     grid: dict = field(default_factory=dict)
     timing_s: dict = field(default_factory=dict)
+    cores: tuple[torch.Tensor, ...] | None = None
 
     @property
     def held(self) -> np.ndarray:
@@ -69,13 +76,14 @@ def channel_psf_stack(lens: Metalens, wavelengths_m, depths_m, weights, capacity
                       distance_m: float | None = None, *, energy: float = ENCIRCLED_ENERGY,
                       plan_pixels: int | None = None, dtype: torch.dtype = torch.float32,
                       device: str | torch.device = "cpu", plan_wavelengths_m=None, plan_depths_m=None,
-                      plan_frequency: float | None = None) -> ChannelPsfStack:
+                      plan_frequency: float | None = None, core_window: int | None = None) -> ChannelPsfStack:
     """Channel PSFs at every depth, each in the window its light needs (module docstring).
 
     ``weights`` (3, W) mix the W wavelengths into R, G, B (``optics.spectra``); ``capacity``: the
     largest window (odd pixels) to look for light in, one for all depths or one per depth;
     ``plan_pixels`` (≥ every capacity; default the largest) fixes the radial sampling plan so that
     calls with changing capacities share its kernels. ``plan_*`` as in ``compute_psf``.
+    ``core_window`` (odd pixels): also each wavelength's energy in that central window (``cores``).
     Differentiable with respect to ``lens.theta`` (the windows themselves are not).
     """
     start = time.perf_counter()
@@ -91,18 +99,20 @@ def channel_psf_stack(lens: Metalens, wavelengths_m, depths_m, weights, capacity
         raise InputError("energy", f"{energy!r}", "a fraction between 0 and 1")
     if min(caps) < 1 or plan_px < max(caps):
         raise InputError("capacity", f"windows {caps} with a plan for {plan_px} pixels", "odd windows ≤ the plan's")
+    if core_window is not None and not (core_window % 2 == 1 and 1 <= core_window <= min(caps)):
+        raise InputError("core_window", f"{core_window!r} for capacities {caps}", "an odd window no larger than every capacity")
     validate_psf_arguments(lams, zs, plan_px, pixel_pitch_m, d, "auto", dtype, 1.0)
     if lens.radial:
         stack = _radial_stack(lens, lams, zs, mix, caps, plan_px, pixel_pitch_m, d, energy, dtype, torch.device(device),
-                              plan_wavelengths_m, plan_depths_m, plan_frequency)
+                              plan_wavelengths_m, plan_depths_m, plan_frequency, core_window)
     else:
         stack = _grid_stack(lens, lams, zs, mix, caps, pixel_pitch_m, d, energy, dtype, device,
-                            plan_wavelengths_m, plan_depths_m, plan_frequency)
+                            plan_wavelengths_m, plan_depths_m, plan_frequency, core_window)
     stack.timing_s["total"] = time.perf_counter() - start
     return stack
 
 
-def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f):
+def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window):
     clock = time.perf_counter()
     plan_lams = lams + [float(x) for x in np.ravel(plan_l if plan_l is not None else [])]
     plan_zs = zs + [float(x) for x in np.ravel(plan_z if plan_z is not None else [])]
@@ -128,11 +138,15 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     clock = time.perf_counter()
     w = len(lams)
     mix_d = mix.to(device, dtype)
-    psfs, windows, kept, on_sensor, outgrown = [], [], [], [], []
+    core_op = None if core_window is None else radial_sensor_window(plan.step_m, core_window, pitch)
+    psfs, windows, kept, on_sensor, outgrown, cores = [], [], [], [], [], []
     for i, (cap, rows) in enumerate(zip(caps, n_rows)):
         cols = slice(i * w, (i + 1) * w)
         out = prop.real_matmul(out_matrix[:rows, :n_freq], spec[:, cols])
-        intensity = (out.abs() ** 2 / power[cols]) @ mix_d.T                       # (n_rows, 3) W/m² per W
+        mono = out.abs() ** 2 / power[cols]                                         # (n_rows, W) W/m² per W
+        if core_op is not None:
+            cores.append(core_op.apply(mono[:core_op.n_radii]).sum(dim=(-2, -1)))
+        intensity = mono @ mix_d.T                                                  # (n_rows, 3)
         target = (mix_d.double() @ on_plane[cols].double()).cpu().numpy()           # (3,) on the sensor plane
         rho = np.arange(rows) * plan.step_m
         ring = 2 * math.pi * rho * plan.step_m
@@ -157,10 +171,10 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
             "hankel_samples_used": n_freq, "pupil_nodes": plan.n_nodes, "output_step_m": plan.step_m,
             "plan_pixels": plan_px}
     return ChannelPsfStack(tuple(psfs), tuple(windows), np.array(kept), np.array(on_sensor), np.array(outgrown, bool),
-                           tuple(caps), grid, timing)
+                           tuple(caps), grid, timing, tuple(cores) if core_op is not None else None)
 
 
-def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f):
+def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window):
     """Any propagator: the PSFs in the largest capacity, mixed, each depth cropped by its light."""
     result = compute_psf(lens, lams, zs, max(caps), pitch, d, "auto", dtype, device,
                          plan_wavelengths_m=plan_l, plan_depths_m=plan_z, plan_frequency=plan_f)
@@ -177,8 +191,10 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
         kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
         on_sensor.append(total)
         outgrown.append([False] * 3)
+    cores = None if core_window is None else tuple(crop_window(result.psf[i], core_window).sum(dim=(-2, -1))
+                                                   for i in range(len(caps)))
     return ChannelPsfStack(tuple(psfs), tuple(windows), np.array(kept), np.array(on_sensor), np.array(outgrown, bool),
-                           tuple(caps), result.grid, dict(result.timing_s))
+                           tuple(caps), result.grid, dict(result.timing_s), cores)
 
 
 def crop_window(psf: torch.Tensor, n: int) -> torch.Tensor:

@@ -89,10 +89,15 @@ class RadialSensor:
     index: torch.Tensor
 
     def apply(self, intensity: torch.Tensor) -> torch.Tensor:
-        """(n_radii, B) intensities (W/m²) → (B, N, N) pixel powers (W)."""
+        """(n_radii, B) intensities (W/m²) → (B, N, N) pixel powers (W).
+
+        The octant rows are spread to the pixels with ``index_select``: its backward sums each
+        row's pixels in a fixed order (``index_add_``), where advanced indexing's backward adds
+        them with atomics across threads and rounds differently from run to run on a busy CPU."""
         w = self.weights.to(intensity.device, intensity.dtype)
         octant = torch.sparse.mm(w, intensity)
-        return octant.T[:, self.index.to(intensity.device)]
+        pixels = torch.index_select(octant, 0, self.index.to(intensity.device).reshape(-1))
+        return pixels.T.reshape(-1, self.n_pixels, self.n_pixels)
 
     def window(self, n_pixels: int) -> RadialSensor:
         """The operator of the central n × n window (n ≤ N): a pixel's weights depend only on its

@@ -94,6 +94,20 @@ def test_per_channel_sharp_loss_weighs_the_weakest_channel():
         sharp_loss(psf, mode="max")
 
 
+def test_per_wavelength_sharp_loss_prefers_a_flat_spectrum():
+    """−mean log E_λ: for one mean core energy a flat spectrum scores lower than a peaked one
+    (Jensen), its gradient is −1/(W·E_λ); without cores it refuses with the preset key."""
+    flat, peaked = torch.full((4,), 0.04, dtype=torch.float64), torch.tensor([0.13, 0.01, 0.01, 0.01], dtype=torch.float64)
+    assert float(sharp_loss(_delta_psf(), mode="log_wavelength", cores=flat)) == pytest.approx(-math.log(0.04))
+    assert float(sharp_loss(_delta_psf(), mode="log_wavelength", cores=flat)) < float(
+        sharp_loss(_delta_psf(), mode="log_wavelength", cores=peaked))
+    energy = peaked.clone().requires_grad_(True)
+    sharp_loss(_delta_psf(), mode="log_wavelength", cores=energy).backward()
+    assert_allclose(energy.grad.numpy(), -1 / (4 * peaked.numpy()))
+    with pytest.raises(InputError, match="loss.sharp_mode"):
+        sharp_loss(_delta_psf(), mode="log_wavelength")
+
+
 def test_image_losses_vanish_for_identical_images_and_grow_with_noise():
     gen = torch.Generator().manual_seed(0)
     clean = torch.rand(2, 3, 32, 32, generator=gen, dtype=torch.float64)

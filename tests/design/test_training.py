@@ -150,6 +150,23 @@ def test_gradient_norms_of_each_term(tiny):
     assert term_gradient_norms(build_model(silent), silent, draws=1)["sharp"] == 0.0
 
 
+def test_per_wavelength_sharpness_steers_the_lens(tiny, tmp_path):
+    """sharp_mode = "log_wavelength": the loss sees each wavelength's own core (a finite,
+    positive gradient through it), and an even window, which has no centre pixel, is refused."""
+    from metalens_cli.design.training import term_gradient_norms
+    from metalens_cli.errors import InputError
+    from metalens_cli.io.presets import to_toml
+
+    spectral = dataclasses.replace(tiny, loss=dataclasses.replace(tiny.loss, sharp_mode="log_wavelength"))
+    norms = term_gradient_norms(build_model(spectral), spectral, draws=1)
+    assert np.isfinite(norms["sharp"]) and norms["sharp"] > 0
+    assert norms["sharp"] != term_gradient_norms(build_model(tiny), tiny, draws=1)["sharp"]
+    even = tmp_path / "even.toml"
+    even.write_text(to_toml(spectral, loss={"sharp_window": 4}))
+    with pytest.raises(InputError, match="loss.sharp_window"):
+        load_preset(even)
+
+
 def test_gradient_norm_ratio_at_theta_init_is_the_documented_one():
     """docs/training.md: at θ_init of the quick split-spectrum preset (spline θ, −log E) the PSF
     terms' gradient is 10²-10³ times the image terms' (per-channel 1/E: 10⁵-10⁶). A change of

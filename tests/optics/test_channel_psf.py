@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from metalens_cli.errors import InputError
 from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, channel_psf_stack
 from metalens_cli.optics.lens import hyperbolic
@@ -40,6 +41,23 @@ def test_mixing_before_the_pixel_operator_equals_mixing_after(lens, stack):
         mixed_after = crop_window(mix_channels(reference.psf[i], WEIGHTS), stack.psfs[i].shape[-1])
         error = float((stack.psfs[i] - mixed_after).norm() / mixed_after.norm())
         assert error < 1e-6
+
+
+def test_each_wavelengths_core_is_the_centre_of_its_own_pixel_psf(lens):
+    """``core_window`` k: each wavelength's energy in its central k × k pixels equals the sum over
+    those pixels of its monochromatic PSF from compute_psf (the same plan; float64, 1e-9), and
+    asking for it changes nothing else."""
+    cored = channel_psf_stack(lens, WAVES, DEPTHS, WEIGHTS, 301, PITCH, dtype=torch.float64, core_window=5)
+    reference = compute_psf(lens, WAVES, DEPTHS, 301, PITCH, dtype=torch.float64)
+    plain = channel_psf_stack(lens, WAVES, DEPTHS, WEIGHTS, 301, PITCH, dtype=torch.float64)
+    assert plain.cores is None
+    for i in range(len(DEPTHS)):
+        expected = crop_window(reference.psf[i], 5).sum(dim=(-2, -1))
+        torch.testing.assert_close(cored.cores[i], expected, rtol=1e-9, atol=1e-12)
+        torch.testing.assert_close(cored.psfs[i], plain.psfs[i], rtol=0, atol=0)
+    assert int(cored.cores[1][:6].argmax()) == 4  # at ∞ the design wavelength (532 nm) beats its neighbours
+    with pytest.raises(InputError, match="core_window"):
+        channel_psf_stack(lens, WAVES, DEPTHS, WEIGHTS, 301, PITCH, core_window=4)
 
 
 def test_window_holds_the_light_of_a_psf_twice_as_large(lens, stack):

@@ -60,3 +60,21 @@ def test_area_of_pixel_in_disc():
     assert S.pixel_disc_area(5.0, 6.0, 5.0, 6.0, 1.0) == 0
     assert_allclose(S.pixel_disc_area(0.0, 2.0, 0.0, 2.0, 1.0), math.pi / 4, rtol=1e-12)
     assert_allclose(S.pixel_disc_area(-2.0, 2.0, -2.0, 2.0, 1.0), math.pi, rtol=1e-12)
+
+
+def test_radial_operator_backward_is_the_same_every_time():
+    """Each octant row's gradient sums its (up to 8) pixels in a fixed order: repeated backward
+    passes agree bit for bit (advanced indexing's backward added them with atomics across threads
+    and differed from run to run on a busy CPU, which broke bit-identical resumes of training).
+    A race shows only sometimes: this caught the old path in about 1 of 3 runs on a busy machine;
+    tests/design/test_training.py's resume tests failed every time there."""
+    op = S.radial_sensor(0.2e-6, 1001, 1.85e-6)
+    gen = torch.Generator().manual_seed(0)
+    x = torch.rand(op.n_radii, 3, generator=gen, dtype=torch.float32)
+    weight = torch.rand(3, 1001, 1001, generator=gen)
+    grads = []
+    for _ in range(8):
+        xx = x.clone().requires_grad_(True)
+        (op.apply(xx) * weight).sum().backward()
+        grads.append(xx.grad)
+    assert all(torch.equal(g, grads[0]) for g in grads[1:])
