@@ -92,9 +92,10 @@ def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z
     count = image_count(images, limit)
     costs = [estimate_captures(design, s["z_near_interval_m"][0], s["z_far_interval_m"][0], s["wavelengths_m"], s["pixel_pitch_m"],
                                s["pixels"], count, psf_pixels) for design in s["designs"]]
+    # PSFs once per design and seed (the depths are the seed's), captures per obstruction kind too
     announce(Estimate(f"evaluate of {len(s['designs'])} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} obstruction(s)",
-                      max(memory for memory, _ in costs), "--psf-pixels" if psf_pixels else "--pixels",
-                      len(seeds) * len(kinds) * sum(seconds for _, seconds in costs)), max_memory)
+                      max(memory for memory, _, _ in costs), "--psf-pixels" if psf_pixels else "--pixels",
+                      len(seeds) * sum(psf + len(kinds) * captures for _, psf, captures in costs)), max_memory)
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s["designs"]}
     with progress_bar("evaluate", quiet) as update:
         result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update, reconstructors)

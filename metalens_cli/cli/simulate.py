@@ -114,10 +114,10 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
     s = setup([spec], preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device)
     design = s["designs"][0]
     z_near, z_far = draw_depths(s["z_near_interval_m"], s["z_far_interval_m"], seed)
-    memory, seconds = estimate_captures(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], s["pixels"],
-                                        image_count(images, limit), psf_pixels)
-    announce(Estimate(f"simulate on {s['pixels']}² pixels", memory, "--psf-pixels" if psf_pixels else "--pixels", seconds),
-             max_memory)
+    memory, psf_seconds, capture_seconds = estimate_captures(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"],
+                                                             s["pixels"], image_count(images, limit), psf_pixels)
+    announce(Estimate(f"simulate on {s['pixels']}² pixels", memory, "--psf-pixels" if psf_pixels else "--pixels",
+                      psf_seconds + capture_seconds), max_memory)
     efficiency = efficiency_used(design.preset)
     psfs = channel_psfs(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], device=s["device"], window=psf_pixels)
     clean = load_images(images, (s["pixels"], s["pixels"]), limit, psfs.margin)
