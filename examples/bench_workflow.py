@@ -154,7 +154,7 @@ def main() -> None:
     for design in DESIGNS:
         scenes[design] = out / "simulate" / design.replace(":", "-")
         metalens("simulate", design, "--preset", PRESET, "--obstruction", "dirt", "--images", "charts", "--pixels", 256, "--limit", 3,
-                 "-o", scenes[design])
+                 "-o", scenes[design], "--overwrite")  # the script's own folder: a rerun replaces it
     photographs(scenes, out / "pairs")
     first = sorted((out / "pairs" / "gt").iterdir())[0].name
     aligned = metalens("align", out / "pairs" / "gt" / first, out / "pairs" / DESIGNS[0].replace(":", "-") / "unobstructed" / first,

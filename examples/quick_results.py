@@ -360,7 +360,7 @@ def grey_wall(runs: Path) -> dict[str, list]:
     out = {}
     for name in DESIGNS:
         report = metalens("reconstruct", "apply", str(runs / f"recon-{name}"), str(folder / "grey_128.exr"), str(folder / "grey_512.exr"),
-                          "-o", str(runs / f"recon-{name}" / "grey_wall"), "--quiet")
+                          "-o", str(runs / f"recon-{name}" / "grey_wall"), "--overwrite", "--quiet")
         out[name] = [(image["height"], read_exr_rgb(image["exr"])) for image in report["images"]]
     return {name: [(n, [float(v) for v in a.mean(axis=(1, 2))], float(a.std(axis=(1, 2)).max())) for n, a in rows]
             for name, rows in out.items()}

@@ -7,12 +7,16 @@ Per frame (values as stored; colour frames averaged over R, G, B, alpha dropped)
    allowed, and then it is reported in the result and the cube's header: never silently used.
 2. **Dark frame** subtracted (taken at the same exposure: that is the bench's business), then
    the frame is divided by its exposure when given (counts per second), so that repeats taken
-   with different exposures average correctly.
+   with different exposures average correctly. A dark frame brighter than a frame's background
+   (by over 3σ: another exposure or gain) is warned about, once for all such frames.
 3. **Background**: a plane a + b·x + c·y fitted to a border strip (5 % of the smaller side,
    at least 4 pixels; pixels beyond 5σ left out) is subtracted, so stray light tilting across
    the frame does not pull the centroid; the noise σ is 1.4826 × the strip's median absolute
-   deviation about the plane. Light in the strip (the PSF wider than the frame: the sides'
-   middles stand above the corners) is warned about: its wings are taken for background.
+   deviation about the plane, and at least 1e-6 of the frame's largest value (a simulated,
+   noiseless spot has σ = 0: only light above the plane's rounding counts). A frame with no
+   light above 3σ (flat, or saturated all over) is refused. Light in the strip (the PSF wider
+   than the frame: the sides' middles stand above the corners) is warned about: its wings are
+   taken for background.
 4. **Hot pixels**: pixels standing more than k·σ (k = ``hot_pixel_sigma``, 6) above the median
    of their 3 × 3 neighbourhood in the dark frame, or in 90 % of the frames and on a dark
    background (their neighbourhood's median below 3σ) in half of them, are replaced by that
@@ -143,20 +147,23 @@ def frame_stats(frame: np.ndarray, field: str = "frame") -> tuple[tuple[float, f
     pixels; refitted without the pixels beyond 5σ: hot pixels, stray light), 1.4826 × the
     median absolute deviation of the strip about it, and how far (in σ) the middles of the
     strip's sides stand above its corners after the fit: light that reaches the border (a PSF
-    wider than the frame) makes a bulge no plane takes out. Up to 40 000 strip pixels are used."""
+    wider than the frame) makes a bulge no plane takes out. Up to 40 000 strip pixels are used.
+    σ is at least :func:`_floor` of the frame: a noiseless (simulated) frame has σ = 0, and the
+    plane's rounding error must not stand above it as light."""
     h, w = frame.shape
     if 2 * max(4, round(0.05 * min(h, w))) >= min(h, w):
         raise InputError(field, f"{w} × {h} pixels", "frames of at least 16 × 16 pixels (the border gives the background)")
     rows, cols, corner, middle = _border_samples(frame.shape)
     values = frame[rows, cols].astype(np.float64)
     design = np.stack([np.ones_like(values), cols / w, rows / h], axis=1)
+    floor = _floor(frame)
     keep = np.ones(values.size, dtype=bool)
     for _ in range(2):
         coefficients = np.linalg.lstsq(design[keep], values[keep], rcond=None)[0]
         residual = values - design @ coefficients
-        sigma = MAD_TO_SIGMA * float(np.median(np.abs(residual[keep] - np.median(residual[keep]))))
-        keep = np.abs(residual) <= 5 * max(sigma, 1e-30)
-    bulge = float(np.median(residual[middle]) - np.median(residual[corner])) / max(sigma, 1e-30)
+        sigma = max(MAD_TO_SIGMA * float(np.median(np.abs(residual[keep] - np.median(residual[keep])))), floor)
+        keep = np.abs(residual) <= 5 * sigma
+    bulge = float(np.median(residual[middle]) - np.median(residual[corner])) / sigma
     return tuple(float(c) for c in coefficients), sigma, bulge
 
 
@@ -175,7 +182,7 @@ def dark_frame(values: np.ndarray, hot_pixel_sigma: float) -> tuple[np.ndarray, 
         return frame, np.zeros(0, dtype=np.int64)
     _, sigma, _ = frame_stats(frame, "--dark")
     excess = frame - _median3(frame)
-    return frame, np.flatnonzero(excess > hot_pixel_sigma * max(sigma, _floor(frame)))
+    return frame, np.flatnonzero(excess > hot_pixel_sigma * sigma)
 
 
 def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.ndarray, np.ndarray] | None = None,
@@ -215,7 +222,7 @@ def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.nda
                          f"at most {min(shape)} pixels")
     hot = _hot_pixels(frames, shape, dark[1] if dark is not None else np.zeros(0, np.int64), settings.hot_pixel_sigma)
     n = settings.pixels or _automatic_window(frames, shape)
-    warnings = [w for f in frames for w in _frame_warnings(f, settings)]
+    warnings = [w for f in frames for w in _frame_warnings(f, settings)] + (_dark_warnings(frames) if dark is not None else [])
     depths, wavelengths = manifest.depths_m, manifest.wavelengths_m
     sums = np.zeros((len(depths), len(wavelengths), n, n))
     counts = np.zeros((len(depths), len(wavelengths)), dtype=int)
@@ -256,13 +263,13 @@ def _first_pass(entry: FrameEntry, values: np.ndarray, full_scale: float | None,
     with np.errstate(over="ignore", invalid="ignore"):
         frame = subtract_plane(frame, background)
     _check_finite(frame, entry)
-    noise = max(noise, _floor(frame))
     median = _median3(frame)
     spikes = np.flatnonzero(frame - median > settings.hot_pixel_sigma * noise) if settings.hot_pixel_sigma > 0 else np.zeros(0, np.int64)
     isolated = spikes[median.ravel()[spikes] < LIGHT_SIGMA * noise]
     light = _light(median, noise)
     if light is None:
-        raise InputError(entry.where, f"{entry.name} has no light above the background noise",
+        clipped = f" ({saturated} of its {frame.size} pixels saturated)" if saturated else ""
+        raise InputError(entry.where, f"{entry.name} has no light above the background noise{clipped}",
                          "a frame with a PSF brighter than 3σ of its border")
     rough, radius, others = light
     crop, origin = _window(frame, rough, math.ceil(1.5 * radius) + CROP_MARGIN + (settings.pixels or 0) // 2)
@@ -299,7 +306,8 @@ def _median3(frame: np.ndarray) -> np.ndarray:
 
 
 def _floor(frame: np.ndarray) -> float:
-    """A noise floor for noiseless (synthetic) frames: 1e-6 of the largest value."""
+    """A noise floor for noiseless (synthetic) frames: 1e-6 of the largest value as given
+    (before the background is taken out), above float32's rounding of the plane fit."""
     return max(1e-6 * float(np.abs(frame).max()), np.finfo(np.float32).tiny)
 
 
@@ -452,6 +460,19 @@ def _normalised(psf: np.ndarray, normalization: str, manifest: Manifest) -> np.n
         raise InputError(manifest.source, f"the PSF at {manifest.wavelengths_m[j] * 1e9:g} nm, depth index {i} holds no light",
                          "frames with light above their background")
     return (psf / scale[:, :, None, None]).astype(np.float32)
+
+
+def _dark_warnings(frames: list[_Frame]) -> list[str]:
+    """One line when the dark frame is brighter than some frames' background (by more than
+    LIGHT_SIGMA·σ): a dark frame of another exposure or gain. The plane fit takes its excess out
+    with the background, so the PSFs stand, but its fixed pattern is not the frames'."""
+    darker = [f for f in frames if f.report["background"] < -LIGHT_SIGMA * f.noise]
+    if not darker:
+        return []
+    worst = max(darker, key=lambda f: -f.report["background"] / f.noise)
+    return [f"the dark frame is brighter than the background of {len(darker)} of {len(frames)} frame(s) (by up to "
+            f"{-worst.report['background'] / worst.noise:.0f}σ, {worst.entry.where}): was it taken at another exposure or gain? "
+            "Its excess is removed with the background, its pattern may not match the frames'"]
 
 
 def _frame_warnings(frame: _Frame, settings: ImportSettings) -> list[str]:

@@ -7,8 +7,12 @@ around it mixed linearly; a wavelength outside the simulated range (or not match
 ``interpolate``) and a depth without partner are refused, and reported as such.
 
 Common grid. Both are taken at the measured pixel pitch: a simulated cube of another pitch is
-re-binned onto the measured pixels (power between their edges, axis on axis). Both are cropped to the largest window both cover, centred on pixel (N//2, N//2), and
-normalised to sum to one over it.
+re-binned onto the measured pixels (power between their edges, axis on axis). Both are cropped
+to the largest window both cover, centred on pixel (N//2, N//2), and normalised to sum to one
+over it. Pitches that cannot be a PSF's are refused: a cube whose window spans less than half
+its shortest wavelength (no lens focuses light to a spot that small), and a pair in which
+either window spans under 3 pixels of the other. A simulation coarser than the measurement by
+over ``COARSE_SIMULATION``× is interpolated, not resolved, on the measured grid: warned about.
 
 Registration. The measured PSF is moved onto the simulated one by the sub-pixel shift at the
 maximum of their cross-correlation (a parabola through the peak and its neighbours on each
@@ -34,17 +38,20 @@ from metalens_cli.analysis.mtf import mtf50, psf_mtf, radial_grid
 from metalens_cli.analysis.psf_metrics import fwhm_pixels
 from metalens_cli.analysis.subpixel import fourier_shift, parabola_vertex
 from metalens_cli.errors import InputError
+from metalens_cli.io.units import format_length
 
 WAVELENGTH_TOLERANCE_M = 1e-12
 DEPTH_TOLERANCE = 1e-6
 REGISTRATION_ROUNDS = 4
+COARSE_SIMULATION = 2.0  # simulated pixels this many times the measured ones are warned about
 
 
 @dataclass
 class CubeComparison:
     """``pairs``: one record per compared (depth, wavelength); ``refused``: the measured PSFs
     left out and why; ``scans``: per compared depth, (W_c, N) central rows of the measured and
-    simulated PSFs (for the x-λ figure); ``pixels`` N and ``pixel_pitch_m`` of the common grid."""
+    simulated PSFs (for the x-λ figure); ``pixels`` N and ``pixel_pitch_m`` of the common grid;
+    ``warnings``: one line each."""
 
     pairs: list[dict]
     refused: list[dict]
@@ -53,6 +60,7 @@ class CubeComparison:
     resampled: bool
     radii_m: list[float]
     scans: list[dict] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 def compare_cubes(measured, simulated, radii_m: list[float] | None = None, interpolate: bool = True) -> CubeComparison:
@@ -60,6 +68,7 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
     and 10 measured pixels. InputError when no pair is left."""
     pitch = measured.pixel_pitch_m
     radii = list(radii_m) if radii_m else [2 * pitch, 5 * pitch, 10 * pitch]
+    warnings = _check_pitches(measured, simulated)
     sim_psf, resampled = _on_pitch(simulated.psf, simulated.pixel_pitch_m, pitch, measured.psf.shape[-1])
     n = min(measured.psf.shape[-1], sim_psf.shape[-1])
     if n < 3:
@@ -93,7 +102,29 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
         reason = refused[0]["reason"] if refused else "no PSFs"
         raise InputError("MEASURED", f"no (depth, wavelength) of the measured cube can be compared: {reason}",
                          "cubes sharing depths and overlapping in wavelength")
-    return CubeComparison(pairs, refused, n, pitch, resampled, radii, scans)
+    return CubeComparison(pairs, refused, n, pitch, resampled, radii, scans, warnings)
+
+
+def _check_pitches(measured, simulated) -> list[str]:
+    """Refuse pixel pitches no PSF can have (see the module docstring); warn of a simulation
+    much coarser than the measurement."""
+    for which, cube in (("MEASURED", measured), ("SIMULATED", simulated)):
+        n, pitch, shortest = cube.psf.shape[-1], cube.pixel_pitch_m, float(np.min(cube.wavelengths_m))
+        if n * pitch < shortest / 2:
+            raise InputError(which, f"its {n} pixels of {format_length(pitch)} span {format_length(n * pitch)}, less than half its "
+                             f"shortest wavelength ({shortest * 1e9:g} nm): no PSF is that small",
+                             "a cube whose pixel_pitch_m is the pixel pitch in metres")
+    measured_pitch, simulated_pitch = format_length(measured.pixel_pitch_m), format_length(simulated.pixel_pitch_m)
+    ratio = simulated.pixel_pitch_m / measured.pixel_pitch_m
+    if measured.psf.shape[-1] < 3 * ratio:
+        raise InputError("MEASURED", f"its window ({measured.psf.shape[-1]} pixels of {measured_pitch}) spans under 3 simulated "
+                         f"pixels of {simulated_pitch}",
+                         "a measured window at least 3 simulated pixels wide (check both cubes' pixel_pitch_m)")
+    if ratio > COARSE_SIMULATION:
+        return [f"the simulated pixels ({simulated_pitch}) are {ratio:.3g}× the measured ({measured_pitch}): the simulation is "
+                f"interpolated onto the measured grid, not resolved on it (psf-scan --pixel-pitch {measured.pixel_pitch_m * 1e6:.3g}um "
+                "simulates at the measured pitch)"]
+    return []
 
 
 def _json_depth(depth: float) -> float | None:

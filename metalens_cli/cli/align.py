@@ -11,7 +11,7 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import json_option, MetalensCommand, OutputFile, OutputFolder
+from metalens_cli.cli.options import check_output_unused, json_option, MetalensCommand, OutputFile, OutputFolder, overwrite_option
 from metalens_cli.errors import InputError
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
@@ -43,10 +43,11 @@ class FileOrFolder(OutputFile):
               help="Save the warp: WARP.npz for two images; for two folders, a folder (created, apart from -o) of NAME.warp.npz.")
 @click.option("--warp", "warp_path", type=click.Path(dir_okay=False),
               help="Reapply this saved warp (WARP.npz) to every target instead of registering.")
+@overwrite_option
 @click.option("--quiet", is_flag=True, help="No table, progress or 'wrote' lines (warnings and errors still go to stderr).")
 @json_option
 @click.pass_context
-def align(ctx, reference, target, output, refine, warp_out, warp_path, quiet, as_json):
+def align(ctx, reference, target, output, refine, warp_out, warp_path, overwrite, quiet, as_json):
     """Register captures of a scene (TARGET) onto its reference (REFERENCE) and write them on the
     reference's pixel grid.
 
@@ -55,7 +56,8 @@ def align(ctx, reference, target, output, refine, warp_out, warp_path, quiet, as
     for an EXR target); a target without a reference is an error, references without a target
     are skipped. The output has the target's encoding (8/16-bit in: 16-bit PNG or TIFF out; EXR
     in: EXR out), its R, G, B or single channel (alpha is dropped), and 0 where the target does
-    not cover the reference. Nothing is written unless every pair registers.
+    not cover the reference. Nothing is written unless every pair registers, and -o and
+    --warp-out are published together or not at all (a full disk, the file-size limit).
 
     Registration (the paper's protocol): SIFT features on contrast-stretched luminance (the
     sharper image blurred to the other's sharpness), a MAGSAC++ homography, then --refine.
@@ -78,7 +80,7 @@ def align(ctx, reference, target, output, refine, warp_out, warp_path, quiet, as
         if ctx.get_parameter_source("refine") == click.core.ParameterSource.COMMANDLINE:
             raise click.UsageError("--refine does not apply with --warp (the saved warp was refined when it was made)")
     pairs = _folder_pairs(Path(reference), Path(target)) if is_folder else [(Path(target).stem, Path(reference), Path(target))]
-    _check_outputs(is_folder, output, warp_out, pairs)
+    _check_outputs(is_folder, output, warp_out, pairs, overwrite)
     from metalens_cli.imaging.registration import load_warp
 
     saved = None if warp_path is None else load_warp(warp_path, "--warp")
@@ -125,12 +127,15 @@ def _images(folder: Path, field: str) -> dict[str, Path]:
     return found
 
 
-def _check_outputs(is_folder: bool, output: str, warp_out: str | None, pairs) -> None:
-    """Outputs of the right kind for the mode, and an output encoding that is the target's."""
+def _check_outputs(is_folder: bool, output: str, warp_out: str | None, pairs, overwrite: bool) -> None:
+    """Outputs of the right kind for the mode (output folders unused, unless ``overwrite``), and
+    an output encoding that is the target's."""
     if is_folder:
         for option, value, kind in (("--output", output, "an output folder"), ("--warp-out", warp_out, "a folder of warps")):
             if value is not None and not os.path.isdir(value) and Path(value).suffix.lower() in (*OUTPUT_SUFFIXES, ".npz"):
                 raise InputError(option, f"{value!r} names a file, but REFERENCE and TARGET are folders", kind)
+            if value is not None:
+                check_output_unused(value, overwrite, option)
         return
     if Path(output).suffix.lower() not in OUTPUT_SUFFIXES:
         raise InputError("--output", f"{output!r} does not end in .png, .tif, .tiff or .exr", "an image file for two images")
@@ -144,11 +149,13 @@ def _check_outputs(is_folder: bool, output: str, warp_out: str | None, pairs) ->
 
 def _align_pair(pair, output: Path, warp_out: str | None, refine: str, saved):
     from metalens_cli.imaging.registration import save_warp
+    from metalens_cli.io.atomic import atomic_files
 
     row, registration, aligned, is_linear, warnings = _align_one(pair, refine, saved, "TARGET")
-    if warp_out is not None:
-        save_warp(warp_out, registration)
-    _write_image(output, aligned, is_linear)
+    with atomic_files(output, warp_out) as (image_file, warp_file):  # both or neither
+        _write_image(image_file, aligned, is_linear)
+        if warp_file is not None:
+            save_warp(warp_file, registration)
     return [{**row, "output": str(output), "warp_out": warp_out}], warnings
 
 
@@ -204,19 +211,12 @@ def _write_image(path: Path, image, is_linear: bool) -> None:
     """EXR (linear float32) or 16-bit PNG/TIFF of an (H, W, 3 or 1) image, atomically."""
     import numpy as np
 
-    from metalens_cli.io.atomic import atomic_write
-    from metalens_cli.io.image_files import write_exr_rgb
+    from metalens_cli.io.image_files import write_encoded, write_exr_rgb
 
     if is_linear:
         write_exr_rgb(path, np.transpose(image, (2, 0, 1)))
-        return
-    import cv2
-
-    pixels = np.round(np.clip(image, 0.0, 1.0) * 65535).astype(np.uint16)
-    pixels = pixels[:, :, ::-1] if pixels.shape[2] == 3 else pixels[:, :, 0]  # RGB → OpenCV's BGR
-    with atomic_write(path) as temporary:
-        if not cv2.imwrite(str(temporary), np.ascontiguousarray(pixels)):
-            raise InputError(str(path), "cannot write the image", "a path ending in .png or .tif")
+    else:
+        write_encoded(path, np.round(np.clip(image, 0.0, 1.0) * 65535).astype(np.uint16))
 
 
 def _render(rows, reference: str, is_folder: bool, output: str, warp_out: str | None) -> None:

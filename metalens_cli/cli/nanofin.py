@@ -5,12 +5,15 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import (announce, BandSpec, device_option, json_option, Length, LengthList, load_preset_option,
-                                      max_memory_option, MetalensGroup, Number, OutputFolder, plot_option, torch_device, WavelengthList)
+from metalens_cli.cli.options import (announce, BandSpec, check_output_unused, device_option, json_option, Length, LengthList,
+                                      load_preset_option, max_memory_option, MetalensGroup, Number, OutputFolder, overwrite_option,
+                                      plot_option, torch_device, WavelengthList)
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.errors import InputError
+from metalens_cli.optics.nanofin import FIRST_HARMONICS
 
 MAX_HARMONICS = 41
+LEAST_MAX_HARMONICS = FIRST_HARMONICS + 4
 PAPER_BANDS = ((457e-9, 22e-9), (530e-9, 20e-9), (628e-9, 28e-9))  # the tri-band filter (presets/split-spectrum.toml)
 MAX_FINS = 10_000
 TYPICAL_HARMONICS = 25  # what auto picks for the paper's fin (docs/benchmarks.md)
@@ -20,13 +23,25 @@ solver_option = click.option("--solver", type=click.Choice(tuple(SOLVERS)), defa
                              help="RCWA: modes (fast, symmetric subspaces, --device) or meent (the slower reference, CPU).")
 
 
-def _harmonics(ctx, param, text: str) -> int | None:
-    """``auto`` (None) or an odd number of harmonics per axis."""
-    if text == "auto":
-        return None
-    if not text.isdigit() or int(text) % 2 == 0 or not 1 <= int(text) <= MAX_HARMONICS:
-        raise click.BadParameter(f"{text!r} (expected auto, or an odd number of Fourier harmonics per axis from 1 to {MAX_HARMONICS})")
-    return int(text)
+def _odd_harmonics(least: int, auto: bool = False):
+    """A callback parsing an odd number of Fourier harmonics per axis from ``least`` to
+    MAX_HARMONICS (or ``auto``, as None, when ``auto``)."""
+    def parse(ctx, param, text) -> int | None:
+        text = str(text)
+        if auto and text == "auto":
+            return None
+        if not text.isdigit() or int(text) % 2 == 0 or not least <= int(text) <= MAX_HARMONICS:
+            raise click.BadParameter(f"{text!r} (expected {'auto, or ' if auto else ''}an odd number of Fourier harmonics per axis "
+                                     f"from {least} to {MAX_HARMONICS})")
+        return int(text)
+
+    return parse
+
+
+max_harmonics_option = click.option(
+    "--max-harmonics", default=35, show_default=True, callback=_odd_harmonics(LEAST_MAX_HARMONICS),
+    help=f"The largest N tried when converging (odd, {LEAST_MAX_HARMONICS} to {MAX_HARMONICS}: N = {FIRST_HARMONICS}, "
+         f"{FIRST_HARMONICS + 2}, … until η moves less than the tolerance from both N − 2 and N − 4).")
 
 
 @click.group("nanofin", cls=MetalensGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -43,9 +58,9 @@ def nanofin():
               help="Fin: sinx, fused-silica, tio2, a-si, air; a number (2.0, 2.0+0.01j); cauchy:A,B[,C] (λ in µm); a CSV wavelength_nm,n[,k].")
 @click.option("--substrate", default="fused-silica", show_default=True, help="Substrate, in the forms of --material (its real index is used).")
 @click.option("--wavelengths", type=WavelengthList(), multiple=True, help="Wavelengths [430:660:10nm].")
-@click.option("--harmonics", default="auto", show_default=True, callback=_harmonics,
+@click.option("--harmonics", default="auto", show_default=True, callback=_odd_harmonics(1, auto=True),
               help="Fourier harmonics N per axis (odd), or auto: the first N whose η moves less than --tolerance from N − 2 and N − 4.")
-@click.option("--max-harmonics", type=click.IntRange(3, MAX_HARMONICS), default=35, show_default=True, help="auto: the largest N tried.")
+@max_harmonics_option
 @click.option("--tolerance", type=Number(1e-6, 0.1), default=1e-3, show_default=True, help="auto: the change of η that counts as converged.")
 @solver_option
 @device_option
@@ -85,8 +100,8 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     warnings = []
     with progress_bar("nanofin efficiency", quiet) as update:
         if harmonics is None:
-            chosen, table, r = converge(fin, n_fin, n_sub, wavelengths_m, 5, max_harmonics, tolerance, torch_device(device), solver,
-                                        update)
+            chosen, table, r = converge(fin, n_fin, n_sub, wavelengths_m, FIRST_HARMONICS, max_harmonics, tolerance,
+                                        torch_device(device), solver, update)
             if chosen is None:
                 chosen = table[-1]["harmonics"]
                 warnings.append(f"η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}, more than "
@@ -125,6 +140,19 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     con.print(f"{report['seconds']:.1f} s for {r.wavelengths_m.size} wavelengths")
 
 
+def _check_bands(bands: tuple[tuple[float, float], ...]) -> None:
+    """Refuse ``--band`` values (centre, FWHM in metres) that a preset's filter refuses
+    (overlapping, too narrow), by the presets' rule with a filter's default edges."""
+    from metalens_cli.io.presets import FilterConfig
+    from metalens_cli.optics.band_rules import check_bands
+
+    edges = FilterConfig()
+    try:
+        check_bands([c for c, _ in bands], [w for _, w in bands], edges.edge_width_m, edges.peak_transmission)
+    except InputError as exc:
+        raise InputError("--band", exc.message, exc.expected) from None
+
+
 @nanofin.command("sweep")
 @click.option("--width", "width_m", type=LengthList(), required=True, help="Fin widths, e.g. 210:360:5nm.")
 @click.option("--length", "length_m", type=LengthList(), required=True, help="Fin lengths, e.g. 40:190:5nm.")
@@ -137,10 +165,9 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
 @click.option("--substrate", help="Substrate material [the preset's, else fused-silica].")
 @click.option("--band", "bands", type=BandSpec(), multiple=True,
               help="Pass band CENTER:FWHM, repeatable [the preset's filter bands, else the paper's 457nm:22nm, 530nm:20nm, 628nm:28nm].")
-@click.option("--harmonics", type=click.IntRange(1, MAX_HARMONICS), default=9, show_default=True,
+@click.option("--harmonics", default=9, show_default=True, callback=_odd_harmonics(1),
               help="Fourier harmonics per axis for the map (odd; the chosen fin and its neighbours are recomputed converged).")
-@click.option("--max-harmonics", type=click.IntRange(3, MAX_HARMONICS), default=35, show_default=True,
-              help="The largest N tried when converging the chosen fin.")
+@max_harmonics_option
 @click.option("--samples-per-band", type=click.IntRange(1, 64), default=8, show_default=True,
               help="Wavelengths evenly across each band's FWHM whose η is averaged (3 bands × 8: 24 wavelengths).")
 @click.option("--fabrication-tolerance", "tolerance_m", type=Length(), default="10nm", show_default=True,
@@ -148,12 +175,13 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
 @click.option("--keep", type=Number(0, 1, min_open=True), default=0.95, show_default=True)
 @click.option("-o", "--output", type=OutputFolder(), required=True,
               help="Folder for sweep.npz, sweep.csv, sweep.png, sweep.json, nanofin.toml (and preset.toml with --preset).")
+@overwrite_option
 @device_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrate, bands, harmonics, max_harmonics, samples_per_band,
-          tolerance_m, keep, output, device, quiet, max_memory, as_json):
+          tolerance_m, keep, output, overwrite, device, quiet, max_memory, as_json):
     """η over a grid of fin widths × lengths, per pass band and their mean (the paper's Suppl.
     Note 7), and the recommended fin: the best mean η whose neighbours within
     --fabrication-tolerance keep --keep of it, recomputed with converged harmonics.
@@ -166,14 +194,14 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
     import numpy as np
 
     from metalens_cli.analysis.bands import filter_bands
-    from metalens_cli.design.fin_choice import band_wavelengths, recommended_nanofin, sweep_fins
+    from metalens_cli.design.fin_choice import band_wavelengths, largest_neighbourhood, recommended_nanofin, sweep_fins
     from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.presets import section_toml, to_toml
     from metalens_cli.io.resources import Estimate
-    from metalens_cli.optics.nanofin import check_harmonics, convergence_seconds, estimate_bytes, estimate_seconds, Fin
+    from metalens_cli.optics.nanofin import convergence_seconds, estimate_bytes, estimate_seconds, Fin
 
-    check_harmonics(harmonics)
+    check_output_unused(output, overwrite)
     preset = load_preset_option(preset_path)
     fin0 = preset.nanofin if preset is not None else None
     period_m = period_m if period_m is not None else (fin0.pitch_m if fin0 else 395e-9)
@@ -184,6 +212,7 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
     widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
     if len(widths_m) * len(lengths_m) > MAX_FINS:
         raise InputError("--width", f"{len(widths_m)} × {len(lengths_m)} fins", f"at most {MAX_FINS} fins")
+    _check_bands(bands)
     bands_m = list(bands) or preset_bands or list(PAPER_BANDS)
     waves = band_wavelengths(bands_m, samples_per_band).ravel()
     fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
@@ -196,8 +225,7 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
 
     n_fin(waves), n_sub(waves)  # refuse wavelengths outside a material's table before any work
     Fin(period_m, height_m, min(widths_m), min(lengths_m)).check()
-    neighbours = (2 * int(tolerance_m / min(np.diff(widths_m), default=1.0) + 1e-9) + 1) * (
-        2 * int(tolerance_m / min(np.diff(lengths_m), default=1.0) + 1e-9) + 1)
+    neighbours = largest_neighbourhood(widths_m, lengths_m, tolerance_m)
     coarse = estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m))
     # the chosen fin converges (N = 5, 7, …), then its neighbourhood is recomputed at that N
     typical, worst = ((coarse + convergence_seconds(n, waves.size) + estimate_seconds(n, waves.size * neighbours))

@@ -17,7 +17,7 @@ import click
 
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
-from metalens_cli.io.atomic import check_output_file, check_output_folder, same_file
+from metalens_cli.io.atomic import check_folder_unused, check_output_file, check_output_folder, same_file
 from metalens_cli.io.tables import check_wavelengths
 
 
@@ -182,16 +182,40 @@ class MemorySize(click.ParamType):
         return int(float(match.group(1)) * self.UNITS[unit])
 
 
-max_memory_option = click.option("--max-memory", type=MemorySize(),
-                                 help="Refuse to start when the estimated memory exceeds this, e.g. 8GiB [90 % of the available memory].")
+class Duration(_UnitType):
+    """A run time: ``90s``, ``30min``, ``2h``, ``1d``, ``inf`` → seconds."""
+
+    name = "duration"
+
+    def parse(self, text, field):
+        return units.parse_duration(text, field)
+
+
+def _remember_max_time(ctx, param, value):
+    ctx.meta["metalens.max_time"] = value
+    return value
+
+
+def max_memory_option(function):
+    """``--max-memory`` (passed to the command) and ``--max-time`` (kept in the context for
+    :func:`announce`): the limits every command that estimates its cost accepts."""
+    function = click.option("--max-time", type=Duration(), default="24h", expose_value=False,
+                            callback=_remember_max_time, show_default=True,
+                            help="Refuse to start when the estimated run time (its longest) exceeds this, e.g. 30min or 2h; "
+                                 "inf for no limit.")(function)
+    return click.option("--max-memory", type=MemorySize(),
+                        help="Refuse to start when the estimated memory exceeds this, e.g. 8GiB [90 % of the available memory].")(function)
 
 
 def announce(estimate, max_memory: int | None, output=None) -> None:
-    """Check ``estimate`` (:func:`metalens_cli.io.resources.check`) and, for a long job, say it on
-    stderr before starting (also under --quiet: a pipeline's log should show why it waits)."""
+    """Check ``estimate`` (:func:`metalens_cli.io.resources.check`) against ``max_memory`` and the
+    command's ``--max-time`` and, for a long job, say it on stderr before starting (also under
+    --quiet: a pipeline's log should show why it waits)."""
     from metalens_cli.io import resources
 
-    resources.check(estimate, max_memory, output)
+    ctx = click.get_current_context(silent=True)
+    max_time = ctx.meta.get("metalens.max_time", resources.MAX_SECONDS) if ctx is not None else resources.MAX_SECONDS
+    resources.check(estimate, max_memory, output, max_seconds=max_time)
     if resources.is_long(estimate):
         click.echo(f"metalens: {estimate.describe()}", err=True)
 
@@ -326,11 +350,35 @@ def training_options(section: str):
             click.option("--seed", type=click.IntRange(0), help=f"Seed of every random draw [the preset's {section}.seed]."),
             click.option("--device", type=Device(), default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps (under torchrun: each rank's)."),
             click.option("--resume", is_flag=True, help="Continue the run in --output from its newest checkpoint (with the preset saved there)."),
-            click.option("--threads", type=click.IntRange(1, 1024), help="CPU threads for torch [torch's default]."),
+            click.option("--threads", type=click.IntRange(1), callback=_usable_threads,
+                         help="CPU threads for torch, at most the cores this process may use [torch's default]."),
             click.option("--quiet", is_flag=True, help="No progress bar or progress lines."),
             json_option,
         ])
     return decorate
+
+
+def _usable_threads(ctx, param, threads: int | None) -> int | None:
+    """``--threads`` no more than the CPU cores this process may run on: more torch threads than
+    cores only contend (1024 on 2 cores stall a training step for minutes)."""
+    if threads is None:
+        return None
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if threads > cores:
+        raise InputError("--threads", f"{threads} threads on the {cores} CPU core(s) this process may use", f"at most {cores}")
+    return threads
+
+
+overwrite_option = click.option("--overwrite", is_flag=True,
+                                help="Write into an output folder that already holds files, replacing same-named ones "
+                                     "(without it such a folder is refused).")
+
+
+def check_output_unused(output: str, overwrite: bool, field: str = "--output") -> None:
+    """Refuse, before any work, an output folder (option ``field``) already holding files,
+    unless ``overwrite``."""
+    if not overwrite:
+        check_folder_unused(output, field)
 
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else.")

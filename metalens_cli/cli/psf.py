@@ -29,6 +29,7 @@ CENTRINGS = ("centroid", "peak")
 WORKERS = 2
 BYTES_PER_FRAME_PIXEL = 48       # float32 working copies of one frame (values, median, smoothed, masks)
 SECONDS_PER_FRAME_PIXEL = 2.5e-8  # measured 1.5e-8 (16-bit PNG, 2 cores: docs/benchmarks.md), with a margin
+CAMERA_PITCH_M = (0.1e-6, 100e-6)  # camera pixels: from a phone sensor's 0.56 µm to a large-format CCD's tens of µm
 
 
 @click.group("psf", cls=MetalensGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -83,6 +84,7 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
     from pathlib import Path
 
     from metalens_cli.analysis.measured_psf import dark_frame, ImportSettings, import_psfs
+    from metalens_cli.io.atomic import atomic_files
     from metalens_cli.io.exr import write_psf_cube
     from metalens_cli.io.psf_manifest import frame_shape, read_frame_file, read_manifest
     from metalens_cli.io.resources import Estimate
@@ -93,10 +95,15 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
     pitch = pixel_pitch_m or m.settings.get("pixel_pitch_m")
     if pitch is None:
         raise InputError("--pixel-pitch", "the camera's pixel pitch is not given", "--pixel-pitch 3.45um or pixel_pitch in a TOML manifest")
+    if not CAMERA_PITCH_M[0] <= pitch <= CAMERA_PITCH_M[1]:
+        from metalens_cli.io.units import format_length
+
+        raise InputError("--pixel-pitch" if pixel_pitch_m else f"{Path(manifest).name}: pixel_pitch",
+                         f"{format_length(pitch)} is not a camera's pixel pitch", "0.1 µm to 100 µm, e.g. 3.45um")
     settings = ImportSettings(pitch, magnification or m.settings.get("magnification", 1.0), pixels, normalization, centring,
                               saturation or m.settings.get("saturation"), allow_saturated, hot_pixel_sigma)
     if not 1e-12 <= settings.pixel_pitch_m <= 1e-2:
-        raise InputError("--magnification" if magnification or "magnification" in m.settings else "--pixel-pitch",
+        raise InputError("--magnification" if magnification else f"{Path(manifest).name}: magnification",
                          f"the cube's pitch {settings.pixel_pitch_m:.3g} m (camera pitch / magnification) is not a pixel's",
                          "a camera pitch and magnification giving 1 pm to 1 cm")
     dark_source = dark_path or m.settings.get("dark")
@@ -117,15 +124,14 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
     extra = {"source": "measured", "camera_pixel_pitch_m": pitch, "magnification": settings.magnification,
              "centring": centring, "hot_pixels": cube.hot_pixels, "dark": None if dark_source is None else str(dark_source),
              "frames": cube.frames}
-    write_psf_cube(output, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m, name,
-                   normalization=normalization, extra=render.jsonable(extra))
-    if plot_path:
-        from metalens_cli.plotting.psf_scan import plot_psf_scan
+    with atomic_files(output, plot_path) as (cube_file, plot_file):  # both or neither
+        write_psf_cube(cube_file, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m, name,
+                       normalization=normalization, extra=render.jsonable(extra))
+        if plot_file is not None:
+            from metalens_cli.plotting.psf_scan import plot_psf_scan
 
-        plot_psf_scan(plot_path, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m)
-    err = render.console(stderr=True)
-    for warning in cube.warnings:
-        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
+            plot_psf_scan(plot_file, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m)
+    _warn(cube.warnings)
     if as_json:
         render.emit_json({"file": str(output), "design": name, "pixels": int(cube.psf.shape[-1]), "pixel_pitch_m": cube.pixel_pitch_m,
                           "wavelengths_m": cube.wavelengths_m.tolist(),
@@ -134,6 +140,13 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
                           **({"plot": str(plot_path)} if plot_path else {})})
         return
     _render_import(cube, output, seconds)
+
+
+def _warn(warnings: list[str]) -> None:
+    """One ``warning: …`` line on stderr each."""
+    err = render.console(stderr=True)
+    for warning in warnings:
+        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
 
 
 def _render_import(cube, output, seconds: float) -> None:
@@ -163,24 +176,30 @@ def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plo
     After sub-pixel registration: the peak ratio (Strehl-like, simulated = 1), FWHM, encircled
     energy at radii, relative L2 error and MTF50 of both. Simulated wavelengths that do not
     match exactly are interpolated linearly between their neighbours (said per row) or, outside
-    the simulated range or with --no-interpolate, refused (listed). --plot: the x-λ scans of
-    both side by side per depth (the paper's Fig. 4c).
+    the simulated range or with --no-interpolate, refused (listed). A simulated cube of another
+    pixel pitch is resampled onto the measured pixels (warned about when over 2× coarser);
+    pitches no PSF can have (a window under half a wavelength, a measured window inside 3
+    simulated pixels) are refused. --plot: the x-λ scans of both side by side per depth (the
+    paper's Fig. 4c). --csv and --plot are published together or not at all.
     """
     from metalens_cli.analysis.psf_compare import compare_cubes
+    from metalens_cli.io.atomic import atomic_files
     from metalens_cli.io.exr import read_psf_cube
 
     radii = [r for group in radii_m for r in group] or None
     result = compare_cubes(read_psf_cube(measured), read_psf_cube(simulated), radii, not no_interpolate)
-    if csv_path:
-        _write_compare_csv(csv_path, result)
-    if plot_path:
-        from metalens_cli.plotting.psf_compare import plot_psf_comparison
+    with atomic_files(csv_path, plot_path) as (csv_file, plot_file):  # both or neither
+        if csv_file is not None:
+            csv_file.write_text(_compare_csv(result), encoding="utf-8")
+        if plot_file is not None:
+            from metalens_cli.plotting.psf_compare import plot_psf_comparison
 
-        plot_psf_comparison(plot_path, result)
+            plot_psf_comparison(plot_file, result)
+    _warn(result.warnings)
     if as_json:
         render.emit_json({"measured": str(measured), "simulated": str(simulated), "pixels": result.pixels,
                           "pixel_pitch_m": result.pixel_pitch_m, "simulated_resampled": result.resampled, "radii_m": result.radii_m,
-                          "pairs": result.pairs, "refused": result.refused,
+                          "pairs": result.pairs, "refused": result.refused, "warnings": result.warnings,
                           **({"csv": str(csv_path)} if csv_path else {}), **({"plot": str(plot_path)} if plot_path else {})})
         return
     _render_compare(result, measured, simulated)
@@ -200,19 +219,17 @@ def _compare_rows(result) -> tuple[list[str], list[list]]:
     return header, rows
 
 
-def _write_compare_csv(path, result) -> None:
+def _compare_csv(result) -> str:
+    """The comparison table as CSV text (empty cells for figures that could not be measured)."""
     import csv
     import io
-
-    from metalens_cli.io.atomic import atomic_write
 
     header, rows = _compare_rows(result)
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
     writer.writerows([["" if v is None else v for v in row] for row in rows])
-    with atomic_write(path) as temporary:
-        temporary.write_text(buffer.getvalue(), encoding="utf-8")
+    return buffer.getvalue()
 
 
 def _render_compare(result, measured, simulated) -> None:

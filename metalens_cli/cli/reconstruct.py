@@ -10,6 +10,7 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
+    check_output_unused,
     device_option,
     Interval,
     json_option,
@@ -18,6 +19,7 @@ from metalens_cli.cli.options import (
     Number,
     OutputFile,
     OutputFolder,
+    overwrite_option,
     torch_device,
     training_options,
 )
@@ -38,7 +40,8 @@ def reconstruct():
 @reconstruct.command("train")
 @click.argument("spec", metavar="DESIGN")
 @click.option("--preset", "preset_path", type=click.Path(dir_okay=False),
-              help="Reconstruction preset TOML ([network], [train], [data]) [built-in defaults].")
+              help="Reconstruction preset TOML ([network], [train], [data]) [built-in defaults]; with --resume the run's own is "
+                   "used, and one given must match it (steps and seed aside).")
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Run directory (created).")
 @click.option("--camera", "camera_path", type=click.Path(dir_okay=False),
               help="Preset giving the camera (lens geometry, filter, sensor, depths) [the design's own, else the paper's sensor].")
@@ -67,13 +70,13 @@ def train(spec, preset_path, output, camera_path, f_m, aperture_m, pitch_m, pair
     from metalens_cli.cli.simulate import setup
     from metalens_cli.design.reconstruct_data import Camera
     from metalens_cli.design.reconstruct_training import train_reconstruction
-    from metalens_cli.io.reconstruct_presets import ReconstructPreset, load_reconstruct_preset
+    from metalens_cli.io.reconstruct_presets import load_reconstruct_preset
 
     if threads:
         torch.set_num_threads(threads)
     from metalens_cli.io.atomic import ensure_folder
 
-    preset = load_reconstruct_preset(preset_path) if preset_path else ReconstructPreset("reconstruct")
+    preset = load_reconstruct_preset(preset_path) if preset_path else None
     ensure_folder(Path(output).parent, "--output")
     s = setup([spec], camera_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, None, pixel_pitch_m, (), device)
     camera = Camera(s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]), s["obstruction_params"])
@@ -127,12 +130,13 @@ def _inputs(paths) -> list[Path]:
 @click.argument("run", metavar="RUN")
 @click.argument("inputs", metavar="INPUT...", nargs=-1, required=True)
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Output folder (created).")
+@overwrite_option
 @device_option
 @click.option("--memory-mib", type=click.IntRange(16), default=1024, show_default=True,
               help="Memory budget of one forward pass; larger images are tiled with overlap.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @json_option
-def apply(run, inputs, output, device, memory_mib, quiet, as_json):
+def apply(run, inputs, output, overwrite, device, memory_mib, quiet, as_json):
     """Clean captures with the network of RUN: INPUT is PNG/JPEG/TIFF/EXR files or folders.
 
     Writes OUT/NAME.exr (linear, float32) and OUT/NAME.png (sRGB, 8-bit) per input; 8/16-bit
@@ -144,9 +148,13 @@ def apply(run, inputs, output, device, memory_mib, quiet, as_json):
     from metalens_cli.imaging.restore import load_reconstructor
     from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.image_files import write_exr_rgb, write_png
+    from metalens_cli.io.input_files import check_image_size
 
     files = _inputs(inputs)
+    check_output_unused(output, overwrite)
     recon = load_reconstructor(run, torch_device(device), memory_mib << 20)
+    for path in files:  # a --memory-mib too small for the network's tiles: refused before any work
+        recon.tile_side(*check_image_size(path, "INPUT"))
     out = Path(output)
     rows = []
     with progress_bar("reconstruct apply", quiet) as update, atomic_folder(out) as staging:  # every file or none

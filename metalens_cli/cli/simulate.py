@@ -13,6 +13,7 @@ from metalens_cli.cli.options import (
     announce,
     max_memory_option,
     apply_options,
+    check_output_unused,
     device_option,
     flatten,
     geometry_options,
@@ -23,6 +24,7 @@ from metalens_cli.cli.options import (
     MetalensCommand,
     Number,
     OutputFolder,
+    overwrite_option,
     torch_device,
     WavelengthList,
 )
@@ -94,11 +96,12 @@ def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, p
 @click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of depths, obstructions and noise.")
 @click.option("--obstruction", default="dirt", show_default=True, help="dirt, fence, drops, rain or file:PATH.png.")
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Output folder (created).")
+@overwrite_option
 @max_memory_option
 @json_option
 def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
              pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seed, obstruction, output,
-             max_memory, as_json):
+             overwrite, max_memory, as_json):
     """Simulated captures of clean images through DESIGN with a near obstruction.
 
     Writes, per image, the clean scene and the unobstructed and obstructed captures (PNG for
@@ -110,6 +113,7 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
     from metalens_cli.io.resources import Estimate
 
     start = time.perf_counter()
+    check_output_unused(output, overwrite)
     (kind,) = _single(parse_obstructions(obstruction))
     s = setup([spec], preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device)
     design = s["designs"][0]

@@ -9,7 +9,8 @@ tolerance) keeps at least ``keep`` of that score; the neighbourhood is cut at th
 The map is computed with a cheap truncation, all fins of a row of the grid in one batch
 (:func:`metalens_cli.optics.fin_modes.fin_responses_symmetric`); :func:`refine` recomputes the
 chosen fin and its neighbourhood with a converged one (coarse to fine); :func:`sweep_fins` does
-all of it, the map and the refinement cached on disk (:mod:`metalens_cli.io.cache`);
+all of it, the map and the refinement cached on disk (:mod:`metalens_cli.io.cache`; an entry
+that is not η in 0..1 of the grid's shape, or not a refinement's JSON, is set aside and redone);
 :func:`recommended_nanofin` makes the result a preset's ``[nanofin]``, so that the optics and
 the layout use the fin that was chosen.
 """
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -27,9 +29,10 @@ from metalens_cli.errors import InputError
 from metalens_cli.io import cache
 from metalens_cli.io.presets import NanofinConfig
 from metalens_cli.optics.fin_modes import fin_responses_symmetric
-from metalens_cli.optics.nanofin import converge, Fin, SOLVER
+from metalens_cli.optics.nanofin import converge, Fin, FIRST_HARMONICS, SOLVER
 
 BAND_SAMPLES = 8  # 3 bands × 8: the 24 wavelengths of issue 17's benchmark
+NEAR = 1 + 1e-9  # a grid fin at ± the tolerance, to rounding, is a neighbour
 
 
 @dataclass
@@ -85,9 +88,20 @@ def fin_map(period_m: float, height_m: float, widths_m, lengths_m, bands_m, fin_
 
 def _neighbourhood(m: FinMap, i: int, j: int, tolerance_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Row and column masks of the grid fins within ± ``tolerance_m`` of fin (i, j)."""
-    rows = np.abs(m.lengths_m - m.lengths_m[i]) <= tolerance_m * (1 + 1e-9)
-    cols = np.abs(m.widths_m - m.widths_m[j]) <= tolerance_m * (1 + 1e-9)
+    rows = np.abs(m.lengths_m - m.lengths_m[i]) <= tolerance_m * NEAR
+    cols = np.abs(m.widths_m - m.widths_m[j]) <= tolerance_m * NEAR
     return rows, cols
+
+
+def largest_neighbourhood(widths_m, lengths_m, tolerance_m: float) -> int:
+    """The most grid fins that one fin's neighbourhood holds (cut at the grid's edges): the most
+    :func:`refine` recomputes."""
+    def most(grid) -> int:
+        grid = np.sort(np.asarray(grid, float))
+        reach = tolerance_m * NEAR
+        return int((np.searchsorted(grid, grid + reach, "right") - np.searchsorted(grid, grid - reach, "left")).max())
+
+    return most(widths_m) * most(lengths_m)
 
 
 def refine(m: FinMap, choice: dict, period_m: float, height_m: float, fin_index: Callable, substrate_index: Callable,
@@ -159,30 +173,76 @@ def sweep_fins(period_m: float, height_m: float, widths_m, lengths_m, bands_m, f
     key = cache.input_key({"period_m": period_m, "height_m": height_m, "widths_m": widths, "lengths_m": lengths, "wavelengths_m": flat,
                            "fin_index": fin_index(flat), "substrate_index": substrate_index(flat), "harmonics": harmonics,
                            "solver": SOLVER})
-    stored = cache.load("nanofin-sweep", key)
-    if stored is None:
+
+    def compute_map() -> dict[str, np.ndarray]:
         with progress("nanofin sweep") as update:
             m = fin_map(period_m, height_m, widths, lengths, bands_m, fin_index, substrate_index, harmonics, update, samples_per_band,
                         device)
-        cache.store("nanofin-sweep", key, {"eta": m.eta, "seconds": np.array(m.seconds)})
-    else:
-        m = FinMap(widths, lengths, list(bands_m), waves, stored["eta"], harmonics, float(stored["seconds"]))
+        return {"eta": m.eta, "seconds": np.array(m.seconds)}
+
+    fits = (lengths[:, None] <= period_m) & (widths[None, :] <= period_m)
+    stored = cache.cached("nanofin-sweep", key, compute_map, lambda arrays: _map_problem(arrays, fits, len(bands_m)))
+    m = FinMap(widths, lengths, list(bands_m), waves, stored.arrays["eta"], harmonics, float(stored.arrays["seconds"]))
     choice = recommend(m, tolerance_m, keep)
     fine_key = cache.input_key({"map": key, "fin_m": [choice["width_m"], choice["length_m"]], "tolerance_m": tolerance_m, "keep": keep,
                                 "max_harmonics": max_harmonics})
-    stored_fine = cache.load("nanofin-refine", fine_key)
-    if stored_fine is not None:
-        choice["converged"] = json.loads(str(stored_fine["report"]))
-    else:
+
+    def compute_refinement() -> dict[str, np.ndarray]:
         fin = Fin(period_m, height_m, choice["width_m"], choice["length_m"])
         with progress("converging the chosen fin") as update:
-            chosen, table, _ = converge(fin, fin_index(flat), substrate_index(flat), flat, 5, max_harmonics, 1e-3, device,
+            chosen, table, _ = converge(fin, fin_index(flat), substrate_index(flat), flat, FIRST_HARMONICS, max_harmonics, 1e-3, device,
                                         on_progress=update)
-        choice["converged"] = {"harmonics": chosen or table[-1]["harmonics"], "convergence": table, "converged": chosen is not None}
-        choice["converged"].update(refine(m, choice, period_m, height_m, fin_index, substrate_index, choice["converged"]["harmonics"],
-                                          device))
-        cache.store("nanofin-refine", fine_key, {"report": np.array(json.dumps(choice["converged"]))})
-    return Sweep(m, choice, stored is not None, stored_fine is not None, _warnings(m, choice))
+        converged = {"harmonics": chosen or table[-1]["harmonics"], "convergence": table, "converged": chosen is not None}
+        converged.update(refine(m, choice, period_m, height_m, fin_index, substrate_index, converged["harmonics"], device))
+        return {"report": np.array(json.dumps(converged))}
+
+    stored_fine = cache.cached("nanofin-refine", fine_key, compute_refinement,
+                               lambda arrays: _refinement_problem(arrays, len(bands_m), max_harmonics))
+    choice["converged"] = json.loads(str(stored_fine.arrays["report"]))
+    return Sweep(m, choice, stored.hit, stored_fine.hit, _warnings(m, choice))
+
+
+def _map_problem(stored: dict[str, np.ndarray], fits: np.ndarray, bands: int) -> str | None:
+    """Why a cached map is not one :func:`fin_map` gives (None: it may be): ``eta`` (L, W, B) in
+    0..1 for the fins that ``fits`` (L, W) in their cell, NaN for the others; seconds ≥ 0."""
+    reason = (cache.check_array(stored, "eta", (*fits.shape, bands), 0, 1, where=fits[..., None])
+              or cache.check_array(stored, "seconds", (), 0))
+    if reason is None and not np.isnan(stored["eta"][~fits]).all():
+        return "eta: a value for a fin that does not fit in its cell"
+    return reason
+
+
+def _refinement_problem(stored: dict[str, np.ndarray], bands: int, max_harmonics: int) -> str | None:
+    """Why a cached refinement is not the JSON that :func:`sweep_fins` writes (None: it may be):
+    η and scores in 0..1 (one η per band), at least three N (converge compares each with the two
+    before) up to ``max_harmonics`` ending at the N chosen, flags true or false, times ≥ 0."""
+    try:
+        fine = json.loads(str(stored["report"]))
+        table = fine["convergence"]
+        fractions = [fine["score"], fine["worst_neighbour"], *fine["eta_per_band"], *(row["conversion"] for row in table)]
+        orders = [fine["harmonics"], *(row["harmonics"] for row in table)]
+        amounts = [fine["seconds"], *(row["seconds"] for row in table), *(row["max_change"] for row in table[1:])]
+        flags, chosen = [fine["converged"], fine["robust"]], fine["harmonics"] == table[-1]["harmonics"]
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        return f"report: not a refinement ({type(exc).__name__}: {exc})"
+    if not (all(_number(v, 0, 1) for v in fractions) and len(fine["eta_per_band"]) == bands):
+        return f"report: η or scores outside 0..1, or not {bands} band(s)"
+    if not (len(table) >= 3 and chosen and all(_whole(n, 1, max_harmonics) for n in orders)):
+        return f"report: not a convergence table of at least 3 N up to {max_harmonics} ending at the N chosen"
+    if not (_whole(fine["fins"], 1, math.inf) and all(_number(v, 0, math.inf) for v in amounts)
+            and all(isinstance(f, bool) for f in flags)):
+        return "report: a count, time or change negative or not a number, or a flag not true/false"
+    return None
+
+
+def _number(value, low: float, high: float) -> bool:
+    """Whether a JSON value is a finite number within [low, high] (true and false are not)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and low <= value <= high and abs(value) != math.inf
+
+
+def _whole(value, low: float, high: float) -> bool:
+    """Whether a JSON value is an integer within [low, high]."""
+    return isinstance(value, int) and _number(value, low, high)
 
 
 def _warnings(m: FinMap, choice: dict) -> list[str]:

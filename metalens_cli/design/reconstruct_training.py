@@ -25,7 +25,7 @@ import math
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +40,7 @@ from metalens_cli.errors import InputError, Terminated
 from metalens_cli.imaging.metrics import ssim
 from metalens_cli.imaging.network import NetworkShape, ReconstructionNet
 from metalens_cli.imaging.restore import MODEL_FILE, Reconstructor, design_fingerprint, save_model
-from metalens_cli.io.reconstruct_presets import ReconstructPreset, load_reconstruct_preset, reconstruct_to_toml
+from metalens_cli.io.reconstruct_presets import ReconstructPreset, SECTIONS, load_reconstruct_preset, reconstruct_to_toml
 
 PRESET_FILE = "reconstruct.toml"
 COLUMNS = ("step", "lr", "total", "l1", "ssim", "lpips", "seconds", "data_seconds")
@@ -93,7 +93,8 @@ def train_reconstruction(design, camera: Camera, preset: ReconstructPreset | Non
     """Train the network for ``design`` (a resolved design) with ``preset`` into ``run_dir``.
 
     ``resume`` continues from the newest checkpoint with the preset saved there (``steps`` may
-    extend it); the design must be the one the run was made for. ``pairs``: a folder of captured
+    extend it; a ``preset`` given must hold the same settings, steps and seed aside); the design
+    must be the one the run was made for; ``preset`` None: the defaults (a fresh run). ``pairs``: a folder of captured
     pairs instead of simulation. ``lpips_weights``: a folder with the LPIPS weights (else looked
     up as ``evaluate`` does). ``on_step(done, total, row)`` and ``on_stage(text)`` report progress.
     """
@@ -109,6 +110,19 @@ def _identity(design, camera: Camera, pairs) -> dict:
             "pairs": None if pairs is None else str(Path(pairs).resolve())}
 
 
+def _made_for(run: RunDirectory, identity: dict) -> dict:
+    """The identity in the run's design.json. A run killed between writing its preset and its
+    design.json (it has no checkpoint yet) is given this design's identity and starts over."""
+    path = run.path / "design.json"
+    if not path.exists() and not any(run.checkpoints.glob("step_*.pt")):
+        run.write_text("design.json", json.dumps(identity, indent=2) + "\n")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        raise InputError("--resume", f"{str(run.path)!r} lacks a readable design.json", "a run directory written by "
+                         "metalens reconstruct train") from None
+
+
 def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, pairs, lpips_weights, on_step,
            on_stage) -> ReconstructSummary:
     identity = _identity(design, camera, pairs)
@@ -116,18 +130,15 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
     if resume:
         if not run.preset_path.is_file():
             raise InputError("--resume", f"{str(run.path)!r} holds no run to resume", "a run directory written by metalens reconstruct train")
-        preset = load_reconstruct_preset(run.preset_path)
-        try:
-            made_for = json.loads((run.path / "design.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            raise InputError("--resume", f"{str(run.path)!r} lacks a readable design.json", "a run directory written by "
-                             "metalens reconstruct train") from None
+        preset = _resumed_preset(run, preset)
+        made_for = _made_for(run, identity)
         if made_for.get("fingerprint") != identity["fingerprint"]:
             raise InputError("DESIGN", f"{design.spec!r} is not the design the run was made for ({made_for.get('spec')!r})",
                              "the run's own design")
         pairs = made_for.get("pairs")
         identity["pairs"] = pairs
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
+    preset = preset or ReconstructPreset("reconstruct")
     preset = replace(preset, train=replace(preset.train, **overrides))
     t = preset.train
     checkpoint = run.latest_checkpoint(t.steps, lists=("validations",)) if resume else None
@@ -195,6 +206,23 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
             run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, t.steps))
         report = _finish(run, preset, net, identity, data, history, validations, start, notes + data.warnings, lpips_model, ctx)
     return ReconstructSummary(run.path, report)
+
+
+def _resumed_preset(run: RunDirectory, given: ReconstructPreset | None) -> ReconstructPreset:
+    """The preset saved in ``run``; ``given`` (--preset with --resume) must hold the same settings
+    but for train.steps and train.seed (which --steps and --seed set)."""
+    saved = load_reconstruct_preset(run.preset_path)
+    if given is None:
+        return saved
+    for section in SECTIONS:
+        mine, theirs = getattr(saved, section), getattr(given, section)
+        for f in fields(mine):
+            was, now = getattr(mine, f.name), getattr(theirs, f.name)
+            if was != now and (section, f.name) not in (("train", "steps"), ("train", "seed")):
+                raise InputError("--preset", f"{given.source or given.name} sets {section}.{f.metadata['key']} = {now!r}, but the run "
+                                 f"in {str(run.path)!r} was made with {was!r}",
+                                 f"no --preset with --resume (the run goes on with its own {PRESET_FILE}), or that same preset")
+    return saved
 
 
 class _Data:
@@ -306,6 +334,7 @@ def _validate(net, data: _Data, step: int, run: RunDirectory, ctx) -> dict:
         for name, scores in (("raw", raw), ("recon", rec)):
             for metric in ("psnr_db", "ssim"):
                 row[f"{name}_{condition}_{metric}"] = statistics.fmean(s[metric] for s in scores)
+    (run.path / "validation").mkdir(exist_ok=True)  # a resumed run killed while its folder was being made
     write_png(run.path / "validation" / f"step_{step:06d}.png", linear_to_srgb(np.clip(np.concatenate(previews, axis=-2), 0, 1)))
     return row
 
@@ -316,7 +345,6 @@ def _state(net, optimizer, scheduler, history, validations, step) -> dict:
 
 
 def _finish(run: RunDirectory, preset, net, identity, data: _Data, history, validations, start, notes, lpips_model, ctx) -> dict:
-    from metalens_cli.io.reconstruct_presets import SECTIONS
     from metalens_cli.io.presets import to_dict
     from metalens_cli.plotting.optimize import loss_figure
 

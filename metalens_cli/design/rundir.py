@@ -69,12 +69,14 @@ class RunDirectory:
             raise InputError("--output", f"{str(self.path)!r} is not empty", "a new or empty folder for the run")
 
     def create(self, preset_text: str, folders: tuple[str, ...] = ("samples",)) -> None:
-        """Start a fresh run with its preset file: refuse a folder that already holds one."""
+        """Start a fresh run with its preset file: refuse a folder that already holds one. The
+        preset is written first: a run killed (SIGKILL) at any moment leaves a folder that is
+        either empty or resumable (``--resume`` recreates missing subfolders as it writes)."""
         self.check_fresh()
-        for folder in folders:
-            (self.path / folder).mkdir(parents=True, exist_ok=True)
-        self.checkpoints.mkdir(parents=True, exist_ok=True)
+        self.path.mkdir(parents=True, exist_ok=True)
         self.write_text(self.preset_name, preset_text)
+        for folder in (*folders, "checkpoints"):
+            (self.path / folder).mkdir(exist_ok=True)
 
     def load_preset(self):
         return load_preset(self.preset_path)
@@ -89,6 +91,7 @@ class RunDirectory:
     def save_checkpoint(self, state: dict) -> Path:
         """Write ``state`` (with key ``step``) and drop all but the newest ``KEEP`` checkpoints."""
         target = self.checkpoints / f"step_{state['step']:06d}.pt"
+        self.checkpoints.mkdir(exist_ok=True)
         with atomic_write(target) as temporary:
             torch.save(state, temporary)
         for old in sorted(self.checkpoints.glob("step_*.pt"))[:-KEEP]:

@@ -523,6 +523,7 @@ def _write_sample(run: RunDirectory, sample: torch.Tensor, step: int) -> None:
     from metalens_cli.imaging.images import linear_to_srgb
     from metalens_cli.io.image_files import write_png
 
+    (run.path / "samples").mkdir(exist_ok=True)  # a resumed run killed while its folder was being made
     write_png(run.path / "samples" / f"step_{step + 1:06d}.png", linear_to_srgb(np.clip(sample.cpu().numpy(), 0, 1)))
 
 

@@ -11,9 +11,9 @@ Layout (names: file stems; PNG, JPEG, TIFF 8/16-bit taken as sRGB-encoded, EXR a
 Every design must hold every scene of ``gt`` in every folder it has. Alignment (``align``):
 ``unobstructed`` (default) registers each scene's unobstructed capture onto its reference
 (:func:`metalens_cli.imaging.registration.register`) and applies that warp to the scene's
-other captures of the same design (same camera and set-up; an obstruction would mislead the
-matching); ``each`` registers every capture on its own; ``none`` takes the captures as aligned
-(same size as the reference). The metrics are computed over the largest rectangle that every
+other captures of the same design (same camera and set-up, so the same size; an obstruction
+would mislead the matching); ``each`` registers every capture on its own; ``none`` takes the
+captures as aligned (same size as the reference). The metrics are computed over the largest rectangle that every
 aligned capture of the scene covers, after the photometric match (``pipeline.score``).
 A greyscale reference (one channel, or R = G = B) says nothing of colour: its captures are
 scored by their Rec. 709 luminance, in all three channels, and the report warns.
@@ -189,22 +189,26 @@ def _aligned_captures(layout: PairLayout, design: str, name: str, clean: np.ndar
     from metalens_cli.imaging.registration import register
 
     reference = np.transpose(clean, (1, 2, 0))
-    shared = None
+    shared, registered = None, None
     aligned = {}
     for key, paths in sorted(layout.captures[design].items(), key=lambda item: (item[0][0] != "raw", item[0][1] != "unobstructed")):
         path = paths[name]
         image = read_linear(path, f"--pairs: {path}")
         if align == "none":
             if image.shape != clean.shape:
-                raise InputError("--pairs", f"{path} is {image.shape[2]} × {image.shape[1]}, its gt {clean.shape[2]} × {clean.shape[1]}",
-                                 "captures of the reference's size with --align none")
+                raise InputError(f"--pairs: {path}", f"is {image.shape[2]} × {image.shape[1]} pixels, "
+                                 f"its gt {clean.shape[2]} × {clean.shape[1]}", "captures of the reference's size with --align none")
             aligned[key] = (image, np.ones(clean.shape[1:], bool))
             continue
         if align == "each" or shared is None:
             registration = register(reference, np.transpose(image, (1, 2, 0)), refine=refine, field=f"--pairs: {path}")
             out.alignments.append({"design": design, "image": name, "capture": key[0], "condition": key[1], **registration.to_report()})
             out.warnings += [f"{design}/{name}: {w}" for w in registration.warnings()]
-            shared = registration
+            shared, registered = registration, path
+        elif image.shape[1:] != tuple(shared.target_shape):
+            raise InputError(f"--pairs: {path}", f"is {image.shape[2]} × {image.shape[1]} pixels, the capture whose warp it shares "
+                             f"({registered}) {shared.target_shape[1]} × {shared.target_shape[0]}",
+                             "the captures of one scene and design at one size (one camera), or --align each")
         warped = shared.apply(np.transpose(image, (1, 2, 0)))
         aligned[key] = (np.transpose(warped, (2, 0, 1)), shared.valid_mask())
     return aligned

@@ -8,6 +8,10 @@ its centre), exactly as ``reconstruct apply`` uses for images within its memory 
 
 from __future__ import annotations
 
+import errno
+import io
+import os
+import shutil
 import time
 import warnings
 from pathlib import Path
@@ -33,6 +37,17 @@ class WholeImage(nn.Module):
         return self.net(x[None].contiguous(memory_format=torch.channels_last))[0].contiguous()
 
 
+def _write(path: str | Path, data: memoryview) -> None:
+    """``data`` into ``path`` atomically, refused (ENOSPC) before writing when the disk has less
+    free space. Python writes it: torch's own file writer aborts the process (a C++ exception
+    in its destructor) on a full disk or the file-size limit, where Python raises an OSError."""
+    folder = Path(path).parent
+    if data.nbytes > shutil.disk_usage(folder).free:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    with atomic_write(path) as temporary:
+        temporary.write_bytes(data)
+
+
 def export_program(reconstructor, path: str | Path, tolerance: float = 1e-5) -> dict:
     """Write the exported program to ``path`` (atomically), reload it and compare it with the
     reconstructor on seeded random captures of ``CHECK_SIZES``; report sizes, bytes, seconds,
@@ -43,9 +58,11 @@ def export_program(reconstructor, path: str | Path, tolerance: float = 1e-5) -> 
     dynamic = torch.export.Dim.DYNAMIC
     with torch.no_grad():
         program = torch.export.export(module, (example,), dynamic_shapes={"x": {1: dynamic, 2: dynamic}})
-    with atomic_write(path) as temporary, warnings.catch_warnings():
+    serialised = io.BytesIO()
+    with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="No complete tensor found")  # channels-last weights: saved whole all the same
-        torch.export.save(program, temporary)
+        torch.export.save(program, serialised)
+    _write(path, serialised.getbuffer())
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="No complete tensor found")
         loaded = torch.export.load(str(path)).module()

@@ -27,6 +27,7 @@ DEFAULT_MEMORY_BYTES = 1 << 30
 FLOAT_BYTES = 4
 ACTIVATION_PLANES = 20  # float32 planes per unit of width at the peak of a forward pass (17.4-18.2 measured: benchmarks/bench_reconstruct.py)
 DEFAULT_OVERLAP = 64
+LOSS_TERMS = ("l1", "ssim", "lpips")  # a model file's loss_terms (design.reconstruct_training's loss)
 
 
 def design_fingerprint(design) -> str:
@@ -68,8 +69,9 @@ class Reconstructor:
         step = 2**self.shape.depth
         side = int(math.sqrt(self.memory_bytes / inference_bytes(self.shape, 1))) // step * step
         if side <= 2 * self.overlap:
-            raise InputError("--memory", f"{self.memory_bytes} bytes allow tiles of only {side} px",
-                             f"a budget for tiles larger than twice the {self.overlap} px overlap")
+            least = inference_bytes(self.shape, ((2 * self.overlap // step + 1) * step) ** 2)
+            raise InputError("--memory-mib", f"{self.memory_bytes / 2**20:g} MiB allow tiles of only {side} px",
+                             f"at least {math.ceil(least / 2**20)} MiB: tiles larger than twice the {self.overlap} px overlap")
         return side
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
@@ -155,6 +157,9 @@ def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAUL
         raise InputError(field_name, f"cannot read {str(path)!r}: it is truncated, damaged or not a torch file", expected) from None
     if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT or not isinstance(state.get("design", {}), dict):
         raise InputError(field_name, f"{str(path)!r} is not a metalens reconstruction model", expected)
+    problem = _metadata_problem(state)
+    if problem:
+        raise InputError(field_name, f"{str(path)!r}: {problem}", expected)
     try:
         shape = NetworkShape(**state["shape"])
         scale = float(shape.position_scale)
@@ -168,6 +173,21 @@ def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAUL
         raise InputError(field_name, f"{str(path)!r} holds NaN or infinite weights or position scale", expected)
     net.eval().to(device)
     return Reconstructor(net, state.get("design", {}), torch.device(device), memory_bytes, source=str(run))
+
+
+def _metadata_problem(state: dict) -> str | None:
+    """What in a model file's fields besides the network no training run writes (None: nothing):
+    ``steps`` an integer ≥ 0, ``loss_terms`` a list of LOSS_TERMS, the design's ``spec`` and
+    ``fingerprint`` strings (each may be absent: :func:`save_model`'s callers choose)."""
+    steps, terms, design = state.get("steps", 0), state.get("loss_terms", []), state.get("design", {})
+    if type(steps) is not int or steps < 0:
+        return f"steps is {steps!r}, not an integer ≥ 0"
+    if not (isinstance(terms, list) and all(term in LOSS_TERMS for term in terms)):
+        return f"loss_terms is {terms!r}, not a list of {', '.join(LOSS_TERMS)}"
+    for key in ("spec", "fingerprint"):
+        if not isinstance(design.get(key, ""), str):
+            return f"design.{key} is {design[key]!r}, not a string"
+    return None
 
 
 def load_tensors(path: Path):

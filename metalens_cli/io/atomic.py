@@ -4,7 +4,8 @@ A reader never sees a half-written target: it sees the old file (or none) until
 ``os.replace`` swaps the finished file in, and a failed or interrupted write leaves nothing
 behind. :func:`check_output_file` and :func:`check_output_folder` refuse, before a command
 starts its work, every target that would fail or do harm at the end: a missing or read-only
-folder, a name too long for the file system, a folder, device or FIFO in the target's place.
+folder, a name too long for the file system, a folder, device or FIFO in the target's place;
+:func:`check_folder_unused`, an output folder already holding files.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import secrets
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager, ExitStack, suppress
 from pathlib import Path
 
 from metalens_cli.errors import InputError
@@ -61,6 +62,17 @@ def atomic_write(target: str | os.PathLike[str]) -> Iterator[Path]:
 
 
 @contextmanager
+def atomic_files(*targets: str | os.PathLike[str] | None) -> Iterator[list[Path | None]]:
+    """Several outputs of one command published together (``align -o --warp-out``, ``psf compare
+    --csv --plot``): one :func:`atomic_write` temporary per target (None for a None target, an
+    output not asked for), renamed, the last target first, only once the ``with`` body has
+    written them all. If the body raises (a full disk, the file-size limit, Ctrl-C), every
+    temporary is removed and no target is touched."""
+    with ExitStack() as stack:
+        yield [None if target is None else stack.enter_context(atomic_write(target)) for target in targets]
+
+
+@contextmanager
 def atomic_folder(target: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a fresh hidden folder beside ``target`` to write a command's files into; on success
     it becomes ``target`` (renamed when ``target`` does not exist, else its files are moved in one
@@ -71,7 +83,13 @@ def atomic_folder(target: str | os.PathLike[str]) -> Iterator[Path]:
     target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".metalens-", suffix=".tmp", dir=target.parent))
     try:
-        yield staging
+        try:
+            yield staging
+        except OSError as exc:  # name the file the user asked for, not its staging copy
+            inside = exc.filename is not None and Path(exc.filename).is_relative_to(staging)
+            if not inside:
+                raise
+            raise OSError(exc.errno, exc.strerror, str(target / Path(exc.filename).relative_to(staging))) from None
         if target.exists():
             for item in staging.iterdir():
                 os.replace(item, target / item.name)
@@ -134,6 +152,18 @@ def check_output_folder(path: str | os.PathLike[str], field: str) -> Path:
         raise InputError(field, f"{str(existing)!r} is not a folder", "a path inside folders")
     _probe_writable(existing, field)
     return folder
+
+
+def check_folder_unused(path: str | os.PathLike[str], field: str) -> None:
+    """Refuse, before any work, an existing output folder that holds anything: a command that
+    writes a folder of files (:func:`atomic_folder`) then replaces no file it did not create in
+    this run. Commands skip this check under their ``--overwrite``."""
+    folder = Path(path)
+    held = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    if held:
+        more = f" (and {len(held) - 1} more)" if len(held) > 1 else ""
+        raise InputError(field, f"folder {str(folder)!r} already holds {held[0]!r}{more}",
+                         "a new or empty folder, or --overwrite to write into it and replace same-named files")
 
 
 def ensure_folder(path: str | os.PathLike[str], field: str) -> Path:

@@ -98,11 +98,20 @@ def _exr_pixels(path: Path, field: str) -> tuple[np.ndarray, list[str]]:
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
     """Write a (3 or 1, H, W) image already encoded for display (0..1, clipped) as 8-bit PNG."""
+    image = np.clip(np.asarray(image, dtype=np.float32), 0.0, 1.0)
+    write_encoded(path, np.round(np.transpose(image, (1, 2, 0)) * 255).astype(np.uint8))
+
+
+def write_encoded(path: str | os.PathLike[str], pixels: np.ndarray) -> None:
+    """Write (H, W, 3) RGB or (H, W, 1) pixels, uint8 or uint16, as the PNG or TIFF that
+    ``path``'s suffix names, atomically. Encoded in memory and written by Python: OpenCV's own
+    file writer reports a full disk or the file-size limit as a failed encoding and deletes the
+    evidence."""
     import cv2
 
-    image = np.clip(np.asarray(image, dtype=np.float32), 0.0, 1.0)
-    hwc = np.transpose(image, (1, 2, 0))
-    hwc = hwc[:, :, ::-1] if hwc.shape[2] == 3 else hwc[:, :, 0]
+    bgr = pixels[:, :, ::-1] if pixels.shape[2] == 3 else pixels[:, :, 0]
+    encoded, data = cv2.imencode(Path(path).suffix, np.ascontiguousarray(bgr))
+    if not encoded:
+        raise InputError(str(path), "cannot encode the image", "a path ending in .png or .tif")
     with atomic_write(Path(path)) as temporary:
-        if not cv2.imwrite(str(temporary), np.round(hwc * 255).astype(np.uint8)):
-            raise InputError(str(path), "cannot write PNG", "a writable path ending in .png")
+        temporary.write_bytes(data.tobytes())

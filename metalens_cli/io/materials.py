@@ -7,10 +7,18 @@ Accepted forms (whitespace around the text ignored):
 - a number, a constant index: ``2.0`` or ``2.0+0.01j`` (n + ik with n > 0, k ≥ 0: absorbing in
   the exp(−iωt) convention; ``2.0-0.1j`` would be gain and is refused);
 - ``cauchy:A,B[,C]``: n = A + B/λ² + C/λ⁴ with λ in µm;
-- a path to a CSV file ``wavelength_nm,n[,k]``: an optional header line, ``#`` comments and
-  blank lines skipped, at least 2 rows of numbers, wavelengths strictly increasing within
-  100-10000 nm (the rules of :mod:`metalens_cli.io.tables`), n > 0, k ≥ 0; interpolated
-  linearly in wavelength and refused outside the table.
+- a path to a CSV file of a wavelength column and ``n`` (and ``k``): ``#`` comments and blank
+  lines skipped, at least 2 rows of numbers, wavelengths strictly increasing within 100-10000
+  nm (the rules of :mod:`metalens_cli.io.tables`), n > 0, k ≥ 0; interpolated linearly in
+  wavelength and refused outside the table. The columns are read by the names of the header
+  line (any case): the wavelength in nm first, named ``wavelength_nm``, ``wavelength``,
+  ``lambda_nm`` or ``lambda``, then ``n`` and optionally ``k`` in either order
+  (``wavelength_nm,k,n`` is read as named). A header naming other columns, or not ``n``, is
+  refused; a file without a header (its first line numbers) is ``wavelength_nm,n[,k]``.
+
+Dispersion models must give a refractive index where they are used: n > 0 everywhere, and
+n ≥ 1 for the models of transparent dielectrics (Cauchy, Sellmeier), checked at every
+wavelength a command evaluates (:meth:`metalens_cli.optics.materials.Material.index`).
 
 A built-in name wins over a file of the same name in the working folder (write ``./sinx`` for
 the file). Every error is one :class:`InputError` line naming the field and these forms.
@@ -30,7 +38,10 @@ from metalens_cli.optics.materials import BUILTIN, Cauchy, Constant, Material, T
 
 MATERIAL_FORM = ("a built-in (sinx, fused-silica, tio2, a-si, air), a number such as 2.0 or 2.0+0.01j, "
                  "cauchy:A,B[,C] with λ in µm, or a CSV file wavelength_nm,n[,k]")
+WAVELENGTH_NAMES = ("wavelength_nm", "wavelength", "lambda_nm", "lambda")
 CSV_FORM = "a CSV file wavelength_nm,n[,k] (wavelengths in nm, ascending)"
+HEADER_FORM = (f"a header naming the wavelength in nm first ({', '.join(WAVELENGTH_NAMES)}), then n and optionally k "
+               "in either order, e.g. wavelength_nm,n,k")
 
 _REAL = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
 _NONFINITE = r"[+-]?(?:nan|inf(?:inity)?)"
@@ -120,27 +131,48 @@ def _looks_like_path(s: str) -> bool:
 
 
 def _table(path: Path, field: str) -> Tabulated:
-    text = read_text(path, field, CSV_FORM)
-    columns = 0
-    for line in text.splitlines():  # the first line with content, header or data, sets the columns
-        content = line.split("#", 1)[0].strip()
-        if content:
-            columns = len(content.split(","))
-            break
-    if columns not in (2, 3):
-        found = "no rows" if columns == 0 else f"{columns} columns"
-        raise InputError(field, f"{path.name}: {found}", CSV_FORM)
+    columns, n_at, k_at = _columns(path, read_text(path, field, CSV_FORM), field)
     rows = read_spectrum_csv(path, columns, field)  # the shared CSV rules, errors with line numbers
-    wavelengths_nm = [row[0] for row in rows]
     for row in rows:
-        if not row[1] > 0:
-            raise InputError(field, f"{path.name}: n = {row[1]:g} at {row[0]:g} nm", "n > 0")
-        if columns == 3 and row[2] < 0:
-            raise InputError(field, f"{path.name}: k = {row[2]:g} at {row[0]:g} nm (gain)",
+        if not row[n_at] > 0:
+            raise InputError(field, f"{path.name}: n = {row[n_at]:g} at {row[0]:g} nm", "n > 0")
+        if k_at is not None and row[k_at] < 0:
+            raise InputError(field, f"{path.name}: k = {row[k_at]:g} at {row[0]:g} nm (gain)",
                              "k >= 0 (absorbing in the exp(-iωt) convention)")
     try:
-        return Tabulated([w / 1e9 for w in wavelengths_nm], [row[1] for row in rows],
-                         [row[2] for row in rows] if columns == 3 else None,
-                         name=path.name, source=str(path))
+        return Tabulated([row[0] / 1e9 for row in rows], [row[n_at] for row in rows],
+                         None if k_at is None else [row[k_at] for row in rows], name=path.name, source=str(path))
     except InputError as exc:
         raise _relabel(exc, field, f"{path.name}: ") from None
+
+
+def _columns(path: Path, text: str, field: str) -> tuple[int, int, int | None]:
+    """(number of columns, index of n, index of k or None) of a material table, from its first
+    line with content: a header (named as in the module docstring) or, when that line is
+    numbers, the order wavelength_nm,n[,k]."""
+    for line in text.splitlines():
+        content = line.split("#", 1)[0].strip()
+        if content:
+            break
+    else:
+        raise InputError(field, f"{path.name}: no rows", CSV_FORM)
+    cells = [cell.strip() for cell in content.split(",")]
+    if all(_is_number(cell) for cell in cells):
+        if len(cells) not in (2, 3):
+            raise InputError(field, f"{path.name}: {len(cells)} columns and no header", f"{CSV_FORM}, or {HEADER_FORM}")
+        return len(cells), 1, 2 if len(cells) == 3 else None
+    names = [cell.strip("\"'").lower() for cell in cells]
+    rest = names[1:]
+    if names[0] not in WAVELENGTH_NAMES or "n" not in rest or not set(rest) <= {"n", "k"} or len(set(rest)) != len(rest):
+        raise InputError(field, f"{path.name}: header {content!r} does not name its columns", HEADER_FORM)
+    return len(names), 1 + rest.index("n"), 1 + rest.index("k") if "k" in rest else None
+
+
+def _is_number(text: str) -> bool:
+    """Whether ``float`` reads ``text``, as :func:`metalens_cli.io.tables.read_spectrum_csv` tells
+    data from a header (``nan`` is a number there, refused later as not finite)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

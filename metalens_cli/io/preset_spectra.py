@@ -6,7 +6,8 @@ a CSV (likewise), or ``efficiency = "rcwa"``: RCWA of the preset's fin (material
 wavelength range, sampled adaptively (:func:`adaptive_samples`), joined by PCHIP (flat beyond
 the range) and cached on disk under a hash of the fin, the indices over the range, the
 harmonics, the solver and the sampling rules (:mod:`metalens_cli.io.cache`): the first command
-computes it, every later one reads it. The interpolation is within 1e-3 of η computed directly
+computes it, every later one reads it (an entry that is not finite η in 0..1 at increasing
+wavelengths across the range is set aside and recomputed). The interpolation is within 1e-3 of η computed directly
 between the samples, except within 1 nm of the features narrower than the finest step that the
 report lists as ``unresolved_m`` (tests/io/test_preset_spectra.py). Resolving those (down to
 0.002 nm) for the paper's fin changes ∫S^c by < 1e-3 and the shape of S^c by a total-variation
@@ -118,34 +119,47 @@ def _rcwa_efficiency(nanofin, wavelength_range_m: tuple[float, float], on_progre
     inputs = {"fin_m": [fin.period_m, fin.height_m, fin.width_m, fin.length_m], "range_m": list(wavelength_range_m),
               "fin_index": fin_material.index(probe, "nanofin.material"), "substrate_index": substrate.index(probe, "nanofin.substrate"),
               "harmonics": nanofin.harmonics, "solver": rcwa.SOLVER, "sampling": [RCWA_STEP_M, RCWA_TOLERANCE, RCWA_MIN_STEP_M]}
-    key = cache.input_key(inputs)
-    stored = cache.load(CACHE_KIND, key)
-    if stored is None:
-        start, done = time.perf_counter(), [0]
+    done = [0]
 
-        def compute(w: np.ndarray) -> np.ndarray:
-            response = rcwa.fin_response(fin, fin_material.index(w, "nanofin.material"), substrate.index(w, "nanofin.substrate"),
-                                         w, nanofin.harmonics)
-            done[0] += w.size
-            if on_progress is not None:
-                on_progress(done[0], done[0] + 1)  # the total is unknown until the refinement stops
-            return response.conversion
+    def compute(w: np.ndarray) -> np.ndarray:
+        response = rcwa.fin_response(fin, fin_material.index(w, "nanofin.material"), substrate.index(w, "nanofin.substrate"),
+                                     w, nanofin.harmonics)
+        done[0] += w.size
+        if on_progress is not None:
+            on_progress(done[0], done[0] + 1)  # the total is unknown until the refinement stops
+        return response.conversion
 
+    def sample() -> dict[str, np.ndarray]:
+        start = time.perf_counter()
         wavelengths_m, values, unresolved = adaptive_samples(compute, wavelength_range_m)
-        stored = {"wavelengths_m": wavelengths_m, "conversion": values, "unresolved_m": unresolved,
-                  "seconds": np.array(time.perf_counter() - start)}
-        entry = cache.store(CACHE_KIND, key, stored)
-        cached = False
-    else:
-        entry, cached = cache.entry_path(CACHE_KIND, key), True
+        return {"wavelengths_m": wavelengths_m, "conversion": values, "unresolved_m": unresolved,
+                "seconds": np.array(time.perf_counter() - start)}
+
+    entry = cache.cached(CACHE_KIND, cache.input_key(inputs), sample, lambda arrays: _efficiency_problem(arrays, wavelength_range_m))
+    stored = entry.arrays
     wavelengths_m = stored["wavelengths_m"]
     report = {"source": "rcwa", "fin": {"period_m": fin.period_m, "height_m": fin.height_m, "width_m": fin.width_m,
                                         "length_m": fin.length_m},
               "material": nanofin.material, "substrate": nanofin.substrate, "harmonics": nanofin.harmonics, "solver": rcwa.SOLVER,
               "samples": int(wavelengths_m.size), "range_m": [float(wavelengths_m[0]), float(wavelengths_m[-1])],
               "unresolved_m": stored["unresolved_m"].tolist(),
-              "seconds": float(stored["seconds"]), "cached": cached, "cache_entry": None if entry is None else str(entry)}
+              "seconds": float(stored["seconds"]), "cached": entry.hit, "cache_entry": None if entry.path is None else str(entry.path)}
     return FinEfficiency(wavelengths_m, np.asarray(stored["conversion"], dtype=float), report, pchip=True)
+
+
+def _efficiency_problem(stored: dict[str, np.ndarray], wavelength_range_m: tuple[float, float]) -> str | None:
+    """Why a cached η(λ) is not one :func:`adaptive_samples` gives over ``wavelength_range_m``
+    (None: it may be): wavelengths increasing from one end of the range to the other, η finite in
+    0..1 at each, unresolved features inside the range, seconds ≥ 0."""
+    lo, hi = wavelength_range_m
+    span = lo * (1 - 1e-9), hi * (1 + 1e-9)
+    reason = (cache.check_array(stored, "wavelengths_m", (None,), *span)
+              or cache.check_array(stored, "conversion", stored["wavelengths_m"].shape, 0, 1)
+              or cache.check_array(stored, "unresolved_m", (None,), *span) or cache.check_array(stored, "seconds", (), 0))
+    if reason is None and not (stored["wavelengths_m"].size >= 4 and np.all(np.diff(stored["wavelengths_m"]) > 0)
+                               and np.allclose(stored["wavelengths_m"][[0, -1]], wavelength_range_m, rtol=1e-9, atol=0)):
+        return f"wavelengths_m: not at least 4 increasing wavelengths from {lo:g} to {hi:g} m"
+    return reason
 
 
 def efficiency_report(preset, bands_m: list[tuple[float, float]] | None = None, efficiency: FinEfficiency | None = None) -> dict:

@@ -4,7 +4,8 @@ take hours.
 
 The estimates themselves come from the core (each knows its own arrays: ``optics.psf``,
 ``io.layout``, ...); this module reads the machine and decides. A job over the limit is refused
-with its estimate and the option that changes it; ``--max-memory`` sets a stricter limit.
+with its estimate and the option that changes it; ``--max-memory`` sets a stricter limit, and
+``--max-time`` a limit on the estimated run time (a day unless told otherwise).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from metalens_cli.errors import InputError
 
 LONG_JOB_SECONDS = 60.0  # jobs estimated above this announce their estimate on stderr
 MEMORY_SHARE = 0.9       # of the available memory a job may plan to use
+MAX_SECONDS = 86400.0    # default --max-time: jobs whose longest estimate exceeds a day are refused
 
 
 @dataclass(frozen=True)
@@ -66,10 +68,12 @@ def available_memory() -> int | None:
     return min(values) if values else None
 
 
-def check(estimate: Estimate, max_memory: int | None = None, output: str | os.PathLike[str] | None = None) -> None:
+def check(estimate: Estimate, max_memory: int | None = None, output: str | os.PathLike[str] | None = None,
+          max_seconds: float = MAX_SECONDS) -> None:
     """Refuse ``estimate`` (an :class:`InputError` naming its option, with the estimate) when its
-    memory exceeds ``max_memory`` or 90 % of the available memory, or its disk bytes exceed the
-    free space of ``output``'s folder."""
+    memory exceeds ``max_memory`` or 90 % of the available memory, its disk bytes exceed the
+    free space of ``output``'s folder, or its longest run time exceeds ``max_seconds`` (inf: no
+    limit)."""
     available = available_memory()
     limits = [(max_memory, "the --max-memory limit")] if max_memory is not None else []
     if available is not None:
@@ -84,11 +88,20 @@ def check(estimate: Estimate, max_memory: int | None = None, output: str | os.Pa
         if estimate.disk_bytes > free:
             raise InputError(estimate.option, f"{estimate.describe()}, over the {_size(free)} free in {str(folder)!r}",
                              f"a smaller {estimate.option} or another disk")
+    longest = longest_seconds(estimate)
+    if longest is not None and longest > max_seconds:
+        raise InputError(estimate.option, f"{estimate.describe()}, over the --max-time limit ({_duration(max_seconds)})",
+                         f"a smaller {estimate.option}, or a longer --max-time (inf for none)")
+
+
+def longest_seconds(estimate: Estimate) -> float | None:
+    """The longest the job may take (s): ``seconds_max`` where it has a range, else ``seconds``."""
+    return estimate.seconds if estimate.seconds_max is None else estimate.seconds_max
 
 
 def is_long(estimate: Estimate) -> bool:
     """Whether the job may take over LONG_JOB_SECONDS (its longest, where it has a range)."""
-    longest = estimate.seconds if estimate.seconds_max is None else estimate.seconds_max
+    longest = longest_seconds(estimate)
     return longest is not None and longest > LONG_JOB_SECONDS
 
 

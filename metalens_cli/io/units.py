@@ -1,4 +1,5 @@
-"""Parse lengths typed by users (``4mm``, ``450nm``, ``1.85um``, ``inf``) into SI metres.
+"""Parse lengths typed by users (``4mm``, ``450nm``, ``1.85um``, ``inf``) into SI metres, and
+durations (``90s``, ``30min``, ``2h``, ``1d``, ``inf``) into seconds.
 
 Grammar (whitespace ignored, units case-sensitive as written below):
 
@@ -221,6 +222,24 @@ def parse_interval(text: str, field: str, *, allow_inf: bool = False) -> tuple[f
     if hi < lo:
         raise InputError(field, f"interval {_quote(text)} has its upper end below its lower end", INTERVAL_FORM)
     return lo, hi
+
+
+DURATION_SECONDS = {"": 1.0, "s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
+DURATION_FORM = "a duration with a unit (s, min, h, d), e.g. 90s, 30min or 2h, or inf"
+_DURATION_RE = re.compile(rf"\s*({_NUMBER})\s*([a-z]*)\s*")
+
+
+def parse_duration(text: str, field: str) -> float:
+    """``90s``, ``30min``, ``2h``, ``1d`` (a bare number is seconds) or ``inf`` → seconds, > 0."""
+    if str(text).strip() == "inf":
+        return math.inf
+    match = _DURATION_RE.fullmatch(str(text))
+    if not match or match.group(2) not in DURATION_SECONDS:
+        raise InputError(field, f"{_quote(text)} is not a duration", DURATION_FORM)
+    seconds = float(match.group(1)) * DURATION_SECONDS[match.group(2)]
+    if not 0 < seconds < math.inf:
+        raise InputError(field, f"{_quote(text)} is not a positive, finite duration", DURATION_FORM)
+    return seconds
 
 
 def format_length(value_m: float, unit: str = "auto", digits: int = 4) -> str:

@@ -72,7 +72,7 @@ def _axis(harmonics: int, parity: int, device) -> _Axis:
         extend[half + m, j] = 1
         if m:
             extend[half - m, j] = parity
-    return _Axis(torch.tensor([half + m for m in orders], device=device), extend.to(device))
+    return _Axis(torch.tensor([half + m for m in orders], dtype=torch.long, device=device), extend.to(device))
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,9 @@ the literature take micrometres or electron-volts, converted inside each model.
 Every material is an immutable object with a ``name``, a ``source`` (the publication, or
 ``"user"``), the wavelength range ``valid_m`` over which its model holds (``None``: every
 wavelength), and ``index(wavelengths_m)``: complex128 of the input's shape, refusing wavelengths
-outside that range with :class:`InputError`. ``describe()`` gives a JSON-able summary.
+outside that range, and values that are no refractive index (n ≤ 0; n < 1 for the models of
+transparent dielectrics, Cauchy and Sellmeier), with :class:`InputError`. ``describe()`` gives
+a JSON-able summary.
 
 Models: :class:`Constant`, :class:`Cauchy`, :class:`Sellmeier`, :class:`Tabulated` (linear in
 wavelength) and :class:`TaucLorentz` (amorphous semiconductors). Built-ins, by lower-case name,
@@ -72,6 +74,7 @@ class Material(ABC):
     and implement ``_index`` (on a 1-D array of checked wavelengths) and ``_parameters``."""
 
     kind: ClassVar[str]
+    transparent: ClassVar[bool] = False  # a model of a transparent dielectric (Cauchy, Sellmeier): n ≥ 1 where used
     name: str
     source: str
     valid_m: tuple[float, float] | None  # (lo, hi) in metres, inclusive; None: every wavelength
@@ -89,7 +92,8 @@ class Material(ABC):
 
         Raises :class:`InputError` naming ``field`` for a wavelength that is not positive and
         finite or lies outside ``valid_m``, and where a user model gives no refractive index
-        (n ≤ 0, or n² ≤ 0 in a Sellmeier model)."""
+        (n ≤ 0, or n² ≤ 0 in a Sellmeier model) or, for a model of a transparent dielectric, n < 1
+        (a lossless index below vacuum's: a fit used beyond the wavelengths it was made for)."""
         lam = np.asarray(wavelengths_m, dtype=np.float64)
         flat = lam.ravel()
         if flat.size == 0:
@@ -108,11 +112,12 @@ class Material(ABC):
                 raise InputError(field, f"{_nm(value)} nm is outside the range of {self.name} ({self._cited()})",
                                  f"wavelengths within {_nm(lo)}-{_nm(hi)} nm")
         out = np.asarray(self._index(flat), dtype=np.complex128)
-        wrong = ~(np.isfinite(out) & (out.real > 0))
+        wrong = ~(np.isfinite(out) & ((out.real >= 1) if self.transparent else (out.real > 0)))
         if wrong.any():
             i = int(np.argmax(wrong))
-            raise InputError(field, f"{self.name} gives n = {out[i]:.4g} at {_nm(flat[i])} nm, not a refractive index",
-                             "wavelengths where the model gives n > 0")
+            what = " of a transparent dielectric" if self.transparent else ""
+            raise InputError(field, f"{self.name} gives n = {out[i]:.4g} at {_nm(flat[i])} nm, not a refractive index{what}",
+                             f"wavelengths where the model gives n {'≥ 1' if self.transparent else '> 0'}")
         return out.reshape(lam.shape)
 
     def permittivity(self, wavelengths_m, field: str = "wavelength") -> np.ndarray:
@@ -162,10 +167,10 @@ class Constant(Material):
 
 @dataclass(frozen=True)
 class Cauchy(Material):
-    """Cauchy's dispersion n(λ) = A + B/λ² + C/λ⁴, λ in µm (B in µm², C in µm⁴), real (k = 0).
+    """Cauchy's dispersion n(λ) = A + B/λ² + C/λ⁴, λ in µm (B in µm², C in µm⁴), real (k = 0):
+    a transparent dielectric, so a wavelength where n < 1 is refused.
 
-    ``valid_m``: the range of the fit the coefficients come from (``None``: unchecked, but a
-    wavelength where n ≤ 0 is refused)."""
+    ``valid_m``: the range of the fit the coefficients come from (``None``: unchecked)."""
 
     a: float
     b: float
@@ -174,6 +179,7 @@ class Cauchy(Material):
     name: str = field(default="cauchy", kw_only=True)
     source: str = field(default="user", kw_only=True)
     kind: ClassVar[str] = "cauchy"
+    transparent: ClassVar[bool] = True
 
     def __post_init__(self):
         a, b, c = (_finite(v, f"Cauchy coefficient {label}") for v, label in ((self.a, "A"), (self.b, "B"), (self.c, "C")))
@@ -194,7 +200,8 @@ class Cauchy(Material):
 
 @dataclass(frozen=True)
 class Sellmeier(Material):
-    """Sellmeier's dispersion n² = 1 + Σᵢ Bᵢ λ²/(λ² − Cᵢ), λ in µm, Cᵢ in µm² (real, k = 0).
+    """Sellmeier's dispersion n² = 1 + Σᵢ Bᵢ λ²/(λ² − Cᵢ), λ in µm, Cᵢ in µm² (real, k = 0:
+    a transparent dielectric, so a wavelength where n < 1 is refused).
 
     ``b``, ``c``: the coefficients, equal lengths; ``valid_m``: (lo, hi) in metres, the range of
     the data the coefficients were fitted to, which must hold no pole (λ² = Cᵢ)."""
@@ -205,6 +212,7 @@ class Sellmeier(Material):
     name: str = field(default="sellmeier", kw_only=True)
     source: str = field(default="user", kw_only=True)
     kind: ClassVar[str] = "sellmeier"
+    transparent: ClassVar[bool] = True
 
     def __post_init__(self):
         b = tuple(_finite(v, "Sellmeier coefficient B") for v in self.b)

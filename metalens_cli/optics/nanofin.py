@@ -56,6 +56,7 @@ SOLVER = "fin_modes/1"  # names the numbers a cache entry holds: change it when 
 # N = 35, each within 25 %; eig and LU scale below u³ at these sizes; a lossy fin ×1.7)
 SOLVE_SECONDS, SOLVE_SCALE = 5e-4, 1.9e-7
 MEENT_SECONDS_PER_UNKNOWN_CUBED = 7e-9  # meent, per (2·N²)³: 1.3 s at N = 17 (meent 0.13, vector cell, 2 cores)
+FIRST_HARMONICS = 5  # converge's first N: N = 5, 7, 9 are the fewest whose η can be compared with N − 2 and N − 4
 DEFAULT_HARMONICS = 25  # η of the paper's fin within 8e-4 of N = 41 at 24 wavelengths (docs/benchmarks.md)
 PROGRESS_CHUNK = 8  # wavelengths per batch when a progress callback is given
 NM = 1e9
@@ -108,7 +109,7 @@ def estimate_seconds(harmonics: int, wavelengths: int, solver: str = "modes") ->
     return (SOLVE_SECONDS + SOLVE_SCALE * ((harmonics**2 + 1) / 2) ** 2.4) * wavelengths
 
 
-def convergence_seconds(stop: int, wavelengths: int, solver: str = "modes", start: int = 5) -> float:
+def convergence_seconds(stop: int, wavelengths: int, solver: str = "modes", start: int = FIRST_HARMONICS) -> float:
     """Wall seconds of :func:`converge` when it ends at N = ``stop``."""
     return sum(estimate_seconds(n, wavelengths, solver) for n in range(start, stop + 1, 2))
 
@@ -188,7 +189,7 @@ def fin_response_meent(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndar
                        np.array(out["transmittance"]), np.array(out["reflectance"]), harmonics, np.array(out["seconds"]))
 
 
-def converge(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, start: int = 5, stop: int = 41,
+def converge(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, start: int = FIRST_HARMONICS, stop: int = 41,
              tolerance: float = 1e-3, device=None, solver: str = "modes",
              on_progress=None) -> tuple[int | None, list[dict], FinResponse]:
     """η at every wavelength for N = start, start + 2, … ≤ stop, until η moves less than
@@ -198,7 +199,10 @@ def converge(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavel
     all wavelengths) and the last response (at the chosen N). η oscillates as N grows, and one
     pair can agree by chance: for the paper's fin at n = 2.0, N = 17 is within 1e-3 of N = 15 at
     all 24 wavelengths 430-660 nm but 2.3e-3 from N = 41; two pairs rarely agree by chance.
-    ``on_progress(n, stop)`` is called after each N."""
+    ``on_progress(n, stop)`` is called after each N; ``stop`` must be at least ``start`` + 4 (three
+    N to compare)."""
+    if stop < start + 4:
+        raise InputError("max-harmonics", str(stop), f"at least {start + 4}: η at N is compared with N − 2 and N − 4 from N = {start}")
     table, chosen, responses = [], None, []
     middle = np.atleast_1d(wavelengths_m).size // 2
     for n in range(start, stop + 1, 2):

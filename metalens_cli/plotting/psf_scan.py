@@ -29,7 +29,7 @@ def plot_psf_scan(path: str | Path, psf: np.ndarray, wavelengths_m, depths_m, pi
     for i, z in enumerate(depths_m):
         ax = axes[0, i]
         ax.imshow(rows[i], aspect="auto", origin="lower", cmap="inferno", norm=norm, interpolation="nearest",
-                  extent=(x_um[0], x_um[-1], wl_nm[0], wl_nm[-1]))
+                  extent=(x_um[0], x_um[-1], *_row_edges(wl_nm)))
         ax.set_title(f"x-λ scan, {depth_label(z)} (γ = 0.35)", fontsize=9)
         ax.set_xlabel("x (µm)")
         ax.set_ylabel("wavelength (nm)")
@@ -49,3 +49,11 @@ def plot_psf_scan(path: str | Path, psf: np.ndarray, wavelengths_m, depths_m, pi
         ax.axis("off")
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def _row_edges(wl_nm: np.ndarray) -> tuple[float, float]:
+    """The outer edges (nm) of image rows centred on the scan's wavelengths, one mean step wide
+    (1 nm for a single wavelength, whose row would otherwise have no height)."""
+    step = (wl_nm[-1] - wl_nm[0]) / (wl_nm.size - 1) if wl_nm.size > 1 else 1.0
+    return float(wl_nm[0] - step / 2), float(wl_nm[-1] + step / 2)
+

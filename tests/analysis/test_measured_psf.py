@@ -60,6 +60,51 @@ def test_a_spot_at_a_known_subpixel_offset_is_centred_within_005_px(tmp_path, of
     assert np.allclose(centroid(cube.psf[0, 0].astype(float)), (n // 2, n // 2), atol=0.05)
 
 
+
+@pytest.mark.parametrize("frame", ["float", "16-bit on an offset"])
+def test_a_noiseless_simulated_spot_is_the_spot_centred(tmp_path, frame):
+    """No noise at all (border σ = 0, a constant border): the PSF is the same spot integrated
+    over pixels centred on (N//2, N//2), up to the Fourier shift's and 16-bit rounding's error."""
+    spot = gaussian_spot(*SHAPE, (80.3, 77.6), 2.0)
+    if frame == "float":
+        np.save(tmp_path / "spot.npy", spot.astype(np.float32))
+        name = "spot.npy"
+    else:
+        cv2.imwrite(str(tmp_path / "spot.png"), np.rint(100 + 60000 * spot / spot.max()).astype(np.uint16))
+        name = "spot.png"
+    (tmp_path / "psf.csv").write_text(f"file,wavelength,depth\n{name},530nm,inf\n")
+    cube = import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH, pixels=41))
+    expected = gaussian_spot(41, 41, (20, 20), 2.0)
+    np.testing.assert_allclose(cube.psf[0, 0], expected / expected.sum(), atol=2e-4 * expected.max() / expected.sum())
+    assert np.allclose(cube.frames[0]["centre_px"], (80.3, 77.6), atol=0.01) and cube.warnings == []
+
+
+@pytest.mark.parametrize(("values", "settings", "message"), [
+    (np.full(SHAPE, 1000, np.uint16), {}, "psf.csv line 3: blank.png has no light above the background noise"),
+    (np.full(SHAPE, 65535, np.uint16), {"allow_saturated": True},
+     f"blank.png has no light above the background noise ({SHAPE[0] * SHAPE[1]} of its {SHAPE[0] * SHAPE[1]} pixels saturated)"),
+    (np.full(SHAPE, 0.25, np.float32), {}, "psf.csv line 3: blank.npy has no light above the background noise"),
+], ids=["flat", "all saturated", "flat float"])
+def test_a_frame_without_a_spot_is_refused_naming_its_line(tmp_path, values, settings, message):
+    cv2.imwrite(str(tmp_path / "spot.png"), bench_frame(gaussian_spot(*SHAPE, (80, 80), 2.0), np.random.default_rng(8)))
+    name = "blank.npy" if values.dtype == np.float32 else "blank.png"
+    np.save(tmp_path / name, values) if name.endswith(".npy") else cv2.imwrite(str(tmp_path / name), values)
+    (tmp_path / "psf.csv").write_text(f"file,wavelength,depth\nspot.png,530nm,inf\n{name},630nm,inf\n")
+    with pytest.raises(InputError, match=re.escape(message)):
+        import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH, **settings))
+
+
+def test_a_dark_frame_brighter_than_the_frames_is_warned_about_once(tmp_path):
+    """The frames sit on a 600-count dark offset: a dark frame of that offset says nothing, one
+    of 3000 counts (another exposure or gain) one line for both frames."""
+    rng = np.random.default_rng(10)
+    spots = [(w, "inf", gaussian_spot(*SHAPE, (80, 80), 2.0)) for w in (530, 630)]
+    manifest = read_manifest(write_bench(tmp_path, spots, rng))
+    matched, bright = (bench_frame(np.zeros(SHAPE), rng, dark_level=level, background=0.0) for level in (600.0, 3000.0))
+    assert import_psfs(manifest, ImportSettings(PITCH), dark_frame(matched[:, :, None].astype(np.float32), 6.0)).warnings == []
+    said = import_psfs(manifest, ImportSettings(PITCH), dark_frame(bright[:, :, None].astype(np.float32), 6.0)).warnings
+    assert len(said) == 1 and "the dark frame is brighter than the background of 2 of 2 frame(s)" in said[0]
+
 def test_peak_centring_puts_the_maximum_on_the_axis_where_the_centroid_does_not(tmp_path):
     """A spot with a faint side lobe: its centroid sits off the peak."""
     spot = 0.8 * gaussian_spot(*SHAPE, (80.0, 80.0), 1.8) + 0.2 * gaussian_spot(*SHAPE, (80.0, 92.0), 2.5)

@@ -2,6 +2,7 @@
 sampled at two pitches, wavelengths between and outside the simulated ones."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -85,3 +86,24 @@ def test_each_psfs_own_figures_do_not_depend_on_the_other():
     assert centred["encircled_energy"]["measured"] == shifted["encircled_energy"]["measured"]
     assert shifted["fwhm_m"]["simulated"] == pytest.approx(centred["fwhm_m"]["simulated"], rel=0.004)
     assert centred["fwhm_m"]["measured"] == pytest.approx(2.3548 * math.sqrt(2.0**2 + 1 / 12) * PITCH, rel=0.004)
+
+
+@pytest.mark.parametrize(("measured_pitch", "simulated_pitch", "words"), [
+    (1e-12, 1.85e-6, "MEASURED: its 31 pixels of 0.001 nm span 0.031 nm, less than half its shortest wavelength (530 nm)"),
+    (2e-6, 1e-12, "SIMULATED: its 31 pixels of 0.001 nm span 0.031 nm, less than half its shortest wavelength (530 nm)"),
+    (0.1e-6, 1.85e-6, "MEASURED: its window (31 pixels of 100 nm) spans under 3 simulated pixels of 1.85 µm"),
+], ids=["1 pm measured", "1 pm simulated", "a window within one simulated pixel"])
+def test_pitches_no_psf_can_have_are_refused(measured_pitch, simulated_pitch, words):
+    """A 1 pm pitch (the MTF50 would read 1e8 lp/mm) and a measured window inside 1.1 simulated
+    pixels: nothing to compare, whatever the resampling would make of it."""
+    with pytest.raises(InputError, match=re.escape(words)):
+        compare_cubes(cube([spot(31, 2.0)], [530], pitch=measured_pitch), cube([spot(31, 2.0)], [530], pitch=simulated_pitch))
+
+
+def test_a_simulation_much_coarser_than_the_measurement_is_warned_about():
+    """The same Gaussian (σ = 4 µm) measured at 1 µm, simulated at 4 µm: compared (resampled),
+    with one line saying the simulation is interpolated; at 2 µm, within 2×, nothing is said."""
+    measured = cube([spot(41, 4.0)], [530], pitch=1e-6)
+    coarse = compare_cubes(measured, cube([spot(21, 1.0)], [530], pitch=4e-6))
+    assert coarse.resampled and len(coarse.warnings) == 1 and "are 4× the measured (1 µm)" in coarse.warnings[0]
+    assert compare_cubes(measured, cube([spot(31, 2.0)], [530], pitch=2e-6)).warnings == []

@@ -103,6 +103,18 @@ def test_folders_with_warps_and_reapply(capsys, tmp_path, bench):
     assert code == 0 and [p["reapplied"] for p in pairs] == [True, True] and pairs[0]["registration"]["refine"] == "flow"
     first = [cv2.imread(str(folder / "scene0.png"), cv2.IMREAD_UNCHANGED) for folder in (out_dir, tmp_path / "again")]
     assert np.array_equal(*first)
+    # folders that hold files are the user's: refused before any work, unless --overwrite
+    for option, folder in (("--output", out_dir), ("--warp-out", warps)):
+        before = {p: p.stat().st_mtime_ns for p in folder.iterdir()}
+        other = {"--output": tmp_path / "fresh", "--warp-out": tmp_path / "fresh-warps"}
+        args = ["-o", out_dir if option == "--output" else other["--output"],
+                "--warp-out", warps if option == "--warp-out" else other["--warp-out"]]
+        code, out, err = invoke(capsys, "align", bench / "ref", bench / "shots", *args)
+        assert code == 2 and out == ""
+        one_error_line(err, f"{option}: folder '{folder}' already holds ")
+        assert {p: p.stat().st_mtime_ns for p in folder.iterdir()} == before and not other[option].exists()
+    code, _, err = invoke(capsys, "align", bench / "ref", bench / "shots", "-o", out_dir, "--warp-out", warps, "--overwrite")
+    assert code == 0 and err == ""
 
 
 def test_low_overlap_is_a_warning(capsys, tmp_path):

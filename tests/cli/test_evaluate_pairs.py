@@ -117,6 +117,25 @@ def test_bad_pairs_are_one_line_errors(capsys, pairs, tmp_path, change, args, co
     assert "internal error" not in err
 
 
+@pytest.mark.parametrize(("name", "args", "words"), [
+    ("sharp/obstructed/scene1.png", [], "is 128 × 128 pixels, the capture whose warp it shares ({folder}/sharp/unobstructed/scene1.png) "
+                                        "256 × 256 (expected the captures of one scene and design at one size (one camera), "
+                                        "or --align each)"),
+    ("blurry/unobstructed/scene0.png", ["--align", "none"], "is 128 × 128 pixels, its gt 256 × 256 "
+                                                            "(expected captures of the reference's size with --align none)"),
+])
+def test_a_half_size_capture_is_refused_naming_its_file(capsys, pairs, tmp_path, name, args, words):
+    """A capture of another size than the one whose warp it reuses (or, unaligned, than its gt):
+    the one line names --pairs and the file."""
+    import shutil
+
+    folder = tmp_path / "copy"
+    shutil.copytree(pairs, folder)
+    save(folder / name, texture(SIDE // 2, SIDE // 2, 1))
+    got, out, err = invoke(capsys, "evaluate", "--pairs", folder, *args)
+    assert got == 2 and out == "" and err == f"metalens: error: --pairs: {folder / name}: {words.format(folder=folder)}\n"
+
+
 def test_physics_a_capture_equal_to_its_reference_scores_perfectly_up_to_encoding(capsys, tmp_path):
     """No lens, no obstruction: the capture is its reference, and the PSNR reaches its ceiling
     instead of +∞ (which would break the statistics)."""

@@ -138,3 +138,63 @@ def test_one_fin_for_optics_and_layout(capsys, tmp_path):
     assert code == 0 and report["efficiency"]["source"] == "rcwa" and report["warnings"] == []
     code, out, err = invoke(capsys, *gds, "--width", "290nm", "-o", tmp_path / "other.gds")
     assert code == 0 and "is not the preset's (305 × 125 nm" in json.loads(out)["warnings"][0]
+
+
+TINY_SWEEP = ["nanofin", "sweep", "--width", "250nm,300nm", "--length", "100nm,150nm", "--band", "530nm:20nm", "--samples-per-band", "1"]
+
+
+@pytest.mark.parametrize("args", [["--harmonics", "1"], ["--max-harmonics", "9"]])
+def test_the_least_harmonics_in_range_work(capsys, tmp_path, args):
+    """N = 1 (one order: E_y's odd subspace is empty) and the least --max-harmonics, 9 (auto
+    compares N = 9 with 7 and 5; unconverged there, a warning), in both commands."""
+    code, out, err = invoke(capsys, "nanofin", "efficiency", "--wavelengths", "530nm", *args, "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    assert 0 <= r["conversion_efficiency"][0] <= 1 and abs(r["transmittance"][0] + r["reflectance"][0] - 1) < 1e-9
+    code, out, err = invoke(capsys, *TINY_SWEEP, *args, "--max-harmonics", "9", "-o", tmp_path / "sweep", "--json")
+    assert code == 0, err
+    assert json.loads(out)["recommended"]["converged"]["harmonics"] == 9 and (tmp_path / "sweep" / "nanofin.toml").is_file()
+
+
+@pytest.mark.parametrize(("args", "words"), [
+    (["--max-harmonics", "5"], "--max-harmonics': '5' (expected an odd number of Fourier harmonics per axis from 9 to 41)"),
+    (["--max-harmonics", "3"], "from 9 to 41"),
+    (["--max-harmonics", "10"], "from 9 to 41"),
+    (["--harmonics", "2"], "--harmonics': '2' (expected an odd number of Fourier harmonics per axis from 1 to 41)"),
+    (["--band", "540nm:20nm"], "--band: pass bands overlap"),
+    (["--band", "600nm:0.5nm"], "--band: a band is narrower than"),
+])
+def test_sweep_refuses_before_any_work(capsys, tmp_path, args, words):
+    """Values a preset or the convergence rule refuses are refused up front, nothing written."""
+    code, out, err = invoke(capsys, *TINY_SWEEP, *args, "-o", tmp_path / "sweep")
+    assert code == 2 and out == "" and err.count("\n") == 1 and words in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_huge_fabrication_tolerance_is_estimated_as_the_grid(capsys, tmp_path, monkeypatch):
+    """The neighbourhood is cut at the grid's edges: ±1 m holds the 4 fins of a 2 × 2 grid, and the
+    estimate (was 3e8 days) stays within 10× of the run."""
+    from metalens_cli.cli import nanofin
+
+    estimates = []
+    announce = nanofin.announce
+    monkeypatch.setattr(nanofin, "announce", lambda estimate, *a, **k: (estimates.append(estimate), announce(estimate, *a, **k)))
+    code, out, err = invoke(capsys, *TINY_SWEEP, "--harmonics", "3", "--max-harmonics", "9", "--fabrication-tolerance", "1m",
+                            "-o", tmp_path / "sweep", "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["recommended"]["converged"]["fins"] == 4
+    fine = r["recommended"]["converged"]
+    measured = r["seconds"] + fine["seconds"] + sum(t["seconds"] for t in fine["convergence"])
+    assert estimates[0].seconds_max < 10 * measured + 1, (estimates[0].seconds_max, measured)
+
+
+def test_an_output_folder_holding_files_needs_overwrite(capsys, tmp_path):
+    out = tmp_path / "sweep"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    code, _, err = invoke(capsys, *TINY_SWEEP, "--harmonics", "3", "--max-harmonics", "9", "-o", out)
+    assert code == 2 and "--output: folder" in err and "'notes.txt'" in err and [p.name for p in out.iterdir()] == ["notes.txt"]
+    code, _, err = invoke(capsys, *TINY_SWEEP, "--harmonics", "3", "--max-harmonics", "9", "-o", out, "--overwrite", "--quiet")
+    assert code == 0, err
+    assert (out / "notes.txt").read_text() == "mine" and (out / "sweep.npz").is_file()

@@ -85,3 +85,16 @@ def test_bad_input(capsys, tmp_path, monkeypatch, args, option):
     code, out, err = invoke(capsys, "psf-scan", *args)
     assert code == 2 and option in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []  # nothing half-written
+
+
+def test_a_scan_estimated_at_days_is_refused_before_it_starts(capsys, tmp_path):
+    """Direct Rayleigh-Sommerfeld integration of the paper's lens over 512² pixels takes hours a
+    PSF: refused by the default --max-time (a day) and by a stricter one, with the estimate."""
+    lens = ["--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--propagator", "rs", "--pixels", "512",
+            "--depths", "inf", "-o", tmp_path / "rs.exr"]
+    code, out, err = invoke(capsys, "psf-scan", *lens, "--wavelengths", "430:645:5nm")
+    assert code == 2 and out == ""
+    assert "--pixels: psf-scan of 44 PSFs" in err and "days, over the --max-time limit (24.0 h)" in err
+    code, _, err = invoke(capsys, "psf-scan", *lens, "--wavelengths", "532nm", "--max-time", "30min")
+    assert code == 2 and "over the --max-time limit (30 min)" in err
+    assert list(tmp_path.iterdir()) == []

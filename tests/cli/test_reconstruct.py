@@ -137,3 +137,24 @@ def test_train_on_captured_pairs(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["data"]["kind"] == "captured pairs" and report["data"]["pool_entries"] == 2
     assert report["data"]["validation_entries"] == 1 and report["data"]["pool_pixels"] == 40
+
+
+def test_resume_refuses_another_preset_and_too_many_threads(trained, tmp_path, capsys):
+    """--resume goes on with the run's own preset: one given must match it (steps and seed aside),
+    else it would be silently ignored; --threads beyond the usable cores would only stall."""
+    import os
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(trained, copy)
+    other = tmp_path / "wider.toml"
+    other.write_text(TINY.read_text().replace("width = 4", "width = 8"))
+    before = {p: p.stat().st_mtime_ns for p in copy.rglob("*")}
+    assert run(["reconstruct", "train", *LENS, "--preset", str(other), "-o", str(copy), "--resume"]) == 2
+    _one_line_error(capsys, "wider.toml sets network.width = 8, but the run")
+    assert {p: p.stat().st_mtime_ns for p in copy.rglob("*")} == before
+    assert run(["reconstruct", "train", *LENS, "--preset", str(TINY), "-o", str(copy), "--resume", "--steps", "4", "--quiet"]) == 0
+    capsys.readouterr()
+    cores = len(os.sched_getaffinity(0))
+    assert run(["reconstruct", "train", *LENS, "-o", str(tmp_path / "new"), "--threads", str(cores + 1)]) == 2
+    _one_line_error(capsys, f"--threads: {cores + 1} threads on the {cores} CPU core(s)")

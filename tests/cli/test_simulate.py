@@ -40,6 +40,11 @@ def test_simulate_writes_outputs(capsys, tmp_path, photo_dir):
     for name in ("a_clean.png", "a_obstructed.exr", "a_unobstructed.png", "a_alpha.png", "a_obstruction.png", "contact_sheet.png"):
         assert (out / name).stat().st_size > 0
     assert 0 < report["images"][0]["alpha_coverage"] < 1
+    code, _, err = invoke(capsys, "simulate", "hyperbolic:532nm", *SMALL, "--images", photo_dir, "-o", out)
+    assert code == 2 and "--output: folder" in err and "'a_alpha.exr' (and" in err and "--overwrite" in err  # refused before work
+    code, stdout, err = invoke(capsys, "simulate", "hyperbolic:532nm", *SMALL, "--images", photo_dir, "--obstruction", "dirt", "-o", out,
+                               "--overwrite", "--json")
+    assert code == 0 and json.loads((out / "simulate.json").read_text())["obstruction"] == "dirt", err
 
 
 def test_evaluate_json_csv_plot(capsys, tmp_path, photo_dir):

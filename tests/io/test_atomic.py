@@ -5,7 +5,7 @@ import os
 import pytest
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.atomic import atomic_folder, check_output_file, check_output_folder
+from metalens_cli.io.atomic import atomic_folder, check_folder_unused, check_output_file, check_output_folder
 
 
 def test_atomic_folder_publishes_everything_or_nothing(tmp_path):
@@ -66,3 +66,24 @@ def test_a_published_folder_has_the_permissions_of_mkdir(tmp_path):
     finally:
         os.umask(old)
     assert (tmp_path / "out").stat().st_mode & 0o777 == (tmp_path / "made").stat().st_mode & 0o777 == 0o755
+
+
+def test_check_folder_unused_refuses_a_folder_holding_anything(tmp_path):
+    check_folder_unused(tmp_path / "new", "--output")  # absent, then empty: fine
+    (tmp_path / "new").mkdir()
+    check_folder_unused(tmp_path / "new", "--output")
+    (tmp_path / "new" / "b.png").write_text("user's")
+    (tmp_path / "new" / ".hidden").write_text("user's")
+    with pytest.raises(InputError) as refused:
+        check_folder_unused(tmp_path / "new", "--output")
+    assert refused.value.field == "--output" and "holds '.hidden' (and 1 more)" in refused.value.message
+    assert "--overwrite" in refused.value.expected
+
+
+def test_a_failed_write_in_a_folder_names_the_target_file_not_its_staging_copy(tmp_path):
+    import errno
+
+    with pytest.raises(OSError) as failed, atomic_folder(tmp_path / "out") as staging:
+        raise OSError(errno.EFBIG, os.strerror(errno.EFBIG), str(staging / "a.png"))
+    assert failed.value.errno == errno.EFBIG and failed.value.filename == str(tmp_path / "out" / "a.png")
+    assert list(tmp_path.iterdir()) == []

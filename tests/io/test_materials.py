@@ -57,6 +57,36 @@ def test_csv_without_k_or_header(tmp_path):
     assert material.index([400 * NM, 700 * NM]).tolist() == [2.0, 1.9]
 
 
+
+def test_csv_columns_are_read_by_their_header(tmp_path):
+    """k before n, and the names in another case and quoted: each column is what its header says."""
+    n, k = [2.10, 2.04], [0.03, 0.0]
+    swapped = parse_material(str(write(tmp_path, f'"Wavelength",K,N\n400,{k[0]},{n[0]}\n700,{k[1]},{n[1]}\n')), FIELD)
+    np.testing.assert_allclose(swapped.index([400 * NM, 700 * NM]), [n[0] + 1j * k[0], n[1] + 1j * k[1]], rtol=1e-15)
+
+
+@pytest.mark.parametrize("header", ["lam,index", "wavelength_nm,k", "wavelength_nm,n,n", "n,wavelength_nm", "wavelength_nm,n,eps2"])
+def test_a_header_that_does_not_name_the_columns_is_refused(tmp_path, header):
+    k = ",0.0" if header.count(",") == 2 else ""
+    path = write(tmp_path, f"{header}\n400,2.0{k}\n700,1.9{k}\n")
+    message = check_one_line_error(str(path), f"film.csv: header {header!r} does not name its columns")
+    assert "wavelength_nm, wavelength, lambda_nm, lambda" in message and "then n and optionally k" in message
+
+
+@pytest.mark.parametrize(("text", "nm"), [("cauchy:1,-0.2809", 530), ("cauchy:1,-0.2809", 600), ("cauchy:1.5,0.004,-0.001", 200)])
+def test_a_cauchy_fit_below_vacuums_index_is_refused_where_it_is_used(text, nm):
+    """n = A + B/λ² + C/λ⁴: 1 − 0.2809/0.53² = 0 at 530 nm (rounding leaves 2e-16 > 0, which
+    n > 0 let through), 0.22 at 600 nm; 1.5 + 0.1 − 0.625 = 0.975 at 200 nm for a fit with
+    C < 0 that is fine in the visible. A transparent dielectric has n ≥ 1: refused at those
+    wavelengths, naming the option."""
+    material = parse_material(text, "--material")
+    with pytest.raises(InputError, match=rf"^--material: {text} gives n = \S+ at {nm} nm, not a refractive index "
+                                         r"of a transparent dielectric \(expected wavelengths where the model gives n ≥ 1\)$"):
+        material.index([nm * NM], "--material")
+    if text.startswith("cauchy:1.5"):
+        assert material.index(500 * NM).real == pytest.approx(1.5 + 0.004 / 0.25 - 0.001 / 0.0625)
+
+
 def check_one_line_error(text, match, field=FIELD):
     with pytest.raises(InputError) as info:
         parse_material(text, field)
@@ -95,9 +125,10 @@ def test_bad_cauchy(text, match):
     ("wavelength_nm,n\n400,2.0\n500,-2.1\n", "n = -2.1 at 500 nm"),
     ("wavelength_nm,n,k\n400,2.0,0.0\n500,2.0,-0.01\n", "k = -0.01 at 500 nm"),
     ("wavelength_nm,n,k\n400,2.0,0\n500,2.0\n", "2 columns"),
-    ("wavelength_um,n\n0.4,2.0\n0.5,2.1\n", "do not look like nm"),
+    ("wavelength_um,n\n0.4,2.0\n0.5,2.1\n", "header 'wavelength_um,n' does not name its columns"),
     ("wavelength_nm,n\n400,nan\n500,2.1\n", "non-finite"),
-    ("wavelength_nm\n400\n", "1 columns"),
+    ("wavelength_nm\n400\n", "does not name its columns"),
+    ("400\n500\n", "1 columns and no header"),
     ("# only a comment\n", "no rows"),
     (b"\xff\xfe garbage", "not UTF-8"),
 ])

@@ -88,11 +88,12 @@ def test_the_report_says_which_efficiency_was_used():
     assert rcwa["at_m"] == [457e-9, 530e-9, 628e-9] and all(0.3 < v < 0.9 for v in rcwa["conversion"])
 
 
-def test_an_unwritable_cache_costs_only_the_recomputation(tmp_path, monkeypatch):
+def test_an_unwritable_cache_costs_only_the_recomputation_and_says_so(tmp_path, monkeypatch):
     blocker = tmp_path / "file"
     blocker.write_text("")
     monkeypatch.setenv("METALENS_CACHE", str(blocker))
-    efficiency = preset_spectra.preset_efficiency(preset_with().nanofin, NARROW)
+    with pytest.warns(cache.CacheWarning, match=f"cache folder '{blocker}' cannot be used"):
+        efficiency = preset_spectra.preset_efficiency(preset_with().nanofin, NARROW)
     assert efficiency.report["cache_entry"] is None and efficiency.values.shape == efficiency.wavelengths_m.shape
     assert cache.load("nanofin", "0" * 24) is None
 

@@ -19,3 +19,14 @@ def test_memory_over_the_limit_is_refused_naming_the_option_and_the_estimate():
     with pytest.raises(InputError, match=r"--harmonics.*about 2 MiB of memory.*--max-memory limit \(1 MiB\)"):
         check(Estimate("η", 2 * 2**20, "--harmonics", 1.0), max_memory=2**20)
     check(Estimate("η", 2**19, "--harmonics", 1.0), max_memory=2**20)
+
+
+def test_a_job_longer_than_max_time_is_refused_by_its_longest_estimate():
+    converge = Estimate("η", 1, "--harmonics", 600.0, seconds_max=7200.0)
+    with pytest.raises(InputError, match=r"--harmonics.*up to 2.0 h.*--max-time limit \(60 min\)"):
+        check(converge, max_seconds=3600.0)
+    check(converge, max_seconds=7200.0)
+    check(Estimate("days", 1, "--x", 1e7), max_seconds=float("inf"))
+    with pytest.raises(InputError, match="--max-time"):  # the default refuses more than a day
+        check(Estimate("days", 1, "--x", 1e7))
+    check(Estimate("unknown", 1, "--x"), max_seconds=1.0)  # no estimate, nothing to refuse

@@ -73,3 +73,16 @@ def test_spaces_separate_a_number_from_its_unit_but_never_split_it():
     for text in ("4 5mm", "6 00nm", "1.8 5um"):
         with pytest.raises(InputError, match="is not a length"):
             units.parse_length(text, "x")
+
+
+@pytest.mark.parametrize("text, seconds", [("90s", 90.0), ("90", 90.0), ("30min", 1800.0), ("1.5h", 5400.0),
+                                           ("2d", 172800.0), (" 2 h ", 7200.0), ("inf", math.inf)])
+def test_durations(text, seconds):
+    assert units.parse_duration(text, "--max-time") == seconds
+
+
+@pytest.mark.parametrize("text", ["", "h", "2 hours", "0s", "-1h", "1e400s", "nan", "2H"])
+def test_bad_durations_name_the_field_and_form(text):
+    with pytest.raises(InputError, match=r"--max-time: .*") as info:
+        units.parse_duration(text, "--max-time")
+    assert "90s, 30min or 2h" in info.value.expected
