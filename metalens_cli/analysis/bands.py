@@ -26,7 +26,7 @@ from pathlib import Path
 
 from metalens_cli.analysis.symmetry import shift_factor
 from metalens_cli.errors import InputError
-from metalens_cli.io.tables import as_fractions, read_spectrum_csv
+from metalens_cli.io.tables import as_fractions, read_table_csv, TRANSMISSION_TABLE
 
 THREE_BAND_LABELS = ("B", "G", "R")
 
@@ -105,7 +105,7 @@ def bands_from_centers(centers_m: list[float], widths_m: list[float], field: str
 def read_filter_csv(path: str | Path) -> tuple[list[float], list[float]]:
     """Wavelengths (m) and transmission (0-1) from ``wavelength_nm, transmission`` rows
     (header optional; transmission in 0-1 or percent)."""
-    rows = read_spectrum_csv(path, 2, "--filter-csv")
+    rows, _ = read_table_csv(path, TRANSMISSION_TABLE, "--filter-csv")
     return [row[0] * 1e-9 for row in rows], as_fractions([row[1] for row in rows], "--filter-csv", path)
 
 

@@ -10,11 +10,12 @@ Accepted forms (whitespace around the text ignored):
 - a path to a CSV file of a wavelength column and ``n`` (and ``k``): ``#`` comments and blank
   lines skipped, at least 2 rows of numbers, wavelengths strictly increasing within 100-10000
   nm (the rules of :mod:`metalens_cli.io.tables`), n > 0, k ≥ 0; interpolated linearly in
-  wavelength and refused outside the table. The columns are read by the names of the header
-  line (any case): the wavelength in nm first, named ``wavelength_nm``, ``wavelength``,
-  ``lambda_nm`` or ``lambda``, then ``n`` and optionally ``k`` in either order
-  (``wavelength_nm,k,n`` is read as named). A header naming other columns, or not ``n``, is
-  refused; a file without a header (its first line numbers) is ``wavelength_nm,n[,k]``.
+  wavelength and refused outside the table. A header line places the columns by name, in any
+  order and case (:func:`metalens_cli.io.tables.read_table_csv`): the wavelength in nm
+  (``wavelength_nm``, ``wavelength``, ``lambda_nm``, ``lambda``, ``nm``, ``wl``; a unit in
+  brackets is ignored), ``n`` and optionally ``k`` (``wavelength_nm,k,n`` is read as named). A
+  header naming other columns, or not ``n``, is refused; a file without a header is
+  ``wavelength_nm,n[,k]``.
 
 Dispersion models must give a refractive index where they are used: n > 0 everywhere, and
 n ≥ 1 for the models of transparent dielectrics (Cauchy, Sellmeier), checked at every
@@ -32,16 +33,12 @@ import re
 from pathlib import Path
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.input_files import read_text
-from metalens_cli.io.tables import read_spectrum_csv
+from metalens_cli.io.tables import Column, read_table_csv, WAVELENGTH
 from metalens_cli.optics.materials import BUILTIN, Cauchy, Constant, Material, Tabulated
 
 MATERIAL_FORM = ("a built-in (sinx, fused-silica, tio2, a-si, air), a number such as 2.0 or 2.0+0.01j, "
                  "cauchy:A,B[,C] with λ in µm, or a CSV file wavelength_nm,n[,k]")
-WAVELENGTH_NAMES = ("wavelength_nm", "wavelength", "lambda_nm", "lambda")
-CSV_FORM = "a CSV file wavelength_nm,n[,k] (wavelengths in nm, ascending)"
-HEADER_FORM = (f"a header naming the wavelength in nm first ({', '.join(WAVELENGTH_NAMES)}), then n and optionally k "
-               "in either order, e.g. wavelength_nm,n,k")
+MATERIAL_TABLE = (WAVELENGTH, Column("n", ("n",)), Column("k", ("k",), optional=True))
 
 _REAL = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
 _NONFINITE = r"[+-]?(?:nan|inf(?:inity)?)"
@@ -131,48 +128,16 @@ def _looks_like_path(s: str) -> bool:
 
 
 def _table(path: Path, field: str) -> Tabulated:
-    columns, n_at, k_at = _columns(path, read_text(path, field, CSV_FORM), field)
-    rows = read_spectrum_csv(path, columns, field)  # the shared CSV rules, errors with line numbers
+    rows, names = read_table_csv(path, MATERIAL_TABLE, field)  # the shared CSV rules, errors with line numbers
+    has_k = "k" in names
     for row in rows:
-        if not row[n_at] > 0:
-            raise InputError(field, f"{path.name}: n = {row[n_at]:g} at {row[0]:g} nm", "n > 0")
-        if k_at is not None and row[k_at] < 0:
-            raise InputError(field, f"{path.name}: k = {row[k_at]:g} at {row[0]:g} nm (gain)",
+        if not row[1] > 0:
+            raise InputError(field, f"{path.name}: n = {row[1]:g} at {row[0]:g} nm", "n > 0")
+        if has_k and row[2] < 0:
+            raise InputError(field, f"{path.name}: k = {row[2]:g} at {row[0]:g} nm (gain)",
                              "k >= 0 (absorbing in the exp(-iωt) convention)")
     try:
-        return Tabulated([row[0] / 1e9 for row in rows], [row[n_at] for row in rows],
-                         None if k_at is None else [row[k_at] for row in rows], name=path.name, source=str(path))
+        return Tabulated([row[0] / 1e9 for row in rows], [row[1] for row in rows],
+                         [row[2] for row in rows] if has_k else None, name=path.name, source=str(path))
     except InputError as exc:
         raise _relabel(exc, field, f"{path.name}: ") from None
-
-
-def _columns(path: Path, text: str, field: str) -> tuple[int, int, int | None]:
-    """(number of columns, index of n, index of k or None) of a material table, from its first
-    line with content: a header (named as in the module docstring) or, when that line is
-    numbers, the order wavelength_nm,n[,k]."""
-    for line in text.splitlines():
-        content = line.split("#", 1)[0].strip()
-        if content:
-            break
-    else:
-        raise InputError(field, f"{path.name}: no rows", CSV_FORM)
-    cells = [cell.strip() for cell in content.split(",")]
-    if all(_is_number(cell) for cell in cells):
-        if len(cells) not in (2, 3):
-            raise InputError(field, f"{path.name}: {len(cells)} columns and no header", f"{CSV_FORM}, or {HEADER_FORM}")
-        return len(cells), 1, 2 if len(cells) == 3 else None
-    names = [cell.strip("\"'").lower() for cell in cells]
-    rest = names[1:]
-    if names[0] not in WAVELENGTH_NAMES or "n" not in rest or not set(rest) <= {"n", "k"} or len(set(rest)) != len(rest):
-        raise InputError(field, f"{path.name}: header {content!r} does not name its columns", HEADER_FORM)
-    return len(names), 1 + rest.index("n"), 1 + rest.index("k") if "k" in rest else None
-
-
-def _is_number(text: str) -> bool:
-    """Whether ``float`` reads ``text``, as :func:`metalens_cli.io.tables.read_spectrum_csv` tells
-    data from a header (``nan`` is a number there, refused later as not finite)."""
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True

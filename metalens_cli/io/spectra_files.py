@@ -9,21 +9,24 @@ from pathlib import Path
 
 import numpy as np
 
-from metalens_cli.io.tables import as_fractions, read_spectrum_csv
+from metalens_cli.io.tables import as_fractions, Column, read_table_csv, TRANSMISSION_TABLE, WAVELENGTH
 from metalens_cli.optics.spectra import efficiency_from_table, tabulated_response
 
 _NM = 1e-9
+CAMERA_TABLE = (WAVELENGTH, Column("r", ("r", "red")), Column("g", ("g", "green")), Column("b", ("b", "blue")))
+EFFICIENCY_TABLE = (WAVELENGTH, Column("efficiency"))
 
 
-def _read(path: str | Path, columns: int, field: str) -> np.ndarray:
-    """(rows, columns) float64, wavelengths still in nm."""
-    return np.array(read_spectrum_csv(Path(path), columns, field), dtype=float)
+def _read(path: str | Path, columns: tuple[Column, ...], field: str) -> np.ndarray:
+    """(rows, columns) float64 in ``columns``' order, wavelengths still in nm."""
+    return np.array(read_table_csv(Path(path), columns, field)[0], dtype=float)
 
 
 def camera_from_csv(path: str | Path, wavelengths_m: np.ndarray) -> np.ndarray:
-    """CRF^c (3, L), channels R, G, B, from a CSV ``wavelength_nm, r, g, b`` (header optional);
-    zero outside the table (no measured response), negative values (noise) clipped to zero."""
-    data = _read(path, 4, "camera")
+    """CRF^c (3, L), channels R, G, B, from a CSV ``wavelength_nm, r, g, b`` (a header, if any,
+    places the columns by name: ``nm,B,G,R`` is read as named); zero outside the table (no
+    measured response), negative values (noise) clipped to zero."""
+    data = _read(path, CAMERA_TABLE, "camera")
     return tabulated_response(wavelengths_m, data[:, 0], np.clip(data[:, 1:].T, 0.0, None))
 
 
@@ -34,7 +37,7 @@ def filter_from_csv(path: str | Path, wavelengths_m: np.ndarray) -> np.ndarray:
     clipped to [0, 1] after a tolerance of 0.05 for measurement noise. Zero outside the
     tabulated range (light there is taken as blocked).
     """
-    data = _read(path, 2, "filter")
+    data = _read(path, TRANSMISSION_TABLE, "filter")
     values = np.array(as_fractions(data[:, 1].tolist(), "filter", path))
     return tabulated_response(wavelengths_m, data[:, 0], values[None])[0]
 
@@ -42,6 +45,6 @@ def filter_from_csv(path: str | Path, wavelengths_m: np.ndarray) -> np.ndarray:
 def efficiency_from_csv(path: str | Path, wavelengths_m: np.ndarray) -> np.ndarray:
     """η(λ) (L,) from a CSV (wavelength_nm, efficiency as a fraction or in percent; header
     optional); percent detected as for :func:`filter_from_csv`, flat beyond the table."""
-    data = _read(path, 2, "efficiency")
+    data = _read(path, EFFICIENCY_TABLE, "efficiency")
     values = np.array(as_fractions(data[:, 1].tolist(), "efficiency", path))
     return efficiency_from_table(wavelengths_m, data[:, 0] * _NM, values)

@@ -58,19 +58,23 @@ def test_csv_without_k_or_header(tmp_path):
 
 
 
-def test_csv_columns_are_read_by_their_header(tmp_path):
-    """k before n, and the names in another case and quoted: each column is what its header says."""
-    n, k = [2.10, 2.04], [0.03, 0.0]
-    swapped = parse_material(str(write(tmp_path, f'"Wavelength",K,N\n400,{k[0]},{n[0]}\n700,{k[1]},{n[1]}\n')), FIELD)
-    np.testing.assert_allclose(swapped.index([400 * NM, 700 * NM]), [n[0] + 1j * k[0], n[1] + 1j * k[1]], rtol=1e-15)
+@pytest.mark.parametrize("table", ['"Wavelength",K,N\n400,0.03,2.10\n700,0.0,2.04\n',
+                                   "n,k,wavelength_nm\n2.10,0.03,400\n2.04,0.0,700\n",
+                                   "Wavelength (nm),n,k\n400,2.10,0.03\n700,2.04,0.0\n"])
+def test_csv_columns_are_read_by_their_header(tmp_path, table):
+    """Names in any order and case, quoted or with a unit: each column is what its header says."""
+    material = parse_material(str(write(tmp_path, table)), FIELD)
+    np.testing.assert_allclose(material.index([400 * NM, 700 * NM]), [2.10 + 0.03j, 2.04], rtol=1e-15)
 
 
-@pytest.mark.parametrize("header", ["lam,index", "wavelength_nm,k", "wavelength_nm,n,n", "n,wavelength_nm", "wavelength_nm,n,eps2"])
-def test_a_header_that_does_not_name_the_columns_is_refused(tmp_path, header):
+@pytest.mark.parametrize("header, why", [("lam,index", "does not name its columns"), ("wavelength_nm,k", "lacks n"),
+                                         ("wavelength_nm,n,n", "does not name its columns"),
+                                         ("wavelength_nm,n,eps2", "does not name its columns")])
+def test_a_header_that_does_not_name_the_columns_is_refused(tmp_path, header, why):
     k = ",0.0" if header.count(",") == 2 else ""
     path = write(tmp_path, f"{header}\n400,2.0{k}\n700,1.9{k}\n")
-    message = check_one_line_error(str(path), f"film.csv: header {header!r} does not name its columns")
-    assert "wavelength_nm, wavelength, lambda_nm, lambda" in message and "then n and optionally k" in message
+    message = check_one_line_error(str(path), f"film.csv: header {header!r} {why}")
+    assert "wavelength_nm: wavelength_nm or wavelength or lambda_nm" in message and "n: n; k (optional): k" in message
 
 
 @pytest.mark.parametrize(("text", "nm"), [("cauchy:1,-0.2809", 530), ("cauchy:1,-0.2809", 600), ("cauchy:1.5,0.004,-0.001", 200)])
@@ -127,9 +131,9 @@ def test_bad_cauchy(text, match):
     ("wavelength_nm,n,k\n400,2.0,0\n500,2.0\n", "2 columns"),
     ("wavelength_um,n\n0.4,2.0\n0.5,2.1\n", "header 'wavelength_um,n' does not name its columns"),
     ("wavelength_nm,n\n400,nan\n500,2.1\n", "non-finite"),
-    ("wavelength_nm\n400\n", "does not name its columns"),
+    ("wavelength_nm\n400\n", "header 'wavelength_nm' lacks n"),
     ("400\n500\n", "1 columns and no header"),
-    ("# only a comment\n", "no rows"),
+    ("# only a comment\n", "fewer than 2 data rows"),
     (b"\xff\xfe garbage", "not UTF-8"),
 ])
 def test_bad_csv_tables(tmp_path, content, match):
