@@ -22,8 +22,14 @@ class InputError(MetalensError, ValueError):
         super().__init__(text)
 
 
-class SamplingError(MetalensError):
-    """A simulation grid cannot represent the field without aliasing or wrap-around."""
+class SamplingError(InputError):
+    """A simulation grid cannot represent the field without aliasing or wrap-around: bad input
+    (``field`` names the lens parameter that would fix it). ``forceable``: the caller may
+    compute anyway (``force=True``; ``psf-scan --force``), at the cost of aliasing."""
+
+    def __init__(self, field: str, message: str, expected: str, forceable: bool = False):
+        super().__init__(field, message, expected)
+        self.forceable = forceable
 
 
 class ResultFailed(MetalensError):

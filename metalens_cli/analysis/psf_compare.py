@@ -11,8 +11,14 @@ re-binned onto the measured pixels (power between their edges, axis on axis). Bo
 to the largest window both cover, centred on pixel (N//2, N//2), and normalised to sum to one
 over it. Pitches that cannot be a PSF's are refused: a cube whose window spans less than half
 its shortest wavelength (no lens focuses light to a spot that small), and a pair in which
-either window spans under 3 pixels of the other. A simulation coarser than the measurement by
-over ``COARSE_SIMULATION``× is interpolated, not resolved, on the measured grid: warned about.
+either window spans under 3 pixels of the other. A common window under ``MIN_COMMON_PIXELS`` ×
+``MIN_COMMON_PIXELS`` is refused, naming the cube whose window limits it: a FWHM, an MTF, a
+registration need more than a few samples (3 × 3 gave peak ratios of 1.0 and encircled energies
+of 1.000 whatever the PSFs). A measured PSF of which the common window holds under
+``LIGHT_REQUIRED`` of the light (its power in its own window: a blur disc wider than a cropped
+simulation) is refused, and reported as such; under ``LIGHT_KEPT`` of either cube's light is
+warned about: the figures describe the window's part of the PSFs. A simulation coarser than the measurement by over ``COARSE_SIMULATION``× is
+interpolated, not resolved, on the measured grid: warned about.
 
 Registration. The measured PSF is moved onto the simulated one by the sub-pixel shift at the
 maximum of their cross-correlation (a parabola through the peak and its neighbours on each
@@ -23,7 +29,8 @@ Metrics per pair: ``peak_ratio`` = peak(measured)/peak(simulated), a Strehl-like
 simulated lens as the reference (1 for identical PSFs); FWHM (metres, the mean of the row's and
 the column's through its maximum) of each; encircled energy (fraction of the window) inside
 discs of the given radii around each PSF's own centroid (so each PSF's figures do not depend on
-the other); ``relative_l2`` = ‖measured − simulated‖₂/‖simulated‖₂ after registration; MTF50
+the other), None (warned about) for a radius over half the common window's width, where the disc
+leaves the window; ``relative_l2`` = ‖measured − simulated‖₂/‖simulated‖₂ after registration; MTF50
 (lp/mm, ``analysis.mtf``) of each.
 """
 
@@ -44,6 +51,9 @@ WAVELENGTH_TOLERANCE_M = 1e-12
 DEPTH_TOLERANCE = 1e-6
 REGISTRATION_ROUNDS = 4
 COARSE_SIMULATION = 2.0  # simulated pixels this many times the measured ones are warned about
+MIN_COMMON_PIXELS = 8  # a common window narrower than this has no FWHM, MTF or registration worth reporting
+LIGHT_KEPT = 0.9  # a common window holding less of a cube's light than this is warned about
+LIGHT_REQUIRED = 0.5  # a measured PSF of which the common window holds less than this is not compared
 
 
 @dataclass
@@ -71,11 +81,19 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
     warnings = _check_pitches(measured, simulated)
     sim_psf, resampled = _on_pitch(simulated.psf, simulated.pixel_pitch_m, pitch, measured.psf.shape[-1])
     n = min(measured.psf.shape[-1], sim_psf.shape[-1])
-    if n < 3:
-        which = "MEASURED" if measured.psf.shape[-1] < 3 else "SIMULATED"
-        raise InputError(which, f"PSFs of {n} × {n} pixels on the common grid", "at least 3 × 3 pixels")
+    if n < MIN_COMMON_PIXELS:
+        raise InputError(*_small_window(measured, simulated, n, sim_psf.shape[-1]))
     meas_psf = _crop(measured.psf, n)
     sim_psf = _crop(sim_psf, n)
+    kept = _light_kept(measured.psf, meas_psf)
+    warnings += _light_warning("measured", measured, np.where(kept < LIGHT_REQUIRED, 1.0, kept), n)
+    warnings += _light_warning("simulated", simulated, _light_kept(simulated.psf, sim_psf), n)
+    radii_outside = [r for r in radii if r > n * pitch / 2]
+    if radii_outside:
+        warnings.append(f"encircled energy at {_lengths(radii_outside)} is not reported: "
+                        f"{'the disc is' if len(radii_outside) == 1 else 'the discs are'} wider than the compared window "
+                        f"({n} × {n} pixels of {format_length(pitch)}, {format_length(n * pitch)} across: radii up to "
+                        f"{format_length(n * pitch / 2)})")
     grid = radial_grid(n, pitch)
     pairs, refused, scans = [], [], []
     for i, depth in enumerate(measured.depths_m):
@@ -86,12 +104,17 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
             continue
         rows_m, rows_s, waves = [], [], []
         for j, wavelength in enumerate(measured.wavelengths_m):
+            if kept[i, j] < LIGHT_REQUIRED:
+                refused.append({"depth_m": _json_depth(depth), "wavelength_m": float(wavelength),
+                                "reason": f"the compared window ({n} × {n} pixels of {format_length(pitch)}) holds {_percent(kept[i, j])} "
+                                          "of its light (a simulated window as wide as the measured PSF's light is needed)"})
+                continue
             mix, how = _wavelength_mix(simulated.wavelengths_m, float(wavelength), interpolate)
             if mix is None:
                 refused.append({"depth_m": _json_depth(depth), "wavelength_m": float(wavelength), "reason": how})
                 continue
             reference = sum(weight * sim_psf[k, index].astype(np.float64) for index, weight in mix)
-            record, aligned, reference = _compare_pair(meas_psf[i, j].astype(np.float64), reference, pitch, radii, grid)
+            record, aligned, reference = _compare_pair(meas_psf[i, j].astype(np.float64), reference, pitch, radii, grid, n * pitch / 2)
             pairs.append({"depth_m": _json_depth(depth), "wavelength_m": float(wavelength), "simulated": how, **record})
             rows_m.append(aligned[n // 2])
             rows_s.append(reference[n // 2])
@@ -125,6 +148,50 @@ def _check_pitches(measured, simulated) -> list[str]:
                 f"interpolated onto the measured grid, not resolved on it (psf-scan --pixel-pitch {measured.pixel_pitch_m * 1e6:.3g}um "
                 "simulates at the measured pitch)"]
     return []
+
+
+def _small_window(measured, simulated, n: int, resampled_n: int) -> tuple[str, str, str]:
+    """(field, message, expected) refusing a common window of n < MIN_COMMON_PIXELS pixels,
+    naming the cube whose window limits it."""
+    pitch = format_length(measured.pixel_pitch_m)
+    if measured.psf.shape[-1] <= resampled_n:
+        return ("MEASURED", f"the common window is {n} × {n} pixels of {pitch}, its own window: too small to compare PSFs",
+                f"a measured window of at least {MIN_COMMON_PIXELS} × {MIN_COMMON_PIXELS} pixels")
+    own = simulated.psf.shape[-1]
+    return ("SIMULATED", f"its window ({own} × {own} pixels of {format_length(simulated.pixel_pitch_m)}, "
+            f"{format_length(own * simulated.pixel_pitch_m)} across) covers {n} × {n} measured pixels of {pitch}: too small to compare PSFs",
+            f"a simulated window at least {MIN_COMMON_PIXELS} measured pixels ({format_length(MIN_COMMON_PIXELS * measured.pixel_pitch_m)}) "
+            "wide (check both cubes' pixel_pitch_m)")
+
+
+def _light_kept(own: np.ndarray, cropped: np.ndarray) -> np.ndarray:
+    """(D, W): the fraction of each PSF's power in its own window (``own``) that the common
+    window (``cropped``, on the measured grid) holds; 1 for a PSF without light."""
+    total = own.astype(np.float64).sum(axis=(-2, -1))
+    kept = cropped.astype(np.float64).sum(axis=(-2, -1))
+    return np.where(total > 0, kept / np.where(total > 0, total, 1.0), 1.0)
+
+
+def _light_warning(which: str, cube, kept: np.ndarray, n: int) -> list[str]:
+    """A warning when the common window holds under LIGHT_KEPT of the light of some of
+    ``cube``'s PSFs (the least said)."""
+    k, j = np.unravel_index(int(np.argmin(kept)), kept.shape)
+    if kept[k, j] >= LIGHT_KEPT:
+        return []
+    return [f"the compared window ({n} × {n} pixels) holds only {_percent(kept[k, j])} of the {which} PSF's light at "
+            f"{cube.wavelengths_m[j] * 1e9:g} nm, {format_length(float(cube.depths_m[k]))} ({int(np.sum(kept < LIGHT_KEPT))} of "
+            f"{kept.size} PSFs under {LIGHT_KEPT:.0%}): the figures describe the window's part of the PSFs"]
+
+
+def _percent(fraction: float) -> str:
+    """0.9 → "90%", 0.0031 → "0.31%"."""
+    return f"{100 * float(fraction):.2g}%"
+
+
+def _lengths(values: list[float]) -> str:
+    """"9.25 µm", "9.25 µm and 18.5 µm", "1 µm, 2 µm and 3 µm"."""
+    texts = [format_length(v) for v in values]
+    return texts[0] if len(texts) == 1 else f"{', '.join(texts[:-1])} and {texts[-1]}"
 
 
 def _json_depth(depth: float) -> float | None:
@@ -192,9 +259,10 @@ def _crop(psf: np.ndarray, n: int) -> np.ndarray:
     return psf[..., start : start + n, start : start + n]
 
 
-def _compare_pair(measured: np.ndarray, simulated: np.ndarray, pitch: float, radii: list[float], grid) -> tuple[dict, np.ndarray, np.ndarray]:
-    """Metrics of one pair; also the registered measured PSF and the simulated one, both
-    normalised to sum to one."""
+def _compare_pair(measured: np.ndarray, simulated: np.ndarray, pitch: float, radii: list[float], grid,
+                  max_radius: float) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Metrics of one pair (encircled energy None at radii over ``max_radius``); also the
+    registered measured PSF and the simulated one, both normalised to sum to one."""
     total_m, total_s = measured.sum(), simulated.sum()
     if total_m <= 0 or total_s <= 0:
         raise InputError("MEASURED" if total_m <= 0 else "SIMULATED", "a PSF holds no light in the common window",
@@ -214,7 +282,8 @@ def _compare_pair(measured: np.ndarray, simulated: np.ndarray, pitch: float, rad
         "shift_px": [float(dy), float(dx)],
         "peak_ratio": float(aligned.max() / simulated.max()),
         "fwhm_m": {"measured": _fwhm(measured, pitch), "simulated": _fwhm(simulated, pitch)},
-        "encircled_energy": {"measured": _encircled(measured, pitch, radii), "simulated": _encircled(simulated, pitch, radii)},
+        "encircled_energy": {"measured": _encircled(measured, pitch, radii, max_radius),
+                             "simulated": _encircled(simulated, pitch, radii, max_radius)},
         "relative_l2": float(np.linalg.norm(aligned - simulated) / np.linalg.norm(simulated)),
         "mtf50_lpmm": {"measured": None if np.isnan(m50[0]) else float(m50[0]), "simulated": None if np.isnan(m50[1]) else float(m50[1])},
     }
@@ -231,14 +300,15 @@ def _fwhm(psf: np.ndarray, pitch: float) -> float | None:
     return None if None in widths else float(np.mean(widths)) * pitch
 
 
-def _encircled(psf: np.ndarray, pitch: float, radii: list[float]) -> list[float]:
+def _encircled(psf: np.ndarray, pitch: float, radii: list[float], max_radius: float) -> list[float | None]:
     """Fraction of the window's power inside discs of ``radii`` (metres) around the PSF's own
-    centroid (pixels whose centres lie inside)."""
+    centroid (pixels whose centres lie inside); None for a radius over ``max_radius`` (a disc
+    wider than the window would read 1 for any PSF)."""
     yy, xx = np.indices(psf.shape, dtype=np.float64)
     total = psf.sum()
     cy, cx = (psf * yy).sum() / total, (psf * xx).sum() / total
     r = np.hypot(yy - cy, xx - cx) * pitch
-    return [float(psf[r <= radius].sum() / total) for radius in radii]
+    return [None if radius > max_radius else float(psf[r <= radius].sum() / total) for radius in radii]
 
 
 def _correlation_shift(moving: np.ndarray, fixed: np.ndarray) -> tuple[float, float]:

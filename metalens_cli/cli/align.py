@@ -89,7 +89,7 @@ def align(ctx, reference, target, output, refine, warp_out, warp_path, overwrite
     else:
         rows, warnings = _align_pair(pairs[0], Path(output), warp_out, refine, saved)
     for name, warning in warnings:
-        click.echo(f"metalens: warning: {name}: {warning}", err=True)
+        render.say([f"{name}: {warning}"])
     if as_json:
         render.emit_json({"reference": reference, "target": target, "output": output, "refine": rows[0]["registration"]["refine"],
                           "warp": warp_path, "pairs": rows})
@@ -165,10 +165,10 @@ def _align_folders(pairs, output: Path, warp_out: Path | None, refine: str, save
     from metalens_cli.io.atomic import atomic_folder
 
     rows, warnings = [], []
-    warp_folder = atomic_folder(warp_out) if warp_out is not None else nullcontext()
+    warp_folder = atomic_folder(warp_out, field="--warp-out") if warp_out is not None else nullcontext()
     with progress_bar("align", quiet) as update, atomic_folder(output) as staging, warp_folder as warp_staging:  # all or none
         for k, (stem, reference, target) in enumerate(pairs):
-            row, registration, aligned, is_linear, said = _align_one((stem, reference, target), refine, saved, str(target))
+            row, registration, aligned, is_linear, said = _align_one((stem, reference, target), refine, saved, str(target), str(reference))
             name = f"{stem}.exr" if is_linear else f"{stem}.png"
             _write_image(staging / name, aligned, is_linear)
             if warp_staging is not None:
@@ -180,9 +180,11 @@ def _align_folders(pairs, output: Path, warp_out: Path | None, refine: str, save
     return rows, warnings
 
 
-def _align_one(pair, refine: str, saved, field: str):
+def _align_one(pair, refine: str, saved, field: str, reference_field: str = "REFERENCE"):
     """Read, register (or take the saved warp), resample one pair: (row, registration, aligned
-    (H, W, C) float32, whether the target is linear, [(target, warning)])."""
+    (H, W, C) float32, whether the target is linear, [(target, warning)]); a registration failure
+    names the target as ``field``, the reference as ``reference_field`` (their files in folder
+    mode)."""
     from metalens_cli.imaging.registration import register
     from metalens_cli.io.image_files import read_image_file
 
@@ -193,7 +195,7 @@ def _align_one(pair, refine: str, saved, field: str):
     if names[-1] == "A":
         target = target[:, :, :-1]
     if saved is None:
-        registration = register(reference, target, refine=refine, field=field)
+        registration = register(reference, target, refine=refine, field=field, reference_field=reference_field)
     else:
         registration = saved
         for role, image, shape in (("REFERENCE", reference, saved.reference_shape), ("TARGET", target, saved.target_shape)):

@@ -17,7 +17,9 @@ REFINEMENTS = ("flow", "tps", "none")  # imaging.registration.REFINEMENTS
 LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 
 
-PAIRS_OPTIONS = {"pairs", "align", "refine", "match", "csv_path", "lpips_weights", "quiet", "as_json", "plot_path", "max_memory", "specs"}
+# the options that apply to --pairs (its run is estimated and announced: --max-memory and --max-time hold)
+PAIRS_OPTIONS = {"pairs", "align", "refine", "match", "csv_path", "lpips_weights", "quiet", "as_json", "plot_path", "max_memory",
+                 "max_time", "specs"}
 
 
 @click.command("evaluate", cls=MetalensCommand)
@@ -110,11 +112,8 @@ def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z
 
 def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, extra: dict, title: str) -> None:
     """Notes and warnings on stderr, the CSV and figure, then the JSON or the tables."""
-    err = render.console(stderr=True)
-    for note in notes:
-        err.print(f"note: {note}", markup=False, soft_wrap=True)
-    for warning in result.warnings:
-        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
+    render.say(notes, "note")
+    render.say(result.warnings)
     if csv_path:
         _write_csv(csv_path, result.rows, metrics)
     if plot_path:
@@ -152,8 +151,10 @@ def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, 
     given = [p for p in ctx.command.params if p.name not in PAIRS_OPTIONS
              and ctx.get_parameter_source(p.name) == click.core.ParameterSource.COMMANDLINE]
     if ctx.params["specs"] or given:
-        names = ["DESIGN" if not given else max(given[0].opts, key=len)]
-        raise click.UsageError(f"{names[0]} does not apply to --pairs (the designs are the folders of DIR)")
+        applying = [max(p.opts, key=len) for p in ctx.command.params if p.name in PAIRS_OPTIONS - {"pairs", "specs"} and p.opts]
+        raise InputError("DESIGN" if not given else max(given[0].opts, key=len),
+                         "does not apply to --pairs (the designs are the folders of DIR)",
+                         f"--pairs DIR with only {', '.join(applying)}")
     layout = read_layout(folder)
     for option, path in (("--csv", csv_path), ("--plot", plot_path)):
         if path is not None and Path(folder).resolve() in Path(path).resolve().parents:

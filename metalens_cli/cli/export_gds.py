@@ -100,9 +100,7 @@ def export_gds(ctx, spec, preset_path, f_m, aperture_m, pitch_m, width_m, length
             warnings.append(f"the layout's fin ({geometry.width_m * 1e9:g} × {geometry.length_m * 1e9:g} nm at {geometry.pitch_m * 1e9:g} nm) "
                             f"is not the preset's ({fin.width_m * 1e9:g} × {fin.length_m * 1e9:g} nm at {fin.pitch_m * 1e9:g} nm), "
                             "whose η the optics used")
-    err = render.console(stderr=True)
-    for warning in warnings:
-        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
+    render.say(warnings)
     if as_json:
         render.emit_json({**report.to_dict(), "efficiency": efficiency, "warnings": warnings,
                           **({"verify": checked.to_dict()} if checked else {})})

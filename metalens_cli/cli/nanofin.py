@@ -112,9 +112,7 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
         from metalens_cli.plotting.nanofin import plot_efficiency
 
         plot_efficiency(plot_path, r, table)
-    err = render.console(stderr=True)
-    for warning in warnings:
-        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
+    render.say(warnings)
     report = {
         "fin": {"period_m": period_m, "height_m": height_m, "width_m": width_m, "length_m": length_m},
         "material": fin_material.describe(), "substrate": substrate_material.describe(),
@@ -235,9 +233,7 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
     result = sweep_fins(period_m, height_m, widths_m, lengths_m, bands_m, n_fin, n_sub, harmonics, samples_per_band, tolerance_m, keep,
                         max_harmonics, torch_device(device), lambda stage: progress_bar(stage, quiet))
     m, choice, warnings = result.map, result.choice, result.warnings
-    err = render.console(stderr=True)
-    for warning in warnings:
-        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
+    render.say(warnings)
     report = {"period_m": period_m, "height_m": height_m, "material": fin_material.describe(), "substrate": substrate_material.describe(),
               "bands_m": [list(b) for b in bands_m], "wavelengths_m": m.wavelengths_m.tolist(), "harmonics": harmonics,
               "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds, "cached": result.cached,

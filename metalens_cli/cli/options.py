@@ -110,7 +110,7 @@ class BandSpec(_UnitType):
         if len(parts) != 2:
             raise InputError(field, f"{text!r} is not CENTER:WIDTH", "CENTER:WIDTH with units, e.g. 457nm:22nm")
         centre, width = (units.parse_length(part, field) for part in parts)
-        check_wavelengths([centre], field)
+        check_wavelengths([centre - width / 2, centre, centre + width / 2], field)  # the whole band is optical
         return centre, width
 
 
@@ -283,9 +283,11 @@ class MetalensCommand(click.Command):
             return super().invoke(ctx)
         except InputError as exc:  # the core names its argument (wavelengths): name the option (--wavelengths)
             param = next((p for p in self.params if p.name in (exc.field, f"{exc.field}_m") and p.opts), None)
-            if param is None:
+            forced = getattr(exc, "forceable", False) and any(p.name == "force" for p in self.params)
+            if param is None and not forced:
                 raise
-            raise InputError(_option_name(param), exc.message, exc.expected) from None
+            expected = f"{exc.expected}; or --force to compute anyway" if forced else exc.expected
+            raise InputError(exc.field if param is None else _option_name(param), exc.message, expected) from None
 
 
 def refuse_overwriting(outputs: list[tuple[str, str | None]], inputs: list) -> None:

@@ -6,6 +6,8 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+from metalens_cli.cli import render
+
 
 @contextmanager
 def progress_bar(description: str, quiet: bool = False) -> Iterator[Callable[[int, int], None]]:
@@ -99,9 +101,7 @@ def run_training(name: str, quiet: bool, resume_command: str, start: Callable[["
             sys.exit(143 if terminated else 130)
     if not rank0:
         return None
-    console = _stderr_console()
-    for note in summary.report.get("notes", []):
-        console.print(f"note: {note}", markup=False, soft_wrap=True)
+    render.say(summary.report.get("notes", []), "note")
     return summary.report
 
 

@@ -131,7 +131,7 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
             from metalens_cli.plotting.psf_scan import plot_psf_scan
 
             plot_psf_scan(plot_file, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m)
-    _warn(cube.warnings)
+    render.say(cube.warnings)
     if as_json:
         render.emit_json({"file": str(output), "design": name, "pixels": int(cube.psf.shape[-1]), "pixel_pitch_m": cube.pixel_pitch_m,
                           "wavelengths_m": cube.wavelengths_m.tolist(),
@@ -140,13 +140,6 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
                           **({"plot": str(plot_path)} if plot_path else {})})
         return
     _render_import(cube, output, seconds)
-
-
-def _warn(warnings: list[str]) -> None:
-    """One ``warning: …`` line on stderr each."""
-    err = render.console(stderr=True)
-    for warning in warnings:
-        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
 
 
 def _render_import(cube, output, seconds: float) -> None:
@@ -179,7 +172,8 @@ def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plo
     the simulated range or with --no-interpolate, refused (listed). A simulated cube of another
     pixel pitch is resampled onto the measured pixels (warned about when over 2× coarser);
     pitches no PSF can have (a window under half a wavelength, a measured window inside 3
-    simulated pixels) are refused. --plot: the x-λ scans of both side by side per depth (the
+    simulated pixels) and a common window under 8 × 8 pixels are refused; encircled energy at a
+    radius over half the common window is not reported (—, null), with a warning. --plot: the x-λ scans of both side by side per depth (the
     paper's Fig. 4c). --csv and --plot are published together or not at all.
     """
     from metalens_cli.analysis.psf_compare import compare_cubes
@@ -195,7 +189,7 @@ def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plo
             from metalens_cli.plotting.psf_compare import plot_psf_comparison
 
             plot_psf_comparison(plot_file, result)
-    _warn(result.warnings)
+    render.say(result.warnings)
     if as_json:
         render.emit_json({"measured": str(measured), "simulated": str(simulated), "pixels": result.pixels,
                           "pixel_pitch_m": result.pixel_pitch_m, "simulated_resampled": result.resampled, "radii_m": result.radii_m,
@@ -243,7 +237,7 @@ def _render_compare(result, measured, simulated) -> None:
 
     rows = []
     for p in result.pairs:
-        ee = [f"{m:.3f} / {s:.3f}" for m, s in zip(p["encircled_energy"]["measured"], p["encircled_energy"]["simulated"])]
+        ee = [f"{number(m, 3)} / {number(s, 3)}" for m, s in zip(p["encircled_energy"]["measured"], p["encircled_energy"]["simulated"])]
         rows.append([format_length(math.inf if p["depth_m"] is None else p["depth_m"]), render.nm(p["wavelength_m"], 1), p["simulated"],
                      f"{p['peak_ratio']:.3f}", f"{p['relative_l2']:.3f}", f"{um(p['fwhm_m']['measured'])} / {um(p['fwhm_m']['simulated'])}",
                      f"{number(p['mtf50_lpmm']['measured'], 1)} / {number(p['mtf50_lpmm']['simulated'], 1)}", *ee])

@@ -104,9 +104,7 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
             f = design.preset.filter
             bands = [(c - w / 2, c + w / 2) for c, w in zip(f.centers_m, f.widths_m)]
         plot_psf_scan(plot_path, scan.psf, wavelengths_m, depths_m, pixel_pitch_m, bands)
-    err = render.console(stderr=True)
-    for warning in scan.warnings:
-        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
+    render.say(scan.warnings)
     if as_json:
         render.emit_json({
             "file": str(output),

@@ -26,6 +26,14 @@ def console(stderr: bool = False):
     return Console(stderr=stderr, highlight=False, width=None if stream.isatty() else 120)
 
 
+def say(lines, kind: str = "warning") -> None:
+    """Each of ``lines`` as one stderr line ``metalens: KIND: …`` (the prefix every message
+    of the tool carries, docs/failures.md)."""
+    err = console(stderr=True)
+    for line in lines:
+        err.print(f"metalens: {kind}: {line}", markup=False, soft_wrap=True)
+
+
 TEXT_COLUMNS = {"note", "condition", "holds", "band", "key", "value", "design", "obstruction", "kind"}
 
 

@@ -69,14 +69,22 @@ def capture_options(f):
     return geometry_options(apply_options(f, options))
 
 
-def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device):
-    """Resolve designs, sensor, depth intervals and wavelengths (shared by simulate and evaluate)."""
+def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device,
+          design_field="DESIGN"):
+    """Resolve designs, sensor, depth intervals and wavelengths (shared by simulate, evaluate and
+    reconstruct train); a malformed design is refused naming ``design_field`` (their positional
+    DESIGN argument), not resolve_design's ``--design``."""
     from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, DEFAULT_Z_FAR_M, DEFAULT_Z_NEAR_M
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.io.units import parse_length_list
 
     preset = load_preset_option(preset_path)
-    designs = [resolve_design(spec, preset, f_m, aperture_m, pitch_m) for spec in spec_list]
+    try:
+        designs = [resolve_design(spec, preset, f_m, aperture_m, pitch_m) for spec in spec_list]
+    except InputError as exc:
+        if exc.field != "--design":
+            raise
+        raise InputError(design_field, exc.message, exc.expected) from None
     in_force = preset or designs[0].preset
     sensor = in_force.sensor if in_force is not None else None
     scene = in_force.scene if in_force is not None else None
@@ -157,9 +165,7 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
             "files": files,
         })
         (staging / "simulate.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    err = render.console(stderr=True)
-    for warning in warnings:
-        err.print(f"warning: {warning}", markup=False, soft_wrap=True)
+    render.say(warnings)
     if as_json:
         render.emit_json(report)
         return

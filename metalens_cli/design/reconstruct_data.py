@@ -13,8 +13,10 @@ Captured pairs (``--pairs DIR``)::
     DIR/captures/NAME.png       a capture of scene NAME through the lens, aligned to gt/NAME
     DIR/captures/NAME@K.png     further captures of the same scene (K any text)
 
-8/16-bit files are sRGB-encoded, EXR linear. The last tenth of the scenes (by name; at least one)
-are held out for validation.
+Every scene of gt/ has a capture and every capture a gt image. 8/16-bit files are sRGB-encoded,
+EXR linear. The last tenth of the scenes (by name; at least one) are held out for validation, all
+captures of a scene on the same side, so training and validation scenes are disjoint (hence at
+least two scenes). ``data.validation_pairs`` is the simulated held-out pool's size only.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import ChannelPsfs, channel_psfs
 
 VALIDATION_GENERATION = 2**40  # the held-out pool's generation, far from any training generation
+MIN_SCENES = 2  # captured scenes: one to train on, one held out for validation
 
 
 @dataclass(frozen=True)
@@ -151,6 +154,7 @@ def simulate_pool(design, camera: Camera, data, bank: PsfBank, seed: int, genera
 def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
     """Training and validation pools from captured pairs (layout in the module docstring); every
     image is cropped to the common smallest square so pools stack."""
+    from metalens_cli.imaging.captured_pairs import check_scenes
     from metalens_cli.imaging.images import read_linear
 
     root = Path(folder)
@@ -163,13 +167,15 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
 
     gts = {p.stem: p for p in files(gt_dir)}
     pairs = [(p.stem.split("@")[0], p) for p in files(capture_dir)]
-    missing = sorted({name for name, _ in pairs} - set(gts))
-    if missing:
-        raise InputError("--pairs", f"captures/{missing[0]}* has no gt/{missing[0]} image", "a gt image for every captured scene")
     if not pairs:
         raise InputError("--pairs", f"{str(capture_dir)!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}")
-    scenes = sorted({name for name, _ in pairs})
-    held = set(scenes[len(scenes) - max(1, len(scenes) // 10):]) if len(scenes) > 1 else set()
+    check_scenes("captures", {name for name, _ in pairs}, gts)  # evaluate --pairs' rule: every gt scene captured, and no more
+    scenes = sorted(gts)
+    if len(scenes) < MIN_SCENES:
+        raise InputError("--pairs", f"{str(root)!r} holds {len(scenes)} scene ({scenes[0]}), too few to hold out validation scenes "
+                         "apart from the training ones", f"at least {MIN_SCENES} scenes with their captures: the last tenth by name, "
+                         "at least one, is held out for validation")
+    held = set(scenes[len(scenes) - max(1, len(scenes) // 10):])  # ≥ 1 scene left to train on
     loaded = []
     for name, path in pairs:
         gt, capture = read_linear(gts[name], "--pairs"), read_linear(path, "--pairs")
@@ -183,8 +189,8 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
         top, left = (a.shape[1] - side) // 2, (a.shape[2] - side) // 2
         return a[:, top:top + side, left:left + side]
 
-    def pool(hold: bool) -> Pool:
-        chosen = [(centre(g), centre(c)) for h, g, c in loaded if h == hold] or [(centre(g), centre(c)) for _, g, c in loaded]
+    def pool(hold: bool) -> Pool:  # the scenes of the two pools are disjoint, neither is empty
+        chosen = [(centre(g), centre(c)) for h, g, c in loaded if h == hold]
         clean, capture = (np.stack(x).astype(np.float32) for x in zip(*chosen))
         return Pool(clean, capture, capture, ["captured"] * len(clean))
 

@@ -49,6 +49,8 @@ from metalens_cli.optics.spectra import sample_wavelengths
 
 DEFAULT_LAMBDA_D_M = 532e-9
 PLAN_HEADROOM = 1.25
+FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and per-term gradient
+# norms (2 × 2 draws) at θ_init and θ_final, the results' PSF scan: 53 (quick preset) and 66 (tests' tiny) measured
 THETA_GRID_COPIES = 12       # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
 LARGE_GRID_BYTES = 1 << 30   # a 2-D θ grid above this is estimated (and refused) before it is built
 MAX_PLAN_WINDOW = 4097     # planned windows stop growing here (pixels): the step then reports what it kept
@@ -175,10 +177,9 @@ def estimate_training(preset) -> tuple[int, float | None]:
     """(peak bytes, seconds) of a run of ``preset``: one step's PSFs (``optics.psf.estimate_psf``
     at the plan's wavelength range, kept for the backward pass: ×2) and its batch of captures on
     the canvas (about 20 float32 planes of 3 channels per image, forward and backward); time from
-    the PSF plan (×3 with its backward pass) and the canvas FFTs, times the steps. On the quick
-    preset: 36 min estimated; measured 36 min in an earlier run and 18 min (0.71 s a step, of which
-    scenes, formation and their backward about 0.35 s) on an idle 2-core machine. A 2-D θ grid
-    over 1 GiB is estimated alone, without building anything (time None)."""
+    the PSF plan (×3 with its backward pass) and the canvas FFTs, times the steps plus
+    ``FINISH_STEPS`` for what follows them. A 2-D θ grid over 1 GiB is estimated alone, without
+    building anything (time None)."""
     from metalens_cli.optics.psf import FFT_RATE, estimate_psf
 
     o = preset.optimize
@@ -195,7 +196,7 @@ def estimate_training(preset) -> tuple[int, float | None]:
     canvas = preset.sensor.pixels + 2 * windows.margin
     captures = o.batch_size * 20 * 3 * canvas**2 * 4
     per_step = 3 * (psf.seconds - psf.setup_seconds) + o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
-    return 2 * psf.memory_bytes + captures, psf.setup_seconds + o.steps * per_step
+    return 2 * psf.memory_bytes + captures, psf.setup_seconds + (o.steps + FINISH_STEPS) * per_step
 
 
 def core_window(preset) -> int | None:

@@ -82,10 +82,7 @@ def read_layout(folder: str | Path) -> PairLayout:
             capture = "recon" if m.group(1) else "raw"
             condition = "unobstructed" if m.group(2) == "unobstructed" else (m.group(3) or "obstructed")
             images = _images(sub, "--pairs")
-            if sorted(images) != sorted(gt):
-                extra, missing = sorted(set(images) - set(gt)), sorted(set(gt) - set(images))
-                what = f"lacks {', '.join(missing[:3])}" if missing else f"has {', '.join(extra[:3])} without a gt image"
-                raise InputError("--pairs", f"{sub.relative_to(folder)} {what}", "every folder holding the scenes of gt/, by name")
+            check_scenes(sub.relative_to(folder), images, gt)
             found[capture, condition] = images
         design_kinds = sorted({c for _, c in found if c != "unobstructed"})
         if ("raw", "unobstructed") not in found or not design_kinds:
@@ -103,6 +100,15 @@ def read_layout(folder: str | Path) -> PairLayout:
     if not designs:
         raise InputError("--pairs", f"no design folders in {str(folder)!r}", LAYOUT)
     return PairLayout(sorted(gt), gt, designs, kinds, captures)
+
+
+def check_scenes(where: str | Path, scenes, gt) -> None:
+    """Refuse a folder ``where`` (named relative to the pairs folder) whose scene names are not
+    exactly those of gt/: a scene without a capture or a capture without a gt image."""
+    extra, missing = sorted(set(scenes) - set(gt)), sorted(set(gt) - set(scenes))
+    if missing or extra:
+        what = f"lacks {', '.join(missing[:3])}" if missing else f"has {', '.join(extra[:3])} without a gt image"
+        raise InputError("--pairs", f"{where} {what}", "every folder holding the scenes of gt/, by name")
 
 
 def estimate_pairs(layout: PairLayout) -> tuple[int, float]:

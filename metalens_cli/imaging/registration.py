@@ -154,14 +154,17 @@ class Registration:
         }
 
 
-def register(reference: np.ndarray, target: np.ndarray, *, refine: str = "flow", field: str = "TARGET") -> Registration:
+def register(reference: np.ndarray, target: np.ndarray, *, refine: str = "flow", field: str = "TARGET",
+             reference_field: str = "REFERENCE") -> Registration:
     """Register ``target`` onto ``reference`` ((H, W[, C]) real arrays, values about 0..1;
     luminance from R, G, B when C ≥ 3, else the channel mean). ``refine``: "flow", "tps" or
     "none". Raises :class:`ResultFailed` (naming ``field``) when the registration cannot be
-    trusted, :class:`InputError` for arrays that are not images or an unknown ``refine``."""
+    trusted, :class:`InputError` for arrays that are not images or an unknown ``refine``; a
+    reference that is not an image or is uniform is named ``reference_field`` (its file in
+    `align`'s folder mode)."""
     if refine not in REFINES:
         raise InputError("refine", f"unknown refinement {refine!r}", ", ".join(REFINES))
-    reference_y = _stretch(_luminance(reference, "REFERENCE"), "REFERENCE")
+    reference_y = _stretch(_luminance(reference, reference_field), reference_field)
     target_y = _stretch(_luminance(target, field), field)
     reference_small, reference_scale = _downscale(reference_y, FEATURE_SIDE)
     target_small, target_scale = _downscale(target_y, FEATURE_SIDE)

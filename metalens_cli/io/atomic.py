@@ -73,12 +73,15 @@ def atomic_files(*targets: str | os.PathLike[str] | None) -> Iterator[list[Path 
 
 
 @contextmanager
-def atomic_folder(target: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_folder(target: str | os.PathLike[str], field: str = "--output") -> Iterator[Path]:
     """Yield a fresh hidden folder beside ``target`` to write a command's files into; on success
     it becomes ``target`` (renamed when ``target`` does not exist, else its files are moved in one
-    by one), on any exception (Ctrl-C, SIGTERM included) it is removed: ``target`` never holds
-    part of one run's files. Missing parents of ``target`` are created; a new ``target`` gets the
-    permissions of a folder made by ``mkdir`` (the staging folder is private while written)."""
+    by one, once every one of them is known to replace at most a regular file of that name: a
+    folder, FIFO, device or symbolic link there is an :class:`InputError` naming ``field`` and
+    the path, before anything is moved), on any exception (Ctrl-C, SIGTERM included) it is
+    removed: ``target`` never holds part of one run's files. Missing parents of ``target`` are
+    created; a new ``target`` gets the permissions of a folder made by ``mkdir`` (the staging
+    folder is private while written). An OSError about a staging file names its target file."""
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".metalens-", suffix=".tmp", dir=target.parent))
@@ -91,7 +94,10 @@ def atomic_folder(target: str | os.PathLike[str]) -> Iterator[Path]:
                 raise
             raise OSError(exc.errno, exc.strerror, str(target / Path(exc.filename).relative_to(staging))) from None
         if target.exists():
-            for item in staging.iterdir():
+            items = sorted(staging.iterdir())
+            for item in items:
+                _check_replaceable(target / item.name, field)
+            for item in items:
                 os.replace(item, target / item.name)
             staging.rmdir()
         else:
@@ -100,6 +106,14 @@ def atomic_folder(target: str | os.PathLike[str]) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+
+
+def _check_replaceable(path: Path, field: str) -> None:
+    """Refuse to publish a file over anything but a regular file (never through a link)."""
+    if path.is_symlink() or (path.exists() and not path.is_file()):
+        what = "a symbolic link" if path.is_symlink() else "a folder" if path.is_dir() else "not a regular file (a FIFO, device or socket)"
+        raise InputError(field, f"{str(path)!r}, where this run writes a file, is {what}",
+                         "an output folder whose same-named entries are regular files, or another folder")
 
 
 def _umask() -> int:

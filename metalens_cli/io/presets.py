@@ -189,6 +189,12 @@ MAX_OBSTRUCTION_M = 0.1  # obstruction features (dirt cells, wires, drops) on a 
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 
 
+def check_name(name: str) -> None:
+    """A preset's ``name`` names ``runs/NAME``: a plain file name, never a path."""
+    if not NAME_PATTERN.fullmatch(name):
+        raise InputError("name", f"{name!r} is not a plain name", "letters, digits, '.', '_' or '-', not starting with '.' (it names runs/NAME)")
+
+
 def as_str(value: Any, path: str, form: str) -> str:
     if not isinstance(value, str):
         raise InputError(path, f"expected a string, got {type(value).__name__}", form)
@@ -309,8 +315,7 @@ def _check_consistency(p: Preset) -> None:
     from metalens_cli.optics.band_rules import CAMERA_NAMES, check_bands
 
 
-    if not NAME_PATTERN.fullmatch(p.name):
-        raise InputError("name", f"{p.name!r} is not a plain name", "letters, digits, '.', '_' or '-', not starting with '.' (it names runs/NAME)")
+    check_name(p.name)
     for key, values in (("sensor.wavelength_range", p.sensor.wavelength_range_m),
                         ("nanofin.efficiency_wavelengths", p.nanofin.efficiency_wavelengths_m),
                         ("lens.design_wavelength", [p.lens.design_wavelength_m] if p.lens.design_wavelength_m else []),

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from metalens_cli.errors import InputError
 from metalens_cli.io.tables import check_wavelengths
-from metalens_cli.io.presets import as_str, build_section, read_toml, toml_field, toml_key
+from metalens_cli.io.presets import as_str, check_name, build_section, read_toml, toml_field, toml_key
 
 OBSTRUCTION_KINDS = ("dirt", "fence", "drops", "rain")
 SCENES = ("mixed", "procedural", "dead-leaves")
@@ -115,6 +115,7 @@ def reconstruct_preset_from_dict(data: dict, name: str = "reconstruct", source: 
     sections = {key: build_section(cls, data.get(key, {}), key) for key, cls in SECTIONS.items()}
     preset = ReconstructPreset(as_str(data.get("name", name), "name", "a string"), description=as_str(data.get("description", ""),
                                "description", "a string"), source=source, **sections)
+    check_name(preset.name)  # the camera presets' rule
     for kind in preset.data.obstructions:
         if kind not in OBSTRUCTION_KINDS:
             raise InputError("data.obstructions", f"unknown obstruction {kind!r}", ", ".join(OBSTRUCTION_KINDS))

@@ -225,7 +225,7 @@ def parse_interval(text: str, field: str, *, allow_inf: bool = False) -> tuple[f
 
 
 DURATION_SECONDS = {"": 1.0, "s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
-DURATION_FORM = "a duration with a unit (s, min, h, d), e.g. 90s, 30min or 2h, or inf"
+DURATION_FORM = "a duration in seconds or with a unit (s, min, h, d), e.g. 90s, 30min or 2h, or inf"
 _DURATION_RE = re.compile(rf"\s*({_NUMBER})\s*([a-z]*)\s*")
 
 

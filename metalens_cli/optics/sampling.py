@@ -77,11 +77,13 @@ def check_lens_sampling(lens: Metalens, wavelengths_m, depths_m, force: bool) ->
     if f_max > nyquist and not force:
         z_min = min(depths_m)
         raise SamplingError(
+            "pitch",
             f"the field leaving the lens reaches {f_max * 1e-3:.4g} cycles/mm (lens phase "
             f"{f_lens * 1e-3:.4g} cycles/mm at r = {r_lens * 1e3:.4g} mm, source at z = {z_min:g} m "
             f"adds the rest) but the meta-atom pitch {lens.pitch_m:g} m resolves only "
-            f"{nyquist * 1e-3:.4g} cycles/mm: needs a pitch ≤ {1 / (2 * f_max):.4g} m or a "
-            "shallower lens phase / more distant source (--force, or force=True from Python, to proceed)")
+            f"{nyquist * 1e-3:.4g} cycles/mm",
+            f"a pitch ≤ {1 / (2 * f_max):.4g} m, a shallower lens phase (a smaller aperture or longer f) or a more "
+            "distant source", forceable=True)
     return 2.0 ** (math.ceil(16 * math.log2(max(f_max, 1.0))) / 16)
 
 
@@ -129,9 +131,8 @@ def plan_radial(lens: Metalens, wavelengths_m, depths_m, distance_m: float, n_pi
     plan = RadialPlan(radius, n_freq, n_nodes, sin_lim, step,
                       radial_sensor_radii(step, n_pixels, pixel_pitch_m))
     if n_freq > MAX_HANKEL_SIZE:
-        raise SamplingError(f"the radial propagator would need {n_freq} Hankel samples over "
-                            f"R = {radius:g} m (limit {MAX_HANKEL_SIZE}); shrink the aperture, "
-                            "the sensor window or the distance")
+        raise SamplingError("aperture", f"the radial propagator would need {n_freq} Hankel samples over "
+                            f"R = {radius:g} m (limit {MAX_HANKEL_SIZE})", "a smaller aperture, sensor window or distance")
     return plan
 
 
@@ -151,9 +152,9 @@ def plan_asm(lens: Metalens, wavelengths_m, distance_m: float, n_pixels: int,
     need = max(2 * a + width, 2 * distance_m * sin_lim / math.sqrt(1 - sin_lim**2), m * p)
     size = fft_size(math.ceil(need / p))
     if size > MAX_FFT_SIZE:
-        raise SamplingError(f"the angular spectrum needs a {size}² grid at pitch {p:g} m "
-                            f"(side {need:g} m; limit {MAX_FFT_SIZE}²); use the radial propagator "
-                            "for a radially symmetric design or a smaller window/distance")
+        raise SamplingError("aperture", f"the angular spectrum needs a {size}² grid at pitch {p:g} m "
+                            f"(side {need:g} m; limit {MAX_FFT_SIZE}²)",
+                            "the radial propagator for a radially symmetric design, or a smaller aperture, window or distance")
     h = p / upsample
     half = math.ceil((width / 2) / h) + 3
     return AsmGrid(size=size, pitch_m=p, input_size=m, window_half=half, upsample=upsample)

@@ -107,3 +107,34 @@ def test_a_simulation_much_coarser_than_the_measurement_is_warned_about():
     coarse = compare_cubes(measured, cube([spot(21, 1.0)], [530], pitch=4e-6))
     assert coarse.resampled and len(coarse.warnings) == 1 and "are 4× the measured (1 µm)" in coarse.warnings[0]
     assert compare_cubes(measured, cube([spot(31, 2.0)], [530], pitch=2e-6)).warnings == []
+
+
+@pytest.mark.parametrize(("measured", "simulated", "words"), [
+    (cube([spot(41, 2.0)], [530]), cube([spot(41, 2.0)[19:22, 19:22]], [530]),
+     "SIMULATED: its window (3 × 3 pixels of 2 µm, 6 µm across) covers 3 × 3 measured pixels of 2 µm: too small to compare PSFs "
+     "(expected a simulated window at least 8 measured pixels (16 µm) wide"),
+    (cube([spot(41, 2.0)], [530]), cube([spot(161, 50.0)], [530], pitch=PITCH / 50),
+     "SIMULATED: its window (161 × 161 pixels of 40 nm, 6.44 µm across) covers 3 × 3 measured pixels"),
+    (cube([spot(5, 0.7)], [530]), cube([spot(41, 2.0)], [530]),
+     "MEASURED: the common window is 5 × 5 pixels of 2 µm, its own window: too small to compare PSFs "
+     "(expected a measured window of at least 8 × 8 pixels)"),
+], ids=["3x3 crop", "1/50 pitch", "5x5 measured"])
+def test_a_common_window_too_small_to_compare_psfs_is_refused(measured, simulated, words):
+    """A 3 × 3 common window gave peak ratios of 1.0 and encircled energies of 1.000 for any PSFs."""
+    with pytest.raises(InputError, match=re.escape(words)):
+        compare_cubes(measured, simulated)
+
+
+def test_encircled_energy_beyond_the_window_is_not_reported_and_light_outside_it_is_refused():
+    """A 9 × 9 crop of the simulation: the default radii 10 and 20 µm leave the 18 µm window
+    (None, one warning); a blur disc of σ = 15 pixels, 5 % of it in the window, is not compared."""
+    measured = cube([spot(61, 1.5), spot(61, 15.0)], [530, 630])
+    simulated = cube([spot(61, 1.5)[26:35, 26:35], spot(61, 15.0)[26:35, 26:35]], [530, 630])
+    result = compare_cubes(measured, simulated)
+    assert result.pixels == 9 and [round(p["wavelength_m"] * 1e9) for p in result.pairs] == [530]
+    ee = result.pairs[0]["encircled_energy"]
+    assert ee["measured"][1:] == [None, None] and ee["simulated"][1:] == [None, None] and 0.5 < ee["measured"][0] <= 1
+    assert [round(r["wavelength_m"] * 1e9) for r in result.refused] == [630]
+    assert "the compared window (9 × 9 pixels of 2 µm) holds" in result.refused[0]["reason"]
+    assert any("encircled energy at 10 µm and 20 µm is not reported" in w and "18 µm across" in w for w in result.warnings)
+    assert all(r is not None for r in compare_cubes(measured, measured).pairs[0]["encircled_energy"]["measured"])

@@ -149,6 +149,24 @@ def test_one_failing_pair_writes_no_folder(capsys, tmp_path, bench):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["refs", "shots"]
 
 
+
+def test_a_failing_reference_in_folder_mode_is_named_by_its_file(capsys, tmp_path, bench):
+    """A uniform REF_DIR/b.png (and its target) once gave `REFERENCE: the image is uniform`,
+    without saying which of the pairs; a uniform reference of two files still says REFERENCE."""
+    refs, shots = tmp_path / "refs", tmp_path / "shots"
+    save_png(refs / "a.png", texture(SIDE, SIDE, 0))
+    save_png(shots / "a.png", capture(texture(SIDE, SIDE, 0)), bits=16)
+    flat = np.full((SIDE, SIDE, 3), 0.5, np.float32)
+    save_png(refs / "b.png", flat)
+    save_png(shots / "b.png", flat, bits=16)
+    code, out, err = invoke(capsys, "align", "--quiet", refs, shots, "-o", tmp_path / "out")
+    assert code == 1 and out == ""
+    one_error_line(err, f"metalens: error: {refs / 'b.png'}: the image is uniform; there is nothing to register")
+    assert not (tmp_path / "out").exists()
+    code, out, err = invoke(capsys, "align", refs / "b.png", shots / "a.png", "-o", tmp_path / "one.png")
+    assert code == 1
+    one_error_line(err, "metalens: error: REFERENCE: the image is uniform")
+
 @pytest.fixture
 def broken(tmp_path, bench):
     """Inputs that are wrong in one way each, and a saved warp of bench's scene0 in bench/w.npz."""

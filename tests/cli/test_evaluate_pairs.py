@@ -101,8 +101,10 @@ def test_recon_folders_add_recon_rows(capsys, pairs, tmp_path):
 @pytest.mark.parametrize(("change", "args", "code", "message"), [
     (lambda root: (root / "sharp" / "obstructed" / "scene1.png").unlink(), [], 2, "sharp/obstructed lacks scene1"),
     (lambda root: (root / "sharp" / "misc").mkdir(), [], 2, "unexpected folder sharp/misc"),
-    (None, ["--seed", "3"], 2, "--seed does not apply to --pairs"),
-    (None, ["hyperbolic:532nm"], 2, "DESIGN does not apply to --pairs"),
+    (None, ["--seed", "3"], 2, "--seed: does not apply to --pairs (the designs are the folders of DIR) (expected --pairs DIR with only "),
+    (None, ["hyperbolic:532nm"], 2, "DESIGN: does not apply to --pairs (the designs are the folders of DIR) (expected "),
+    (None, ["--max-time", "0.001s"], 2, "--pairs: evaluate --pairs of 2 design(s) × 3 scene(s)"),  # estimated, so --max-time holds
+    (lambda root: (root / "sharp" / "misc").mkdir(), ["--max-time", "1h"], 2, "unexpected folder sharp/misc"),  # past the option rule
     (lambda root: save(root / "blurry" / "unobstructed" / "scene2.png", texture(SIDE, SIDE, 99)), [], 1, "scene2.png"),
 ])
 def test_bad_pairs_are_one_line_errors(capsys, pairs, tmp_path, change, args, code, message):

@@ -163,6 +163,7 @@ def test_the_least_harmonics_in_range_work(capsys, tmp_path, args):
     (["--harmonics", "2"], "--harmonics': '2' (expected an odd number of Fourier harmonics per axis from 1 to 41)"),
     (["--band", "540nm:20nm"], "--band: pass bands overlap"),
     (["--band", "600nm:0.5nm"], "--band: a band is narrower than"),
+    (["--band", "1000nm:1990nm"], "--band': 5 nm is not an optical wavelength"),  # its lower edge
 ])
 def test_sweep_refuses_before_any_work(capsys, tmp_path, args, words):
     """Values a preset or the convergence rule refuses are refused up front, nothing written."""

@@ -114,3 +114,29 @@ def test_json_reaches_a_pipe(bench):
     done = subprocess.run([sys.executable, "-m", "metalens_cli", "psf", "import", str(bench / "many.csv"), "--pixel-pitch", "2um",
                            "-o", str(bench / "piped.exr"), "--json"], capture_output=True, text=True, check=True)
     assert len(json.loads(done.stdout)["frames"]) == 12
+
+
+def _write_cube(path, planes, pitch_m):
+    """A one-depth (inf), one-wavelength (530 nm) cube of ``planes`` (N × N)."""
+    from metalens_cli.io.exr import write_psf_cube
+
+    write_psf_cube(path, np.asarray(planes, np.float32)[None, None], np.array([530e-9]), np.array([np.inf]), pitch_m, "test")
+
+
+def test_compare_refuses_a_3x3_window_and_does_not_report_encircled_energy_beyond_the_window(capsys, tmp_path):
+    """A 3 × 3 crop of the simulation gave peak ratio 1.0 and EE 1.000 at radii beyond the
+    window, exit 0; now: refused naming SIMULATED; a 9 × 9 crop: EE beyond it is null / —."""
+    spot = gaussian_spot(41, 41, (20, 20), 1.5)
+    _write_cube(tmp_path / "m.exr", spot, 1.85e-6)
+    _write_cube(tmp_path / "s3.exr", spot[19:22, 19:22], 1.85e-6)
+    _write_cube(tmp_path / "s9.exr", spot[16:25, 16:25], 1.85e-6)
+    code, out, err = invoke(capsys, "psf", "compare", tmp_path / "m.exr", tmp_path / "s3.exr")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err.startswith("metalens: error: SIMULATED: its window (3 × 3 pixels of 1.85 µm") and "(expected a simulated window" in err
+    code, out, err = invoke(capsys, "psf", "compare", tmp_path / "m.exr", tmp_path / "s9.exr", "--json")
+    assert code == 0, err
+    ee = json.loads(out)["pairs"][0]["encircled_energy"]
+    assert ee["measured"][1:] == [None, None] and ee["simulated"][1:] == [None, None] and ee["measured"][0] > 0.5
+    assert "metalens: warning: encircled energy at 9.25 µm and 18.5 µm is not reported" in err and "16.65 µm across" in err
+    code, out, err = invoke(capsys, "psf", "compare", tmp_path / "m.exr", tmp_path / "s9.exr")
+    assert code == 0 and "— / —" in out and "1.000 / 1.000" not in out

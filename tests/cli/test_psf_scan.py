@@ -98,3 +98,16 @@ def test_a_scan_estimated_at_days_is_refused_before_it_starts(capsys, tmp_path):
     code, _, err = invoke(capsys, "psf-scan", *lens, "--wavelengths", "532nm", "--max-time", "30min")
     assert code == 2 and "over the --max-time limit (30 min)" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_undersampled_lens_names_pitch_and_offers_force_only_where_it_exists(capsys, tmp_path):
+    """The sampling guard is bad input about the lens: it names --pitch and what would fix it;
+    psf-scan, which has --force, says so; simulate, which has not, does not."""
+    lens = ["--f", "1mm", "--aperture", "10mm", "--pixels", "32"]
+    code, _, err = invoke(capsys, "psf-scan", "--design", "hyperbolic:532nm", *lens, "--wavelengths", "532nm", "--depths", "45mm",
+                          "-o", tmp_path / "x.exr")
+    assert code == 2 and err.startswith("metalens: error: --pitch: the field leaving the lens reaches ")
+    assert err.rstrip().endswith("or a more distant source; or --force to compute anyway)") and err.count("\n") == 1
+    code, _, err = invoke(capsys, "simulate", "hyperbolic:532nm", *lens, "--images", "charts", "--limit", "1", "-o", tmp_path / "s")
+    assert code == 2 and err.startswith("metalens: error: --pitch: ") and "force" not in err
+    assert list(tmp_path.iterdir()) == []

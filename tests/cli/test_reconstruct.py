@@ -139,6 +139,38 @@ def test_train_on_captured_pairs(tmp_path, capsys):
     assert report["data"]["validation_entries"] == 1 and report["data"]["pool_pixels"] == 40
 
 
+def test_train_refuses_degenerate_pairs_bad_names_and_names_design(tmp_path, capsys):
+    """One scene cannot be split into training and validation scenes; a gt scene without a
+    capture is refused as evaluate --pairs refuses it; a preset's name must be plain; the
+    positional DESIGN is named as such. Nothing is written."""
+    import cv2
+
+    rng = np.random.default_rng(5)
+    for folder, scenes, captured in (("one", ["s0"], ["s0@a", "s0@b"]), ("lacking", ["s0", "s1", "s2"], ["s0"])):
+        for sub in ("gt", "captures"):
+            (tmp_path / folder / sub).mkdir(parents=True)
+        for name in scenes:
+            cv2.imwrite(str(tmp_path / folder / "gt" / f"{name}.png"), rng.integers(0, 255, size=(40, 40, 3), dtype=np.uint8))
+        for name in captured:
+            cv2.imwrite(str(tmp_path / folder / "captures" / f"{name}.png"), rng.integers(0, 255, size=(40, 40, 3), dtype=np.uint8))
+    out = tmp_path / "run"
+    train = ["reconstruct", "train", *LENS, "-o", str(out), "--steps", "1", "--quiet", "--preset"]
+    assert run([*train, str(TINY), "--pairs", str(tmp_path / "one")]) == 2
+    _one_line_error(capsys, "--pairs: '" + str(tmp_path / "one") + "' holds 1 scene (s0), too few to hold out validation scenes "
+                    "apart from the training ones (expected at least 2 scenes")
+    assert run([*train, str(TINY), "--pairs", str(tmp_path / "lacking")]) == 2
+    _one_line_error(capsys, "--pairs: captures lacks s1, s2")
+    evil = tmp_path / "evil.toml"
+    evil.write_text(TINY.read_text().replace('name = "tiny-reconstruct"', 'name = "../evil"'))
+    assert run(["preset", "show", str(evil)]) == 2
+    _one_line_error(capsys, "name: '../evil' is not a plain name")
+    assert run([*train, str(evil)]) == 2
+    _one_line_error(capsys, "name: '../evil' is not a plain name")
+    assert run(["reconstruct", "train", "hyperbolic:abc", *LENS[1:], "--preset", str(TINY), "-o", str(out)]) == 2
+    _one_line_error(capsys, "metalens: error: DESIGN: 'abc' is not a length")
+    assert not out.exists()
+
+
 def test_resume_refuses_another_preset_and_too_many_threads(trained, tmp_path, capsys):
     """--resume goes on with the run's own preset: one given must match it (steps and seed aside),
     else it would be silently ignored; --threads beyond the usable cores would only stall."""

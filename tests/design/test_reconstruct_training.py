@@ -92,8 +92,27 @@ def test_captured_pairs_layout_and_refusals(tmp_path):
     (tmp_path / "orphan" / "gt").mkdir(parents=True)
     (tmp_path / "orphan" / "captures").mkdir()
     (tmp_path / "orphan" / "captures" / "x.png").write_bytes((tmp_path / "bad" / "gt" / "a.png").read_bytes())
-    with pytest.raises(InputError, match="no gt/x"):
+    with pytest.raises(InputError, match="captures has x without a gt image"):
         read_pairs(tmp_path / "orphan")
+
+
+def test_captured_pairs_refuse_uncaptured_scenes_and_too_few_to_hold_out(tmp_path):
+    """Every gt scene has a capture (as evaluate --pairs requires), and the validation scenes
+    are apart from the training ones, so a single scene (however many captures) is refused."""
+    _write_pairs(tmp_path / "uncaptured", ["a", "b", "c"])
+    for k in range(2):
+        (tmp_path / "uncaptured" / "captures" / f"b@{k}.png").unlink()
+    with pytest.raises(InputError, match="captures lacks b") as error:
+        read_pairs(tmp_path / "uncaptured")
+    assert error.value.field == "--pairs"
+    _write_pairs(tmp_path / "one", ["only"])
+    with pytest.raises(InputError, match="holds 1 scene") as error:
+        read_pairs(tmp_path / "one")
+    assert error.value.field == "--pairs" and "at least 2 scenes" in error.value.expected
+    _write_pairs(tmp_path / "two", ["a", "b"])
+    train, validation = read_pairs(tmp_path / "two")
+    assert len(train) == 2 and len(validation) == 2  # scene a's two captures train, scene b's validate
+    assert not set(map(bytes, train.clean)) & set(map(bytes, validation.clean))
 
 
 def _states(run: Path) -> dict:

@@ -87,3 +87,22 @@ def test_a_failed_write_in_a_folder_names_the_target_file_not_its_staging_copy(t
         raise OSError(errno.EFBIG, os.strerror(errno.EFBIG), str(staging / "a.png"))
     assert failed.value.errno == errno.EFBIG and failed.value.filename == str(tmp_path / "out" / "a.png")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("make, what", [(lambda p: p.mkdir(), "is a folder"), (os.mkfifo, "is not a regular file"),
+                                        (lambda p: p.symlink_to(p.with_name("victim")), "is a symbolic link")])
+def test_a_folder_published_into_never_replaces_anything_but_a_regular_file(tmp_path, make, what):
+    """--overwrite replaces same-named regular files; a folder, FIFO or link in a file's place is
+    refused naming it, before any file is moved (the folder keeps all of the old files, none of
+    the run's) and the staging folder is removed."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "a.png").write_text("old a")
+    (tmp_path / "victim").write_text("the user's")
+    make(out / "b.png")
+    with pytest.raises(InputError, match=rf"--output: '{out / 'b.png'}', where this run writes a file, {what}"):
+        with atomic_folder(out) as staging:
+            (staging / "a.png").write_text("new a")
+            (staging / "b.png").write_text("new b")
+    assert (out / "a.png").read_text() == "old a" and (tmp_path / "victim").read_text() == "the user's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "victim"]

@@ -29,6 +29,8 @@ def test_shipped_presets_load_and_round_trip(name, tmp_path):
     ({"train": {"steps": 1}, "data": {"wavelengths": "500nm"}}, "data.wavelengths"),
     ({"network": {"width": 16}}, "train"),
     ({"train": {"steps": 1}, "optimize": {}}, "optimize"),
+    ({"name": "../evil", "train": {"steps": 1}}, "name"),  # the camera presets' rule: it names runs/NAME
+    ({"name": ".hidden", "train": {"steps": 1}}, "name"),
 ])
 def test_bad_presets_name_the_key(document, field):
     with pytest.raises(InputError) as error:
