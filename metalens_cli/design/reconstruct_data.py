@@ -154,7 +154,7 @@ def simulate_pool(design, camera: Camera, data, bank: PsfBank, seed: int, genera
 def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
     """Training and validation pools from captured pairs (layout in the module docstring); every
     image is cropped to the common smallest square so pools stack."""
-    from metalens_cli.imaging.captured_pairs import check_scenes
+    from metalens_cli.imaging.captured_pairs import check_scenes, images_by_stem
     from metalens_cli.imaging.images import read_linear
 
     root = Path(folder)
@@ -165,7 +165,7 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
     def files(d: Path) -> list[Path]:
         return sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
 
-    gts = {p.stem: p for p in files(gt_dir)}
+    gts = images_by_stem(gt_dir, "--pairs")  # two files of one scene are refused, as by evaluate --pairs
     pairs = [(p.stem.split("@")[0], p) for p in files(capture_dir)]
     if not pairs:
         raise InputError("--pairs", f"{str(capture_dir)!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}")

@@ -69,7 +69,7 @@ def read_layout(folder: str | Path) -> PairLayout:
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("--pairs", f"{str(folder)!r} is not a folder", LAYOUT)
-    gt = _images(folder / "gt", "--pairs")
+    gt = images_by_stem(folder / "gt", "--pairs")
     if not gt:
         raise InputError("--pairs", f"no images in {str(folder / 'gt')!r}", LAYOUT)
     designs, kinds, captures = [], None, {}
@@ -81,7 +81,7 @@ def read_layout(folder: str | Path) -> PairLayout:
                 raise InputError("--pairs", f"unexpected folder {sub.relative_to(folder)}", LAYOUT)
             capture = "recon" if m.group(1) else "raw"
             condition = "unobstructed" if m.group(2) == "unobstructed" else (m.group(3) or "obstructed")
-            images = _images(sub, "--pairs")
+            images = images_by_stem(sub, "--pairs")
             check_scenes(sub.relative_to(folder), images, gt)
             found[capture, condition] = images
         design_kinds = sorted({c for _, c in found if c != "unobstructed"})
@@ -126,7 +126,7 @@ def estimate_pairs(layout: PairLayout) -> tuple[int, float]:
     return BASE_MEMORY + BYTES_PER_PIXEL * max(largest, *sizes), SECONDS_PER_PIXEL * sum(sizes)
 
 
-def _images(folder: Path, field: str) -> dict[str, Path]:
+def images_by_stem(folder: Path, field: str) -> dict[str, Path]:
     """Image files of a folder by stem; two files of one stem are refused."""
     if not folder.is_dir():
         return {}

@@ -110,6 +110,10 @@ def test_captured_pairs_refuse_uncaptured_scenes_and_too_few_to_hold_out(tmp_pat
         read_pairs(tmp_path / "one")
     assert error.value.field == "--pairs" and "at least 2 scenes" in error.value.expected
     _write_pairs(tmp_path / "two", ["a", "b"])
+    (tmp_path / "two" / "gt" / "a.tif").write_bytes((tmp_path / "two" / "gt" / "a.png").read_bytes())
+    with pytest.raises(InputError, match="a.png and a.tif in .* name one scene"):  # which would it take?
+        read_pairs(tmp_path / "two")
+    (tmp_path / "two" / "gt" / "a.tif").unlink()
     train, validation = read_pairs(tmp_path / "two")
     assert len(train) == 2 and len(validation) == 2  # scene a's two captures train, scene b's validate
     assert not set(map(bytes, train.clean)) & set(map(bytes, validation.clean))
