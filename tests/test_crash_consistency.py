@@ -74,9 +74,10 @@ def _reference(args: list[str], env: dict) -> tuple[subprocess.CompletedProcess,
     return done, time.perf_counter() - t0
 
 
-def _kill_times(duration: float) -> list[float]:
-    """Seeded moments spread over the whole run (start-up included) and a little past it."""
-    rng = random.Random(f"{SEED}:{duration:.0f}")
+def _kill_times(case: str, duration: float) -> list[float]:
+    """Moments spread over the whole run (start-up included) and a little past it: fractions of
+    ``duration`` drawn from (SEED, case), the same on every machine."""
+    rng = random.Random(f"{SEED}:{case}")
     return sorted(rng.uniform(0.05, 1.05) * duration for _ in range(KILLS))
 
 
@@ -104,7 +105,7 @@ def test_a_killed_training_run_resumes_to_the_same_result(name, tmp_path):
     env = _environment(tmp_path / "cache")
     _, duration = _reference([*args, "-o", tmp_path / "reference"], env)
     expected = result(tmp_path / "reference")
-    for i, moment in enumerate(_kill_times(duration)):
+    for i, moment in enumerate(_kill_times(name, duration)):
         run = tmp_path / f"killed-{i}"
         _kill_at([*args, "-o", run], env, moment)
         if (run / preset_file).is_file():
@@ -144,7 +145,7 @@ def test_a_killed_writer_publishes_a_whole_file_or_none(name, tmp_path):
     reference = tmp_path / "reference" / file_name
     reference.parent.mkdir()
     _, duration = _reference([*args, "-o", reference], env)
-    for i, moment in enumerate(_kill_times(duration)):
+    for i, moment in enumerate(_kill_times(name, duration)):
         folder = tmp_path / f"killed-{i}"
         folder.mkdir()
         _kill_at([*args, "-o", folder / file_name], env, moment)
@@ -168,7 +169,7 @@ def test_a_killed_sweep_leaves_no_partial_folder_and_no_corrupt_cache(tmp_path):
     """Each kill gets an empty cache of its own, so kills land while its entries are written."""
     reference, duration = _reference([*SWEEP, "-o", tmp_path / "reference"], _environment(tmp_path / "reference-cache"))
     files = _visible(tmp_path / "reference")
-    for i, moment in enumerate(_kill_times(duration)):
+    for i, moment in enumerate(_kill_times("nanofin sweep", duration)):
         env = _environment(tmp_path / f"cache-{i}")
         out = tmp_path / f"killed-{i}"
         _kill_at([*SWEEP, "-o", out], env, moment)
