@@ -4,7 +4,7 @@ radial θ(r) (one parameter per meta-atom ring) and 2-D θ(x, y) (one per site, 
 paper).
 
 Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4] [--steps-quick 40]
-[--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR] [--presets DIR]. Rewrites its
+[--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR [--baseline-label NAME]] [--presets DIR]. Rewrites its
 section of docs/benchmarks.md (one per device type). Every row runs in a fresh process (its own
 peak memory). ``--baseline DIR`` (a checkout of an earlier commit, e.g. from ``git worktree add
 DIR HEAD``) measures each row again with DIR's package right after, on the same presets, so that
@@ -88,6 +88,7 @@ def main() -> None:
     parser.add_argument("--parameterization", nargs="+", default=["quick", "radial", "2d"], choices=["quick", "radial", "2d"],
                         help="quick: presets/quick-split-spectrum.toml as it is (128² crop)")
     parser.add_argument("--baseline", type=Path, help="a checkout of an earlier commit to measure right after")
+    parser.add_argument("--baseline-label", help="the baseline's name in the table [its git commit]")
     parser.add_argument("--baseline-parameterization", nargs="+", choices=["quick", "radial", "2d"],
                         help="the rows measured with the baseline too (default: all)")
     parser.add_argument("--emit-json", choices=["quick", "radial", "2d"], help=argparse.SUPPRESS)  # one kind, in a subprocess
@@ -105,7 +106,7 @@ def main() -> None:
     compared = args.baseline_parameterization or args.parameterization
     results = {(tree, kind): measure_in_subprocess(kind, args, steps[kind], tree)
                for kind in args.parameterization for tree in trees if tree == ROOT or kind in compared}
-    commit = subprocess.run(["git", "-C", str(args.baseline), "rev-parse", "--short", "HEAD"], capture_output=True,
+    commit = args.baseline_label or subprocess.run(["git", "-C", str(args.baseline), "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip() if args.baseline else ""
     lines = [
         f"## Training step, {device.type} (`python benchmarks/bench_optimize.py --device {args.device}"

@@ -407,9 +407,9 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
     near, far = stack.psfs
     margin = canvas_margin(near.shape[-1], far.shape[-1])
-    t = _lap(timing, "psf", t)
+    t = _lap(timing, "psf", t, ctx.device)
     clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, margin, ctx.device)
-    t = _lap(timing, "scenes", t)
+    t = _lap(timing, "scenes", t, ctx.device)
     capture = form_image(clean, colour, mask, near, far, margin).obstructed
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
@@ -417,12 +417,12 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     share = len(shard) / o.batch_size
     loss, parts = training_loss(capture, clean, sensor_psf(far, preset), preset.loss, session.features, image_share=share,
                                  psf_share=1 / ctx.world, cores_far=far_cores(stack))
-    t = _lap(timing, "formation_loss", t)
+    t = _lap(timing, "formation_loss", t, ctx.device)
     if not torch.isfinite(loss):
         raise InputError("optimize.learning_rate", f"training diverged at step {step + 1}: the loss is {float(loss)}",
                          "a smaller learning rate or loss weights")
     loss.backward()
-    t = _lap(timing, "backward", t)
+    t = _lap(timing, "backward", t, ctx.device)
     names = sorted(parts)
     image_terms = {"l1", "ssim", "domain_adaptation", "total"}
     reported = torch.stack([parts[k].detach() * (share if k in image_terms else 1 / ctx.world) for k in names]).double()
@@ -433,7 +433,7 @@ def _one_step(session: _Session, preset, step, ctx, timing):
         # 'total' mixes shares; recompute it from the reduced parts below
     optimizer.step()
     session.scheduler.step()
-    _lap(timing, "update", t)
+    _lap(timing, "update", t, ctx.device)
     values = dict(zip(names, reported.tolist()))
     w = preset.loss
     values["total"] = (w.l1 * values["l1"] + w.ssim * values["ssim"] + w.domain_adaptation * values.get("domain_adaptation", 0.0)
@@ -493,7 +493,11 @@ def validation_loss(model, preset, draws: int = 4, device="cpu", frequency: floa
     return sum(totals) / len(totals)
 
 
-def _lap(timing: dict, name: str, t: float) -> float:
+def _lap(timing: dict, name: str, t: float, device: torch.device) -> float:
+    """Add the seconds since ``t`` to the stage ``name``; on CUDA after waiting for the device, so
+    that each stage's work is counted in its own stage."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
     now = time.perf_counter()
     timing[name] = timing.get(name, 0.0) + now - t
     return now

@@ -23,18 +23,19 @@ def perlin(shape: tuple[int, int], cell_px: float, rng: np.random.Generator) -> 
     y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
     fy, fx = (y - y0).astype(np.float32), (x - x0).astype(np.float32)  # float32: noise, not physics
 
-    def corner(dy, dx):
-        # the lattice index is separable (row from y, column from x): gather rows, then columns
-        cols = x0[0] + dx
-        return gx[y0[:, 0] + dy][:, cols] * (fx - dx) + gy[y0[:, 0] + dy][:, cols] * (fy - dy)
-
     def fade(t):
         return t * t * t * (t * (t * 6 - 15) + 10)
 
+    # n = Σ_{dy,dx} w_dy(y)·w_dx(x)·g[y0 + dy, x0 + dx]·(x − dx, y − dy) with w_0 = 1 − fade, w_1 = fade:
+    # the sum over dx runs on the lattice rows first (gh × W), the sum over dy then gathers whole rows
     u, v = fade(fx), fade(fy)
-    top = corner(0, 0) * (1 - u) + corner(0, 1) * u
-    bottom = corner(1, 0) * (1 - u) + corner(1, 1) * u
-    return (top * (1 - v) + bottom * v) * math.sqrt(2)
+    cols = [x0[0] + dx for dx in (0, 1)]
+    along = gx[:, cols[0]] * ((1 - u) * fx) + gx[:, cols[1]] * (u * (fx - 1))
+    across = gy[:, cols[0]] * (1 - u) + gy[:, cols[1]] * u
+    rows = [y0[:, 0] + dy for dy in (0, 1)]
+    total = along[rows[0]] * (1 - v) + across[rows[0]] * ((1 - v) * fy)
+    total += along[rows[1]] * v + across[rows[1]] * (v * (fy - 1))
+    return total * math.sqrt(2)
 
 
 SAMPLES_PER_CELL = 4  # the finest octave is evaluated at ≥ 4 samples per lattice cell, then resized

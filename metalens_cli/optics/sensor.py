@@ -16,11 +16,13 @@ interpolant is integrated over each pixel exactly:
 from __future__ import annotations
 
 import math
+import warnings
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
+import scipy.sparse
 import torch
 
 
@@ -78,24 +80,28 @@ def pixel_disc_area(x0, x1, y0, y1, rho):
 class RadialSensor:
     """Linear map from radial intensity samples I(k·δ), k < n_radii, to the N × N pixel powers.
 
-    ``weights`` (octant pixels × n_radii, sparse, m²) and ``index`` (N × N) into the octant.
-    """
+    Its matrix (octant pixels × n_radii, m²) is the first ``rows`` rows of ``matrix``, the
+    operator it was cut from (``window``) or its own; ``index`` (N × N): each pixel's octant row."""
 
     step_m: float
     n_radii: int
     n_pixels: int
     pixel_pitch_m: float
-    weights: torch.Tensor
+    rows: int
     index: torch.Tensor
+    matrix: SparseRows = field(repr=False, compare=False)
 
     def apply(self, intensity: torch.Tensor) -> torch.Tensor:
         """(n_radii, B) intensities (W/m²) → (B, N, N) pixel powers (W).
 
-        The octant rows are spread to the pixels with ``index_select``: its backward sums each
-        row's pixels in a fixed order (``index_add_``), where advanced indexing's backward adds
-        them with atomics across threads and rounds differently from run to run on a busy CPU."""
-        w = self.weights.to(intensity.device, intensity.dtype)
-        octant = torch.sparse.mm(w, intensity)
+        CSR products both ways (``_OctantRows``): every output row is summed by one thread in a
+        fixed order, so repeated passes agree bit for bit (tests/optics/test_sensor.py). The
+        octant rows are spread to the pixels with ``index_select``: its backward sums each row's
+        pixels in a fixed order (``index_add_``), where advanced indexing's backward adds them with
+        atomics across threads and rounds differently from run to run on a busy CPU."""
+        forward, transposed = self.matrix.on(intensity.dtype, intensity.device)
+        end = int(self.matrix.csr.indptr[self.rows])  # from the host copy: no wait for the device
+        octant = _OctantRows.apply(intensity, _csr_prefix(forward, self.rows, self.n_radii, end), transposed)
         pixels = torch.index_select(octant, 0, self.index.to(intensity.device).reshape(-1))
         return pixels.T.reshape(-1, self.n_pixels, self.n_pixels)
 
@@ -109,11 +115,56 @@ class RadialSensor:
             raise ValueError(f"window of {n_pixels} pixels from a {self.n_pixels}-pixel operator")
         m = n_pixels // 2
         rows, n_radii = (m + 1) * (m + 2) // 2, radial_sensor_radii(self.step_m, n_pixels, self.pixel_pitch_m)
-        indices, values = self.weights.indices(), self.weights.values()
-        end = int(torch.searchsorted(indices[0], torch.tensor(rows, dtype=indices.dtype)))
-        weights = torch.sparse_coo_tensor(indices[:, :end], values[:end], (rows, n_radii), is_coalesced=True,
-                                          check_invariants=False)
-        return RadialSensor(self.step_m, n_radii, n_pixels, self.pixel_pitch_m, weights, _octant_index(n_pixels))
+        return RadialSensor(self.step_m, n_radii, n_pixels, self.pixel_pitch_m, rows, _octant_index(n_pixels), self.matrix)
+
+
+class SparseRows:
+    """A sparse matrix (float64 CSR, scipy) and, made once per (dtype, device) asked for, torch
+    CSR copies of it and of its transpose (int32 indices)."""
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, values: np.ndarray, shape: tuple[int, int]):
+        self.csr = scipy.sparse.csr_matrix((values, (rows.astype(np.int32), cols.astype(np.int32))), shape=shape)
+        self._copies: dict = {}
+
+    def on(self, dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+        key = (dtype, str(device))
+        if key not in self._copies:
+            self._copies[key] = tuple(_torch_csr(m, dtype, device) for m in (self.csr, self.csr.T.tocsr()))
+        return self._copies[key]
+
+
+def _torch_csr(matrix, dtype: torch.dtype, device) -> torch.Tensor:
+    return _csr(*(torch.from_numpy(a).to(device) for a in (matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32))),
+                torch.from_numpy(matrix.data).to(device, dtype), matrix.shape)
+
+
+def _csr_prefix(matrix: torch.Tensor, rows: int, cols: int, end: int) -> torch.Tensor:
+    """The first ``rows`` rows of a CSR matrix (their ``end`` entries) as a (rows × cols) view (its columns < cols)."""
+    return _csr(matrix.crow_indices()[:rows + 1], matrix.col_indices()[:end], matrix.values()[:end], (rows, cols))
+
+
+def _csr(crow, cols, values, shape) -> torch.Tensor:
+    with warnings.catch_warnings():  # torch's notes on CSR being beta (the products used here are not) and, in
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")  # 2.11, on skipped checks
+        warnings.filterwarnings("ignore", message="Sparse invariant checks are implicitly disabled")
+        return torch.sparse_csr_tensor(crow, cols, values, shape, check_invariants=False)
+
+
+class _OctantRows(torch.autograd.Function):
+    """``weights @ intensity`` for a CSR prefix of an operator, its backward through the whole
+    operator's transpose (the gradient's missing rows padded with zeros): torch's own backward of
+    a sparse product builds the transpose at every call, which cost 20× the product."""
+
+    @staticmethod
+    def forward(ctx, intensity, weights, transposed):
+        ctx.transposed, ctx.n_radii = transposed, intensity.shape[0]
+        return weights @ intensity
+
+    @staticmethod
+    def backward(ctx, grad):
+        full = grad.new_zeros(ctx.transposed.shape[1], grad.shape[1])
+        full[:grad.shape[0]] = grad
+        return (ctx.transposed @ full)[:ctx.n_radii], None, None
 
 
 def larger_window(n: int, factor: float = 1.25) -> int:
@@ -186,9 +237,8 @@ def radial_sensor(step_m: float, n_pixels: int, pixel_pitch_m: float,
     local[axis_rows, 2 - k[axis_rows, 0]] += local[axis_rows, -k[axis_rows, 0]]
     keep = (j >= np.maximum(j_lo, 0)[:, None]) & (j <= j_hi[:, None])
     rows = np.broadcast_to(np.arange(len(ii))[:, None], j.shape)[keep]
-    weights = torch.sparse_coo_tensor(np.stack([rows, j[keep]]), local[keep], (len(ii), n_radii),
-                                      is_coalesced=True, check_invariants=True)
-    return RadialSensor(step_m, n_radii, n_pixels, pixel_pitch_m, weights, _octant_index(n_pixels))
+    matrix = SparseRows(rows, j[keep], local[keep], (len(ii), n_radii))
+    return RadialSensor(step_m, n_radii, n_pixels, pixel_pitch_m, len(ii), _octant_index(n_pixels), matrix)
 
 
 def _octant_index(n_pixels: int) -> torch.Tensor:

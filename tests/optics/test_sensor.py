@@ -78,3 +78,11 @@ def test_radial_operator_backward_is_the_same_every_time():
         (op.apply(xx) * weight).sum().backward()
         grads.append(xx.grad)
     assert all(torch.equal(g, grads[0]) for g in grads[1:])
+
+
+def test_radial_operator_gradient_matches_finite_differences():
+    """The operator's hand-written backward (the transpose of the whole operator, for a window cut
+    from it) against central differences, float64."""
+    op = S.radial_sensor_window(0.4e-6, 7, 1.85e-6)   # cut from the 33-pixel operator
+    x = torch.rand(op.n_radii, 2, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(op.apply, (x,), eps=1e-6, atol=1e-9)

@@ -1,0 +1,59 @@
+"""Profile: where a training step of a preset spends its time, by stage and by operator.
+
+Run: python benchmarks/profile_step.py [PRESET] [--device cpu|cuda] [--threads 2] [--warmup 40] [--steps 8]
+Runs ``--warmup`` steps (the windows grow with the lens, and the kernels' plan with them), then
+profiles ``--steps`` more with ``torch.profiler``: seconds per step by stage (on CUDA each stage
+waits for the device) and the operators that took the most self time (device time on CUDA),
+grouped by input shape. Prints; writes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import torch
+from torch.profiler import ProfilerActivity, profile
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("preset", nargs="?", default=str(ROOT / "presets" / "quick-split-spectrum.toml"))
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--warmup", type=int, default=40)
+    parser.add_argument("--steps", type=int, default=8)
+    parser.add_argument("--rows", type=int, default=25)
+    args = parser.parse_args()
+
+    from metalens_cli.design import distributed
+    from metalens_cli.design.training import _one_step, _session
+    from metalens_cli.io.presets import load_preset
+
+    torch.set_num_threads(args.threads)
+    preset = load_preset(args.preset)
+    device = torch.device(args.device)
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    with distributed.session(device) as ctx:
+        session = _session(preset, ctx)
+        for step in range(args.warmup):
+            _one_step(session, preset, step, ctx, {})
+        timing: dict[str, float] = {}
+        start = time.perf_counter()
+        with profile(activities=activities, record_shapes=True) as prof:
+            for step in range(args.warmup, args.warmup + args.steps):
+                _one_step(session, preset, step, ctx, timing)
+        seconds = (time.perf_counter() - start) / args.steps
+    stages = ", ".join(f"{k} {v / args.steps:.3f}" for k, v in timing.items() if not k.startswith("psf_"))
+    print(f"{args.preset} on {device}: {seconds:.3f} s/step under the profiler; windows {session.windows}")
+    print(f"stages (s/step): {stages}")
+    key = "self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total"
+    print(prof.key_averages(group_by_input_shape=True).table(sort_by=key, row_limit=args.rows, max_name_column_width=40,
+                                                             max_shapes_column_width=60))
+
+
+if __name__ == "__main__":
+    main()
