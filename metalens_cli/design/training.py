@@ -232,20 +232,32 @@ def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: di
 
 def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
     """Clean scenes, obstruction colours and masks (B, C, H + 2M, W + 2M) on the canvas of
-    ``margin`` M for the batch entries ``indices``, generated on a thread pool (numpy releases the
-    GIL; every entry draws from its own (seed, step, index) streams, so the order does not matter)."""
+    ``margin`` M for the batch entries ``indices``, generated on a thread pool, each scene and
+    each obstruction a task of its own (``rain``, which refracts its scene, runs in its scene's
+    task): numpy releases the GIL, and every scene and obstruction draws from its own (seed,
+    step, index) stream, so neither the order nor the number of threads changes them."""
     n = preset.sensor.pixels
     kinds = preset.optimize.obstructions
+    canvas = (n + 2 * margin, n + 2 * margin)
+    kind = {i: kinds[np.random.default_rng([seed, step, i, 13]).integers(len(kinds))] for i in indices}
 
-    def entry(index):
-        clean = training_scene((n + 2 * margin, n + 2 * margin), seed, step, index, pool, margin)
-        kind = kinds[np.random.default_rng([seed, step, index, 13]).integers(len(kinds))]
-        obstruction = make_obstruction(kind, (n, n), z_near_m, preset.lens.focal_length_m, preset.sensor.pixel_pitch_m,
-                                       [seed, step, index, 17], preset.obstruction, clean=clean, margin=margin)
-        return clean, obstruction.rgb, obstruction.mask
+    def obstruction(index, clean=None):
+        return make_obstruction(kind[index], (n, n), z_near_m, preset.lens.focal_length_m, preset.sensor.pixel_pitch_m,
+                                [seed, step, index, 17], preset.obstruction, clean=clean, margin=margin)
 
-    with ThreadPoolExecutor(max_workers=max(1, min(len(indices), torch.get_num_threads()))) as workers:
-        entries = list(workers.map(entry, indices))
+    def scene(index):
+        clean = training_scene(canvas, seed, step, index, pool, margin)
+        return clean, (obstruction(index, clean) if kind[index] == "rain" else None)
+
+    tasks = len(indices) + sum(kind[i] != "rain" for i in indices)
+    with ThreadPoolExecutor(max_workers=max(1, min(tasks, torch.get_num_threads()))) as workers:
+        scenes = [workers.submit(scene, i) for i in indices]
+        separate = {i: workers.submit(obstruction, i) for i in indices if kind[i] != "rain"}
+        entries = []
+        for i, future in zip(indices, scenes):
+            clean, made = future.result()
+            made = made or separate[i].result()
+            entries.append((clean, made.rgb, made.mask))
     return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
 
 

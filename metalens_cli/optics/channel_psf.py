@@ -142,16 +142,15 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     psfs, windows, kept, on_sensor, outgrown, cores = [], [], [], [], [], []
     for i, (cap, rows) in enumerate(zip(caps, n_rows)):
         cols = slice(i * w, (i + 1) * w)
-        out = prop.real_matmul(out_matrix[:rows, :n_freq], spec[:, cols])
-        mono = out.abs() ** 2 / power[cols]                                         # (n_rows, W) W/m² per W
-        if core_op is not None:
-            cores.append(core_op.apply(mono[:core_op.n_radii]).sum(dim=(-2, -1)))
-        intensity = mono @ mix_d.T                                                  # (n_rows, 3)
+        # the rule needs I(ρ) out to the capacity's inscribed disc (a window ≤ cap holds its light
+        # there or nowhere); the PSF then needs it out to its own window's corner (often further)
+        inner = min(rows, math.floor((cap // 2 + 0.5) * pitch / plan.step_m) + 1)
+        mono = prop.real_matmul(out_matrix[:inner, :n_freq], spec[:, cols]).abs() ** 2 / power[cols]  # W/m² per W
         target = (mix_d.double() @ on_plane[cols].double()).cpu().numpy()           # (3,) on the sensor plane
-        rho = np.arange(rows) * plan.step_m
+        rho = np.arange(inner) * plan.step_m
         ring = 2 * math.pi * rho * plan.step_m
         ring[0] = math.pi * (plan.step_m / 2) ** 2
-        enclosed = np.cumsum(intensity.detach().double().cpu().numpy() * ring[:, None], axis=0)
+        enclosed = np.cumsum((mono.detach() @ mix_d.T).double().cpu().numpy() * ring[:, None], axis=0)
         chosen, lost = [], []
         for c in range(3):
             reach = np.nonzero(enclosed[:, c] >= energy * target[c])[0]
@@ -160,7 +159,13 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
             chosen.append(min(cap, wanted))
         n = max(chosen)
         op = radial_sensor_window(plan.step_m, n, pitch)
-        psf = op.apply(intensity[:op.n_radii])
+        need = max(op.n_radii, core_op.n_radii if core_op is not None else 0)
+        if need > inner:
+            extra = prop.real_matmul(out_matrix[inner:need, :n_freq], spec[:, cols]).abs() ** 2 / power[cols]
+            mono = torch.cat([mono, extra])
+        if core_op is not None:
+            cores.append(core_op.apply(mono[:core_op.n_radii]).sum(dim=(-2, -1)))
+        psf = op.apply(mono[:op.n_radii] @ mix_d.T)                                 # channels mixed first
         psfs.append(psf)
         windows.append(tuple(chosen))
         kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
