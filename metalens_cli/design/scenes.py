@@ -48,7 +48,7 @@ def procedural_scene(shape: tuple[int, int], rng: np.random.Generator, margin: i
     coarse = fractal_noise((h, w), side / rng.uniform(2, 6), 3, rng).astype(np.float32)
     fine = np.zeros((h, w), np.float32)
     fine[top:bottom, left:right] = fractal_noise((bottom - top, right - left), rng.uniform(4, 16), 3, rng)
-    image = (_colour(rng)[:, None, None] * (1 + 0.4 * coarse + fine)).astype(np.float32)
+    image = _colour(rng).astype(np.float32)[:, None, None] * (1 + 0.4 * coarse + fine)  # float32 throughout
     y, x = np.arange(h, dtype=np.float32)[:, None], np.arange(w, dtype=np.float32)[None, :]
     r_min, r_max, a = RADIUS_PX[0], RADIUS_PX[1] * side, RADIUS_EXPONENT
     split = min(max(FINE_RADIUS_PX, r_min), r_max)
