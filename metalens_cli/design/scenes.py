@@ -58,9 +58,10 @@ def procedural_scene(shape: tuple[int, int], rng: np.random.Generator, margin: i
         count = int(density * (lo**-a - hi**-a) * (y1 - y0) * (x1 - x0))
         radii = (lo**-a - rng.uniform(size=count) * (lo**-a - hi**-a)) ** (-1 / a)  # inverse CDF on [lo, hi]
         shapes += [(r, rng.uniform(y0 - r, y1 + r), rng.uniform(x0 - r, x1 + r)) for r in radii]
+    kinds_cdf = np.cumsum(SHAPE_KINDS) / sum(SHAPE_KINDS)  # rng.choice(p=SHAPE_KINDS)'s draw, without its overhead
     for k in rng.permutation(len(shapes)):  # occlusion order independent of size
         r, cy, cx = shapes[k]
-        kind = rng.choice(len(SHAPE_KINDS), p=SHAPE_KINDS)
+        kind = int(np.searchsorted(kinds_cdf, rng.random(), side="right"))
         reach = r * (3 if kind == 2 else 1.5)
         i0, i1, j0, j1 = max(int(cy - reach), 0), min(int(cy + reach) + 1, h), max(int(cx - reach), 0), min(int(cx + reach) + 1, w)
         if i0 >= i1 or j0 >= j1:
@@ -78,9 +79,11 @@ def procedural_scene(shape: tuple[int, int], rng: np.random.Generator, margin: i
             bars = np.sin(2 * np.pi * along / rng.uniform(2.0, 10.0)) > 0
             inside = np.where(bars, r - np.hypot(along, across), -1.0)
         mask = np.clip(inside + 0.5, 0, 1)  # 1-pixel antialiased edge
-        fill = _colour(rng)[:, None, None] * (1 + rng.uniform(0, TEXTURE) * fine[i0:i1, j0:j1]
-                                             + rng.uniform(-0.3, 0.3) * along / max(r, 1.0))
-        image[:, i0:i1, j0:j1] += mask * (fill - image[:, i0:i1, j0:j1])
+        colour = _colour(rng).astype(np.float32)
+        shade = mask * (1 + rng.uniform(0, TEXTURE) * fine[i0:i1, j0:j1] + rng.uniform(-0.3, 0.3) * along / max(r, 1.0))
+        box = image[:, i0:i1, j0:j1]  # image ← (1 − mask)·image + mask·colour·(texture and ramp), in place
+        box *= 1 - mask
+        box += colour[:, None, None] * shade
     light = 10 ** (LIGHT_DECADES * fractal_noise((h, w), side / rng.uniform(1, 3), 2, rng))
     return np.clip(image * light, 0.002, 1.0).astype(np.float32)
 
