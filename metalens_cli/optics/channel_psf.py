@@ -139,38 +139,41 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     w = len(lams)
     mix_d = mix.to(device, dtype)
     core_op = None if core_window is None else radial_sensor_window(plan.step_m, core_window, pitch)
-    psfs, windows, kept, on_sensor, outgrown, cores = [], [], [], [], [], []
-    for i, (cap, rows) in enumerate(zip(caps, n_rows)):
+    # The rule needs I(ρ) out to each capacity's inscribed disc (a window ≤ cap holds its light
+    # there or nowhere); each PSF then needs it out to its own window's corner, often further.
+    # Every depth's columns go through one product per range of rows (one pass over the matrix).
+    inner = [min(rows, math.floor((cap // 2 + 0.5) * pitch / plan.step_m) + 1) for cap, rows in zip(caps, n_rows)]
+    mono = prop.real_matmul(out_matrix[:max(inner), :n_freq], spec).abs() ** 2 / power             # W/m² per W
+    windows, on_sensor, outgrown, ops = [], [], [], []
+    for i, cap in enumerate(caps):
         cols = slice(i * w, (i + 1) * w)
-        # the rule needs I(ρ) out to the capacity's inscribed disc (a window ≤ cap holds its light
-        # there or nowhere); the PSF then needs it out to its own window's corner (often further)
-        inner = min(rows, math.floor((cap // 2 + 0.5) * pitch / plan.step_m) + 1)
-        mono = prop.real_matmul(out_matrix[:inner, :n_freq], spec[:, cols]).abs() ** 2 / power[cols]  # W/m² per W
         target = (mix_d.double() @ on_plane[cols].double()).cpu().numpy()           # (3,) on the sensor plane
-        rho = np.arange(inner) * plan.step_m
+        rho = np.arange(inner[i]) * plan.step_m
         ring = 2 * math.pi * rho * plan.step_m
         ring[0] = math.pi * (plan.step_m / 2) ** 2
-        enclosed = np.cumsum((mono.detach() @ mix_d.T).double().cpu().numpy() * ring[:, None], axis=0)
+        enclosed = np.cumsum((mono[:inner[i], cols].detach() @ mix_d.T).double().cpu().numpy() * ring[:, None], axis=0)
         chosen, lost = [], []
         for c in range(3):
             reach = np.nonzero(enclosed[:, c] >= energy * target[c])[0]
             wanted = window_pixels(rho[reach[0]], pitch) if reach.size else cap + 2
             lost.append(wanted > cap)
             chosen.append(min(cap, wanted))
-        n = max(chosen)
-        op = radial_sensor_window(plan.step_m, n, pitch)
-        need = max(op.n_radii, core_op.n_radii if core_op is not None else 0)
-        if need > inner:
-            extra = prop.real_matmul(out_matrix[inner:need, :n_freq], spec[:, cols]).abs() ** 2 / power[cols]
-            mono = torch.cat([mono, extra])
-        if core_op is not None:
-            cores.append(core_op.apply(mono[:core_op.n_radii]).sum(dim=(-2, -1)))
-        psf = op.apply(mono[:op.n_radii] @ mix_d.T)                                 # channels mixed first
-        psfs.append(psf)
+        ops.append(radial_sensor_window(plan.step_m, max(chosen), pitch))
         windows.append(tuple(chosen))
-        kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
         on_sensor.append(target)
         outgrown.append(lost)
+    need = max([op.n_radii for op in ops] + ([core_op.n_radii] if core_op is not None else []))
+    if need > mono.shape[0]:
+        extra = prop.real_matmul(out_matrix[mono.shape[0]:need, :n_freq], spec).abs() ** 2 / power
+        mono = torch.cat([mono, extra])
+    psfs, kept, cores = [], [], []
+    for i, op in enumerate(ops):
+        cols = slice(i * w, (i + 1) * w)
+        if core_op is not None:
+            cores.append(core_op.apply(mono[:core_op.n_radii, cols]).sum(dim=(-2, -1)))
+        psf = op.apply(mono[:op.n_radii, cols] @ mix_d.T)                          # channels mixed first
+        psfs.append(psf)
+        kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
     timing["propagate"] = time.perf_counter() - clock
     grid = {"kind": "radial", "support_radius_m": plan.radius_m, "hankel_samples": plan.n_freq,
             "hankel_samples_used": n_freq, "pupil_nodes": plan.n_nodes, "output_step_m": plan.step_m,
