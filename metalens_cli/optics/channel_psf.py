@@ -14,7 +14,7 @@ is computed in N = max_c N_c. Fractions are of the power through the aperture (`
   sampling plan is made for ``plan_pixels`` (the Hankel kernel cached: built once while calls
   keep the plan), the field is evaluated out to the ``capacity`` window only (cached output
   rows, extended when a capacity grows), and only the chosen window goes through the pixel
-  operator (cut from a cached larger one, ``optics.sensor.radial_sensor_window``).
+  operator (cut from a cached larger one, ``optics.sensor.radial_sensor``).
 - Other propagators (2-D lenses): PSFs in the capacity window, the energy in concentric squares
   against the capacity's total (light outside the capacity is not seen).
 
@@ -41,7 +41,7 @@ from metalens_cli.optics import sampling
 from metalens_cli.optics.blur import window_pixels
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.psf import compute_psf, pupil_field, validate_psf_arguments
-from metalens_cli.optics.sensor import radial_sensor_radii, radial_sensor_window
+from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
 
 ENCIRCLED_ENERGY = 0.999  # of the power reaching the sensor plane, per depth and channel
 
@@ -138,7 +138,7 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     clock = time.perf_counter()
     w = len(lams)
     mix_d = mix.to(device, dtype)
-    core_op = None if core_window is None else radial_sensor_window(plan.step_m, core_window, pitch)
+    core_op = None if core_window is None else radial_sensor(plan.step_m, core_window, pitch)
     # The rule needs I(ρ) out to each capacity's inscribed disc (a window ≤ cap holds its light
     # there or nowhere); each PSF then needs it out to its own window's corner, often further.
     # Every depth's columns go through one product per range of rows (one pass over the matrix).
@@ -158,7 +158,7 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
             wanted = window_pixels(rho[reach[0]], pitch) if reach.size else cap + 2
             lost.append(wanted > cap)
             chosen.append(min(cap, wanted))
-        ops.append(radial_sensor_window(plan.step_m, max(chosen), pitch))
+        ops.append(radial_sensor(plan.step_m, max(chosen), pitch))
         windows.append(tuple(chosen))
         on_sensor.append(target)
         outgrown.append(lost)

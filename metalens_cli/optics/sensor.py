@@ -9,8 +9,8 @@ interpolant is integrated over each pixel exactly:
   P = Wy · I · Wxᵀ (``grid_pixel_matrix``).
 - Radial samples I(k·δ): the weight of sample k in pixel p is ∫ φ_k(ρ) dA_p(ρ) = −∫ φ_k'(ρ) A_p(ρ) dρ,
   with A_p(ρ) the closed-form area of the pixel inside the disc of radius ρ (Gauss-Legendre in ρ,
-  exact up to the quadrature of a smooth function). Built once per (δ, N, Δ), for the pixels of
-  one octant, the rest by the 8-fold symmetry (``RadialSensor``).
+  exact up to the quadrature of a smooth function). Built for the pixels of one octant, the rest
+  by the 8-fold symmetry (``RadialSensor``), and cached per (δ, Δ), extended as windows grow.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from __future__ import annotations
 import math
 import warnings
 from concurrent.futures import ThreadPoolExecutor
+from collections import OrderedDict
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 import scipy.sparse
@@ -119,11 +119,12 @@ class RadialSensor:
 
 
 class SparseRows:
-    """A sparse matrix (float64 CSR, scipy) and, made once per (dtype, device) asked for, torch
-    CSR copies of it and of its transpose (int32 indices)."""
+    """A sparse matrix (float64 CSR, scipy, from its ``indptr``, ``indices`` and ``data``) and,
+    made once per (dtype, device) asked for, torch CSR copies of it and of its transpose (int32
+    indices)."""
 
-    def __init__(self, rows: np.ndarray, cols: np.ndarray, values: np.ndarray, shape: tuple[int, int]):
-        self.csr = scipy.sparse.csr_matrix((values, (rows.astype(np.int32), cols.astype(np.int32))), shape=shape)
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, shape: tuple[int, int]):
+        self.csr = scipy.sparse.csr_matrix((data, indices.astype(np.int32), indptr.astype(np.int32)), shape=shape)
         self._copies: dict = {}
 
     def on(self, dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
@@ -172,17 +173,26 @@ def larger_window(n: int, factor: float = 1.25) -> int:
     return max(2 * math.ceil(factor * n / 2) + 1, n + 2)
 
 
-SENSOR_LADDER = 33  # cached operators come in odd sizes 33, then each ``larger_window`` of the last
+SENSOR_CACHE_ENTRIES = 8  # (step, pitch) pairs whose operators are kept
+_SENSORS: OrderedDict = OrderedDict()
 
 
-def radial_sensor_window(step_m: float, n_pixels: int, pixel_pitch_m: float) -> RadialSensor:
-    """The operator of an n × n window, cut (``RadialSensor.window``) from the cached one of the
-    next size on ``SENSOR_LADDER``: windows that move a little from call to call (training steps
-    that follow the light) share one build instead of each paying for its own."""
-    size = SENSOR_LADDER
-    while size < n_pixels:
-        size = larger_window(size)
-    return radial_sensor(step_m, size, pixel_pitch_m).window(n_pixels)
+def radial_sensor(step_m: float, n_pixels: int, pixel_pitch_m: float, n_nodes: int = 4) -> RadialSensor:
+    """The pixel operator of an n × n window for radial samples every ``step_m`` (m), cut
+    (``RadialSensor.window``) from the cached one of (step, pitch). A cached operator that is too
+    small is extended to at least ``larger_window`` of its size, computing only the rows of the
+    pixels it lacks (``build_radial_sensor``): windows that grow from call to call (training steps
+    that follow the light) pay for a few extensions whose total is about one build of the largest."""
+    key = (float(step_m), float(pixel_pitch_m), n_nodes)
+    have = _SENSORS.pop(key, None)
+    if have is None:
+        have = build_radial_sensor(step_m, n_pixels, pixel_pitch_m, n_nodes)
+    elif have.n_pixels < n_pixels:
+        have = build_radial_sensor(step_m, max(n_pixels, larger_window(have.n_pixels)), pixel_pitch_m, n_nodes, have)
+    _SENSORS[key] = have
+    while len(_SENSORS) > SENSOR_CACHE_ENTRIES:
+        _SENSORS.popitem(last=False)
+    return have.window(n_pixels)
 
 
 def radial_sensor_radii(step_m: float, n_pixels: int, pixel_pitch_m: float) -> int:
@@ -205,13 +215,16 @@ def _octant_areas(x0, x1, y0, y1, rho, chunks: int = 8) -> np.ndarray:
         return np.concatenate(list(pool.map(rows, range(chunks))))
 
 
-@lru_cache(maxsize=8)
-def radial_sensor(step_m: float, n_pixels: int, pixel_pitch_m: float,
-                  n_nodes: int = 4) -> RadialSensor:
-    """Build (and cache) the pixel operator for radial samples every ``step_m`` (m)."""
+def build_radial_sensor(step_m: float, n_pixels: int, pixel_pitch_m: float, n_nodes: int = 4,
+                        start: RadialSensor | None = None) -> RadialSensor:
+    """Build the pixel operator for radial samples every ``step_m`` (m); with ``start`` (one of
+    the same step and pitch for a smaller window), only the rows of the pixels it lacks are
+    computed and appended to its rows (the octant lists pixels by their larger offset first)."""
     m = n_pixels // 2
     n_radii = radial_sensor_radii(step_m, n_pixels, pixel_pitch_m)
+    first = 0 if start is None else start.n_pixels // 2 + 1   # the first pixel offset to compute
     ii, jj = np.tril_indices(m + 1)          # octant: 0 ≤ j ≤ i ≤ m (pixel offsets)
+    ii, jj = ii[ii >= first], jj[ii >= first]
     x0, x1 = (ii - 0.5) * pixel_pitch_m, (ii + 0.5) * pixel_pitch_m
     y0, y1 = (jj - 0.5) * pixel_pitch_m, (jj + 0.5) * pixel_pitch_m
     rmin = np.hypot(np.maximum(x0, 0), np.maximum(y0, 0))
@@ -235,10 +248,15 @@ def radial_sensor(step_m: float, n_pixels: int, pixel_pitch_m: float,
     j = (k[:, :1] - 1) + np.arange(n_int + 3)[None, :]
     axis_rows = np.nonzero(j[:, 0] <= -1)[0]                        # fold I(−δ) = I(δ)
     local[axis_rows, 2 - k[axis_rows, 0]] += local[axis_rows, -k[axis_rows, 0]]
-    keep = (j >= np.maximum(j_lo, 0)[:, None]) & (j <= j_hi[:, None])
-    rows = np.broadcast_to(np.arange(len(ii))[:, None], j.shape)[keep]
-    matrix = SparseRows(rows, j[keep], local[keep], (len(ii), n_radii))
-    return RadialSensor(step_m, n_radii, n_pixels, pixel_pitch_m, len(ii), _octant_index(n_pixels), matrix)
+    keep = (j >= np.maximum(j_lo, 0)[:, None]) & (j <= j_hi[:, None])   # each row's columns, ascending
+    indptr, indices, data = np.concatenate([[0], np.cumsum(keep.sum(axis=1))]), j[keep], local[keep]
+    if start is not None:
+        old = start.matrix.csr
+        indptr, indices, data = (np.concatenate([old.indptr, old.nnz + indptr[1:]]), np.concatenate([old.indices, indices]),
+                                 np.concatenate([old.data, data]))
+    rows = (m + 1) * (m + 2) // 2
+    return RadialSensor(step_m, n_radii, n_pixels, pixel_pitch_m, rows, _octant_index(n_pixels),
+                        SparseRows(indptr, indices, data, (rows, n_radii)))
 
 
 def _octant_index(n_pixels: int) -> torch.Tensor:

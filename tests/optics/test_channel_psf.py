@@ -11,7 +11,7 @@ from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, channel_psf_stack
 from metalens_cli.optics.lens import hyperbolic
 from metalens_cli.optics.psf import compute_psf
-from metalens_cli.optics.sensor import radial_sensor
+from metalens_cli.optics.sensor import build_radial_sensor, radial_sensor
 from metalens_cli.optics.spectra import mix_channels
 
 # A small lens (D = 0.3 mm, f = 1 mm, NA ≈ 0.15) keeps the radial plan small; its near depth
@@ -95,10 +95,10 @@ def test_light_past_the_capacity_is_reported(lens):
 
 def test_radial_sensor_window_is_the_smaller_operator():
     """A window cut from a larger pixel operator equals the operator built for that window."""
-    big = radial_sensor(0.1e-6, 61, PITCH)
+    big = build_radial_sensor(0.1e-6, 61, PITCH)
     samples = torch.rand(big.n_radii, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     for n in (1, 2, 17, 30, 61):
-        own, cut = radial_sensor(0.1e-6, n, PITCH), big.window(n)
+        own, cut = build_radial_sensor(0.1e-6, n, PITCH), big.window(n)
         assert cut.n_radii == own.n_radii
         torch.testing.assert_close(cut.apply(samples[:cut.n_radii]), own.apply(samples[:own.n_radii]), rtol=0, atol=0)
 

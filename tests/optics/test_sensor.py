@@ -83,6 +83,20 @@ def test_radial_operator_backward_is_the_same_every_time():
 def test_radial_operator_gradient_matches_finite_differences():
     """The operator's hand-written backward (the transpose of the whole operator, for a window cut
     from it) against central differences, float64."""
-    op = S.radial_sensor_window(0.4e-6, 7, 1.85e-6)   # cut from the 33-pixel operator
+    op = S.radial_sensor(0.4e-6, 7, 1.85e-6)
     x = torch.rand(op.n_radii, 2, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(op.apply, (x,), eps=1e-6, atol=1e-9)
+
+
+def test_an_extended_operator_equals_a_fresh_build():
+    """Extending an operator computes only the rows of the pixels it lacks: the result is the
+    operator built at once, entry for entry; the cache extends by at least ``larger_window``."""
+    small = S.build_radial_sensor(0.3e-6, 21, 1.85e-6)
+    grown, fresh = S.build_radial_sensor(0.3e-6, 45, 1.85e-6, start=small), S.build_radial_sensor(0.3e-6, 45, 1.85e-6)
+    assert grown.rows == fresh.rows and grown.n_radii == fresh.n_radii
+    assert (grown.matrix.csr != fresh.matrix.csr).nnz == 0
+    x = torch.rand(fresh.n_radii, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    torch.testing.assert_close(grown.apply(x), fresh.apply(x), rtol=0, atol=0)
+    S.radial_sensor(0.35e-6, 21, 1.85e-6)
+    assert S.radial_sensor(0.35e-6, 23, 1.85e-6).n_pixels == 23
+    assert S._SENSORS[(0.35e-6, 1.85e-6, 4)].n_pixels == S.larger_window(21)
