@@ -256,7 +256,8 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
         entries = []
         for i, future in zip(indices, scenes):
             clean, made = future.result()
-            made = made or separate[i].result()
+            if made is None:
+                made = separate[i].result()
             entries.append((clean, made.rgb, made.mask))
     return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
 

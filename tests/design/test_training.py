@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from metalens_cli.design.training import TrainingInterrupted, build_model, time_steps, train, validation_loss
+from metalens_cli.design.training import TrainingInterrupted, build_model, step_batch, time_steps, train, validation_loss
 from metalens_cli.io.designs import resolve_design
 from metalens_cli.io.presets import load_preset
 
@@ -195,3 +195,18 @@ def test_the_time_estimate_counts_what_follows_the_steps(tiny, tmp_path):
     measured = time.perf_counter() - start
     estimated = estimate_training(one)[1]
     assert measured / 10 < estimated < 10 * measured, (estimated, measured)
+
+
+def test_a_batch_is_the_same_on_any_number_of_threads(tiny):
+    """Scenes and obstructions are separate tasks (rain inside its scene's task): one thread or
+    two, the same batch, element for element."""
+    preset = dataclasses.replace(tiny, optimize=dataclasses.replace(tiny.optimize, obstructions=("rain", "dirt", "fence")))
+    threads = torch.get_num_threads()
+    try:
+        batches = []
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            batches.append(step_batch(preset, 0, 3, [0, 1, 2, 3], 0.045, None, 12, "cpu"))
+    finally:
+        torch.set_num_threads(threads)
+    assert all(torch.equal(a, b) for a, b in zip(*batches))
