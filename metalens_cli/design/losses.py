@@ -9,8 +9,8 @@ fractions of the aperture power (each channel sums to 1 when nothing is lost), i
 the N cancels: L_bright = 3/ΣP − 1 (0 when every channel keeps all its light) and
 L_sharp = 1/Σ_window P − 1 over the central w × w pixels of all channels (w = 5 in the paper);
 ``loss.sharp_mode = "per_channel"`` averages 1/E_c − 1 over the channels instead, ``"log"`` takes
-−mean_c log E_c, and ``"log_wavelength"`` −mean_λ log E_λ over the step's wavelength samples, each
-monochromatic far PSF's own core (see ``sharp_loss``).
+−mean_c log E_c, ``"log_wavelength"`` −mean_λ log E_λ over the step's wavelength samples, each
+monochromatic far PSF's own core, and ``"harmonic_wavelength"`` log mean_λ 1/E_λ (see ``sharp_loss``).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import torch
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.metrics import ssim
+from metalens_cli.io.presets import SHARP_MODES, WAVELENGTH_MODES
 
 
 def l1_loss(captured: torch.Tensor, clean: torch.Tensor) -> torch.Tensor:
@@ -47,12 +48,17 @@ def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total", core
     ``log_wavelength``: −mean_λ log E_λ over ``cores`` (W,), each wavelength sample's energy in its
     own central window (``optics.channel_psf``): a lens cannot raise the mean of E_λ over the
     spectrum (docs/training.md), and for a given mean this is lowest when E_λ is flat.
+    ``harmonic_wavelength``: log mean_λ (1/E_λ), minus the log of the harmonic mean: its gradient
+    weighs each wavelength by (1/E_λ²) / Σ_μ (1/E_μ), so the weakest wavelengths steer most, while
+    the scale stays that of a logarithm (a flat E_λ = E gives −log E, as ``log_wavelength`` does).
     """
-    if mode == "log_wavelength":
+    if mode in WAVELENGTH_MODES:
         if cores is None:
-            raise InputError("loss.sharp_mode", "log_wavelength needs each wavelength's core energy",
+            raise InputError("loss.sharp_mode", f"{mode} needs each wavelength's core energy",
                              "cores from optics.channel_psf_stack(..., core_window=k)")
-        return -torch.log(cores).mean(dim=-1)
+        if mode == "log_wavelength":
+            return -torch.log(cores).mean(dim=-1)
+        return torch.log((1 / cores).mean(dim=-1))
     n0, n1 = psf_far.shape[-2:]
     lo0, lo1 = n0 // 2 - window // 2, n1 // 2 - window // 2
     core = psf_far[..., lo0:lo0 + window, lo1:lo1 + window].sum(dim=(-2, -1))
@@ -62,7 +68,7 @@ def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total", core
         return (1 / core).mean(dim=-1) - 1
     if mode == "log":
         return -torch.log(core).mean(dim=-1)
-    raise InputError("loss.sharp_mode", f"unknown mode {mode!r}", "total, per_channel, log or log_wavelength")
+    raise InputError("loss.sharp_mode", f"unknown mode {mode!r}", ", ".join(SHARP_MODES))
 
 
 def training_loss(captured: torch.Tensor, clean: torch.Tensor, psf_far: torch.Tensor, weights, features=None,
@@ -73,7 +79,7 @@ def training_loss(captured: torch.Tensor, clean: torch.Tensor, psf_far: torch.Te
     ``weights``: a ``LossConfig``. ``features``: a DeepLabv3+ feature extractor for L_DA, or None.
     ``image_share``/``psf_share`` scale the image and PSF terms in the total only (data-parallel
     ranks: the local fraction of the global batch, and 1/world size), never the reported parts.
-    ``cores_far``: each wavelength's far core energy (``sharp_mode = "log_wavelength"``).
+    ``cores_far``: each wavelength's far core energy (the ``WAVELENGTH_MODES`` of ``sharp_mode``).
     """
     parts = {"l1": l1_loss(captured, clean).mean(), "ssim": ssim_loss(captured, clean).mean()}
     if features is not None:

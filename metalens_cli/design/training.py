@@ -35,13 +35,13 @@ from metalens_cli.design.parameterization import initial_parameterization
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.scenes import training_scene
 from metalens_cli.imaging.canvas import sensor_crop
-from metalens_cli.errors import InputError, MetalensError, Terminated
+from metalens_cli.errors import InputError, MetalensError, SamplingError, Terminated
 from metalens_cli.imaging.formation import canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, channel_psf_stack
-from metalens_cli.io.presets import to_toml
+from metalens_cli.io.presets import WAVELENGTH_MODES, to_toml
 from metalens_cli.optics.sampling import check_lens_sampling
 from metalens_cli.optics.sensor import larger_window
 from metalens_cli.io.preset_spectra import preset_sensitivity
@@ -201,7 +201,7 @@ def estimate_training(preset) -> tuple[int, float | None]:
 
 def core_window(preset) -> int | None:
     """The window of each wavelength's own core energy, where the loss asks for it."""
-    return preset.loss.sharp_window if preset.loss.sharp_mode == "log_wavelength" else None
+    return preset.loss.sharp_window if preset.loss.sharp_mode in WAVELENGTH_MODES else None
 
 
 def far_cores(stack: ChannelPsfStack) -> torch.Tensor | None:
@@ -417,7 +417,12 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     optimizer.zero_grad(set_to_none=True)
     t = time.perf_counter()
     windows = session.windows
-    stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
+    try:
+        stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
+    except SamplingError as error:  # the initial design passed these checks: the learned θ outgrew them
+        raise InputError("optimize.learning_rate", f"at step {step + 1} the learned lens scatters light beyond what the "
+                         f"propagator can sample ({error.message})",
+                         "a smaller learning rate or a smooth θ (theta_basis = \"spline\")") from error
     near, far = stack.psfs
     margin = canvas_margin(near.shape[-1], far.shape[-1])
     t = _lap(timing, "psf", t, ctx.device)

@@ -24,6 +24,9 @@ from metalens_cli.io.input_files import read_text
 from metalens_cli.io import units
 from metalens_cli.optics.nanofin import DEFAULT_HARMONICS
 
+WAVELENGTH_MODES = ("log_wavelength", "harmonic_wavelength")  # loss.sharp_mode on each wavelength's own core
+SHARP_MODES = ("total", "per_channel", "log", *WAVELENGTH_MODES)  # design.losses.sharp_loss
+
 
 def toml_key(toml_key: str, kind: str, *, default: Any = dataclasses.MISSING, **limits: Any) -> Any:
     """A dataclass field read from ``toml_key`` as ``kind``, with optional ``lo``/``hi`` limits."""
@@ -131,7 +134,7 @@ class LossConfig:
     bright: float = toml_key("bright", "float", lo=0.0, hi=1e3, default=1.0)
     sharp: float = toml_key("sharp", "float", lo=0.0, hi=1e3, default=1.0)
     sharp_window: int = toml_key("sharp_window", "int", lo=1, hi=101, default=5)
-    sharp_mode: str = toml_key("sharp_mode", "choice", choices=("total", "per_channel", "log", "log_wavelength"), default="total")  # see design.losses
+    sharp_mode: str = toml_key("sharp_mode", "choice", choices=SHARP_MODES, default="total")  # see design.losses
     domain_adaptation_weights: str | None = toml_key("domain_adaptation_weights", "path", default=None)  # DeepLabv3+ checkpoint
 
 
@@ -363,8 +366,8 @@ def _check_consistency(p: Preset) -> None:
     for kind in p.optimize.obstructions:
         if kind not in ("dirt", "fence", "drops", "rain") and not kind.startswith("file:"):
             raise InputError("optimize.obstructions", f"unknown obstruction {kind!r}", "dirt, fence, drops, rain or file:PATH.png")
-    if p.loss.sharp_mode == "log_wavelength" and p.loss.sharp_window % 2 == 0:
-        raise InputError("loss.sharp_window", f"{p.loss.sharp_window} with sharp_mode = \"log_wavelength\"",
+    if p.loss.sharp_mode in WAVELENGTH_MODES and p.loss.sharp_window % 2 == 0:
+        raise InputError("loss.sharp_window", f"{p.loss.sharp_window} with sharp_mode = \"{p.loss.sharp_mode}\"",
                          "an odd window (each wavelength's core is centred on the axis pixel)")
 
 

@@ -108,6 +108,24 @@ def test_per_wavelength_sharp_loss_prefers_a_flat_spectrum():
         sharp_loss(_delta_psf(), mode="log_wavelength")
 
 
+def test_harmonic_sharp_loss_weighs_the_weakest_wavelength_most():
+    """log mean 1/E_λ: −log E on a flat spectrum (as −mean log E_λ), above the geometric form on
+    a peaked one (harmonic ≤ geometric mean), and its gradient (1/E_λ²)/Σ(1/E_μ) by hand."""
+    flat, uneven = torch.full((4,), 0.04, dtype=torch.float64), torch.tensor([0.1, 0.05, 0.02, 0.01], dtype=torch.float64)
+    assert float(sharp_loss(_delta_psf(), mode="harmonic_wavelength", cores=flat)) == pytest.approx(-math.log(0.04))
+    assert float(sharp_loss(_delta_psf(), mode="harmonic_wavelength", cores=uneven)) == pytest.approx(
+        math.log(np.mean(1 / uneven.numpy())))
+    assert float(sharp_loss(_delta_psf(), mode="harmonic_wavelength", cores=uneven)) > float(
+        sharp_loss(_delta_psf(), mode="log_wavelength", cores=uneven))
+    energy = uneven.clone().requires_grad_(True)
+    sharp_loss(_delta_psf(), mode="harmonic_wavelength", cores=energy).backward()
+    inverse = 1 / uneven.numpy()
+    assert_allclose(energy.grad.numpy(), -inverse**2 / inverse.sum())
+    assert np.argmax(np.abs(energy.grad.numpy())) == 3  # the weakest wavelength is pushed hardest
+    with pytest.raises(InputError, match="loss.sharp_mode"):
+        sharp_loss(_delta_psf(), mode="harmonic_wavelength")
+
+
 def test_image_losses_vanish_for_identical_images_and_grow_with_noise():
     gen = torch.Generator().manual_seed(0)
     clean = torch.rand(2, 3, 32, 32, generator=gen, dtype=torch.float64)

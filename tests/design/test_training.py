@@ -150,14 +150,15 @@ def test_gradient_norms_of_each_term(tiny):
     assert term_gradient_norms(build_model(silent), silent, draws=1)["sharp"] == 0.0
 
 
-def test_per_wavelength_sharpness_steers_the_lens(tiny, tmp_path):
-    """sharp_mode = "log_wavelength": the loss sees each wavelength's own core (a finite,
+@pytest.mark.parametrize("mode", ["log_wavelength", "harmonic_wavelength"])
+def test_per_wavelength_sharpness_steers_the_lens(tiny, tmp_path, mode):
+    """sharp_mode on each wavelength's own core: the loss sees each wavelength's core (a finite,
     positive gradient through it), and an even window, which has no centre pixel, is refused."""
     from metalens_cli.design.training import term_gradient_norms
     from metalens_cli.errors import InputError
     from metalens_cli.io.presets import to_toml
 
-    spectral = dataclasses.replace(tiny, loss=dataclasses.replace(tiny.loss, sharp_mode="log_wavelength"))
+    spectral = dataclasses.replace(tiny, loss=dataclasses.replace(tiny.loss, sharp_mode=mode))
     norms = term_gradient_norms(build_model(spectral), spectral, draws=1)
     assert np.isfinite(norms["sharp"]) and norms["sharp"] > 0
     assert norms["sharp"] != term_gradient_norms(build_model(tiny), tiny, draws=1)["sharp"]
@@ -210,3 +211,20 @@ def test_a_batch_is_the_same_on_any_number_of_threads(tiny):
     finally:
         torch.set_num_threads(threads)
     assert all(torch.equal(a, b) for a, b in zip(*batches))
+
+
+def test_a_lens_that_outgrows_the_propagator_ends_the_run_with_its_step(tiny, monkeypatch):
+    """When the learned θ scatters light past what the radial propagator can sample (here its
+    limit is lowered under the plan after setup), the run stops with the step and what to change
+    (the learning rate, a smooth θ), not with advice about the aperture that passed at the start."""
+    from metalens_cli.design import distributed
+    from metalens_cli.design.training import _one_step, _session
+    from metalens_cli.errors import InputError
+    from metalens_cli.optics import sampling
+
+    with distributed.session(torch.device("cpu")) as ctx:
+        session = _session(tiny, ctx)
+        monkeypatch.setattr(sampling, "MAX_HANKEL_SIZE", 8)
+        with pytest.raises(InputError, match="at step 5 the learned lens scatters light") as caught:
+            _one_step(session, tiny, 4, ctx, {})
+    assert caught.value.field == "optimize.learning_rate" and "theta_basis" in caught.value.expected
