@@ -75,6 +75,8 @@ VARIANTS = [
     ("split: spline 256, log", "quick-split-spectrum", changed(SPLINE_256, {"sharp_mode": "log"}),
      "4× finer spline"),
     ("split: spline, 1/E per channel", "quick-split-spectrum", changed(SPLINE), "the old L_sharp on the spline"),
+    ("split: spline 256, harmonic per λ", "quick-split-spectrum", changed(SPLINE_256, {"sharp_mode": "harmonic_wavelength"}),
+     "the broadband baseline's L_sharp on the split lens (its draws lie in the pass bands)"),
     ("split: spline 256, log, fence", "quick-split-spectrum",
      changed({**SPLINE_256, "obstructions": ("fence",)}, {"sharp_mode": "log"}), "trained with fences instead of dirt"),
     ("split: spline 256, log, dirt + fence", "quick-split-spectrum",
