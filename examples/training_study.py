@@ -62,7 +62,7 @@ VARIANTS = [
      changed({**SPLINE, "spectral_sampling": "midpoint"}, {"sharp_mode": "log"}),
      "fixed spectral quadrature (strata midpoints) instead of random draws"),
     ("broadband: spline, paper's L_sharp", "quick-broadband", changed(SPLINE, {"sharp_mode": "total"}), "the paper's 1/ΣE − 1"),
-    ("broadband: spline 256, log", "quick-broadband", changed(SPLINE_256, {"sharp_mode": "log"}), "the quick preset's θ basis and loss"),
+    ("broadband: spline 256, log", "quick-broadband", changed(SPLINE_256, {"sharp_mode": "log"}), "the quick preset's θ basis and loss before the harmonic rows below"),
     ("broadband: spline 256, log per λ", "quick-broadband", changed(SPLINE_256, {"sharp_mode": "log_wavelength"}),
      "L_sharp = −mean log E_λ over the wavelength samples, each its own core: asks every wavelength to be sharp"),
     ("broadband: spline 256, harmonic per λ", "quick-broadband", changed(SPLINE_256, {"sharp_mode": "harmonic_wavelength"}),
