@@ -117,13 +117,13 @@ def _colour_camera(name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def bandpass_transmission(
-    wavelengths_m: np.ndarray,
-    centres_m: np.ndarray,
-    widths_m: np.ndarray,
+    wavelengths_m,
+    centres_m,
+    widths_m,
     *,
-    edge_width_m: float = DEFAULT_EDGE_WIDTH_M,
-    peak: float = 1.0,
-) -> np.ndarray:
+    edge_width_m=DEFAULT_EDGE_WIDTH_M,
+    peak=1.0,
+):
     """Transmission (L,) of a multi-band filter with smooth edges.
 
     Each band b is a product of two logistic edges σ(t) = 1 / (1 + e^(−t)),
@@ -135,36 +135,49 @@ def bandpass_transmission(
     and T_b(c_b ± w_b/2) = peak/2 exactly: the FWHM is ``widths_m`` and the pass band is
     [c − w/2, c + w/2]. The filter is the sum of its bands, which must not overlap. A band
     narrower than 2·arccosh(3)·s ≈ 0.80 · edge_width_m cannot have that FWHM and is refused.
+
+    With torch tensors for the centres (and widths, edge width), the same model in torch,
+    differentiable in every parameter (a learned filter, ``design.filter_learning``); the bands
+    are then not checked (the learning keeps them valid).
     """
+    if _is_tensor(centres_m):
+        import torch
+
+        grid = torch.as_tensor(wavelengths_m, dtype=centres_m.dtype, device=centres_m.device)
+        return _bands(grid, centres_m, widths_m, edge_width_m, peak, torch)
     centres = np.atleast_1d(np.asarray(centres_m, dtype=float))
     widths = np.atleast_1d(np.asarray(widths_m, dtype=float))
     check_bands(centres.tolist(), widths.tolist(), edge_width_m, peak)
-    scale = edge_width_m / (2.0 * math.log(9.0))
-    grid = np.asarray(wavelengths_m, dtype=float)
-    total = np.zeros_like(grid)
-    for centre, width in zip(centres, widths):
-        x = _band_half_width(width / (2.0 * scale))
-        left = _logistic((grid - centre) / scale + x)
-        right = _logistic(x - (grid - centre) / scale)
-        total += left * right / _logistic(x) ** 2
-    return peak * total
+    return _bands(np.asarray(wavelengths_m, dtype=float), centres, widths, edge_width_m, peak, np)
 
 
-def _band_half_width(u: float) -> float:
+def _is_tensor(value) -> bool:
+    return type(value).__module__.startswith("torch")
+
+
+def _bands(grid, centres, widths, edge_width, peak, xp):
+    """Σ_b T_b(grid) for arrays of the namespace ``xp`` (numpy or torch), bands on the last axis."""
+    scale = edge_width / (2.0 * math.log(9.0))
+    x = _band_half_width(widths / (2.0 * scale), xp)
+    offset = (grid[..., None] - centres) / scale
+    return peak * (_logistic(offset + x, xp) * _logistic(x - offset, xp) / _logistic(x, xp) ** 2).sum(-1)
+
+
+def _band_half_width(u, xp=np):
     """x = h/s such that σ(x + u)·σ(x − u) = σ(x)²/2, for u = w/(2s) ≥ arccosh 3.
 
     With a = e^(−x) the condition is a² + (4 − q)a + 1 = 0, q = 2 cosh u; the smaller root
     (the band whose edges sit near ±w/2) is a = 2 / ((q − 4) + √((q − 4)² − 4)). Written with
     q − 4 = e^u·(1 + e^(−2u) − 4e^(−u)) so that no term overflows for wide bands.
     """
-    g = 1.0 + math.exp(-2.0 * u) - 4.0 * math.exp(-u)
-    ratio = 4.0 * math.exp(-2.0 * u) / g**2
-    return u + math.log(g) + math.log((1.0 + math.sqrt(max(1.0 - ratio, 0.0))) / 2.0)
+    g = 1.0 + xp.exp(-2.0 * u) - 4.0 * xp.exp(-u)
+    ratio = 4.0 * xp.exp(-2.0 * u) / g**2
+    return u + xp.log(g) + xp.log((1.0 + xp.sqrt(xp.clip(1.0 - ratio, 0.0, None))) / 2.0)
 
 
-def _logistic(t: np.ndarray | float) -> np.ndarray | float:
+def _logistic(t, xp=np):
     """σ(t) = 1/(1 + e^(−t)), written with tanh so that it never overflows."""
-    return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(t)))
+    return 0.5 * (1.0 + xp.tanh(0.5 * t))
 
 
 # ---------------------------------------------------------------------------- efficiency

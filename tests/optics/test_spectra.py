@@ -255,3 +255,45 @@ def test_midpoint_quadrature_is_fixed_and_lies_at_the_strata_centres():
     for c in range(3):
         exact = centres[c] + sigmas[c] * math.sqrt(2) * erfinv(2 * u - 1)
         np.testing.assert_allclose(a.wavelengths_m[4 * c:4 * c + 4], exact, rtol=0, atol=1e-3 * NM)
+
+
+# ---------------------------------------------------------------------------- the filter in torch
+
+
+def _torch_filter(centres_nm, widths_nm, edge_nm, peak=0.9):
+    c = torch.tensor(centres_nm, dtype=torch.float64, requires_grad=True)
+    w = torch.tensor(widths_nm, dtype=torch.float64, requires_grad=True)
+    e = torch.tensor(edge_nm, dtype=torch.float64, requires_grad=True)
+    return c, w, e, lambda grid_m: spectra.bandpass_transmission(grid_m, c * NM, w * NM, edge_width_m=e * NM, peak=peak)
+
+
+@pytest.mark.parametrize("edge_nm", [1.0, 2.0, 6.0])
+def test_torch_filter_meets_its_definition(edge_nm):
+    # closed-form properties, not the numpy path: peak at the centre, half of it at c ± w/2,
+    # 10 % and 90 % of the peak one edge width apart (for a band wide enough that its edges
+    # do not touch)
+    _, _, _, transmission = _torch_filter([457.0, 530.0, 628.0], [22.0, 20.0, 28.0], edge_nm)
+    for c, w in zip((457.0, 530.0, 628.0), (22.0, 20.0, 28.0)):
+        at = torch.tensor([c, c - w / 2, c + w / 2], dtype=torch.float64) * NM
+        assert_allclose(transmission(at).detach().numpy(), [0.9, 0.45, 0.45], rtol=1e-9)
+    grid = torch.linspace(600, 628, 280001, dtype=torch.float64) * NM   # R's rising edge, 0.1 pm steps
+    t = transmission(grid).detach().numpy() / 0.9
+    rise = grid.numpy()[np.searchsorted(t, 0.9)] - grid.numpy()[np.searchsorted(t, 0.1)]
+    assert rise == pytest.approx(edge_nm * NM, abs=2e-13 + 0.01 * edge_nm * NM if edge_nm > 5 else 2e-13)
+
+
+def test_torch_filter_gradients_match_finite_differences():
+    c, w, e, _ = _torch_filter([457.0, 530.0, 628.0], [22.0, 20.0, 28.0], 2.0)
+    grid = torch.linspace(430, 660, 461, dtype=torch.float64) * NM
+
+    def t(c, w, e):
+        return spectra.bandpass_transmission(grid, c * NM, w * NM, edge_width_m=e * NM, peak=0.9)
+
+    assert torch.autograd.gradcheck(t, (c, w, e), eps=1e-6, atol=1e-7)
+
+
+def test_torch_filter_equals_the_numpy_filter():
+    grid = np.linspace(400, 700, 3001) * NM
+    _, _, _, transmission = _torch_filter([457.0, 530.0, 628.0], [22.0, 20.0, 28.0], 2.0)
+    expected = spectra.bandpass_transmission(grid, PAPER_CENTRES, PAPER_WIDTHS, edge_width_m=2 * NM, peak=0.9)
+    assert_allclose(transmission(torch.from_numpy(grid)).detach().numpy(), expected, atol=1e-12)
