@@ -15,6 +15,12 @@ the z_near range, overlaps no pass band inside the sensor's wavelength range.
 
 With a z_near range [z_lo, z_hi] each condition is checked at its worst depth: the
 lower-bound conditions at z_hi (smallest s), the upper-bound ones at z_lo (largest s).
+
+An interference filter's bands move blue for oblique rays: λ(θ) = λ0·√(1 − sin²θ/n_eff²).
+Over a cone of rays up to θ_max a band [lo, hi] passes, for some ray, [k·lo, hi] with
+k = √(1 − sin²θ_max/n_eff²) (:func:`incidence_factor`); the conditions are checked on those
+widened bands (k = 1: normal incidence, the paper's check). A filter on the sensor sees rays up
+to atan((a + h)/f), from the aperture's rim to the opposite sensor corner (:func:`steepest_incidence`).
 All values in metres. Pure Python: answers instantly.
 """
 
@@ -66,6 +72,7 @@ class BandsReport:
     z_near_window_m: tuple[float, float] | None
     f_window_m: tuple[float, float] | None
     ignored_bands: tuple[Band, ...] = ()
+    incidence_factor: float = 1.0
 
     @property
     def ok(self) -> bool:
@@ -181,6 +188,51 @@ def _clear_of_pass_bands(
     return best if best is not None else _condition(name, lo, ">", sensor[0], z_hi)
 
 
+def split_conditions(bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float,
+                     sensor_range_m: tuple[float, float]) -> list[Condition]:
+    """The paper's inequalities and the general condition of every band, at their worst depths.
+
+    Band edges may be 0-d torch tensors (a filter being learned, ``design.filter_learning``):
+    the margins are then differentiable in them; the arithmetic is the same.
+    """
+    conditions = _paper_conditions(bands, f_m, z_lo, z_hi)
+    return conditions + [_clear_of_pass_bands(b, bands, f_m, z_lo, z_hi, sensor_range_m) for b in bands]
+
+
+def incidence_factor(max_incidence_rad: float, n_eff: float) -> float:
+    """k = √(1 − sin²θ/n_eff²): the factor by which a filter's bands move for rays at θ (≤ 1)."""
+    if not (0 <= max_incidence_rad < math.pi / 2 and n_eff >= 1):
+        raise InputError("filter.max_incidence", f"{math.degrees(max_incidence_rad):g}° with n_eff {n_eff:g}",
+                         "an angle in [0, 90) degrees and n_eff >= 1")
+    return math.sqrt(1.0 - (math.sin(max_incidence_rad) / n_eff) ** 2)
+
+
+def steepest_incidence(aperture_m: float, sensor_half_diagonal_m: float, f_m: float) -> float:
+    """The steepest ray (rad) on a filter at the sensor: atan((a + h)/f), aperture radius a."""
+    return math.atan((aperture_m / 2 + sensor_half_diagonal_m) / f_m)
+
+
+def preset_incidence_factor(preset) -> float:
+    """k of a preset's ``[filter]``: ``max_incidence`` "auto" (:func:`steepest_incidence` for its
+    lens and sensor) or an angle, with its ``n_eff``; 1 without a filter."""
+    from metalens_cli.io.units import parse_angle
+
+    band_filter = preset.filter
+    if band_filter is None:
+        return 1.0
+    if band_filter.max_incidence == "auto":
+        half_diagonal = math.sqrt(2) * preset.sensor.pixels * preset.sensor.pixel_pitch_m / 2
+        angle = steepest_incidence(preset.lens.aperture_m, half_diagonal, preset.lens.focal_length_m)
+    else:
+        angle = parse_angle(band_filter.max_incidence, "filter.max_incidence")
+    return incidence_factor(angle, band_filter.n_eff)
+
+
+def oblique_bands(bands: tuple[Band, ...], factor: float) -> tuple[Band, ...]:
+    """What each band passes for some ray of the cone: [factor·lo, hi] (``factor`` ≤ 1)."""
+    return tuple(Band(b.label, b.lo_m * factor, b.hi_m) for b in bands)
+
+
 def windows(bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float):
     """Closed-form windows where every paper condition holds.
 
@@ -203,11 +255,14 @@ def check_bands(
     f_m: float,
     z_near_m: tuple[float, float],
     sensor_range_m: tuple[float, float] = (400e-9, 700e-9),
+    incidence: float = 1.0,
 ) -> BandsReport:
     """Evaluate the split-spectrum conditions for ``bands`` at focal length ``f_m``.
 
     ``z_near_m`` is ``(lo, hi)``; a single depth is ``(z, z)``. Bands entirely outside the
-    sensor range do not take part (they are listed in ``ignored_bands``).
+    sensor range do not take part (they are listed in ``ignored_bands``). ``incidence``: the
+    factor k of :func:`incidence_factor` (1: normal incidence); the conditions and windows are
+    those of :func:`oblique_bands`, the report's ``bands`` the filter's own.
     """
     z_lo, z_hi = z_near_m
     if math.isinf(z_hi):
@@ -216,9 +271,9 @@ def check_bands(
     ignored = tuple(b for b in bands if b not in active)
     if not active:
         raise InputError("--sensor-range", "no pass band lies inside the sensor range", "a range that overlaps the filter")
-    conditions = _paper_conditions(active, f_m, z_lo, z_hi)
-    conditions += [_clear_of_pass_bands(b, active, f_m, z_lo, z_hi, sensor_range_m) for b in active]
-    z_window, f_window = windows(active, f_m, z_lo, z_hi)
+    seen = oblique_bands(active, incidence)
+    conditions = split_conditions(seen, f_m, z_lo, z_hi, sensor_range_m)
+    z_window, f_window = windows(seen, f_m, z_lo, z_hi)
     return BandsReport(
         bands=active,
         f_m=f_m,
@@ -229,4 +284,5 @@ def check_bands(
         z_near_window_m=z_window,
         f_window_m=f_window,
         ignored_bands=ignored,
+        incidence_factor=incidence,
     )

@@ -7,6 +7,7 @@ import click
 from metalens_cli.analysis import bands as model
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
+    Angle,
     BandSpec,
     Interval,
     json_option,
@@ -21,6 +22,15 @@ from metalens_cli.cli.options import (
 )
 from metalens_cli.errors import InputError
 from metalens_cli.io.units import INTERVAL_FORM, LENGTH_FORM, format_length
+
+
+def _incidence(preset, max_incidence, n_eff) -> float:
+    """The bands' blue-shift factor: the options, else the preset's [filter], else normal incidence."""
+    if max_incidence is None and n_eff is None and preset is not None:
+        return model.preset_incidence_factor(preset)
+    band_filter = preset.filter if preset is not None else None
+    return model.incidence_factor(max_incidence if max_incidence is not None else 0.0,
+                                  n_eff if n_eff is not None else (band_filter.n_eff if band_filter is not None else 1.8))
 
 
 @click.group(cls=MetalensGroup)
@@ -49,6 +59,7 @@ def report_json(report: model.BandsReport) -> dict:
         "f_m": report.f_m,
         "z_near_m": list(report.z_near_m),
         "sensor_range_m": list(report.sensor_range_m),
+        "incidence_factor": report.incidence_factor,
         "bands": [{"label": b.label, "lo_m": b.lo_m, "hi_m": b.hi_m} for b in report.bands],
         "ignored_bands": [{"label": b.label, "lo_m": b.lo_m, "hi_m": b.hi_m} for b in report.ignored_bands],
         "conditions": [
@@ -70,6 +81,9 @@ def _render(report: model.BandsReport, efficiency: dict | None) -> None:
     depth = format_length(z_lo) if z_lo == z_hi else f"{format_length(z_lo)} to {format_length(z_hi)}"
     s = f"{report.s[0]:.5f}" if report.s[0] == report.s[1] else f"{report.s[0]:.5f} to {report.s[1]:.5f}"
     con.print("Pass bands: " + ", ".join(f"{b.label} {render.nm(b.lo_m, 1)}-{render.nm(b.hi_m, 1)} nm" for b in report.bands))
+    if report.incidence_factor < 1:
+        con.print(f"Oblique rays move the bands blue by up to {100 * (1 - report.incidence_factor):.2f} %: the conditions use "
+                  + ", ".join(f"{b.label} {render.nm(b.lo_m * report.incidence_factor, 1)}-{render.nm(b.hi_m, 1)} nm" for b in report.bands))
     if report.ignored_bands:
         con.print("Outside the sensor range (ignored): " + ", ".join(b.label for b in report.ignored_bands))
     rows = [
@@ -98,17 +112,20 @@ def _render(report: model.BandsReport, efficiency: dict | None) -> None:
 @click.option("--f", "f_m", type=Length(), help="Focal length, e.g. 4mm.")
 @click.option("--z-near", "z_near", type=Interval(), help="Near (obstruction) depth, or a range that must hold throughout: 45mm or 40mm:50mm.")
 @click.option("--sensor-range", type=WavelengthInterval(), help="Sensor's wavelength range [default: preset's, else 400nm:700nm].")
+@click.option("--max-incidence", type=Angle(), help="Steepest ray on the filter, e.g. 25deg; the bands move blue for it "
+              "[default: the preset's filter.max_incidence, else 0deg].")
+@click.option("--n-eff", type=Number(1, 5), help="The filter coating's effective index [default: the preset's, else 1.8].")
 @json_option
 @plot_option
 @click.pass_context
-def check(ctx, preset_path, band_specs, filter_csv, threshold, f_m, z_near, sensor_range, as_json, plot_path):
+def check(ctx, preset_path, band_specs, filter_csv, threshold, f_m, z_near, sensor_range, max_incidence, n_eff, as_json, plot_path):
     """Check the split-spectrum conditions (Suppl. Note 1). Exit 0: all hold; 1: one fails; 2: bad input."""
     preset = load_preset_option(preset_path)
     filter_bands = _filter_bands(preset, band_specs, filter_csv, threshold)
     f_m = pick(f_m, preset, lambda p: p.lens.focal_length_m, "--f", LENGTH_FORM)
     z_near = pick(z_near, preset, lambda p: p.scene.z_near_m, "--z-near", INTERVAL_FORM)
     sensor_range = sensor_range or (preset.sensor.wavelength_range_m if preset else (400e-9, 700e-9))
-    report = model.check_bands(filter_bands, f_m, z_near, sensor_range)
+    report = model.check_bands(filter_bands, f_m, z_near, sensor_range, _incidence(preset, max_incidence, n_eff))
     efficiency = None
     if preset is not None:
         from metalens_cli.cli.progress import efficiency_used

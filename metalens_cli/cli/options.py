@@ -57,6 +57,15 @@ class Length(_UnitType):
         return units.parse_length(text, field, allow_inf=self.allow_inf)
 
 
+class Angle(_UnitType):
+    """One angle: ``25deg`` or ``0.4rad`` → radians in [0, π/2)."""
+
+    name = "angle"
+
+    def parse(self, text, field):
+        return units.parse_angle(text, field)
+
+
 class LengthList(_UnitType):
     """Lengths and ranges: ``45mm,inf`` or ``430:645:5nm`` → list of metres."""
 

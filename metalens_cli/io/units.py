@@ -242,6 +242,21 @@ def parse_duration(text: str, field: str) -> float:
     return seconds
 
 
+ANGLE_FORM = "an angle with a unit (deg or rad), e.g. 12deg"
+_ANGLE_RE = re.compile(rf"\s*({_NUMBER})\s*(deg|rad)\s*")
+
+
+def parse_angle(text: str, field: str) -> float:
+    """``12deg`` or ``0.2rad`` → radians, in [0, π/2)."""
+    match = _ANGLE_RE.fullmatch(str(text))
+    if not match:
+        raise InputError(field, f"{_quote(text)} is not an angle", ANGLE_FORM)
+    value = float(match.group(1)) * (math.pi / 180 if match.group(2) == "deg" else 1.0)
+    if not 0 <= value < math.pi / 2:
+        raise InputError(field, f"{_quote(text)} is outside [0, 90) degrees", ANGLE_FORM)
+    return value
+
+
 def format_length(value_m: float, unit: str = "auto", digits: int = 4) -> str:
     """Render metres for humans: ``0.004`` → ``4 mm``; ``inf`` → ``inf``."""
     if math.isinf(value_m):
