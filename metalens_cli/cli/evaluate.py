@@ -49,6 +49,9 @@ PAIRS_OPTIONS = {"pairs", "align", "refine", "match", "csv_path", "lpips_weights
                    "or none (already aligned).")
 @click.option("--refine", type=click.Choice(REFINEMENTS), default="flow", show_default=True,
               help="--pairs: the non-linear refinement after the homography (see metalens align).")
+@click.option("--photons-before-filter", is_flag=True,
+              help="--photons counts the light before each design's filter: its channels get their filter's throughput of it "
+                   "(designs with different filters compared at the same light).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
@@ -56,7 +59,7 @@ PAIRS_OPTIONS = {"pairs", "align", "refine", "match", "csv_path", "lpips_weights
 @click.pass_context
 def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
              pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seeds, obstruction, match,
-             csv_path, lpips_weights, recon_runs, pairs, align, refine, quiet, max_memory, as_json, plot_path):
+             csv_path, lpips_weights, recon_runs, pairs, align, refine, photons_before_filter, quiet, max_memory, as_json, plot_path):
     """Unobstructed and obstructed captures of each DESIGN against the clean images, or of real
     captures with --pairs DIR.
 
@@ -89,7 +92,7 @@ def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z
     s = setup(list(specs), preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device)
     settings = EvaluationSettings(s["pixels"], s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]),
                                   s["wavelengths_m"], images, limit, s["obstruction_params"], formation, match, alpha_gain,
-                                  photons, read_noise, psf_pixels, s["device"])
+                                  photons, read_noise, photons_before_filter, psf_pixels, s["device"])
     reconstructors = _reconstructors(recon_runs, s["designs"], s["device"])
     count = image_count(images, limit)
     costs = [estimate_captures(design, s["z_near_interval_m"][0], s["z_far_interval_m"][0], s["wavelengths_m"], s["pixel_pitch_m"],

@@ -43,6 +43,7 @@ class EvaluationSettings:
     alpha_gain: float | None = None
     photons: float | None = None
     read_noise: float = 0.0
+    photons_before_filter: bool = False   # photons count the light before each design's filter (its throughput passes)
     psf_window: int | None = None
     device: object = "cpu"
 
@@ -63,6 +64,17 @@ class Evaluation:
     panels: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     alignments: list[dict] = field(default_factory=list)
+
+
+def design_photons(design, settings: EvaluationSettings):
+    """The full-well electrons of a design's captures: ``settings.photons``, or with
+    ``photons_before_filter`` that many times each channel's filter throughput (3,)
+    (``io.preset_spectra.channel_throughput``: designs with other filters at the same light)."""
+    if not settings.photons or not settings.photons_before_filter:
+        return settings.photons
+    from metalens_cli.io.preset_spectra import channel_throughput
+
+    return settings.photons * channel_throughput(design.preset)
 
 
 def metric_names(lpips_model) -> tuple[str, ...]:
@@ -94,6 +106,7 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
             out.psfs.append({"design": design.spec, "seed": seed, "z_near_m": z_near, "z_far_m": z_far, **p.report(),
                              "seconds": p.seconds})
             out.warnings += [f"{design.spec}, seed {seed}: {w}" for w in p.warnings()]
+    photons = [design_photons(design, settings) for design in designs]
     margin = max(p.margin for p in psfs.values())  # one canvas for all: every design sees the same scene
     images = load_images(settings.images, (settings.pixels, settings.pixels), settings.limit, margin)
     out.images = [image.name for image in images]
@@ -107,7 +120,7 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
             for d, design in enumerate(designs):
                 captures = simulate_captures(images, kind, psfs[d, seed], design.focal_length_m, settings.pixel_pitch_m, seed,
                                              settings.obstruction_params, settings.formation, settings.alpha_gain,
-                                             settings.photons, settings.read_noise, obstructions)
+                                             photons[d], settings.read_noise, obstructions)
                 for index, c in enumerate(captures):
                     estimates = {"raw": (c.unobstructed, c.obstructed)}
                     if recon[d] is not None:

@@ -180,7 +180,7 @@ def form_image(
 
 def add_noise(
     image: torch.Tensor,
-    photons: float | None = None,
+    photons: float | torch.Tensor | None = None,
     read_noise: float = 0.0,
     generator: torch.Generator | int | None = None,
 ) -> torch.Tensor:
@@ -188,14 +188,16 @@ def add_noise(
 
     A pixel of value x (1 = full scale) collects x·``photons`` electrons: its noise has
     variance x/photons (shot, x clamped at 0) + ``read_noise``² (read noise, in full-scale
-    units). ``photons`` None or 0 means no shot noise. ``generator``: a seed or a
-    ``torch.Generator`` on the image's device; the same seed gives the same noise.
+    units). ``photons`` None or 0 means no shot noise; a tensor gives one count per channel
+    (shape (3, 1, 1): a filter passes each channel its own share of the light, differentiably).
+    ``generator``: a seed or a ``torch.Generator`` on the image's device; the same seed gives the
+    same noise.
     """
     if isinstance(generator, int):
         generator = torch.Generator(device=image.device).manual_seed(generator)
     variance = torch.zeros_like(image)
-    if photons:
-        if photons < 0:
+    if torch.is_tensor(photons) or photons:
+        if bool((torch.as_tensor(photons) <= 0).any()):
             raise InputError("--photons", f"{photons!r}", "a positive full-well count")
         variance = image.clamp_min(0) / photons
     if read_noise < 0:

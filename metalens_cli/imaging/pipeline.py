@@ -156,14 +156,15 @@ class SimulatedCapture:
 
 def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_length_m: float, pixel_pitch_m: float,
                       seed: int, params: ObstructionConfig | None = None, formation: str = "physical",
-                      alpha_gain: float | None = None, photons: float | None = None,
+                      alpha_gain: float | None = None, photons=None,
                       read_noise: float = 0.0, obstructions: dict | None = None) -> list[SimulatedCapture]:
     """For each clean image (on a canvas whose margin covers ``psfs.margin``): an obstruction on
     the same canvas (seed + image index), the unobstructed capture P̂_far ∗ I_clean and the
     obstructed capture (``imaging.formation``); noise (if any) seeded the same way.
 
     ``obstructions``: a dict shared by calls that differ only in the design (same images, seed
-    and depths), so each obstruction is generated once."""
+    and depths), so each obstruction is generated once. ``photons``: full-well electrons, one
+    count or one per channel R, G, B (``imaging.formation.add_noise``)."""
     captures = []
     transforms = None
     dev, dt = psfs.near.device, psfs.near.dtype
@@ -184,9 +185,11 @@ def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_le
                                  torch.as_tensor(obstruction.mask, dtype=dt, device=dev), *transforms, image.margin,
                                  formation, alpha_gain)
             obstructed, unobstructed = capture.obstructed, capture.unobstructed
-            if photons or read_noise:
-                obstructed = add_noise(obstructed, photons, read_noise, seed * 1000 + 2 * index)
-                unobstructed = add_noise(unobstructed, photons, read_noise, seed * 1000 + 2 * index + 1)
+            if np.any(photons) or read_noise:
+                counts = torch.as_tensor(np.asarray(photons, dtype=float), dtype=dt, device=dev).reshape(-1, 1, 1) \
+                    if np.ndim(photons) else photons
+                obstructed = add_noise(obstructed, counts, read_noise, seed * 1000 + 2 * index)
+                unobstructed = add_noise(unobstructed, counts, read_noise, seed * 1000 + 2 * index + 1)
         alpha = capture.alpha.cpu().numpy().astype(np.float32)
         captures.append(SimulatedCapture(image.name, image.sensor, obstruction, unobstructed.cpu().numpy().astype(np.float32),
                                          obstructed.cpu().numpy().astype(np.float32), alpha, time.perf_counter() - start,

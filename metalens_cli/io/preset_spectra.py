@@ -17,6 +17,7 @@ Wavelengths are metres.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -172,6 +173,16 @@ def efficiency_report(preset, bands_m: list[tuple[float, float]] | None = None, 
     if bands_m is not None:
         report["band_mean"] = [float(efficiency.at(np.linspace(lo, hi, 65)).mean()) for lo, hi in bands_m]
     return report
+
+
+def channel_throughput(preset) -> np.ndarray:
+    """(3,) R, G, B: ∫S^c dλ with the preset's filter over ∫S^c dλ without it: the share of each
+    channel's signal the filter passes (1 without a filter). Shot noise grows as it falls."""
+    if preset is None or preset.filter is None:
+        return np.ones(3)
+    grid = wavelength_grid(*preset.sensor.wavelength_range_m, 0.5e-9)
+    bare = preset_sensitivity(dataclasses.replace(preset, filter=None), grid).values.sum(axis=1)
+    return preset_sensitivity(preset, grid).values.sum(axis=1) / bare
 
 
 def preset_sensitivity(preset, wavelengths_m: np.ndarray | None = None) -> SpectralSensitivity:
