@@ -50,8 +50,8 @@ def kept_summary(history: list[dict], prefix: str = "kept_") -> dict:
 
 
 def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[str], world: int, device: str,
-                  threads: int, validation: dict, windows: dict) -> dict:
-    from metalens_cli.plotting.optimize import loss_figure, theta_figure
+                  threads: int, validation: dict, windows: dict, filter_report: dict | None = None) -> dict:
+    from metalens_cli.plotting.optimize import filter_figure, loss_figure, theta_figure
 
     start = time.perf_counter()
     theta = summary.theta
@@ -70,6 +70,8 @@ def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[st
     run.write_loss_csv(summary.history)
     if summary.history:
         loss_figure(run.path / "loss.png", summary.history)
+    if filter_report is not None and summary.history:
+        filter_figure(run.path / "filter.png", summary.history, preset.sensor.wavelength_range_m)
     initial = None
     if theta.ndim == 1:
         from metalens_cli.design.training import build_model
@@ -94,6 +96,7 @@ def write_results(run, preset, summary, grid: dict, timing: dict, notes: list[st
         "final_loss": final,
         "validation_loss": validation,
         "psf": psf_report,
+        **({"filter": filter_report} if filter_report is not None else {}),
         "psf_windows": {**windows, "kept": kept, "held": kept_summary(summary.history, "held_"),
                         "window_px": {k: {**v, "max": max(r[f"window_{k}"] for r in summary.history if f"window_{k}" in r)}
                                       for k, v in kept_summary(summary.history, "window_").items()}},

@@ -10,6 +10,9 @@
       samples/step_NNNNNN.png   clean | obstruction | capture every optimize.sample_every steps
       checkpoints/step_NNNNNN.pt   θ, optimiser, scheduler and history (the last ``KEEP`` kept)
       run.json               settings, cost, accuracy and final metrics
+      filter.csv, filter.png  with [filter] learn = true: the learned filter's transmission every
+                             0.5 nm (wavelength_nm, transmission) and its bands over the steps;
+                             preset.toml then holds the learned [filter]
 
 Every file is written atomically (temporary file, then rename). ``metalens reconstruct train``
 uses the same class for its own run directory (``design.reconstruct_training``).

@@ -4,7 +4,9 @@ Each step s draws everything it needs from (seed, s) alone, so that a resumed ru
 uninterrupted one exactly and every data-parallel rank agrees on the shared draws:
 
 1. z_near, z_far uniform in the preset's scene intervals;
-2. per channel, ``wavelengths_per_channel`` wavelengths by stratified importance sampling of S^c;
+2. per channel, ``wavelengths_per_channel`` wavelengths by stratified importance sampling of S^c
+   (with ``spectral_sampling = "bands"``: per filter band, and weights differentiable in a
+   filter learned with θ, ``design.filter_learning``);
 3. monochromatic PSFs at both depths in one differentiable ``compute_psf`` call, mixed into
    R, G, B (one sampling plan for the whole run, so kernels are built once);
 4. a batch of clean scenes with generated obstructions at z_near, rendered by the image
@@ -30,13 +32,15 @@ import numpy as np
 import torch
 
 from metalens_cli.design import distributed
+from metalens_cli.design.filter_learning import (BandSampler, LearnedFilter, band_sampler, filter_columns, filter_row,
+                                                 learned_filter, make_feasible, split_penalty)
 from metalens_cli.design.losses import training_loss
 from metalens_cli.design.parameterization import initial_parameterization
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.scenes import training_scene
 from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.errors import InputError, MetalensError, SamplingError, Terminated
-from metalens_cli.imaging.formation import canvas_margin, form_image
+from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.optics.blur import psf_window
@@ -44,7 +48,8 @@ from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, c
 from metalens_cli.io.presets import WAVELENGTH_MODES, to_toml
 from metalens_cli.optics.sampling import check_lens_sampling
 from metalens_cli.optics.sensor import larger_window
-from metalens_cli.io.preset_spectra import preset_sensitivity
+from metalens_cli.analysis.bands import preset_incidence_factor
+from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
 from metalens_cli.optics.spectra import sample_wavelengths
 
 DEFAULT_LAMBDA_D_M = 532e-9
@@ -84,17 +89,29 @@ class StepDraw:
     z_near_m: float
     z_far_m: float
     wavelengths_m: np.ndarray
-    weights: np.ndarray
+    weights: np.ndarray | torch.Tensor
 
 
 def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
+    """Depths and wavelengths of a step; ``sensitivity``: the preset's S^c, or a ``BandSampler``
+    (``spectral_sampling = "bands"``: its weights a tensor, differentiable in its filter)."""
     rng = np.random.default_rng([seed, step, 3])
     z_near = float(rng.uniform(*preset.scene.z_near_m))
     lo, hi = preset.scene.z_far_m
     z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
+    if isinstance(sensitivity, BandSampler):
+        return StepDraw(z_near, z_far, *sensitivity.draw(rng))
     sample = sample_wavelengths(sensitivity, preset.optimize.wavelengths_per_channel,
                                 rng if preset.optimize.spectral_sampling == "stratified" else None)
     return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights)
+
+
+def spectral_source(preset, band_filter=None):
+    """What ``draw_step`` draws from: a ``BandSampler`` for ``spectral_sampling = "bands"`` (of
+    ``band_filter`` or the preset's filter), else the preset's S^c."""
+    if preset.optimize.spectral_sampling == "bands":
+        return band_sampler(preset, band_filter)
+    return preset_sensitivity(preset)
 
 
 def _lambda_d(preset) -> float:
@@ -305,17 +322,41 @@ class _Session:
     frequency: float
     windows: Windows  # follows the light; its plan grows when the light or the lens outgrows it (saved in checkpoints)
     notes: list[str]
+    band_filter: LearnedFilter | None = None   # the filter learned with θ ([filter] learn = true)
+    incidence: float = 1.0                     # its bands' blue shift over the cone (analysis.bands)
 
 
 def _session(preset, ctx) -> _Session:
     o = preset.optimize
     model = build_model(preset).to(ctx.device)
-    optimizer = torch.optim.AdamW(model.parameters(), lr=o.learning_rate, weight_decay=o.weight_decay)
     notes: list[str] = []
-    sensitivity = preset_sensitivity(preset)
+    incidence = preset_incidence_factor(preset)
+    band_filter = _filter_start(preset, incidence, notes)
+    groups = [{"params": list(model.parameters())}]
+    if band_filter is not None:
+        groups.append({"params": list(band_filter.parameters()), "lr": preset.filter.learning_rate, "weight_decay": 0.0})
+    optimizer = torch.optim.AdamW(groups, lr=o.learning_rate, weight_decay=o.weight_decay)
+    sensitivity = spectral_source(preset, band_filter)
     windows = plan_windows(preset, sensitivity)
     return _Session(model, optimizer, _scheduler(optimizer, o), sensitivity, _features(preset, notes),
-                    _image_pool(preset, windows.margin), ctx.shard(o.batch_size), plan_frequency(preset), windows, notes)
+                    _image_pool(preset, windows.margin), ctx.shard(o.batch_size), plan_frequency(preset), windows, notes,
+                    band_filter, incidence)
+
+
+def _filter_start(preset, incidence: float, notes: list[str]) -> LearnedFilter | None:
+    """The filter to learn (``[filter] learn = true``), within its limits and, while the
+    conditions' penalty is on, meeting them (``design.filter_learning.make_feasible``)."""
+    if preset.filter is None or not preset.filter.learn:
+        return None
+    band_filter = LearnedFilter(preset.filter)
+    band_filter.project(preset.filter, preset.sensor.wavelength_range_m)
+    if preset.filter.split_weight > 0:
+        start = make_feasible(band_filter, preset, incidence)
+        if start["steps"]:
+            notes.append(f"the starting filter failed the split-spectrum conditions (penalty {start['penalty_before_nm2']:.3g} nm²): "
+                         f"moved to {_bands_text(band_filter)} in {start['steps']} penalty-only steps (penalty "
+                         f"{start['penalty_after_nm2']:.3g} nm²) before θ learned")
+    return band_filter
 
 
 def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> dict:
@@ -355,6 +396,8 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
     preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **overrides))
     o = preset.optimize
+    if preset.filter is not None and preset.filter.learn:
+        run.columns = run.columns + filter_columns(len(preset.filter.centers_m))
     checkpoint = run.latest_checkpoint(o.steps) if resume else None
     if not resume:
         run.check_fresh()
@@ -365,7 +408,8 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     history: list[dict] = []
     start = 0
     if checkpoint is not None:
-        checkpoint.restore(model=model, optimizer=optimizer, scheduler=scheduler)
+        learned = {"filter": session.band_filter} if session.band_filter is not None else {}
+        checkpoint.restore(model=model, **learned, optimizer=optimizer, scheduler=scheduler)
         history, start = checkpoint.state["history"], checkpoint.step
         if "windows" in checkpoint.state:  # the windows the run had come to (older runs: capacities alone)
             near, far, *plan = checkpoint.state["windows"]
@@ -400,13 +444,17 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     if ctx.is_main:
         if o.steps > start:
             run.save_checkpoint(_state(session, history, o.steps))
+        learned, filter_report = preset, None
+        if session.band_filter is not None:  # checked (and snapped) before anything is written with it
+            learned, filter_report = learned_filter(run, preset, session.band_filter)
         validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
-                      "final": validation_loss(model, preset, 4, ctx.device, session.frequency),
+                      "final": validation_loss(model, learned, 4, ctx.device, session.frequency),
                       "gradient_norms": {"initial": term_gradient_norms(build_model(preset).to(ctx.device), preset, 2, ctx.device,
                                                                         session.frequency, session.features),
-                                         "final": term_gradient_norms(model, preset, 2, ctx.device, session.frequency,
+                                         "final": term_gradient_norms(model, learned, 2, ctx.device, session.frequency,
                                                                       session.features)}}
-        summary.report = _finish(run, preset, model, summary, grid, timing, session.notes, ctx, validation, session.windows)
+        summary.report = _finish(run, learned, model, summary, grid, timing, session.notes, ctx, validation, session.windows,
+                                 filter_report)
     return summary
 
 
@@ -429,12 +477,18 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, margin, ctx.device)
     t = _lap(timing, "scenes", t, ctx.device)
     capture = form_image(clean, colour, mask, near, far, margin).obstructed
+    if o.photons or o.read_noise:
+        share = session.sensitivity.throughput() if isinstance(session.sensitivity, BandSampler) else None
+        capture = add_noise(capture, _photons(preset, capture.device, share), o.read_noise, _noise_seed(o.seed, step, shard))
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
     sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
     share = len(shard) / o.batch_size
     loss, parts = training_loss(capture, clean, sensor_psf(far, preset), preset.loss, session.features, image_share=share,
                                  psf_share=1 / ctx.world, cores_far=far_cores(stack))
+    if session.band_filter is not None:
+        parts["split"] = split_penalty(session.band_filter, preset, session.incidence)
+        loss = loss + preset.filter.split_weight * parts["split"].to(loss.dtype) / ctx.world
     t = _lap(timing, "formation_loss", t, ctx.device)
     if not torch.isfinite(loss):
         raise InputError("optimize.learning_rate", f"training diverged at step {step + 1}: the loss is {float(loss)}",
@@ -445,22 +499,51 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     image_terms = {"l1", "ssim", "domain_adaptation", "total"}
     reported = torch.stack([parts[k].detach() * (share if k in image_terms else 1 / ctx.world) for k in names]).double()
     if ctx.world > 1:
-        for p in model.parameters():
+        for p in _parameters(session):
             distributed.all_reduce_sum(p.grad, ctx)
         distributed.all_reduce_sum(reported, ctx)
         # 'total' mixes shares; recompute it from the reduced parts below
     optimizer.step()
     session.scheduler.step()
+    if session.band_filter is not None:
+        session.band_filter.project(preset.filter, preset.sensor.wavelength_range_m)
     _lap(timing, "update", t, ctx.device)
     values = dict(zip(names, reported.tolist()))
     w = preset.loss
     values["total"] = (w.l1 * values["l1"] + w.ssim * values["ssim"] + w.domain_adaptation * values.get("domain_adaptation", 0.0)
-                       + w.bright * values["bright"] + w.sharp * values["sharp"])
+                       + w.bright * values["bright"] + w.sharp * values["sharp"]
+                       + (preset.filter.split_weight * values["split"] if "split" in values else 0.0))
     kept = {f"kept_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.kept[i])}
     held = {f"held_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.held[i])}
     row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m,
-           "window_near": near.shape[-1], "window_far": far.shape[-1], "plan_window": session.windows.plan, **kept, **held}
+           "window_near": near.shape[-1], "window_far": far.shape[-1], "plan_window": session.windows.plan, **kept, **held,
+           **(filter_row(session.band_filter) if session.band_filter is not None else {})}
     return row, stack.grid, sample
+
+
+def _photons(preset, device, share: torch.Tensor | None = None):
+    """Full-well electrons per channel (3, 1, 1) on ``device``: ``optimize.photons`` times the
+    filter's throughput ``share`` (a learned filter's, differentiable: it pays for narrow bands in
+    noise), by default the preset filter's (``io.preset_spectra.channel_throughput``)."""
+    if not preset.optimize.photons:
+        return None
+    share = torch.as_tensor(channel_throughput(preset)) if share is None else share
+    return (preset.optimize.photons * share).to(device, torch.float32).reshape(3, 1, 1)
+
+
+def _noise_seed(seed: int, step: int, shard: list[int]) -> int:
+    return int(np.random.default_rng([seed, step, 31, *shard]).integers(2**62))
+
+
+def _bands_text(band_filter: LearnedFilter) -> str:
+    centres, widths, _ = band_filter.values()
+    return ", ".join(f"{(c - w / 2) * 1e9:.1f}-{(c + w / 2) * 1e9:.1f} nm" for c, w in zip(centres, widths))
+
+
+def _parameters(session: _Session) -> list[torch.nn.Parameter]:
+    """θ's parameters and, when it is learned, the filter's."""
+    extra = list(session.band_filter.parameters()) if session.band_filter is not None else []
+    return list(session.model.parameters()) + extra
 
 
 VALIDATION_STEP = 10**9  # draws for the fixed validation loss start here, far from any training step
@@ -470,7 +553,7 @@ GRADIENT_TERMS = ("l1", "ssim", "domain_adaptation", "bright", "sharp")
 def _validation_parts(model, preset, draws: int, device, frequency: float | None, features=None):
     """For each of the ``draws`` fixed validation draws (step numbers no training step uses):
     the weighted loss and its parts on the whole batch (``design.losses.training_loss``)."""
-    sensitivity = preset_sensitivity(preset)
+    sensitivity = spectral_source(preset)
     o = preset.optimize
     windows = plan_windows(preset, sensitivity)
     pool = _image_pool(preset, windows.margin)
@@ -482,6 +565,8 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
         margin = canvas_margin(near.shape[-1], far.shape[-1])
         clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device)
         capture = form_image(clean, colour, mask, near, far, margin).obstructed
+        if o.photons or o.read_noise:
+            capture = add_noise(capture, _photons(preset, capture.device), o.read_noise, _noise_seed(o.seed, step, [0]))
         yield training_loss(capture, sensor_crop(clean, margin), sensor_psf(far, preset), preset.loss, features,
                             cores_far=far_cores(stack))
 
@@ -522,7 +607,8 @@ def _lap(timing: dict, name: str, t: float, device: torch.device) -> float:
 
 
 def _state(session: _Session, history, step) -> dict:
-    return {"step": step, "model": session.model.state_dict(), "optimizer": session.optimizer.state_dict(),
+    learned = {"filter": session.band_filter.state_dict()} if session.band_filter is not None else {}
+    return {"step": step, "model": session.model.state_dict(), **learned, "optimizer": session.optimizer.state_dict(),
             "scheduler": session.scheduler.state_dict(), "windows": [session.windows.near, session.windows.far, session.windows.plan],
             "history": history, "rng": "stateless: every draw is a function of (seed, step)"}
 
@@ -551,10 +637,11 @@ def _write_sample(run: RunDirectory, sample: torch.Tensor, step: int) -> None:
 
 
 def _finish(run: RunDirectory, preset, model, summary: RunSummary, grid: dict, timing: dict, notes: list[str], ctx,
-            validation: dict, windows: Windows) -> dict:
-    """theta, psf.exr, loss.csv/png, theta.png and run.json."""
+            validation: dict, windows: Windows, filter_report: dict | None) -> dict:
+    """theta, psf.exr, loss.csv/png, theta.png, filter.png and run.json."""
     from metalens_cli.design.report import write_results
 
     return write_results(run, preset, summary, grid, timing, notes, ctx.world, str(ctx.device), torch.get_num_threads(), validation,
                          {"planned_px": {"near": windows.near, "far": windows.far, "plan": windows.plan}, "headroom": PLAN_HEADROOM,
-                          "rule": f"each step: the window holding {ENCIRCLED_ENERGY} of each channel's power on the sensor plane"})
+                          "rule": f"each step: the window holding {ENCIRCLED_ENERGY} of each channel's power on the sensor plane"},
+                         filter_report)

@@ -73,7 +73,15 @@ class NanofinConfig:
 class FilterConfig:
     """Multi-band filter: pass band i is [centre − width/2, centre + width/2] (width = FWHM) with
     logistic edges (10-90 % rise ``edge_width``), or a measured transmission ``csv``
-    (wavelength_nm, transmission; pass bands where it exceeds ``threshold``)."""
+    (wavelength_nm, transmission; pass bands where it exceeds ``threshold``).
+
+    Oblique rays up to ``max_incidence`` ("auto": the steepest ray on the sensor) move the bands
+    blue by √(1 − sin²θ/n_eff²); the split-spectrum conditions account for it (``analysis.bands``).
+    ``learn = true``: ``optimize`` learns the centres, widths and edge width with θ (their own
+    ``learning_rate``, nm per step), within ``min_width``-``max_width``, edges ≥ ``min_edge_width``,
+    gaps ≥ ``min_gap``, and the split-spectrum conditions with ``split_margin`` (a penalty of
+    weight ``split_weight`` on nm² of shortfall); with a ``catalogue`` CSV the result snaps to
+    the nearest listed filter that meets them (``design.filter_learning``)."""
 
     centers_m: tuple[float, ...] = toml_key("centers", "length_list", default=())
     widths_m: tuple[float, ...] = toml_key("widths", "length_list", default=())
@@ -81,6 +89,17 @@ class FilterConfig:
     threshold: float = toml_key("threshold", "fraction", default=0.5)
     edge_width_m: float = toml_key("edge_width", "length", default=2e-9)
     peak_transmission: float = toml_key("peak_transmission", "fraction", default=0.9)
+    max_incidence: str = toml_key("max_incidence", "incidence", default="0deg")
+    n_eff: float = toml_key("n_eff", "float", lo=1.0, hi=5.0, default=1.8)
+    learn: bool = toml_key("learn", "bool", default=False)
+    learning_rate: float = toml_key("learning_rate", "float", lo=0.0, hi=100.0, default=0.3)
+    min_width_m: float = toml_key("min_width", "length", default=10e-9)
+    max_width_m: float = toml_key("max_width", "length", default=40e-9)
+    min_edge_width_m: float = toml_key("min_edge_width", "length", default=1e-9)
+    min_gap_m: float = toml_key("min_gap", "length", default=5e-9)
+    split_margin_m: float = toml_key("split_margin", "length", default=1e-9)
+    split_weight: float = toml_key("split_weight", "float", lo=0.0, hi=1e6, default=1.0)
+    catalogue: str | None = toml_key("catalogue", "path", default=None)
 
 
 @dataclass(frozen=True)
@@ -117,8 +136,10 @@ class OptimizeConfig:
     init: str = toml_key("init", "choice", choices=("hyperbolic", "random"), default="hyperbolic")
     design_grid: int = toml_key("design_grid", "int", lo=0, hi=100_000, default=0)  # radial samples / 2-D side; 0 = per meta-atom
     theta_basis: str = toml_key("theta_basis", "choice", choices=("samples", "spline"), default="samples")  # see design.parameterization
-    spectral_sampling: str = toml_key("spectral_sampling", "choice", choices=("stratified", "midpoint"), default="stratified")
+    spectral_sampling: str = toml_key("spectral_sampling", "choice", choices=("stratified", "midpoint", "bands"), default="stratified")
     obstructions: tuple[str, ...] = toml_key("obstructions", "string_list", default=("dirt",))
+    photons: float = toml_key("photons", "float", lo=0.0, hi=1e15, default=0.0)  # full-well e⁻ before the filter; 0: no shot noise
+    read_noise: float = toml_key("read_noise", "float", lo=0.0, hi=1.0, default=0.0)  # σ, fraction of full scale
     images: str | None = toml_key("images", "folder", default=None)  # training images; none: procedural scenes
     checkpoint_every: int = toml_key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
     sample_every: int = toml_key("sample_every", "int", lo=1, hi=10_000_000, default=100)
@@ -263,6 +284,15 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
         if not isinstance(value, list) or not value:
             raise InputError(path, "expected a non-empty array of strings", '["dirt", "fence"]')
         return tuple(as_str(v, path, "a string") for v in value)
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise InputError(path, f"expected true or false, got {value!r}", "true or false")
+        return value
+    if kind == "incidence":
+        text = as_str(value, path, f'"auto" or {units.ANGLE_FORM}')
+        if text.strip() != "auto":
+            units.parse_angle(text, path)
+        return text.strip()
     if kind == "choice":
         choices = meta["choices"]
         if value not in choices:
@@ -359,6 +389,9 @@ def _check_consistency(p: Preset) -> None:
                 check_bands(list(p.filter.centers_m), list(p.filter.widths_m), p.filter.edge_width_m, p.filter.peak_transmission)
             except InputError as exc:
                 raise InputError("filter.widths", exc.message, exc.expected) from None
+        _check_learned_filter(p)
+    if p.optimize.spectral_sampling == "bands" and (p.filter is None or not p.filter.centers_m):
+        raise InputError("optimize.spectral_sampling", '"bands" without filter bands', "a [filter] with centers and widths")
     if math.isinf(p.scene.z_near_m[1]):
         raise InputError("scene.z_near", "must be finite", units.INTERVAL_FORM)
     if not p.scene.z_near_m[1] < p.scene.z_far_m[0]:
@@ -369,6 +402,24 @@ def _check_consistency(p: Preset) -> None:
     if p.loss.sharp_mode in WAVELENGTH_MODES and p.loss.sharp_window % 2 == 0:
         raise InputError("loss.sharp_window", f"{p.loss.sharp_window} with sharp_mode = \"{p.loss.sharp_mode}\"",
                          "an odd window (each wavelength's core is centred on the axis pixel)")
+
+
+def _check_learned_filter(p: Preset) -> None:
+    """A filter to learn: bands (not a CSV), limits that admit a filter, the band quadrature."""
+    f = p.filter
+    if f.catalogue is not None and not f.learn:
+        raise InputError("filter.catalogue", "given without filter.learn = true", "learn = true to snap a learned filter to it")
+    if not f.learn:
+        return
+    if f.csv is not None:
+        raise InputError("filter.learn", "a measured filter (filter.csv) cannot be learned", "filter.centers and filter.widths to start from")
+    if not 0 < f.min_width_m < f.max_width_m:
+        raise InputError("filter.max_width", f"{f.max_width_m:g} m with min_width {f.min_width_m:g} m", "0 < min_width < max_width")
+    if f.min_width_m < 0.81 * f.min_edge_width_m:
+        raise InputError("filter.min_width", "is narrower than its edges allow", "min_width >= 0.81 × min_edge_width")
+    if p.optimize.spectral_sampling != "bands":
+        raise InputError("optimize.spectral_sampling", f"{p.optimize.spectral_sampling!r} with filter.learn = true",
+                         '"bands": wavelengths that follow the learned bands')
 
 
 def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | None = None) -> Preset:

@@ -84,7 +84,8 @@ def channel_psf_stack(lens: Metalens, wavelengths_m, depths_m, weights, capacity
     ``plan_pixels`` (≥ every capacity; default the largest) fixes the radial sampling plan so that
     calls with changing capacities share its kernels. ``plan_*`` as in ``compute_psf``.
     ``core_window`` (odd pixels): also each wavelength's energy in that central window (``cores``).
-    Differentiable with respect to ``lens.theta`` (the windows themselves are not).
+    Differentiable with respect to ``lens.theta`` and, given as a tensor, ``weights`` (the windows
+    themselves are not).
     """
     start = time.perf_counter()
     lams = [float(x) for x in np.ravel(wavelengths_m)]
@@ -92,7 +93,7 @@ def channel_psf_stack(lens: Metalens, wavelengths_m, depths_m, weights, capacity
     d = distance_m if distance_m is not None else lens.focal_length_m
     caps = [int(c) for c in np.broadcast_to(np.asarray(capacity), (len(zs),))]
     plan_px = int(plan_pixels or max(caps))
-    mix = torch.as_tensor(np.asarray(weights), dtype=torch.float64)
+    mix = weights.double() if torch.is_tensor(weights) else torch.as_tensor(np.asarray(weights), dtype=torch.float64)
     if mix.shape != (3, len(lams)):
         raise InputError("weights", f"shape {tuple(mix.shape)} for {len(lams)} wavelengths", "(3, W) channel weights")
     if not 0 < energy < 1:
@@ -138,6 +139,7 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     clock = time.perf_counter()
     w = len(lams)
     mix_d = mix.to(device, dtype)
+    mix_n = mix_d.detach()   # the window rule's sums
     core_op = None if core_window is None else radial_sensor(plan.step_m, core_window, pitch)
     # The rule needs I(ρ) out to each capacity's inscribed disc (a window ≤ cap holds its light
     # there or nowhere); each PSF then needs it out to its own window's corner, often further.
@@ -147,11 +149,11 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     windows, on_sensor, outgrown, ops = [], [], [], []
     for i, cap in enumerate(caps):
         cols = slice(i * w, (i + 1) * w)
-        target = (mix_d.double() @ on_plane[cols].double()).cpu().numpy()           # (3,) on the sensor plane
+        target = (mix_n.double() @ on_plane[cols].double()).cpu().numpy()           # (3,) on the sensor plane
         rho = np.arange(inner[i]) * plan.step_m
         ring = 2 * math.pi * rho * plan.step_m
         ring[0] = math.pi * (plan.step_m / 2) ** 2
-        enclosed = np.cumsum((mono[:inner[i], cols].detach() @ mix_d.T).double().cpu().numpy() * ring[:, None], axis=0)
+        enclosed = np.cumsum((mono[:inner[i], cols].detach() @ mix_n.T).double().cpu().numpy() * ring[:, None], axis=0)
         chosen, lost = [], []
         for c in range(3):
             reach = np.nonzero(enclosed[:, c] >= energy * target[c])[0]

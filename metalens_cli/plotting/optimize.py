@@ -1,4 +1,4 @@
-"""Figures of an optimisation run: loss curves and the learned rotation map."""
+"""Figures of an optimisation run: loss curves, the learned rotation map and a learned filter's bands."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 
 from metalens_cli.plotting.common import new_figure, save_figure
 
-PARTS = ("total", "l1", "ssim", "domain_adaptation", "bright", "sharp")
+PARTS = ("total", "l1", "ssim", "domain_adaptation", "bright", "sharp", "split")
 
 
 def loss_figure(path: str | Path, history: list[dict], parts: tuple[str, ...] = PARTS) -> Path:
@@ -61,4 +61,33 @@ def theta_figure(path: str | Path, theta: np.ndarray, pitch_m: float, initial: n
         fig.colorbar(im, ax=ax, label="φ mod 2π (rad)")
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
+    return save_figure(fig, path)
+
+
+def filter_figure(path: str | Path, history: list[dict], sensor_range_m: tuple[float, float]) -> Path:
+    """A learned filter over the steps: each pass band [c − w/2, c + w/2] shaded against step
+    (wavelength up); beside it the edge width and the split-spectrum penalty (symlog axis)."""
+    steps = np.array([row["step"] for row in history])
+    n = sum(1 for key in history[-1] if key.startswith("filter_center_"))
+    fig, axes = new_figure(1, 2, figsize=(10, 3.8), gridspec_kw={"width_ratios": [2, 1]})
+    colours = ("tab:blue", "tab:green", "tab:red") if n == 3 else [f"C{i}" for i in range(n)]
+    for i, colour in zip(range(n), colours):
+        c = np.array([row[f"filter_center_{i}_nm"] for row in history])
+        w = np.array([row[f"filter_width_{i}_nm"] for row in history])
+        axes[0].fill_between(steps, c - w / 2, c + w / 2, color=colour, alpha=0.35, lw=0)
+        axes[0].plot(steps, c, color=colour, lw=1)
+    axes[0].set_ylim(sensor_range_m[0] * 1e9, sensor_range_m[1] * 1e9)
+    axes[0].set_xlabel("step")
+    axes[0].set_ylabel("pass band (nm, FWHM)")
+    axes[0].grid(alpha=0.3)
+    axes[1].plot(steps, [row["filter_edge_nm"] for row in history], color="k", lw=1)
+    axes[1].set_ylabel("edge width, 10-90 % (nm)")
+    axes[1].set_ylim(bottom=0)
+    axes[1].set_xlabel("step")
+    axes[1].grid(alpha=0.3)
+    penalty = axes[1].twinx()
+    penalty.plot(steps, [row.get("split", np.nan) for row in history], color="tab:orange", lw=0.8)
+    penalty.set_yscale("symlog", linthresh=1e-3)
+    penalty.set_ylabel("split-spectrum penalty (nm²)", color="tab:orange")
+    fig.tight_layout()
     return save_figure(fig, path)
