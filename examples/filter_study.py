@@ -2,19 +2,21 @@
 
     python examples/filter_study.py [--out runs/filter] [--reuse] [--train-only]
 
-Four runs of ``metalens optimize`` from presets/quick-joint-filter.toml (300 steps, seed 0, the
-same θ budget, the same band-following spectral quadrature and shot noise for all four):
+Six runs of ``metalens optimize`` from presets/quick-joint-filter.toml (300 steps, seed 0, the
+same θ budget, the same band-following spectral quadrature and shot noise for all):
 
-- ``joint-40-50``: the preset as it is: θ and the filter learned together, obstructions at
-  40-50 mm, the split-spectrum conditions for rays up to 25.7° on the filter;
-- ``fixed-40-50``: the same with the paper's filter fixed (``filter.learn = false``);
-- ``joint-30-40`` and ``fixed-30-40``: obstructions at 30-40 mm, where the paper's filter fails
-  ``bands check`` even at normal incidence (``filter.max_incidence = "0deg"`` for both).
+- ``light-40-50``: the preset as it is: θ and the filter learned together with the light term
+  (``filter.light_weight = 1``), obstructions at 40-50 mm, the split-spectrum conditions for rays
+  up to 25.7° on the filter;
+- ``joint-40-50``: the same without the light term (``light_weight = 0``);
+- ``fixed-40-50``: the paper's filter fixed (``filter.learn = false``);
+- ``*-30-40``: the same three with obstructions at 30-40 mm, where the paper's filter fails
+  ``bands check`` even at normal incidence (``filter.max_incidence = "0deg"``).
 
 Each pair is then scored by ``metalens evaluate JOINT FIXED --pixels 512 --seed 0:2 --obstruction
-dirt,fence --photons 2000 --photons-before-filter`` (the held-out photographs, raw captures, each
-design's channels with its own filter's share of the light) and ``metalens bands check --preset
-RUN/preset.toml``; the filters' throughput comes from each run's run.json. ``--reuse`` keeps
+dirt,fence`` without noise and with ``--photons N --photons-before-filter`` for N = 2000 (the
+training light) and 250 (the held-out photographs, raw captures, each design's channels with its
+own filter's share of the light) and ``metalens bands check --preset RUN/preset.toml``; the filters' throughput comes from each run's run.json. ``--reuse`` keeps
 finished run directories. Every number in the written file comes from those outputs.
 """
 
@@ -30,12 +32,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT_DOC = ROOT / "docs" / "filter.md"
 PRESET = ROOT / "presets" / "quick-joint-filter.toml"
-PHOTONS = 2000
-# (name, z_near, learn, max_incidence)
-RUNS = [("joint-40-50", (0.04, 0.05), True, "25.7deg"), ("fixed-40-50", (0.04, 0.05), False, "25.7deg"),
-        ("joint-30-40", (0.03, 0.04), True, "0deg"), ("fixed-30-40", (0.03, 0.04), False, "0deg")]
-PAIRS = [("joint-40-50", "fixed-40-50", "40mm:50mm", "40-50 mm, rays up to 25.7°"),
-         ("joint-30-40", "fixed-30-40", "30mm:40mm", "30-40 mm, normal incidence")]
+PHOTONS = 2000   # the joint preset's training light
+LIGHTS = (None, PHOTONS, 250)   # evaluated: no noise, the training light, 8× less
+# (name, z_near, learn, max_incidence, light_weight)
+RUNS = [("light-40-50", (0.04, 0.05), True, "25.7deg", 1.0), ("joint-40-50", (0.04, 0.05), True, "25.7deg", 0.0),
+        ("fixed-40-50", (0.04, 0.05), False, "25.7deg", 1.0),
+        ("light-30-40", (0.03, 0.04), True, "0deg", 1.0), ("joint-30-40", (0.03, 0.04), True, "0deg", 0.0),
+        ("fixed-30-40", (0.03, 0.04), False, "0deg", 1.0)]
+SCENARIOS = [(("light-40-50", "joint-40-50"), "fixed-40-50", "40mm:50mm", "40-50 mm, rays up to 25.7°"),
+             (("light-30-40", "joint-30-40"), "fixed-30-40", "30mm:40mm", "30-40 mm, normal incidence")]
 
 
 def metalens(*args: str, check: bool = True) -> dict:
@@ -48,11 +53,12 @@ def metalens(*args: str, check: bool = True) -> dict:
     return json.loads(done.stdout)
 
 
-def run_preset(name: str, z_near: tuple[float, float], learn: bool, incidence: str, out: Path) -> Path:
+def run_preset(name: str, z_near: tuple[float, float], learn: bool, incidence: str, light: float, out: Path) -> Path:
     """The variant of the joint preset, written beside its run."""
     from metalens_cli.io.presets import load_preset, to_toml
 
-    text = to_toml(load_preset(PRESET), filter={"learn": learn, "max_incidence": incidence}, scene={"z_near_m": z_near})
+    text = to_toml(load_preset(PRESET), filter={"learn": learn, "max_incidence": incidence, "light_weight": light},
+                   scene={"z_near_m": z_near})
     path = out / f"{name}.toml"
     path.write_text(text.replace('name = "quick-joint-filter"', f'name = "{name}"'))
     return path
@@ -60,13 +66,13 @@ def run_preset(name: str, z_near: tuple[float, float], learn: bool, incidence: s
 
 def train(out: Path, reuse: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    for name, z_near, learn, incidence in RUNS:
+    for name, z_near, learn, incidence, light in RUNS:
         run = out / name
         if reuse and (run / "run.json").is_file():
             continue
         subprocess.run(["rm", "-rf", str(run)], check=True)
-        metalens("optimize", str(run_preset(name, z_near, learn, incidence, out).relative_to(ROOT)), "-o", str(run.relative_to(ROOT)),
-                 "--quiet")
+        preset = run_preset(name, z_near, learn, incidence, light, out)
+        metalens("optimize", str(preset.relative_to(ROOT)), "-o", str(run.relative_to(ROOT)), "--quiet")
 
 
 def cell(value: float, ci) -> str:
@@ -80,7 +86,7 @@ def nm(value_m: float) -> str:
 def filter_lines(out: Path) -> list[str]:
     lines = ["| run | z_near | bands (nm, FWHM) | edge (nm) | throughput R / G / B | bands check | smallest margin (nm) |",
              "|---|---|---|---|---|---|---|"]
-    for name, z_near, _, _ in RUNS:
+    for name, z_near, *_ in RUNS:
         run = out / name
         report = json.loads((run / "run.json").read_text())
         f = report["preset"]["filter"]
@@ -103,7 +109,7 @@ def cost_line(out: Path) -> str:
     from metalens_cli.io.presets import load_preset
 
     torch.set_num_threads(2)
-    cases = [("joint-40-50", load_preset(out / "joint-40-50.toml")), ("fixed-40-50", load_preset(out / "fixed-40-50.toml")),
+    cases = [("light-40-50", load_preset(out / "light-40-50.toml")), ("fixed-40-50", load_preset(out / "fixed-40-50.toml")),
              ("quick-split-spectrum", load_preset(ROOT / "presets" / "quick-split-spectrum.toml"))]
     seconds = {name: time_steps(preset, steps=30)["seconds_per_step"] for name, preset in cases}
     return ("Cost, 2 CPU threads, median over steps 2-30 from θ_init (`design.training.time_steps`, one process, nothing "
@@ -118,25 +124,31 @@ def throughput(run: Path) -> dict:
     return dict(zip("RGB", channel_throughput(load_preset(run / "preset.toml")).tolist()))
 
 
-def evaluation_lines(out: Path, joint: str, fixed: str, z_near: str, title: str) -> list[str]:
-    args = [str((out / joint).relative_to(ROOT)), str((out / fixed).relative_to(ROOT)), "--pixels", "512", "--seed", "0:2",
-            "--obstruction", "dirt,fence", "--z-near", z_near, "--photons", str(PHOTONS), "--photons-before-filter", "--quiet"]
-    report = metalens("evaluate", *args)
-    rows = {(Path(r["design"]).name, r["obstruction"], r["condition"]): r for r in report["rows"] if r.get("capture", "raw") == "raw"}
-    lines = [f"### Obstructions at {title}", "", f"`metalens evaluate {' '.join(args[:-1])}`: 9 photographs × 3 seeds = "
-             f"{rows[joint, 'dirt', 'unobstructed']['n']} units per cell, PSNR (dB) after the least-squares match, mean [95 % CI].", "",
-             "| design | unobstructed | dirt | fence |", "|---|---|---|---|"]
-    for name in (joint, fixed):
-        cells = [cell(rows[name, "dirt", "unobstructed"]["psnr_db"], rows[name, "dirt", "unobstructed"]["psnr_db_ci"])]
-        cells += [cell(rows[name, k, "obstructed"]["psnr_db"], rows[name, k, "obstructed"]["psnr_db_ci"]) for k in ("dirt", "fence")]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    paired = {}
-    for c in report["comparisons"]:
-        if c["metric"] == "psnr_db" and c.get("capture", "raw") == "raw" and c.get("versus_capture", "raw") == "raw":
-            paired.setdefault(c["condition"], {})[c["obstruction"]] = cell(c["difference"], c["ci"])
-    lines += ["", f"Paired, {joint} − {fixed} on the same units (dB, 95 % CI): "
-              + "; ".join(f"{condition}: dirt {by_kind.get('dirt', '—')}, fence {by_kind.get('fence', '—')}"
-                          for condition, by_kind in paired.items()) + ".", ""]
+def evaluation_lines(out: Path, learned: tuple[str, ...], fixed: str, z_near: str, title: str) -> list[str]:
+    names = [*learned, fixed]
+    base = [*(str((out / n).relative_to(ROOT)) for n in names), "--pixels", "512", "--seed", "0:2", "--obstruction", "dirt,fence",
+            "--z-near", z_near]
+    lines = [f"### Obstructions at {title}", "", f"`metalens evaluate {' '.join(base)} [LIGHT]`, LIGHT one of: none (no noise), "
+             + ", ".join(f"`--photons {n} --photons-before-filter`" for n in LIGHTS if n) + ". 9 photographs × 3 seeds = 27 "
+             f"units per cell, PSNR (dB) after the least-squares match, mean [95 % CI]; paired: learned − {fixed} on the same units.",
+             "", "| light (e⁻ before the filter) | design | unobstructed | dirt | fence |", "|---|---|---|---|---|"]
+    paired_lines = []
+    for photons in LIGHTS:
+        light = ["--photons", str(photons), "--photons-before-filter"] if photons else []
+        report = metalens("evaluate", *base, *light, "--quiet")
+        rows = {(Path(r["design"]).name, r["obstruction"], r["condition"]): r for r in report["rows"] if r.get("capture", "raw") == "raw"}
+        for name in names:
+            cells = [cell(rows[name, "dirt", "unobstructed"]["psnr_db"], rows[name, "dirt", "unobstructed"]["psnr_db_ci"])]
+            cells += [cell(rows[name, k, "obstructed"]["psnr_db"], rows[name, k, "obstructed"]["psnr_db_ci"]) for k in ("dirt", "fence")]
+            lines.append(f"| {photons or 'no noise'} | {name} | " + " | ".join(cells) + " |")
+        paired: dict = {}
+        for c in report["comparisons"]:
+            if (c["metric"] == "psnr_db" and Path(c["versus"]).name == fixed and c.get("capture", "raw") == "raw"
+                    and c.get("versus_capture", "raw") == "raw"):
+                paired.setdefault(Path(c["design"]).name, {}).setdefault(c["condition"], {})[c["obstruction"]] = cell(c["difference"], c["ci"])
+        paired_lines += [f"| {photons or 'no noise'} | {name} | {paired[name]['unobstructed']['dirt']} | "
+                         f"{paired[name]['obstructed']['dirt']} | {paired[name]['obstructed']['fence']} |" for name in learned]
+    lines += ["", f"| light | learned − {fixed} | unobstructed | dirt | fence |", "|---|---|---|---|---|", *paired_lines, ""]
     return lines
 
 
@@ -144,19 +156,20 @@ def write_doc(out: Path) -> None:
     text = OUT_DOC.read_text() if OUT_DOC.is_file() else ""
     findings = text[text.index("<!-- findings -->"):] if "<!-- findings -->" in text else "<!-- findings -->\n"
     lines = ["# Learning the filter with the lens", "",
-             "Written by `python examples/filter_study.py` (text below the findings marker is kept). Four runs of "
+             "Written by `python examples/filter_study.py` (text below the findings marker is kept). Six runs of "
              "`metalens optimize` from `presets/quick-joint-filter.toml`, 300 steps each on 2 CPU cores, seed 0: the same θ "
              f"budget, the same band-following spectral quadrature (4 wavelengths per band) and shot noise ({PHOTONS} e⁻ at "
-             "full scale before the filter, so each channel gets its filter's share) for all; `joint-*` learn the filter "
-             "with θ, `fixed-*` keep the paper's tri-band filter (457/530/628 nm, FWHM 22/20/28 nm, 2 nm edges).", "",
+             "full scale before the filter, so each channel gets its filter's share) for all. `light-*` learn the filter "
+             "with θ and the light term (`filter.light_weight = 1`, the preset), `joint-*` without it, `fixed-*` keep the "
+             "paper's tri-band filter (457/530/628 nm, FWHM 22/20/28 nm, 2 nm edges).", "",
              "## The filters", ""]
     lines += filter_lines(out)
     lines += ["", cost_line(out)]
     lines += ["", "Throughput: ∫T·CRF^c·η dλ / ∫CRF^c·η dλ per channel (the share of the unfiltered signal). Bands check: "
               "`metalens bands check --preset RUN/preset.toml` at the run's f, z_near and oblique incidence.", "",
               "## Photographs at the paper's 512 × 512 sensor", ""]
-    for pair in PAIRS:
-        lines += evaluation_lines(out, *pair)
+    for scenario in SCENARIOS:
+        lines += evaluation_lines(out, *scenario)
     OUT_DOC.write_text("\n".join(lines) + "\n" + findings)
 
 

@@ -97,7 +97,7 @@ class LearnedFilter(torch.nn.Module):
 def filter_columns(n_bands: int) -> tuple[str, ...]:
     """loss.csv columns of a learned filter: centres, widths (nm), edge (nm), the split penalty."""
     return (*(f"filter_center_{i}_nm" for i in range(n_bands)), *(f"filter_width_{i}_nm" for i in range(n_bands)),
-            "filter_edge_nm", "split")
+            "filter_edge_nm", "split", "light")
 
 
 def filter_row(band_filter: LearnedFilter) -> dict:
@@ -151,6 +151,13 @@ class BandSampler:
         t = self.band_filter.transmission(self.fine_m)
         base = torch.from_numpy(self.base).to(t.dtype)
         return (base * t).sum(dim=1) / base.sum(dim=1)
+
+    def light_loss(self) -> torch.Tensor:
+        """L_light = −mean_c log g_c, g_c the channel throughputs (:meth:`throughput`): added to
+        −mean_c log E_c (``sharp_mode = "log"``) it makes L_sharp count the core's share of the
+        light before the filter instead of after it, so a band narrowed to half its light must
+        double its core energy to break even."""
+        return -torch.log(self.throughput()).mean()
 
     def support(self) -> list[float]:
         """The wavelengths whose rays the initial windows must hold: the bands' reach ± a margin."""

@@ -488,7 +488,8 @@ def _one_step(session: _Session, preset, step, ctx, timing):
                                  psf_share=1 / ctx.world, cores_far=far_cores(stack))
     if session.band_filter is not None:
         parts["split"] = split_penalty(session.band_filter, preset, session.incidence)
-        loss = loss + preset.filter.split_weight * parts["split"].to(loss.dtype) / ctx.world
+        parts["light"] = session.sensitivity.light_loss()
+        loss = loss + (preset.filter.split_weight * parts["split"] + preset.filter.light_weight * parts["light"]).to(loss.dtype) / ctx.world
     t = _lap(timing, "formation_loss", t, ctx.device)
     if not torch.isfinite(loss):
         raise InputError("optimize.learning_rate", f"training diverged at step {step + 1}: the loss is {float(loss)}",
@@ -512,7 +513,8 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     w = preset.loss
     values["total"] = (w.l1 * values["l1"] + w.ssim * values["ssim"] + w.domain_adaptation * values.get("domain_adaptation", 0.0)
                        + w.bright * values["bright"] + w.sharp * values["sharp"]
-                       + (preset.filter.split_weight * values["split"] if "split" in values else 0.0))
+                       + (preset.filter.split_weight * values["split"] + preset.filter.light_weight * values["light"]
+                          if "split" in values else 0.0))
     kept = {f"kept_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.kept[i])}
     held = {f"held_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.held[i])}
     row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m,

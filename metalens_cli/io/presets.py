@@ -80,8 +80,10 @@ class FilterConfig:
     ``learn = true``: ``optimize`` learns the centres, widths and edge width with θ (their own
     ``learning_rate``, nm per step), within ``min_width``-``max_width``, edges ≥ ``min_edge_width``,
     gaps ≥ ``min_gap``, and the split-spectrum conditions with ``split_margin`` (a penalty of
-    weight ``split_weight`` on nm² of shortfall); with a ``catalogue`` CSV the result snaps to
-    the nearest listed filter that meets them (``design.filter_learning``)."""
+    weight ``split_weight`` on nm² of shortfall); ``light_weight`` w adds −w·mean_c log g_c, g_c
+    the channels' throughput, so that the PSF terms see the light a band costs; with a
+    ``catalogue`` CSV the result snaps to the nearest listed filter that meets them
+    (``design.filter_learning``)."""
 
     centers_m: tuple[float, ...] = toml_key("centers", "length_list", default=())
     widths_m: tuple[float, ...] = toml_key("widths", "length_list", default=())
@@ -99,6 +101,7 @@ class FilterConfig:
     min_gap_m: float = toml_key("min_gap", "length", default=5e-9)
     split_margin_m: float = toml_key("split_margin", "length", default=1e-9)
     split_weight: float = toml_key("split_weight", "float", lo=0.0, hi=1e6, default=1.0)
+    light_weight: float = toml_key("light_weight", "float", lo=0.0, hi=1e3, default=0.0)
     catalogue: str | None = toml_key("catalogue", "path", default=None)
 
 

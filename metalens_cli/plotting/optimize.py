@@ -8,7 +8,7 @@ import numpy as np
 
 from metalens_cli.plotting.common import new_figure, save_figure
 
-PARTS = ("total", "l1", "ssim", "domain_adaptation", "bright", "sharp", "split")
+PARTS = ("total", "l1", "ssim", "domain_adaptation", "bright", "sharp", "split", "light")
 
 
 def loss_figure(path: str | Path, history: list[dict], parts: tuple[str, ...] = PARTS) -> Path:

@@ -335,3 +335,20 @@ def test_two_bands_per_channel_learn_like_three(joint):
     assert float(penalty.detach()) == pytest.approx(shortfall, rel=1e-9) and shortfall > 0
     penalty.backward()
     assert torch.isfinite(model.centres_nm.grad).all()
+
+
+def test_the_light_term_rewards_wider_bands_by_their_light(joint):
+    model = LearnedFilter(joint.filter)
+    sampler = band_sampler(joint, model)
+    light = sampler.light_loss()
+    assert float(light.detach()) == pytest.approx(-np.log(sampler.throughput().detach().numpy()).mean(), rel=1e-12)
+    (grad,) = torch.autograd.grad(light, model.widths_nm)
+    assert torch.all(grad < 0)
+    # halving R's band: the change equals the numpy throughput's of the two filters (crosstalk included)
+    from metalens_cli.io.preset_spectra import channel_throughput
+
+    with torch.no_grad():
+        model.widths_nm[2] /= 2
+    halved = _with(joint, widths_m=joint.filter.widths_m[:2] + (joint.filter.widths_m[2] / 2,))
+    expected = -np.log(channel_throughput(halved)).mean() + np.log(channel_throughput(joint)).mean()
+    assert float(sampler.light_loss().detach()) - float(light.detach()) == pytest.approx(expected, rel=5e-3)
