@@ -478,8 +478,8 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     t = _lap(timing, "scenes", t, ctx.device)
     capture = form_image(clean, colour, mask, near, far, margin).obstructed
     if o.photons or o.read_noise:
-        share = session.sensitivity.throughput() if isinstance(session.sensitivity, BandSampler) else None
-        capture = add_noise(capture, _photons(preset, capture.device, share), o.read_noise, _noise_seed(o.seed, step, shard))
+        light = session.sensitivity.throughput() if isinstance(session.sensitivity, BandSampler) else None
+        capture = add_noise(capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, shard))
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
     sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
