@@ -139,25 +139,28 @@ class BandSampler:
     per_band: int
     sensor_range_m: tuple[float, float]
 
-    def draw(self, rng: np.random.Generator | None) -> tuple[np.ndarray, torch.Tensor]:
-        """Wavelengths (W,) and their channel weights (3, W), differentiable in the filter."""
+    def draw(self, rng: np.random.Generator | None) -> tuple[np.ndarray, torch.Tensor, torch.Tensor]:
+        """Wavelengths (W,), their channel weights (3, W) and the channel throughputs (3,), all
+        from one evaluation of the filter and differentiable in it."""
         centres, widths, edge = self.band_filter.values()
         nodes = band_nodes(centres, widths, edge, self.per_band, rng)
-        return nodes, band_weights(nodes, self.fine_m, self.base, self.band_filter.transmission(self.fine_m))
-
-    def throughput(self) -> torch.Tensor:
-        """(3,) R, G, B: the share of each channel's unfiltered signal the filter passes
-        (``io.preset_spectra.channel_throughput`` on this grid), differentiable in the filter."""
         t = self.band_filter.transmission(self.fine_m)
+        return nodes, band_weights(nodes, self.fine_m, self.base, t), self.throughput(t)
+
+    def throughput(self, transmission: torch.Tensor | None = None) -> torch.Tensor:
+        """(3,) R, G, B: the share of each channel's unfiltered signal the filter passes
+        (``io.preset_spectra.channel_throughput`` on this grid), differentiable in the filter;
+        ``transmission``: the filter on ``fine_m`` when already evaluated."""
+        t = self.band_filter.transmission(self.fine_m) if transmission is None else transmission
         base = torch.from_numpy(self.base).to(t.dtype)
         return (base * t).sum(dim=1) / base.sum(dim=1)
 
-    def light_loss(self) -> torch.Tensor:
-        """L_light = −mean_c log g_c, g_c the channel throughputs (:meth:`throughput`): added to
-        −mean_c log E_c (``sharp_mode = "log"``) it makes L_sharp count the core's share of the
-        light before the filter instead of after it, so a band narrowed to half its light must
-        double its core energy to break even."""
-        return -torch.log(self.throughput()).mean()
+    def light_loss(self, throughput: torch.Tensor | None = None) -> torch.Tensor:
+        """L_light = −mean_c log g_c, g_c the channel throughputs (:meth:`throughput`, or as
+        given): added to −mean_c log E_c (``sharp_mode = "log"``) it makes L_sharp count the
+        core's share of the light before the filter instead of after it, so a band narrowed to
+        half its light must double its core energy to break even."""
+        return -torch.log(self.throughput() if throughput is None else throughput).mean()
 
     def support(self) -> list[float]:
         """The wavelengths whose rays the initial windows must hold: the bands' reach ± a margin."""

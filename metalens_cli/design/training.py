@@ -90,6 +90,7 @@ class StepDraw:
     z_far_m: float
     wavelengths_m: np.ndarray
     weights: np.ndarray | torch.Tensor
+    throughput: torch.Tensor | None = None   # (3,) the filter's share of each channel's light (band draws)
 
 
 def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
@@ -324,6 +325,7 @@ class _Session:
     notes: list[str]
     band_filter: LearnedFilter | None = None   # the filter learned with θ ([filter] learn = true)
     incidence: float = 1.0                     # its bands' blue shift over the cone (analysis.bands)
+    throughput: torch.Tensor | None = None     # (3,) the preset filter's share of the light, with shot noise
 
 
 def _session(preset, ctx) -> _Session:
@@ -340,7 +342,7 @@ def _session(preset, ctx) -> _Session:
     windows = plan_windows(preset, sensitivity)
     return _Session(model, optimizer, _scheduler(optimizer, o), sensitivity, _features(preset, notes),
                     _image_pool(preset, windows.margin), ctx.shard(o.batch_size), plan_frequency(preset), windows, notes,
-                    band_filter, incidence)
+                    band_filter, incidence, _fixed_throughput(preset))
 
 
 def _filter_start(preset, incidence: float, notes: list[str]) -> LearnedFilter | None:
@@ -478,7 +480,7 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     t = _lap(timing, "scenes", t, ctx.device)
     capture = form_image(clean, colour, mask, near, far, margin).obstructed
     if o.photons or o.read_noise:
-        light = session.sensitivity.throughput() if isinstance(session.sensitivity, BandSampler) else None
+        light = draw.throughput if draw.throughput is not None else session.throughput
         capture = add_noise(capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, shard))
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
@@ -488,7 +490,7 @@ def _one_step(session: _Session, preset, step, ctx, timing):
                                  psf_share=1 / ctx.world, cores_far=far_cores(stack))
     if session.band_filter is not None:
         parts["split"] = split_penalty(session.band_filter, preset, session.incidence)
-        parts["light"] = session.sensitivity.light_loss()
+        parts["light"] = session.sensitivity.light_loss(draw.throughput)
         loss = loss + (preset.filter.split_weight * parts["split"] + preset.filter.light_weight * parts["light"]).to(loss.dtype) / ctx.world
     t = _lap(timing, "formation_loss", t, ctx.device)
     if not torch.isfinite(loss):
@@ -523,13 +525,18 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     return row, stack.grid, sample
 
 
-def _photons(preset, device, share: torch.Tensor | None = None):
+def _fixed_throughput(preset) -> torch.Tensor | None:
+    """The preset filter's channel throughputs (``io.preset_spectra.channel_throughput``), once
+    per run, when its captures carry shot noise."""
+    return torch.as_tensor(channel_throughput(preset)) if preset.optimize.photons else None
+
+
+def _photons(preset, device, share: torch.Tensor | None):
     """Full-well electrons per channel (3, 1, 1) on ``device``: ``optimize.photons`` times the
-    filter's throughput ``share`` (a learned filter's, differentiable: it pays for narrow bands in
-    noise), by default the preset filter's (``io.preset_spectra.channel_throughput``)."""
+    filter's throughput ``share`` (a learned filter's is differentiable: it pays for narrow bands
+    in noise)."""
     if not preset.optimize.photons:
         return None
-    share = torch.as_tensor(channel_throughput(preset)) if share is None else share
     return (preset.optimize.photons * share).to(device, torch.float32).reshape(3, 1, 1)
 
 
@@ -559,6 +566,7 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
     o = preset.optimize
     windows = plan_windows(preset, sensitivity)
     pool = _image_pool(preset, windows.margin)
+    fixed = _fixed_throughput(preset)
     for k in range(draws):
         step = VALIDATION_STEP + k
         draw = draw_step(preset, sensitivity, o.seed, step)
@@ -568,7 +576,8 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
         clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device)
         capture = form_image(clean, colour, mask, near, far, margin).obstructed
         if o.photons or o.read_noise:
-            capture = add_noise(capture, _photons(preset, capture.device), o.read_noise, _noise_seed(o.seed, step, [0]))
+            light = draw.throughput if draw.throughput is not None else fixed
+            capture = add_noise(capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, [0]))
         yield training_loss(capture, sensor_crop(clean, margin), sensor_psf(far, preset), preset.loss, features,
                             cores_far=far_cores(stack))
 

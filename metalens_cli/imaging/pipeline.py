@@ -168,6 +168,7 @@ def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_le
     captures = []
     transforms = None
     dev, dt = psfs.near.device, psfs.near.dtype
+    counts = torch.as_tensor(np.asarray(photons, dtype=float), dtype=dt, device=dev).reshape(-1, 1, 1) if np.ndim(photons) else photons
     for index, image in enumerate(images):
         start = time.perf_counter()
         sensor = image.sensor.shape[-2:]
@@ -186,8 +187,6 @@ def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_le
                                  formation, alpha_gain)
             obstructed, unobstructed = capture.obstructed, capture.unobstructed
             if np.any(photons) or read_noise:
-                counts = torch.as_tensor(np.asarray(photons, dtype=float), dtype=dt, device=dev).reshape(-1, 1, 1) \
-                    if np.ndim(photons) else photons
                 obstructed = add_noise(obstructed, counts, read_noise, seed * 1000 + 2 * index)
                 unobstructed = add_noise(unobstructed, counts, read_noise, seed * 1000 + 2 * index + 1)
         alpha = capture.alpha.cpu().numpy().astype(np.float32)

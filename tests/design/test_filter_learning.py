@@ -326,7 +326,7 @@ def test_two_bands_per_channel_learn_like_three(joint):
     six = _with(joint, centers_m=tuple(np.array([440, 468, 520, 548, 612, 645]) * NM), widths_m=(10 * NM,) * 6)
     model = LearnedFilter(six.filter)
     sampler = band_sampler(six, model)
-    wavelengths, weights = sampler.draw(np.random.default_rng(0))
+    wavelengths, weights, _ = sampler.draw(np.random.default_rng(0))
     assert wavelengths.size == 6 * six.optimize.wavelengths_per_channel and weights.shape == (3, wavelengths.size)
     penalty = split_penalty(model, six, preset_incidence_factor(six))
     report = check_filter(six.filter, six)
