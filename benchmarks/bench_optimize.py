@@ -34,6 +34,8 @@ from metalens_cli.runtime import retain_freed_memory
 STEP_STAGES = ("psf", "scenes", "formation_loss", "backward", "update")  # together, a whole step
 ROOT = Path(__file__).resolve().parents[1]
 PRESET = ROOT / "presets" / "split-spectrum.toml"
+QUICK_PRESETS = {"quick": "quick-split-spectrum.toml", "joint": "quick-joint-filter.toml"}  # timed as they are
+KINDS = ("quick", "joint", "radial", "2d")
 
 
 def measure(kind: str, presets: Path, device: str, threads: int, steps: int) -> dict:
@@ -42,8 +44,8 @@ def measure(kind: str, presets: Path, device: str, threads: int, steps: int) -> 
     from metalens_cli.io.presets import load_preset
 
     torch.set_num_threads(threads)
-    if kind == "quick":
-        preset = load_preset(presets / "quick-split-spectrum.toml")
+    if kind in QUICK_PRESETS:
+        preset = load_preset(presets / QUICK_PRESETS[kind])
     else:
         base = load_preset(presets / PRESET.name)
         preset = dataclasses.replace(base, lens=dataclasses.replace(base.lens, parameterization=kind),
@@ -85,13 +87,14 @@ def main() -> None:
     parser.add_argument("--steps-quick", type=int, default=40,
                         help="quick-preset steps from θ_init: long enough for its light to spread and the plan to grow")
     parser.add_argument("--steps-2d", type=int, default=1, help="2-D steps")
-    parser.add_argument("--parameterization", nargs="+", default=["quick", "radial", "2d"], choices=["quick", "radial", "2d"],
-                        help="quick: presets/quick-split-spectrum.toml as it is (128² crop)")
+    parser.add_argument("--parameterization", nargs="+", default=["quick", "radial", "2d"], choices=KINDS,
+                        help="quick: presets/quick-split-spectrum.toml as it is (128² crop); "
+                             "joint: presets/quick-joint-filter.toml (the filter learned with θ)")
     parser.add_argument("--baseline", type=Path, help="a checkout of an earlier commit to measure right after")
     parser.add_argument("--baseline-label", help="the baseline's name in the table [its git commit]")
-    parser.add_argument("--baseline-parameterization", nargs="+", choices=["quick", "radial", "2d"],
+    parser.add_argument("--baseline-parameterization", nargs="+", choices=KINDS,
                         help="the rows measured with the baseline too (default: all)")
-    parser.add_argument("--emit-json", choices=["quick", "radial", "2d"], help=argparse.SUPPRESS)  # one kind, in a subprocess
+    parser.add_argument("--emit-json", choices=KINDS, help=argparse.SUPPRESS)  # one kind, in a subprocess
     parser.add_argument("--presets", type=Path, default=PRESET.parent,
                         help="the folder of presets both trees time (default: this checkout's)")
     args = parser.parse_args()
@@ -101,7 +104,7 @@ def main() -> None:
         return
     device = torch.device(args.device)
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else f"{args.threads} CPU threads"
-    steps = {"quick": args.steps_quick, "radial": args.steps, "2d": args.steps_2d}
+    steps = {"quick": args.steps_quick, "joint": args.steps_quick, "radial": args.steps, "2d": args.steps_2d}
     trees = [ROOT] + ([args.baseline.resolve()] if args.baseline else [])
     compared = args.baseline_parameterization or args.parameterization
     results = {(tree, kind): measure_in_subprocess(kind, args, steps[kind], tree)
@@ -113,7 +116,8 @@ def main() -> None:
         f"{' --baseline DIR' if args.baseline else ''}`)",
         "",
         ("" if args.presets.resolve() == PRESET.parent.resolve() else f"Presets from `{args.presets}`. ")
-        + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2): {args.steps_quick} steps from θ_init, "
+        + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2; `quick-joint-filter.toml` learns the "
+        f"filter with θ, 4 wavelengths per band): {args.steps_quick} steps from θ_init, "
         f"long enough for the light to spread and the plan to grow; `split-spectrum.toml` (512² sensor, 3 wavelengths "
         f"per channel, batch 1): {args.steps} steps (radial), {args.steps_2d} (2-D); on {name}, each row a fresh process. "
         "Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their total "
@@ -125,7 +129,7 @@ def main() -> None:
         "| PSFs s/step | backward s/step | peak memory |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    labels = {"quick": "radial, quick preset", "radial": "radial", "2d": "2-D"}
+    labels = {"quick": "radial, quick preset", "joint": "radial, quick preset, filter learned", "radial": "radial", "2d": "2-D"}
     for kind in args.parameterization:
         for tree in trees:
             if (tree, kind) in results:

@@ -3,8 +3,8 @@
 # Usage: DEV=cuda bash benchmarks/device_smoke.sh   (DEV=cpu to try it; STEPS: optimize steps, default 30;
 # OUT: where each command's JSON and stderr go, default a temporary folder). Needs the package importable
 # (pip install -e . or PYTHONPATH=.). Last run with DEV=cuda: NVIDIA H200, torch 2.11, 2026-11-26, every
-# command exit 0 (README, "Speed").
-DEV=${DEV:-cuda}; T=$(mktemp -d); O=${OUT:-$T}
+# command exit 0, optimize_joint included (README, "Speed").
+DEV=${DEV:-cuda}; T=$(mktemp -d); O=${OUT:-$T}; mkdir -p "$O"
 M="python3 -m metalens_cli"
 run() {
   local name=$1; shift; local t0; t0=$(date +%s%N)
@@ -12,6 +12,7 @@ run() {
   echo "$name rc=$rc $(( ($(date +%s%N) - t0) / 1000000 )) ms"; [ $rc = 0 ] || tail -5 "$O/$name.err"
 }
 run optimize $M optimize presets/quick-split-spectrum.toml -o "$T/opt" --steps "${STEPS:-30}" --device "$DEV" --json --quiet
+run optimize_joint $M optimize presets/quick-joint-filter.toml -o "$T/joint" --steps "${STEPS:-30}" --device "$DEV" --json --quiet
 run psf_scan $M psf-scan --design "$T/opt" --device "$DEV" -o "$T/scan.exr" --json --quiet
 run psf_scan_2d $M psf-scan --design hyperbolic:532nm --preset presets/hyperbolic-532.toml --propagator asm \
   --wavelengths 457nm,530nm,628nm --depths inf --device "$DEV" -o "$T/scan2d.exr" --json --quiet

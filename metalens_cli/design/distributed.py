@@ -52,11 +52,16 @@ def setup(device: torch.device) -> Context:
 
 
 def all_reduce_sum(tensor: torch.Tensor, ctx: Context) -> torch.Tensor:
-    """Sum ``tensor`` over ranks in place (no-op for one process); returns it."""
+    """Sum ``tensor`` over ranks in place (no-op for one process); returns it. A tensor kept
+    off the run's device (the learned filter lives on the host) is reduced through a copy on
+    it, which NCCL needs."""
     if ctx.world > 1:
         import torch.distributed as dist
 
-        dist.all_reduce(tensor, op=dist.ReduceOp.SUM)
+        staged = tensor if tensor.device == ctx.device else tensor.to(ctx.device)
+        dist.all_reduce(staged, op=dist.ReduceOp.SUM)
+        if staged is not tensor:
+            tensor.copy_(staged)
     return tensor
 
 

@@ -489,8 +489,9 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     loss, parts = training_loss(capture, clean, sensor_psf(far, preset), preset.loss, session.features, image_share=share,
                                  psf_share=1 / ctx.world, cores_far=far_cores(stack))
     if session.band_filter is not None:
-        parts["split"] = split_penalty(session.band_filter, preset, session.incidence)
-        parts["light"] = session.sensitivity.light_loss(draw.throughput)
+        # the filter lives on the host; its terms join the loss on the run's device
+        parts["split"] = split_penalty(session.band_filter, preset, session.incidence).to(loss.device)
+        parts["light"] = session.sensitivity.light_loss(draw.throughput).to(loss.device)
         loss = loss + (preset.filter.split_weight * parts["split"] + preset.filter.light_weight * parts["light"]).to(loss.dtype) / ctx.world
     t = _lap(timing, "formation_loss", t, ctx.device)
     if not torch.isfinite(loss):
