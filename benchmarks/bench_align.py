@@ -19,10 +19,9 @@ import time
 
 import cv2
 import numpy as np
+from report import write_section
 
 from metalens_cli.imaging.registration import register
-
-from report import write_section
 
 MARGIN, BLUR_PX, RIPPLE_PX, BIAS = 128, 1.5, 6.0, 0.03
 GAIN = np.array([0.7, 0.55, 0.85], np.float32)
@@ -43,15 +42,22 @@ def pair(side: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(reference, capture, blurred reference): the capture's pixel (x, y) sees the scene at
     CAMERA·(x, y, 1) plus the ripple, then blur, gain and bias."""
     world = scene(side + 2 * MARGIN)
-    reference = world[MARGIN:MARGIN + side, MARGIN:MARGIN + side]
+    reference = world[MARGIN : MARGIN + side, MARGIN : MARGIN + side]
     angle, zoom = math.radians(2), 1.03
-    camera = np.array([[zoom * math.cos(angle), -zoom * math.sin(angle), MARGIN - 30],
-                       [zoom * math.sin(angle), zoom * math.cos(angle), MARGIN + 15], [1e-5, -5e-6, 1]])
+    camera = np.array(
+        [
+            [zoom * math.cos(angle), -zoom * math.sin(angle), MARGIN - 30],
+            [zoom * math.sin(angle), zoom * math.cos(angle), MARGIN + 15],
+            [1e-5, -5e-6, 1],
+        ]
+    )
     y, x = np.mgrid[:side, :side].astype(np.float64)
     w = camera[2, 0] * x + camera[2, 1] * y + camera[2, 2]
     u = (camera[0, 0] * x + camera[0, 1] * y + camera[0, 2]) / w + RIPPLE_PX * np.sin(3 * np.pi * y / side)
     v = (camera[1, 0] * x + camera[1, 1] * y + camera[1, 2]) / w + RIPPLE_PX * np.cos(2 * np.pi * x / side)
-    capture = cv2.remap(world, u.astype(np.float32), v.astype(np.float32), cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    capture = cv2.remap(
+        world, u.astype(np.float32), v.astype(np.float32), cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
     capture = cv2.GaussianBlur(capture, (0, 0), BLUR_PX) * GAIN + BIAS
     return reference, capture, cv2.GaussianBlur(reference, (0, 0), BLUR_PX)
 
@@ -69,9 +75,16 @@ def timed(reference, capture, blurred, refine: str, repeat: int) -> dict:
         cpu.append(time.process_time() - start_cpu)
     mask = registration.valid_mask()
     error = (aligned[mask] - BIAS) / GAIN - blurred[mask]
-    return {"register": register_s, "apply": apply_s, "total": [a + b for a, b in zip(register_s, apply_s)], "cpu": cpu,
-            "psnr_db": 10 * math.log10(1 / float(np.mean(error**2))), "inliers": registration.inliers,
-            "matches": registration.matches, "valid": float(mask.mean())}
+    return {
+        "register": register_s,
+        "apply": apply_s,
+        "total": [a + b for a, b in zip(register_s, apply_s)],
+        "cpu": cpu,
+        "psnr_db": 10 * math.log10(1 / float(np.mean(error**2))),
+        "inliers": registration.inliers,
+        "matches": registration.matches,
+        "valid": float(mask.mean()),
+    }
 
 
 def main() -> None:
@@ -95,9 +108,12 @@ def main() -> None:
         "| refine | register wall median (s) | apply wall median (s) | total wall median (s) | total wall min (s) | CPU median (s) "
         "| matches / inliers | valid % | PSNR (dB) |",
         "|---|---|---|---|---|---|---|---|---|",
-        *[f"| {refine} | {statistics.median(r['register']):.2f} | {statistics.median(r['apply']):.2f} | "
-          f"{statistics.median(r['total']):.2f} | {min(r['total']):.2f} | {statistics.median(r['cpu']):.2f} | "
-          f"{r['matches']} / {r['inliers']} | {100 * r['valid']:.1f} | {r['psnr_db']:.1f} |" for refine, r in rows.items()],
+        *[
+            f"| {refine} | {statistics.median(r['register']):.2f} | {statistics.median(r['apply']):.2f} | "
+            f"{statistics.median(r['total']):.2f} | {min(r['total']):.2f} | {statistics.median(r['cpu']):.2f} | "
+            f"{r['matches']} / {r['inliers']} | {100 * r['valid']:.1f} | {r['psnr_db']:.1f} |"
+            for refine, r in rows.items()
+        ],
     ]
     write_section("align", "\n".join(lines))
     print("\n".join(lines))

@@ -21,13 +21,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from report import write_section
 
 from metalens_cli.io import preset_spectra
 from metalens_cli.io.materials import parse_material
 from metalens_cli.io.presets import load_preset
 from metalens_cli.optics import nanofin as rcwa
-
-from report import write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 FINE_STEP_M, FINEST_STEP_M, MARGIN_M = 0.05e-9, 0.002e-9, 0.5e-9
@@ -51,7 +50,9 @@ def resolve(preset, window: tuple[float, float]) -> tuple[np.ndarray, np.ndarray
     material, substrate = parse_material(n.material, "material"), parse_material(n.substrate, "substrate")
 
     def compute(w):
-        return rcwa.fin_response(fin, material.index(w, "material"), substrate.index(w, "substrate"), w, n.harmonics).conversion
+        return rcwa.fin_response(
+            fin, material.index(w, "material"), substrate.index(w, "substrate"), w, n.harmonics
+        ).conversion
 
     saved = preset_spectra.RCWA_STEP_M, preset_spectra.RCWA_MIN_STEP_M
     preset_spectra.RCWA_STEP_M, preset_spectra.RCWA_MIN_STEP_M = FINE_STEP_M, FINEST_STEP_M
@@ -83,8 +84,10 @@ def measure(path: Path) -> list[str]:
     rows = []
     for (lo, hi), (w, v, still) in zip(windows, fine):
         gap = np.abs(v - sampled.at(w))
-        rows.append(f"| {lo * 1e9:.2f}–{hi * 1e9:.2f} | {w.size} | {still} | {gap.max():.3f} | "
-                    f"{np.trapezoid(gap, w) * 1e9:.4f} |")
+        rows.append(
+            f"| {lo * 1e9:.2f}–{hi * 1e9:.2f} | {w.size} | {still} | {gap.max():.3f} | "
+            f"{np.trapezoid(gap, w) * 1e9:.4f} |"
+        )
     return [
         f"Preset `{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}` (material {preset.nanofin.material}, "
         f"N = {preset.nanofin.harmonics}): {sampled.report['samples']} samples, {len(sampled.report['unresolved_m'])} unresolved "
@@ -104,7 +107,7 @@ def measure(path: Path) -> list[str]:
 def main() -> None:
     paths = [Path(p) for p in sys.argv[1:]] or [ROOT / "presets" / "split-spectrum-rcwa.toml"]
     lines = [
-        "## η(λ) features narrower than 0.5 nm, and S^c (`efficiency = \"rcwa\"`)",
+        '## η(λ) features narrower than 0.5 nm, and S^c (`efficiency = "rcwa"`)',
         "",
         f"Command: `python benchmarks/bench_eta_features.py`; {os.cpu_count()} CPUs. Each cluster of the features the preset's "
         "sampling lists as unresolved is sampled again from 0.05 nm down to 0.002 nm (same rule: refine where the midpoint's η "

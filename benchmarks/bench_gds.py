@@ -50,12 +50,21 @@ def case_export(name: str, aperture: str, scratch: Path) -> dict:
     start = time.perf_counter()
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
-        code = run(["export-gds", *DESIGN, "--aperture", aperture, *extra, "-o", str(scratch / file), "--json", "--quiet"])
+        code = run(
+            ["export-gds", *DESIGN, "--aperture", aperture, *extra, "-o", str(scratch / file), "--json", "--quiet"]
+        )
     assert code == 0, code
     report = json.loads(stdout.getvalue())
-    return {"case": label, "command": f"metalens export-gds {' '.join(DESIGN)} --aperture {aperture} {' '.join(extra)} -o {file}",
-            "seconds": report["seconds"], "wall_s": time.perf_counter() - start, "peak_gib": _peak_gib(),
-            "bytes": report["bytes"], "atoms": report["atoms"], "max_phase_error_rad": report["max_phase_error_rad"]}
+    return {
+        "case": label,
+        "command": f"metalens export-gds {' '.join(DESIGN)} --aperture {aperture} {' '.join(extra)} -o {file}",
+        "seconds": report["seconds"],
+        "wall_s": time.perf_counter() - start,
+        "peak_gib": _peak_gib(),
+        "bytes": report["bytes"],
+        "atoms": report["atoms"],
+        "max_phase_error_rad": report["max_phase_error_rad"],
+    }
 
 
 def _design_and_geometry(aperture: str):
@@ -75,9 +84,16 @@ def case_verify(aperture: str, scratch: Path) -> dict:
     start = time.perf_counter()
     result = verify_layout(str(scratch / CASES["gds"][2]), design, geometry, None)
     assert result.ok, result.failures
-    return {"case": "--verify of the exact GDSII (KLayout)", "command": "verify_layout(lens.gds, ...)",
-            "seconds": time.perf_counter() - start, "wall_s": time.perf_counter() - start, "peak_gib": _peak_gib(),
-            "bytes": None, "atoms": result.found_atoms, "max_phase_error_rad": result.worst["phase_vs_design_rad"]}
+    return {
+        "case": "--verify of the exact GDSII (KLayout)",
+        "command": "verify_layout(lens.gds, ...)",
+        "seconds": time.perf_counter() - start,
+        "wall_s": time.perf_counter() - start,
+        "peak_gib": _peak_gib(),
+        "bytes": None,
+        "atoms": result.found_atoms,
+        "max_phase_error_rad": result.worst["phase_vs_design_rad"],
+    }
 
 
 def case_gdstk(aperture: str, scratch: Path) -> dict:
@@ -98,15 +114,26 @@ def case_gdstk(aperture: str, scratch: Path) -> dict:
     path = scratch / "gdstk.gds"
     library.write_gds(str(path))
     seconds = time.perf_counter() - start
-    return {"case": "straightforward gdstk (one Polygon per fin)", "command": "gdstk.Polygon per fin + write_gds",
-            "seconds": seconds, "wall_s": seconds, "peak_gib": _peak_gib(), "bytes": path.stat().st_size, "atoms": atoms,
-            "max_phase_error_rad": 0.0}
+    return {
+        "case": "straightforward gdstk (one Polygon per fin)",
+        "command": "gdstk.Polygon per fin + write_gds",
+        "seconds": seconds,
+        "wall_s": seconds,
+        "peak_gib": _peak_gib(),
+        "bytes": path.stat().st_size,
+        "atoms": atoms,
+        "max_phase_error_rad": 0.0,
+    }
 
 
 def run_case(name: str, aperture: str, scratch: Path) -> dict:
     """Run one case in a fresh interpreter and return its result."""
-    out = subprocess.run([sys.executable, __file__, "--case", name, "--aperture", aperture, "--scratch", str(scratch)],
-                         check=True, capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, __file__, "--case", name, "--aperture", aperture, "--scratch", str(scratch)],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -128,11 +155,17 @@ def table(results: dict, aperture: str, load: tuple) -> str:
         r = results[key]
         size = "—" if r["bytes"] is None else f"{r['bytes'] / 1e6:.1f}"
         ratio = "—" if key == "verify" else f"{base['seconds'] / r['seconds']:.1f}× faster" if key != "gdstk" else "1×"
-        lines.append(f"| {r['case']} | {r['seconds']:.1f} | {r['wall_s']:.1f} | {r['peak_gib']:.2f} | {size} | "
-                     f"{r['max_phase_error_rad']:.3g} | {ratio} |")
-    lines += ["", "Export time is the `seconds` of the `--json` report (sites, θ, vertices, records, rename); process wall "
-              "adds interpreter start, imports (torch) and design resolution. The verify row's phase error is measured on "
-              "the file (vertex rounding to 1 nm). Commands:", ""]
+        lines.append(
+            f"| {r['case']} | {r['seconds']:.1f} | {r['wall_s']:.1f} | {r['peak_gib']:.2f} | {size} | "
+            f"{r['max_phase_error_rad']:.3g} | {ratio} |"
+        )
+    lines += [
+        "",
+        "Export time is the `seconds` of the `--json` report (sites, θ, vertices, records, rename); process wall "
+        "adds interpreter start, imports (torch) and design resolution. The verify row's phase error is measured on "
+        "the file (vertex rounding to 1 nm). Commands:",
+        "",
+    ]
     lines += [f"- {results[key]['case']}: `{results[key]['command']}`" for key in ("gds", "oas", "gds128")]
     return "\n".join(lines) + "\n"
 
@@ -146,15 +179,21 @@ def main() -> None:
     scratch = Path(args.scratch)
     scratch.mkdir(parents=True, exist_ok=True)
     if args.case:
-        result = {"verify": lambda: case_verify(args.aperture, scratch), "gdstk": lambda: case_gdstk(args.aperture, scratch)}.get(
-            args.case, lambda: case_export(args.case, args.aperture, scratch))()
+        result = {
+            "verify": lambda: case_verify(args.aperture, scratch),
+            "gdstk": lambda: case_gdstk(args.aperture, scratch),
+        }.get(args.case, lambda: case_export(args.case, args.aperture, scratch))()
         print(json.dumps(result))
         return
     load = os.getloadavg()
     results = {}
     for name in ("gds", "oas", "gds128", "verify", "gdstk"):
         results[name] = run_case(name, args.aperture, scratch)
-        print(f"{name}: {results[name]['seconds']:.1f} s, {results[name]['peak_gib']:.2f} GiB", file=sys.stderr, flush=True)
+        print(
+            f"{name}: {results[name]['seconds']:.1f} s, {results[name]['peak_gib']:.2f} GiB",
+            file=sys.stderr,
+            flush=True,
+        )
     for path in scratch.iterdir():
         path.unlink()
     print(f"wrote {write_section('gds', table(results, args.aperture, load))}", file=sys.stderr)

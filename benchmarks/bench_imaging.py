@@ -52,8 +52,14 @@ def child(size: int, near_n: int, far_n: int, threads: int, repeats: int, retain
         form_image(clean, obs, mask, tn, tf, margin)
         times.append(time.perf_counter() - t0)
     faults = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / repeats
-    return {"median_ms": 1e3 * statistics.median(times), "min_ms": 1e3 * min(times), "faults_per_call": faults,
-            "spectra_ms": 1e3 * prep, "fft": f"{tn.fft_shape[0]}² / {tf.fft_shape[0]}²", "retained": applied}
+    return {
+        "median_ms": 1e3 * statistics.median(times),
+        "min_ms": 1e3 * min(times),
+        "faults_per_call": faults,
+        "spectra_ms": 1e3 * prep,
+        "fft": f"{tn.fft_shape[0]}² / {tf.fft_shape[0]}²",
+        "retained": applied,
+    }
 
 
 def optics_windows() -> list[tuple[int, int]]:
@@ -64,8 +70,12 @@ def optics_windows() -> list[tuple[int, int]]:
     from metalens_cli.optics.lens import hyperbolic
 
     lens = hyperbolic(532e-9, 4e-3, 2.516e-3, 395e-9)
-    bands = (np.arange(400e-9, 701e-9, 5e-9), np.concatenate([np.arange(c - w, c + w + 1e-10, 2e-9) for c, w in
-                                                               ((457e-9, 14e-9), (530e-9, 12e-9), (628e-9, 16e-9))]))
+    bands = (
+        np.arange(400e-9, 701e-9, 5e-9),
+        np.concatenate(
+            [np.arange(c - w, c + w + 1e-10, 2e-9) for c, w in ((457e-9, 14e-9), (530e-9, 12e-9), (628e-9, 16e-9))]
+        ),
+    )
     return [tuple(psf_window(lens, list(waves), [z], 4e-3, 1.85e-6) for z in (0.04, 1.0)) for waves in bands]
 
 
@@ -79,7 +89,13 @@ def main() -> None:
     parser.add_argument("--child", nargs=3, metavar=("NEAR", "FAR", "RETAIN"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        print(json.dumps(child(args.size, int(args.child[0]), int(args.child[1]), args.threads, args.repeats, args.child[2] == "1")))
+        print(
+            json.dumps(
+                child(
+                    args.size, int(args.child[0]), int(args.child[1]), args.threads, args.repeats, args.child[2] == "1"
+                )
+            )
+        )
         return
     windows = [tuple(int(v) for v in w.split(":")) for w in args.windows] if args.windows else optics_windows()
     from report import write_section
@@ -99,15 +115,37 @@ def main() -> None:
     ]
     for near_n, far_n in windows:
         for retain in (False, True):
-            runs = [json.loads(subprocess.run(
-                [sys.executable, __file__, "--child", str(near_n), str(far_n), str(int(retain)), "--threads", str(args.threads),
-                 "--size", str(args.size), "--repeats", str(args.repeats)],
-                check=True, capture_output=True, text=True).stdout) for _ in range(args.processes)]
+            runs = [
+                json.loads(
+                    subprocess.run(
+                        [
+                            sys.executable,
+                            __file__,
+                            "--child",
+                            str(near_n),
+                            str(far_n),
+                            str(int(retain)),
+                            "--threads",
+                            str(args.threads),
+                            "--size",
+                            str(args.size),
+                            "--repeats",
+                            str(args.repeats),
+                        ],
+                        check=True,
+                        capture_output=True,
+                        text=True,
+                    ).stdout
+                )
+                for _ in range(args.processes)
+            ]
             medians = [r["median_ms"] for r in runs]
-            rows.append(f"| {near_n}² / {far_n}² | {runs[0]['fft']} | {'retained' if retain else 'glibc default'} | "
-                        f"{statistics.median(medians):.1f} | {max(medians):.1f} | "
-                        f"{statistics.median(r['faults_per_call'] for r in runs):.0f} | "
-                        f"{statistics.median(r['spectra_ms'] for r in runs):.1f} |")
+            rows.append(
+                f"| {near_n}² / {far_n}² | {runs[0]['fft']} | {'retained' if retain else 'glibc default'} | "
+                f"{statistics.median(medians):.1f} | {max(medians):.1f} | "
+                f"{statistics.median(r['faults_per_call'] for r in runs):.0f} | "
+                f"{statistics.median(r['spectra_ms'] for r in runs):.1f} |"
+            )
             print(rows[-1], flush=True)
     write_section("imaging", "\n".join(rows))
 

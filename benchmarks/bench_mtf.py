@@ -17,11 +17,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from report import write_section
 
 from metalens_cli.analysis.mtf import cube_mtf, diffraction_limited_mtf, psf_mtf, radial_grid
 from metalens_cli.io.exr import PsfCube, read_psf_cube, write_psf_cube
-
-from report import write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 N, PITCH = 512, 1.85e-6
@@ -64,7 +63,16 @@ def main() -> None:
     }
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "cube.exr"
-        write_psf_cube(path, psf, WAVELENGTHS, DEPTHS, PITCH, "gaussian benchmark cube", normalization="peak-one", extra={"na": 0.3})
+        write_psf_cube(
+            path,
+            psf,
+            WAVELENGTHS,
+            DEPTHS,
+            PITCH,
+            "gaussian benchmark cube",
+            normalization="peak-one",
+            extra={"na": 0.3},
+        )
         cases["`read_psf_cube` (88 × 512² ZIP EXR, not part of the target)"] = lambda: read_psf_cube(path)
         load = os.getloadavg()[0]
         rows = [(name, *timed(function, args.repeat)) for name, function in cases.items()]
@@ -78,7 +86,10 @@ def main() -> None:
         "",
         "| step | wall median (s) | wall min (s) | CPU median (s) |",
         "|---|---|---|---|",
-        *[f"| {name} | {statistics.median(wall):.3f} | {min(wall):.3f} | {statistics.median(cpu):.3f} |" for name, wall, cpu in rows],
+        *[
+            f"| {name} | {statistics.median(wall):.3f} | {min(wall):.3f} | {statistics.median(cpu):.3f} |"
+            for name, wall, cpu in rows
+        ],
     ]
     write_section("mtf", "\n".join(lines))
     print("\n".join(lines))

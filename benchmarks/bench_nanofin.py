@@ -22,11 +22,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from report import write_section
 
 from metalens_cli.optics.materials import FUSED_SILICA, SINX
-from metalens_cli.optics.nanofin import converge, convergence_seconds, estimate_seconds, Fin, fin_response
-
-from report import write_section
+from metalens_cli.optics.nanofin import Fin, converge, convergence_seconds, estimate_seconds, fin_response
 
 FIN = Fin(395e-9, 700e-9, 305e-9, 125e-9)
 REFERENCE = 41
@@ -58,7 +57,9 @@ def harmonics_table() -> list[str]:
             meent = f"{abs(m.conversion[0] - reference.conversion[10]):.1e} | {meent_seconds:.2f}"
         else:
             meent = "— | —"
-        rows.append(f"| {n} | {error[10]:.1e} | {error.max():.1e} | {seconds:.2f} | {estimate_seconds(n, w.size):.2f} | {meent} |")
+        rows.append(
+            f"| {n} | {error[10]:.1e} | {error.max():.1e} | {seconds:.2f} | {estimate_seconds(n, w.size):.2f} | {meent} |"
+        )
     return rows
 
 
@@ -78,16 +79,33 @@ def target_rows() -> list[str]:
 def sweep_rows() -> list[str]:
     with tempfile.TemporaryDirectory() as folder:
         env = {**os.environ, "METALENS_CACHE": str(Path(folder) / "cache")}
-        command = ["nanofin", "sweep", "--width", "210:360:5nm", "--length", "40:190:5nm", "--quiet", "-o", str(Path(folder) / "sweep"),
-                   "--json"]
+        command = [
+            "nanofin",
+            "sweep",
+            "--width",
+            "210:360:5nm",
+            "--length",
+            "40:190:5nm",
+            "--quiet",
+            "-o",
+            str(Path(folder) / "sweep"),
+            "--json",
+        ]
         start = time.perf_counter()
-        out = subprocess.run([sys.executable, "-m", "metalens_cli", *command], capture_output=True, text=True, env=env, check=True)
+        out = subprocess.run(
+            [sys.executable, "-m", "metalens_cli", *command], capture_output=True, text=True, env=env, check=True
+        )
         wall = time.perf_counter() - start
         report = json.loads(out.stdout)
         estimate = out.stderr.strip().splitlines()[0].split(": ")[-1]  # announce's line: about …, (up to …)
         start = time.perf_counter()
-        again = subprocess.run([sys.executable, "-m", "metalens_cli", *command[:-3], "-o", str(Path(folder) / "again"), "--json"],
-                               capture_output=True, text=True, env=env, check=True)
+        again = subprocess.run(
+            [sys.executable, "-m", "metalens_cli", *command[:-3], "-o", str(Path(folder) / "again"), "--json"],
+            capture_output=True,
+            text=True,
+            env=env,
+            check=True,
+        )
         cached_wall = time.perf_counter() - start
     c = report["recommended"]
     f = c["converged"]
@@ -96,7 +114,9 @@ def sweep_rows() -> list[str]:
         f"(target ≤ 20 min): map {report['seconds']:.0f} s, the chosen fin converged (N = {f['harmonics']}) with its "
         f"{f['fins']} neighbours {f['seconds']:.0f} s; the command's estimate said {estimate}. Again, the map and the refinement read from the cache: {cached_wall:.0f} s.",
         f"- Recommended: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.3f} at N = 9, converged "
-        f"{f['score']:.3f} (per band " + " / ".join(f"{v:.3f}" for v in f["eta_per_band"]) + f"), worst neighbour {f['worst_neighbour']:.3f}"
+        f"{f['score']:.3f} (per band "
+        + " / ".join(f"{v:.3f}" for v in f["eta_per_band"])
+        + f"), worst neighbour {f['worst_neighbour']:.3f}"
         f" ({'keeps' if f['robust'] else 'does not keep'} 95 %).",
         f"- Cached: {json.loads(again.stdout)['cached']}.",
     ]
@@ -104,8 +124,11 @@ def sweep_rows() -> list[str]:
 
 def paper_rows() -> list[str]:
     w = np.array(list(PAPER))
-    rows = [f"| Si3N4, Luke 2015 (n = {SINX.index(w)[0].real:.3f} … {SINX.index(w)[-1].real:.3f}) | "
-            + " | ".join(f"{v:.3f}" for v in eta(w, 25).conversion) + " |"]
+    rows = [
+        f"| Si3N4, Luke 2015 (n = {SINX.index(w)[0].real:.3f} … {SINX.index(w)[-1].real:.3f}) | "
+        + " | ".join(f"{v:.3f}" for v in eta(w, 25).conversion)
+        + " |"
+    ]
     for n in (2.0, 2.1, 2.15, 2.17, 2.2):
         r = fin_response(FIN, np.full(3, n), FUSED_SILICA.index(w), w, 25)
         rows.append(f"| constant n = {n:g} | " + " | ".join(f"{v:.3f}" for v in r.conversion) + " |")

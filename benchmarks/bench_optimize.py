@@ -48,8 +48,11 @@ def measure(kind: str, presets: Path, device: str, threads: int, steps: int) -> 
         preset = load_preset(presets / QUICK_PRESETS[kind])
     else:
         base = load_preset(presets / PRESET.name)
-        preset = dataclasses.replace(base, lens=dataclasses.replace(base.lens, parameterization=kind),
-                                     optimize=dataclasses.replace(base.optimize, design_grid=0))
+        preset = dataclasses.replace(
+            base,
+            lens=dataclasses.replace(base.lens, parameterization=kind),
+            optimize=dataclasses.replace(base.optimize, design_grid=0),
+        )
     r = time_steps(preset, steps, torch.device(device))
     r["peak_bytes"] = r.get("peak_memory_bytes") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     r["kind"] = kind
@@ -59,10 +62,29 @@ def measure(kind: str, presets: Path, device: str, threads: int, steps: int) -> 
 
 def measure_in_subprocess(kind: str, args, steps: int, code: Path) -> dict:
     """``measure`` in a fresh process (its own peak memory) with the package of ``code``."""
-    command = [sys.executable, __file__, "--emit-json", kind, "--presets", str(args.presets), "--device", args.device,
-               "--threads", str(args.threads), "--steps", str(steps)]
-    result = json.loads(subprocess.run(command, env={**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(code), os.environ.get("PYTHONPATH")]))}, check=True,
-                                       stdout=subprocess.PIPE, text=True).stdout)  # its errors reach stderr
+    command = [
+        sys.executable,
+        __file__,
+        "--emit-json",
+        kind,
+        "--presets",
+        str(args.presets),
+        "--device",
+        args.device,
+        "--threads",
+        str(args.threads),
+        "--steps",
+        str(steps),
+    ]
+    result = json.loads(
+        subprocess.run(
+            command,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(code), os.environ.get("PYTHONPATH")]))},
+            check=True,
+            stdout=subprocess.PIPE,
+            text=True,
+        ).stdout
+    )  # its errors reach stderr
     print(json.dumps({k: v for k, v in result.items() if k != "seconds_by_stage"}), file=sys.stderr, flush=True)
     return result
 
@@ -73,10 +95,12 @@ def row(r: dict, label: str) -> str:
     windows = r.get("windows_px")
     window_text = f"{windows['near']} / {windows['far']}" if windows and windows["near"] else "fixed"
     mean = r["mean_seconds_per_step"]
-    return (f"| {label} | {r['parameters']:,} | {'2-D ASM' if r['kind'] == '2d' else 'radial (Hankel)'} | {steps} | {window_text} | "
-            f"{r['seconds_per_step']:.2f} | {mean:.2f} | {r['first_step_s']:.2f} | "
-            f"{stages.get('psf_kernels', 0):.1f} | {stages.get('psf', 0) / steps:.2f} | "
-            f"{stages.get('backward', 0) / steps:.2f} | {r['peak_bytes'] / 2**30:.1f} GiB ({memory}) |")
+    return (
+        f"| {label} | {r['parameters']:,} | {'2-D ASM' if r['kind'] == '2d' else 'radial (Hankel)'} | {steps} | {window_text} | "
+        f"{r['seconds_per_step']:.2f} | {mean:.2f} | {r['first_step_s']:.2f} | "
+        f"{stages.get('psf_kernels', 0):.1f} | {stages.get('psf', 0) / steps:.2f} | "
+        f"{stages.get('backward', 0) / steps:.2f} | {r['peak_bytes'] / 2**30:.1f} GiB ({memory}) |"
+    )
 
 
 def main() -> None:
@@ -84,19 +108,36 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--steps", type=int, default=4, help="steps at paper size (radial)")
-    parser.add_argument("--steps-quick", type=int, default=40,
-                        help="quick-preset steps from θ_init: long enough for its light to spread and the plan to grow")
+    parser.add_argument(
+        "--steps-quick",
+        type=int,
+        default=40,
+        help="quick-preset steps from θ_init: long enough for its light to spread and the plan to grow",
+    )
     parser.add_argument("--steps-2d", type=int, default=1, help="2-D steps")
-    parser.add_argument("--parameterization", nargs="+", default=["quick", "radial", "2d"], choices=KINDS,
-                        help="quick: presets/quick-split-spectrum.toml as it is (128² crop); "
-                             "joint: presets/quick-joint-filter.toml (the filter learned with θ)")
+    parser.add_argument(
+        "--parameterization",
+        nargs="+",
+        default=["quick", "radial", "2d"],
+        choices=KINDS,
+        help="quick: presets/quick-split-spectrum.toml as it is (128² crop); "
+        "joint: presets/quick-joint-filter.toml (the filter learned with θ)",
+    )
     parser.add_argument("--baseline", type=Path, help="a checkout of an earlier commit to measure right after")
     parser.add_argument("--baseline-label", help="the baseline's name in the table [its git commit]")
-    parser.add_argument("--baseline-parameterization", nargs="+", choices=KINDS,
-                        help="the rows measured with the baseline too (default: all)")
+    parser.add_argument(
+        "--baseline-parameterization",
+        nargs="+",
+        choices=KINDS,
+        help="the rows measured with the baseline too (default: all)",
+    )
     parser.add_argument("--emit-json", choices=KINDS, help=argparse.SUPPRESS)  # one kind, in a subprocess
-    parser.add_argument("--presets", type=Path, default=PRESET.parent,
-                        help="the folder of presets both trees time (default: this checkout's)")
+    parser.add_argument(
+        "--presets",
+        type=Path,
+        default=PRESET.parent,
+        help="the folder of presets both trees time (default: this checkout's)",
+    )
     args = parser.parse_args()
     retain_freed_memory()
     if args.emit_json:
@@ -107,10 +148,20 @@ def main() -> None:
     steps = {"quick": args.steps_quick, "joint": args.steps_quick, "radial": args.steps, "2d": args.steps_2d}
     trees = [ROOT] + ([args.baseline.resolve()] if args.baseline else [])
     compared = args.baseline_parameterization or args.parameterization
-    results = {(tree, kind): measure_in_subprocess(kind, args, steps[kind], tree)
-               for kind in args.parameterization for tree in trees if tree == ROOT or kind in compared}
-    commit = args.baseline_label or subprocess.run(["git", "-C", str(args.baseline), "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip() if args.baseline else ""
+    results = {
+        (tree, kind): measure_in_subprocess(kind, args, steps[kind], tree)
+        for kind in args.parameterization
+        for tree in trees
+        if tree == ROOT or kind in compared
+    }
+    commit = (
+        args.baseline_label
+        or subprocess.run(
+            ["git", "-C", str(args.baseline), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+        ).stdout.strip()
+        if args.baseline
+        else ""
+    )
     lines = [
         f"## Training step, {device.type} (`python benchmarks/bench_optimize.py --device {args.device}"
         f"{' --baseline DIR' if args.baseline else ''}`)",
@@ -122,26 +173,39 @@ def main() -> None:
         f"per channel, batch 1): {args.steps} steps (radial), {args.steps_2d} (2-D); on {name}, each row a fresh process. "
         "Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their total "
         "seconds (Hankel kernel and output rows). Windows: what the last step's light needed (near / far, px)."
-        + (f" Baseline rows: commit {commit} (the same presets), each measured right after the row above it, on the same machine."
-           if args.baseline else ""),
+        + (
+            f" Baseline rows: commit {commit} (the same presets), each measured right after the row above it, on the same machine."
+            if args.baseline
+            else ""
+        ),
         "",
         "| θ | parameters | propagator | steps | windows px | median s/step | mean s/step | first step s | kernels s "
         "| PSFs s/step | backward s/step | peak memory |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    labels = {"quick": "radial, quick preset", "joint": "radial, quick preset, filter learned", "radial": "radial", "2d": "2-D"}
+    labels = {
+        "quick": "radial, quick preset",
+        "joint": "radial, quick preset, filter learned",
+        "radial": "radial",
+        "2d": "2-D",
+    }
     for kind in args.parameterization:
         for tree in trees:
             if (tree, kind) in results:
                 lines.append(row(results[tree, kind], labels[kind] + ("" if tree == ROOT else f" ({commit})")))
     if args.baseline:
-        lines += ["", "| θ | median s/step now / baseline | mean s/step now / baseline | peak memory now / baseline |",
-                  "|---|---|---|---|"]
+        lines += [
+            "",
+            "| θ | median s/step now / baseline | mean s/step now / baseline | peak memory now / baseline |",
+            "|---|---|---|---|",
+        ]
         for kind in (k for k in args.parameterization if k in compared):
             r, b = results[ROOT, kind], results[trees[1], kind]
-            lines.append(f"| {labels[kind]} | {r['seconds_per_step'] / b['seconds_per_step']:.2f} | "
-                         f"{r['mean_seconds_per_step'] / b['mean_seconds_per_step']:.2f} | "
-                         f"{r['peak_bytes'] / b['peak_bytes']:.2f} |")
+            lines.append(
+                f"| {labels[kind]} | {r['seconds_per_step'] / b['seconds_per_step']:.2f} | "
+                f"{r['mean_seconds_per_step'] / b['mean_seconds_per_step']:.2f} | "
+                f"{r['peak_bytes'] / b['peak_bytes']:.2f} |"
+            )
     print("\n".join(lines), flush=True)
     from report import write_section
 

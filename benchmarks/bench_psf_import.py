@@ -22,11 +22,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from report import write_section
 
 from metalens_cli.analysis.measured_psf import ImportSettings, import_psfs
 from metalens_cli.io.psf_manifest import read_manifest
-
-from report import write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 SIDE, DEPTHS, WAVELENGTHS = 2048, ("45mm", "inf"), np.linspace(430, 645, 44)
@@ -45,7 +44,9 @@ def write_frames(folder: Path, suffix: str) -> Path:
             centre = SIDE / 2 + rng.uniform(-100, 100, 2)
             spot = np.zeros((SIDE, SIDE))
             top, left = int(centre[0]) - 64, int(centre[1]) - 64
-            spot[top : top + 128, left : left + 128] = gaussian_spot(128, 128, (centre[0] - top, centre[1] - left), sigma)
+            spot[top : top + 128, left : left + 128] = gaussian_spot(
+                128, 128, (centre[0] - top, centre[1] - left), sigma
+            )
             name = f"psf_{depth}_{wavelength:.0f}nm{suffix}"
             cv2.imwrite(str(folder / name), bench_frame(spot, rng, photons=2e5 * sigma**2))
             rows.append(f"{name},{wavelength:.3f}nm,{depth},10ms")
@@ -73,12 +74,28 @@ def main() -> None:
         manifest = read_manifest(manifest_path)
         size = sum(p.stat().st_size for p in folder.iterdir()) / 2**20
         load = os.getloadavg()[0]
-        command = [sys.executable, "-m", "metalens_cli", "psf", "import", str(manifest_path), "--pixel-pitch", "1.85um",
-                   "--pixels", "128", "-o", str(folder / "cube.exr"), "--quiet", "--json"]
+        command = [
+            sys.executable,
+            "-m",
+            "metalens_cli",
+            "psf",
+            "import",
+            str(manifest_path),
+            "--pixel-pitch",
+            "1.85um",
+            "--pixels",
+            "128",
+            "-o",
+            str(folder / "cube.exr"),
+            "--quiet",
+            "--json",
+        ]
         cases = {
             "`import_psfs`, window given (128²)": lambda: import_psfs(manifest, ImportSettings(1.85e-6, pixels=128)),
             "`import_psfs`, automatic window": lambda: import_psfs(manifest, ImportSettings(1.85e-6)),
-            "`metalens psf import … --pixels 128` (end to end, EXR written)": lambda: subprocess.run(command, check=True, capture_output=True),
+            "`metalens psf import … --pixels 128` (end to end, EXR written)": lambda: subprocess.run(
+                command, check=True, capture_output=True
+            ),
         }
         rows = [(name, timed(function, args.repeat)) for name, function in cases.items()]
     lines = [
@@ -91,7 +108,10 @@ def main() -> None:
         "",
         "| step | wall median (s) | wall min (s) | per frame (ms) |",
         "|---|---|---|---|",
-        *[f"| {name} | {statistics.median(wall):.2f} | {min(wall):.2f} | {1e3 * statistics.median(wall) / 88:.0f} |" for name, wall in rows],
+        *[
+            f"| {name} | {statistics.median(wall):.2f} | {min(wall):.2f} | {1e3 * statistics.median(wall) / 88:.0f} |"
+            for name, wall in rows
+        ],
     ]
     write_section(f"psf-import-{args.format}", "\n".join(lines))
     print("\n".join(lines))

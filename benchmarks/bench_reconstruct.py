@@ -40,8 +40,10 @@ def child(run: str | None, size: int, threads: int, repeats: int, device: str, t
     else:
         n = load_reconstruct_preset(ROOT / "presets" / "quick-reconstruct.toml").network
         torch.manual_seed(0)
-        recon = Reconstructor(ReconstructionNet(NetworkShape(n.width, n.depth, n.frequencies, n.reduction, 128.0)).eval().to(device),
-                              device=torch.device(device))
+        recon = Reconstructor(
+            ReconstructionNet(NetworkShape(n.width, n.depth, n.frequencies, n.reduction, 128.0)).eval().to(device),
+            device=torch.device(device),
+        )
     image = np.random.default_rng(0).uniform(0, 1, size=(3, size, size)).astype(np.float32)
     if tiles:
         recon.memory_bytes = inference_bytes(recon.shape, (size // 2 + recon.overlap) ** 2)
@@ -60,11 +62,20 @@ def child(run: str | None, size: int, threads: int, repeats: int, device: str, t
         if device.startswith("cuda"):
             torch.cuda.synchronize()
         times.append(time.perf_counter() - t0)
-    peak = (torch.cuda.max_memory_allocated() if device.startswith("cuda")
-            else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - base)
-    report = {"median_s": statistics.median(times), "min_s": min(times), "peak_bytes": int(peak),
-              "estimate_bytes": inference_bytes(recon.shape, size * size), "tile_px": recon.tile_side(size, size),
-              "parameters": sum(p.numel() for p in recon.net.parameters()), "shape": recon.shape.to_dict()}
+    peak = (
+        torch.cuda.max_memory_allocated()
+        if device.startswith("cuda")
+        else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - base
+    )
+    report = {
+        "median_s": statistics.median(times),
+        "min_s": min(times),
+        "peak_bytes": int(peak),
+        "estimate_bytes": inference_bytes(recon.shape, size * size),
+        "tile_px": recon.tile_side(size, size),
+        "parameters": sum(p.numel() for p in recon.net.parameters()),
+        "shape": recon.shape.to_dict(),
+    }
     if tiles:
         recon.memory_bytes = inference_bytes(recon.shape, size * size)
         whole = recon(image)  # after the timed runs, so that the peak above is the tiled path's
@@ -86,24 +97,36 @@ def main() -> None:
     results = {}
     for label, tiles in (("whole image", False), ("4 tiles (forced)", True)):
         spec = json.dumps([args.run, 512, args.threads, args.repeats, args.device, tiles])
-        done = subprocess.run([sys.executable, __file__, "--child", spec], stdout=subprocess.PIPE, text=True, check=True)
+        done = subprocess.run(
+            [sys.executable, __file__, "--child", spec], stdout=subprocess.PIPE, text=True, check=True
+        )
         results[label] = json.loads(done.stdout)
         print(label, results[label], flush=True)
     first = results["whole image"]
-    lines = [f"## Reconstruction network, apply to 512 × 512 RGB, {args.device} (`python benchmarks/bench_reconstruct.py`)", "",
-             f"Network {first['shape']} ({first['parameters']} parameters; weights: {args.run or 'untrained'}), "
-             f"{args.threads} threads, median of {args.repeats} "
-             "after 2 warm-up runs, each configuration in a fresh process. Peak: resident set above the loaded process (CPU) "
-             "or `torch.cuda.max_memory_allocated` (GPU); estimate: `imaging.restore.inference_bytes`, which sets the tile size.", "",
-             "| path | median s | min s | peak MiB | estimate MiB | PSNR vs whole (dB) |", "|---|---|---|---|---|---|"]
+    lines = [
+        f"## Reconstruction network, apply to 512 × 512 RGB, {args.device} (`python benchmarks/bench_reconstruct.py`)",
+        "",
+        f"Network {first['shape']} ({first['parameters']} parameters; weights: {args.run or 'untrained'}), "
+        f"{args.threads} threads, median of {args.repeats} "
+        "after 2 warm-up runs, each configuration in a fresh process. Peak: resident set above the loaded process (CPU) "
+        "or `torch.cuda.max_memory_allocated` (GPU); estimate: `imaging.restore.inference_bytes`, which sets the tile size.",
+        "",
+        "| path | median s | min s | peak MiB | estimate MiB | PSNR vs whole (dB) |",
+        "|---|---|---|---|---|---|",
+    ]
     for label, r in results.items():
         psnr = r.get("psnr_tiled_vs_whole_db")
-        lines.append(f"| {label} | {r['median_s']:.3f} | {r['min_s']:.3f} | {r['peak_bytes'] / 2**20:.0f} | "
-                     f"{r['estimate_bytes'] / 2**20:.0f} | {'—' if psnr is None else f'{psnr:.1f}'} |")
-    lines += ["", "The estimate is the whole image's (tiles are sized so that theirs fits `--memory-mib`). Tiles overlap by "
-              "64 px; they differ from the whole image where the learned spectral filter and CBAM's image-wide pooling see "
-              "less of the image. Targets (issue 15): ≤ 0.3 s and ≤ 1 GiB on 2 CPU cores; the paper: 41 ms and 946 MiB "
-              "(FP16, RTX 6000 Ada)."]
+        lines.append(
+            f"| {label} | {r['median_s']:.3f} | {r['min_s']:.3f} | {r['peak_bytes'] / 2**20:.0f} | "
+            f"{r['estimate_bytes'] / 2**20:.0f} | {'—' if psnr is None else f'{psnr:.1f}'} |"
+        )
+    lines += [
+        "",
+        "The estimate is the whole image's (tiles are sized so that theirs fits `--memory-mib`). Tiles overlap by "
+        "64 px; they differ from the whole image where the learned spectral filter and CBAM's image-wide pooling see "
+        "less of the image. Targets (issue 15): ≤ 0.3 s and ≤ 1 GiB on 2 CPU cores; the paper: 41 ms and 946 MiB "
+        "(FP16, RTX 6000 Ada).",
+    ]
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from report import write_section
 

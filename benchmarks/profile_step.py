@@ -51,8 +51,11 @@ def main() -> None:
     print(f"{args.preset} on {device}: {seconds:.3f} s/step under the profiler; windows {session.windows}")
     print(f"stages (s/step): {stages}")
     key = "self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total"
-    print(prof.key_averages(group_by_input_shape=True).table(sort_by=key, row_limit=args.rows, max_name_column_width=40,
-                                                             max_shapes_column_width=60))
+    print(
+        prof.key_averages(group_by_input_shape=True).table(
+            sort_by=key, row_limit=args.rows, max_name_column_width=40, max_shapes_column_width=60
+        )
+    )
 
 
 if __name__ == "__main__":

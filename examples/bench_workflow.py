@@ -41,9 +41,9 @@ WAVELENGTHS_NM = (457, 530, 628)
 DEPTHS = ("45mm", "inf")
 DESIGNS = ("hyperbolic:532nm", "hyperbolic:457nm")
 CAMERA_PITCH, MAGNIFICATION = "3.7um", 2
-FRAME = 384                 # camera frame side, pixels
-WINDOW = 161                # PSF window: holds the 45 mm blur disc (~121 pixels across) of the f = 4 mm lens
-FILL = 0.6                  # each frame's exposure puts its brightest pixel at this fraction of full scale
+FRAME = 384  # camera frame side, pixels
+WINDOW = 161  # PSF window: holds the 45 mm blur disc (~121 pixels across) of the f = 4 mm lens
+FILL = 0.6  # each frame's exposure puts its brightest pixel at this fraction of full scale
 HOT = [(40, 51), (200, 330), (300, 77), (191, 203), (350, 350)]
 
 
@@ -51,7 +51,9 @@ def metalens(*args, expect: int = 0) -> dict | None:
     """Run ``metalens ARGS --json``; return its JSON (None for an expected failure, whose one
     error line is printed)."""
     print("$ metalens " + shlex.join(map(str, args)), file=sys.stderr, flush=True)
-    done = subprocess.run([sys.executable, "-m", "metalens_cli", *map(str, args), "--json"], cwd=ROOT, capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "metalens_cli", *map(str, args), "--json"], cwd=ROOT, capture_output=True, text=True
+    )
     if done.returncode != expect:
         sys.exit(f"exit {done.returncode} (expected {expect}): {done.stderr.strip()}")
     if expect:
@@ -139,39 +141,92 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
 
     simulated = out / "simulated.exr"
-    metalens("psf-scan", "--design", DESIGNS[0], "--preset", PRESET, "--wavelengths", ",".join(f"{w}nm" for w in WAVELENGTHS_NM),
-             "--depths", ",".join(DEPTHS), "--pixels", WINDOW, "-o", simulated, "--quiet")
+    metalens(
+        "psf-scan",
+        "--design",
+        DESIGNS[0],
+        "--preset",
+        PRESET,
+        "--wavelengths",
+        ",".join(f"{w}nm" for w in WAVELENGTHS_NM),
+        "--depths",
+        ",".join(DEPTHS),
+        "--pixels",
+        WINDOW,
+        "-o",
+        simulated,
+        "--quiet",
+    )
     bench_frames(simulated, out / "bench", rng)
     measured = out / "measured.exr"
-    import_args = ["--dark", out / "bench" / "dark.npy", "--pixel-pitch", CAMERA_PITCH, "--magnification", MAGNIFICATION,
-                   "--pixels", WINDOW, "-o", measured, "--quiet"]
+    import_args = [
+        "--dark",
+        out / "bench" / "dark.npy",
+        "--pixel-pitch",
+        CAMERA_PITCH,
+        "--magnification",
+        MAGNIFICATION,
+        "--pixels",
+        WINDOW,
+        "-o",
+        measured,
+        "--quiet",
+    ]
     metalens("psf", "import", out / "bench" / "psf.csv", *import_args, expect=2)  # the over-exposed frame is refused
-    imported = metalens("psf", "import", out / "bench" / "psf_no_long.csv", *import_args, "--plot", out / "measured.png")
+    imported = metalens(
+        "psf", "import", out / "bench" / "psf_no_long.csv", *import_args, "--plot", out / "measured.png"
+    )
     curves = metalens("mtf", measured)["curves"]
     comparison = metalens("psf", "compare", measured, simulated, "--plot", out / "compare.png")
 
     scenes = {}
     for design in DESIGNS:
         scenes[design] = out / "simulate" / design.replace(":", "-")
-        metalens("simulate", design, "--preset", PRESET, "--obstruction", "dirt", "--images", "charts", "--pixels", 256, "--limit", 3,
-                 "-o", scenes[design], "--overwrite")  # the script's own folder: a rerun replaces it
+        metalens(
+            "simulate",
+            design,
+            "--preset",
+            PRESET,
+            "--obstruction",
+            "dirt",
+            "--images",
+            "charts",
+            "--pixels",
+            256,
+            "--limit",
+            3,
+            "-o",
+            scenes[design],
+            "--overwrite",
+        )  # the script's own folder: a rerun replaces it
     photographs(scenes, out / "pairs")
     first = sorted((out / "pairs" / "gt").iterdir())[0].name
-    aligned = metalens("align", out / "pairs" / "gt" / first, out / "pairs" / DESIGNS[0].replace(":", "-") / "unobstructed" / first,
-                       "-o", out / "aligned.png")
+    aligned = metalens(
+        "align",
+        out / "pairs" / "gt" / first,
+        out / "pairs" / DESIGNS[0].replace(":", "-") / "unobstructed" / first,
+        "-o",
+        out / "aligned.png",
+    )
     table = metalens("evaluate", "--pairs", out / "pairs", "--plot", out / "pairs.png", "--csv", out / "pairs.csv")
 
-    print(f"\npsf import: {imported['pixels']}² pixels at {imported['pixel_pitch_m'] * 1e6:.3g} µm, "
-          f"{imported['hot_pixels']} hot pixels replaced (5 planted)")
+    print(
+        f"\npsf import: {imported['pixels']}² pixels at {imported['pixel_pitch_m'] * 1e6:.3g} µm, "
+        f"{imported['hot_pixels']} hot pixels replaced (5 planted)"
+    )
     for c in curves:
         depth = "inf" if c["depth_m"] is None or math.isinf(c["depth_m"]) else f"{c['depth_m'] * 1e3:g} mm"
         print(f"  MTF50 at {c['wavelength_m'] * 1e9:.0f} nm, {depth}: {c['mtf50_lpmm'] or float('nan'):.1f} lp/mm")
     for p in comparison["pairs"]:
-        print(f"psf compare {p['wavelength_m'] * 1e9:.0f} nm: peak ratio {p['peak_ratio']:.3f}, relative L2 {p['relative_l2']:.3f}")
+        print(
+            f"psf compare {p['wavelength_m'] * 1e9:.0f} nm: peak ratio {p['peak_ratio']:.3f}, relative L2 {p['relative_l2']:.3f}"
+        )
     report = aligned["pairs"][0]["registration"]
     print(f"align {first}: {report.get('inliers')} inliers, residual {report.get('residual_px', float('nan')):.2f} px")
     for row in table["rows"]:
-        print(f"evaluate --pairs {row['design']} {row['condition']}: PSNR {row['psnr_db']:.2f} dB, SSIM {row['ssim']:.3f}")
+        print(
+            f"evaluate --pairs {row['design']} {row['condition']}: PSNR {row['psnr_db']:.2f} dB, SSIM {row['ssim']:.3f}"
+        )
     print(f"\nfiles in {out}")
 
 

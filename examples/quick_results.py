@@ -46,8 +46,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 DESIGNS = ("quick-split-spectrum", "quick-broadband", "hyperbolic-532")
 MEDIUM = "medium-split-spectrum"
-LABELS = {"quick-split-spectrum": "learned split-spectrum", "quick-broadband": "learned broadband",
-          "hyperbolic-532": "hyperbolic 532 nm"}
+LABELS = {
+    "quick-split-spectrum": "learned split-spectrum",
+    "quick-broadband": "learned broadband",
+    "hyperbolic-532": "hyperbolic 532 nm",
+}
 OBSTRUCTIONS = "dirt,fence"
 NEAR_DEPTH = "45mm"
 GREY = 0.18  # linear value of the grey wall put through each reconstruction network
@@ -87,8 +90,16 @@ def train_recon(runs: Path, reuse: bool) -> dict[str, dict]:
             continue
         if run.exists():
             raise SystemExit(f"{run} exists: remove it or pass --reuse")
-        reports[name] = metalens("reconstruct", "train", str(runs / name), "--preset", "presets/quick-reconstruct.toml",
-                                 "-o", str(run), "--quiet")
+        reports[name] = metalens(
+            "reconstruct",
+            "train",
+            str(runs / name),
+            "--preset",
+            "presets/quick-reconstruct.toml",
+            "-o",
+            str(run),
+            "--quiet",
+        )
     return reports
 
 
@@ -102,8 +113,20 @@ def evaluate(runs: Path, seeds: int, images: str, pixels: int, reuse: bool, reco
         report = json.loads(saved.read_text())
         if report["seeds"] == list(range(seeds)) and [r for r in report.get("recon", []) if r] == networks:
             return report
-    report = metalens("evaluate", *(str(runs / n) for n in DESIGNS), "--images", images, "--obstruction", OBSTRUCTIONS, "--pixels", str(pixels),
-                      "--seed", f"0:{seeds - 1}", "--quiet", *(("--recon", ",".join(networks)) if recon else ()))
+    report = metalens(
+        "evaluate",
+        *(str(runs / n) for n in DESIGNS),
+        "--images",
+        images,
+        "--obstruction",
+        OBSTRUCTIONS,
+        "--pixels",
+        str(pixels),
+        "--seed",
+        f"0:{seeds - 1}",
+        "--quiet",
+        *(("--recon", ",".join(networks)) if recon else ()),
+    )
     saved.write_text(json.dumps(report), encoding="utf-8")
     return report
 
@@ -116,8 +139,20 @@ def evaluate_medium(runs: Path, seeds: int, reuse: bool) -> dict:
         report = json.loads(saved.read_text())
         if report["seeds"] == list(range(seeds)):
             return report
-    report = metalens("evaluate", str(runs / MEDIUM), str(runs / DESIGNS[0]), "--images", "photos", "--obstruction", OBSTRUCTIONS,
-                      "--pixels", "512", "--seed", f"0:{seeds - 1}", "--quiet")
+    report = metalens(
+        "evaluate",
+        str(runs / MEDIUM),
+        str(runs / DESIGNS[0]),
+        "--images",
+        "photos",
+        "--obstruction",
+        OBSTRUCTIONS,
+        "--pixels",
+        "512",
+        "--seed",
+        f"0:{seeds - 1}",
+        "--quiet",
+    )
     saved.write_text(json.dumps(report), encoding="utf-8")
     return report
 
@@ -125,27 +160,50 @@ def evaluate_medium(runs: Path, seeds: int, reuse: bool) -> dict:
 def medium_section(run: dict, quick: dict, report: dict) -> tuple[list[str], list[str]]:
     """Training cost of the medium run beside the quick one, its scores, and the paired difference."""
     kinds = OBSTRUCTIONS.split(",")
-    lines = ["", "## (a2) A medium run: how far the quick run is from convergence", "",
-             f"`metalens optimize presets/{MEDIUM}.toml` ({run['settings']['steps']} steps on a 256 × 256 crop, against the quick "
-             f"preset's {quick['settings']['steps']} on 128 × 128; same lens, losses and learning rate), scored with the quick split "
-             f"run on the same units (photographs, 512 × 512, seeds 0-{len(report['seeds']) - 1}; PSNR in dB, mean [95 % CI]).", "",
-             "| run | steps | s/step (median) | training time | validation loss before → after | Unobs. | "
-             + " | ".join(f"{k} Obs." for k in kinds) + " |", "|---|---|---|---|---|---|" + "---|" * len(kinds)]
-    cells = [(kinds[0], "unobstructed")] + [(k, "obstructed") for k in kinds]  # the unobstructed capture is the same for every kind
+    lines = [
+        "",
+        "## (a2) A medium run: how far the quick run is from convergence",
+        "",
+        f"`metalens optimize presets/{MEDIUM}.toml` ({run['settings']['steps']} steps on a 256 × 256 crop, against the quick "
+        f"preset's {quick['settings']['steps']} on 128 × 128; same lens, losses and learning rate), scored with the quick split "
+        f"run on the same units (photographs, 512 × 512, seeds 0-{len(report['seeds']) - 1}; PSNR in dB, mean [95 % CI]).",
+        "",
+        "| run | steps | s/step (median) | training time | validation loss before → after | Unobs. | "
+        + " | ".join(f"{k} Obs." for k in kinds)
+        + " |",
+        "|---|---|---|---|---|---|" + "---|" * len(kinds),
+    ]
+    cells = [(kinds[0], "unobstructed")] + [
+        (k, "obstructed") for k in kinds
+    ]  # the unobstructed capture is the same for every kind
     rows = {(Path(r["design"]).name, r["obstruction"], r["condition"]): r for r in report["rows"]}
     for name, r in ((MEDIUM, run), (DESIGNS[0], quick)):
         v = r["validation_loss"]
-        lines.append(f"| {name} | {r['settings']['steps']} | {r['cost']['seconds_per_step_median']:.2f} | "
-                     f"{r['cost']['seconds_training'] / 60:.1f} min | {v['initial']:.3f} → {v['final']:.3f} | "
-                     + " | ".join(_cell(rows[name, k, c]["psnr_db"], rows[name, k, c]["psnr_db_ci"], 2) for k, c in cells) + " |")
-    pairs = {(c["obstruction"], c["condition"]): c for c in report["comparisons"]
-             if c["metric"] == "psnr_db" and Path(c["design"]).name == MEDIUM and Path(c["versus"]).name == DESIGNS[0]}
-    lines += ["", "Paired difference, medium − quick (dB, 95 % CI): " + "; ".join(
-        f"{'unobstructed' if c == 'unobstructed' else f'{k} obstructed'} {_cell(pairs[k, c]['difference'], pairs[k, c]['ci'], 2, True)}"
-        for k, c in cells) + "."]
+        lines.append(
+            f"| {name} | {r['settings']['steps']} | {r['cost']['seconds_per_step_median']:.2f} | "
+            f"{r['cost']['seconds_training'] / 60:.1f} min | {v['initial']:.3f} → {v['final']:.3f} | "
+            + " | ".join(_cell(rows[name, k, c]["psnr_db"], rows[name, k, c]["psnr_db_ci"], 2) for k, c in cells)
+            + " |"
+        )
+    pairs = {
+        (c["obstruction"], c["condition"]): c
+        for c in report["comparisons"]
+        if c["metric"] == "psnr_db" and Path(c["design"]).name == MEDIUM and Path(c["versus"]).name == DESIGNS[0]
+    }
+    lines += [
+        "",
+        "Paired difference, medium − quick (dB, 95 % CI): "
+        + "; ".join(
+            f"{'unobstructed' if c == 'unobstructed' else f'{k} obstructed'} {_cell(pairs[k, c]['difference'], pairs[k, c]['ci'], 2, True)}"
+            for k, c in cells
+        )
+        + ".",
+    ]
     worst = max(abs(pairs[k, c]["difference"]) for k, c in cells)
-    verdicts = [f"- (a2) the quick split run scores within {worst:.2f} dB of the medium run ({run['settings']['steps']} steps) on every "
-                f"photograph cell at 512²: target within 0.5 dB {'met' if worst <= 0.5 else 'NOT met'}."]
+    verdicts = [
+        f"- (a2) the quick split run scores within {worst:.2f} dB of the medium run ({run['settings']['steps']} steps) on every "
+        f"photograph cell at 512²: target within 0.5 dB {'met' if worst <= 0.5 else 'NOT met'}."
+    ]
     return lines, verdicts
 
 
@@ -178,13 +236,18 @@ def evaluation_section(images: str, pixels: int, report: dict, seeds: int) -> tu
     n = report["rows"][0]["n"]
     title = "Raw and reconstructed captures" if len(captures) == 2 else "Raw captures"
     what = {"photos": "photographs", "charts": "dead-leaves charts"}[images]
-    lines = ["", f"## (a) {title} of the {what}, {pixels} × {pixels} sensor", "",
-             f"`metalens evaluate --images {images}`: {len(report['images'])} {what} × seeds 0-{seeds - 1} = {n} units per cell "
-             "(each seed draws z_near in 40-50 mm, z_far in 1-20 m, the obstructions and their placement); every design sees the "
-             "same units. PSNR (dB) and SSIM after the least-squares gain/bias match (docs/images.md says why not the "
-             "paper's luminance match); mean [95 % bootstrap CI]; Δ = Obs. − Unobs. per unit.", "",
-             "| design | capture | condition | " + " | ".join(f"{k} PSNR | {k} SSIM" for k in kinds) + " |",
-             "|---|---|---|" + "---|---|" * len(kinds)]
+    lines = [
+        "",
+        f"## (a) {title} of the {what}, {pixels} × {pixels} sensor",
+        "",
+        f"`metalens evaluate --images {images}`: {len(report['images'])} {what} × seeds 0-{seeds - 1} = {n} units per cell "
+        "(each seed draws z_near in 40-50 mm, z_far in 1-20 m, the obstructions and their placement); every design sees the "
+        "same units. PSNR (dB) and SSIM after the least-squares gain/bias match (docs/images.md says why not the "
+        "paper's luminance match); mean [95 % bootstrap CI]; Δ = Obs. − Unobs. per unit.",
+        "",
+        "| design | capture | condition | " + " | ".join(f"{k} PSNR | {k} SSIM" for k in kinds) + " |",
+        "|---|---|---|" + "---|---|" * len(kinds),
+    ]
     for design in DESIGNS:
         for capture in captures:
             for condition, label in (("unobstructed", "Unobs."), ("obstructed", "Obs."), ("delta", "Δ")):
@@ -192,69 +255,149 @@ def evaluation_section(images: str, pixels: int, report: dict, seeds: int) -> tu
                 for kind in kinds:
                     if condition == "delta":
                         d = delta[design, capture, kind]
-                        cells += [_cell(d["delta_psnr_db"], d["delta_psnr_db_ci"], 2, True), _cell(d["delta_ssim"], d["delta_ssim_ci"], 3, True)]
+                        cells += [
+                            _cell(d["delta_psnr_db"], d["delta_psnr_db_ci"], 2, True),
+                            _cell(d["delta_ssim"], d["delta_ssim_ci"], 3, True),
+                        ]
                     else:
                         r = row[design, capture, kind, condition]
                         cells += [_cell(r["psnr_db"], r["psnr_db_ci"], 2), _cell(r["ssim"], r["ssim_ci"], 3)]
                 first = condition == "unobstructed"
-                lines.append(f"| {LABELS[design] if first and capture == 'raw' else ''} | {capture.capitalize() if first else ''} | "
-                             f"{label} | " + " | ".join(cells) + " |")
-    pairs = {(name[c["design"]], c.get("capture", "raw"), name[c["versus"]], c.get("versus_capture", "raw"), c["obstruction"],
-              c["condition"]): c for c in report["comparisons"] if c["metric"] == "psnr_db"}
+                lines.append(
+                    f"| {LABELS[design] if first and capture == 'raw' else ''} | {capture.capitalize() if first else ''} | "
+                    f"{label} | " + " | ".join(cells) + " |"
+                )
+    pairs = {
+        (
+            name[c["design"]],
+            c.get("capture", "raw"),
+            name[c["versus"]],
+            c.get("versus_capture", "raw"),
+            c["obstruction"],
+            c["condition"],
+        ): c
+        for c in report["comparisons"]
+        if c["metric"] == "psnr_db"
+    }
     widths = [c["ci"][1] - c["ci"][0] for c in pairs.values() if c["condition"] != "delta"]
-    lines += ["", f"Paired PSNR differences, learned split-spectrum − baseline on the same units (dB, 95 % CI; the CIs of "
-              f"paired differences between designs in this evaluation are {min(widths):.2f}-{max(widths):.2f} dB wide):", "",
-              "| versus | " + " | ".join(f"{k} Obs. | {k} Δ" for k in kinds) + " |", "|---|" + "---|---|" * len(kinds)]
+    lines += [
+        "",
+        f"Paired PSNR differences, learned split-spectrum − baseline on the same units (dB, 95 % CI; the CIs of "
+        f"paired differences between designs in this evaluation are {min(widths):.2f}-{max(widths):.2f} dB wide):",
+        "",
+        "| versus | " + " | ".join(f"{k} Obs. | {k} Δ" for k in kinds) + " |",
+        "|---|" + "---|---|" * len(kinds),
+    ]
     for capture in captures:
         for other in DESIGNS[1:]:
-            cells = [_cell(pairs[DESIGNS[0], capture, other, capture, k, c]["difference"],
-                           pairs[DESIGNS[0], capture, other, capture, k, c]["ci"], 2, True) for k in kinds for c in ("obstructed", "delta")]
-            lines.append(f"| {LABELS[other]}{' (recon against recon)' if capture == 'recon' else ''} | " + " | ".join(cells) + " |")
+            cells = [
+                _cell(
+                    pairs[DESIGNS[0], capture, other, capture, k, c]["difference"],
+                    pairs[DESIGNS[0], capture, other, capture, k, c]["ci"],
+                    2,
+                    True,
+                )
+                for k in kinds
+                for c in ("obstructed", "delta")
+            ]
+            lines.append(
+                f"| {LABELS[other]}{' (recon against recon)' if capture == 'recon' else ''} | "
+                + " | ".join(cells)
+                + " |"
+            )
     if "recon" in captures:
-        lines += ["", "Paired PSNR differences, Recon − Raw of each design on the same units (dB, 95 % CI):", "",
-                  "| design | " + " | ".join(f"{k} Unobs. | {k} Obs." for k in kinds) + " |", "|---|" + "---|---|" * len(kinds)]
+        lines += [
+            "",
+            "Paired PSNR differences, Recon − Raw of each design on the same units (dB, 95 % CI):",
+            "",
+            "| design | " + " | ".join(f"{k} Unobs. | {k} Obs." for k in kinds) + " |",
+            "|---|" + "---|---|" * len(kinds),
+        ]
         for design in DESIGNS:
-            cells = [_cell(pairs[design, "recon", design, "raw", k, c]["difference"], pairs[design, "recon", design, "raw", k, c]["ci"],
-                           2, True) for k in kinds for c in ("unobstructed", "obstructed")]
+            cells = [
+                _cell(
+                    pairs[design, "recon", design, "raw", k, c]["difference"],
+                    pairs[design, "recon", design, "raw", k, c]["ci"],
+                    2,
+                    True,
+                )
+                for k in kinds
+                for c in ("unobstructed", "obstructed")
+            ]
             lines.append(f"| {LABELS[design]} | " + " | ".join(cells) + " |")
     extra = added_error(report)
-    lines += ["", "The error the obstruction adds, in MSE of the display values (mean over units of MSE_Obs − MSE_Unobs; "
-              "Δ PSNR compares it with each design's own unobstructed error, so the same added error costs more dB "
-              "on a sharper design):", "",
-              "| design | " + " | ".join(f"{k} added MSE | {k} unobstructed MSE" for k in kinds) + " |",
-              "|---|" + "---|---|" * len(kinds)]
+    lines += [
+        "",
+        "The error the obstruction adds, in MSE of the display values (mean over units of MSE_Obs − MSE_Unobs; "
+        "Δ PSNR compares it with each design's own unobstructed error, so the same added error costs more dB "
+        "on a sharper design):",
+        "",
+        "| design | " + " | ".join(f"{k} added MSE | {k} unobstructed MSE" for k in kinds) + " |",
+        "|---|" + "---|---|" * len(kinds),
+    ]
     for design in DESIGNS:
-        lines.append(f"| {LABELS[design]} | " + " | ".join(f"{extra[design, k][0]:.4f} | {extra[design, k][1]:.4f}" for k in kinds) + " |")
-    lines += ["", "PSF windows from the optics and the light they kept (min over channels and seeds):", "",
-              "| design | near window px | far window px | near kept | far kept |", "|---|---|---|---|---|"]
+        lines.append(
+            f"| {LABELS[design]} | "
+            + " | ".join(f"{extra[design, k][0]:.4f} | {extra[design, k][1]:.4f}" for k in kinds)
+            + " |"
+        )
+    lines += [
+        "",
+        "PSF windows from the optics and the light they kept (min over channels and seeds):",
+        "",
+        "| design | near window px | far window px | near kept | far kept |",
+        "|---|---|---|---|---|",
+    ]
     for design in DESIGNS:
         entries = [p for p in report["psfs"] if Path(p["design"]).name == design]
         kept = {d: min(v for p in entries for v in p["psf_energy"][d].values()) for d in ("near", "far")}
-        lines.append(f"| {LABELS[design]} | {max(p['psf_window_px']['near'] for p in entries)} | "
-                     f"{max(p['psf_window_px']['far'] for p in entries)} | {kept['near']:.4f} | {kept['far']:.4f} |")
+        lines.append(
+            f"| {LABELS[design]} | {max(p['psf_window_px']['near'] for p in entries)} | "
+            f"{max(p['psf_window_px']['far'] for p in entries)} | {kept['near']:.4f} | {kept['far']:.4f} |"
+        )
     verdicts = []
     for kind in kinds if images == "photos" else ():
         if "recon" in captures:
             gain = pairs["hyperbolic-532", "recon", "hyperbolic-532", "raw", kind, "obstructed"]
-            verdicts.append(f"- (a) {pixels}², {kind}: hyperbolic Recon obstructed PSNR − Raw {gain['difference']:+.2f} "
-                            f"[{gain['ci'][0]:+.2f}, {gain['ci'][1]:+.2f}] dB: target ≥ +2 dB "
-                            + ("met." if gain["difference"] >= 2 else "NOT met."))
+            verdicts.append(
+                f"- (a) {pixels}², {kind}: hyperbolic Recon obstructed PSNR − Raw {gain['difference']:+.2f} "
+                f"[{gain['ci'][0]:+.2f}, {gain['ci'][1]:+.2f}] dB: target ≥ +2 dB "
+                + ("met." if gain["difference"] >= 2 else "NOT met.")
+            )
         hyper = delta["hyperbolic-532", "raw", kind]
-        verdicts.append(f"- (a) {pixels}², {kind}: hyperbolic Δ PSNR {hyper['delta_psnr_db']:+.2f} dB "
-                        f"{'(whole CI below 0)' if hyper['delta_psnr_db_ci'][1] < 0 else '(CI reaches 0 or above)'}.")
+        verdicts.append(
+            f"- (a) {pixels}², {kind}: hyperbolic Δ PSNR {hyper['delta_psnr_db']:+.2f} dB "
+            f"{'(whole CI below 0)' if hyper['delta_psnr_db_ci'][1] < 0 else '(CI reaches 0 or above)'}."
+        )
         smallest = min(DESIGNS, key=lambda d: abs(delta[d, "raw", kind]["delta_psnr_db"]))
-        verdicts.append(f"- (a) {pixels}², {kind}: smallest |Δ PSNR| (raw): {LABELS[smallest]} ("
-                        + ", ".join(f"{LABELS[d]} {delta[d, 'raw', kind]['delta_psnr_db']:+.2f}" for d in DESIGNS) + " dB).")
+        verdicts.append(
+            f"- (a) {pixels}², {kind}: smallest |Δ PSNR| (raw): {LABELS[smallest]} ("
+            + ", ".join(f"{LABELS[d]} {delta[d, 'raw', kind]['delta_psnr_db']:+.2f}" for d in DESIGNS)
+            + " dB)."
+        )
         least = min(DESIGNS, key=lambda d: extra[d, kind][0])
-        verdicts.append(f"- (a) {pixels}², {kind}: least error added by the obstruction (MSE): {LABELS[least]} ("
-                        + ", ".join(f"{LABELS[d]} {extra[d, kind][0]:.4f}" for d in DESIGNS) + ").")
+        verdicts.append(
+            f"- (a) {pixels}², {kind}: least error added by the obstruction (MSE): {LABELS[least]} ("
+            + ", ".join(f"{LABELS[d]} {extra[d, kind][0]:.4f}" for d in DESIGNS)
+            + ")."
+        )
         for capture in captures:
             wins = [pairs[DESIGNS[0], capture, other, capture, kind, "obstructed"] for other in DESIGNS[1:]]
-            verdicts.append(f"- (a) {pixels}², {kind}: split-spectrum {capture} obstructed PSNR "
-                            + ("beats both baselines" if all(w["ci"][0] > 0 for w in wins) else
-                               "does NOT beat both baselines with its whole CI above 0")
-                            + " (" + ", ".join(f"{w['difference']:+.2f} [{w['ci'][0]:+.2f}, {w['ci'][1]:+.2f}] dB vs "
-                                               f"{LABELS[Path(w['versus']).name]}" for w in wins) + ").")
+            verdicts.append(
+                f"- (a) {pixels}², {kind}: split-spectrum {capture} obstructed PSNR "
+                + (
+                    "beats both baselines"
+                    if all(w["ci"][0] > 0 for w in wins)
+                    else "does NOT beat both baselines with its whole CI above 0"
+                )
+                + " ("
+                + ", ".join(
+                    f"{w['difference']:+.2f} [{w['ci'][0]:+.2f}, {w['ci'][1]:+.2f}] dB vs "
+                    f"{LABELS[Path(w['versus']).name]}"
+                    for w in wins
+                )
+                + ")."
+            )
     return lines, verdicts
 
 
@@ -272,12 +415,28 @@ def core_energy(runs: Path, bands) -> dict:
     waves = ",".join(f"{lo * 1e9:.0f}:{hi * 1e9:.0f}:2nm" for _, lo, hi in bands)
     out = {}
     for name in DESIGNS[:2]:
-        report = metalens("psf-scan", "--design", str(runs / name), "--wavelengths", waves, "--depths", f"{NEAR_DEPTH},inf",
-                          "--pixels", "64", "-o", str(runs / name / "passbands.exr"), "--quiet")
+        report = metalens(
+            "psf-scan",
+            "--design",
+            str(runs / name),
+            "--wavelengths",
+            waves,
+            "--depths",
+            f"{NEAR_DEPTH},inf",
+            "--pixels",
+            "64",
+            "-o",
+            str(runs / name / "passbands.exr"),
+            "--quiet",
+        )
         for band, lo, hi in bands:
             for depth in ("far", "near"):
-                values = [p["energy_center_5x5"] for p in report["psfs"] if lo - 1e-12 <= p["wavelength_m"] <= hi + 1e-12
-                          and (p["depth_m"] is None or p["depth_m"] == float("inf")) == (depth == "far")]
+                values = [
+                    p["energy_center_5x5"]
+                    for p in report["psfs"]
+                    if lo - 1e-12 <= p["wavelength_m"] <= hi + 1e-12
+                    and (p["depth_m"] is None or p["depth_m"] == float("inf")) == (depth == "far")
+                ]
                 out[(name, band, depth)] = statistics.mean(values)
     return out
 
@@ -290,10 +449,25 @@ def visible_scan(runs: Path) -> dict:
     far centre 5 × 5 energy per wavelength in ``VISIBLE`` and the channel PSFs' summaries."""
     out = {}
     for name in DESIGNS:
-        report = metalens("psf-scan", "--design", str(runs / name), "--wavelengths", "400:700:5nm", "--depths", f"{NEAR_DEPTH},inf",
-                          "--pixels", "64", "-o", str(runs / name / "visible.exr"), "--quiet")
-        far = [p["energy_center_5x5"] for p in report["psfs"] if p["depth_m"] is None
-               and VISIBLE[0] - 1e-12 <= p["wavelength_m"] <= VISIBLE[1] + 1e-12]
+        report = metalens(
+            "psf-scan",
+            "--design",
+            str(runs / name),
+            "--wavelengths",
+            "400:700:5nm",
+            "--depths",
+            f"{NEAR_DEPTH},inf",
+            "--pixels",
+            "64",
+            "-o",
+            str(runs / name / "visible.exr"),
+            "--quiet",
+        )
+        far = [
+            p["energy_center_5x5"]
+            for p in report["psfs"]
+            if p["depth_m"] is None and VISIBLE[0] - 1e-12 <= p["wavelength_m"] <= VISIBLE[1] + 1e-12
+        ]
         out[name] = {"far": far, "channels": report["channel_psfs"]}
     return out
 
@@ -302,46 +476,67 @@ def visible_section(scan: dict) -> tuple[list[str], list[str]]:
     """Far core energy across the visible (mean, max, share of wavelengths at ≥ ½ the max) and the
     channel PSFs' core energy, far and near; the verdicts of issue 25's broadband criteria."""
     lo, hi = (f"{v * 1e9:.0f}" for v in VISIBLE)
-    lines = ["", f"## (b2) Far core energy across {lo}-{hi} nm, and per channel", "",
-             f"`metalens psf-scan --wavelengths 400:700:5nm --depths {NEAR_DEPTH},inf --pixels 64`: the central 5 × 5 energy of "
-             f"the far (∞) PSF at each wavelength in {lo}-{hi} nm (5 nm steps): mean, maximum and the share of wavelengths at "
-             "≥ ½ the maximum; and of the channel PSFs (the wavelengths weighted by filter × camera response; the broadband "
-             "and hyperbolic presets have no filter), far and near.", "",
-             "| design | far mean | far max | share ≥ ½ max | far R / G / B (channel) | near R / G / B (channel) |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "",
+        f"## (b2) Far core energy across {lo}-{hi} nm, and per channel",
+        "",
+        f"`metalens psf-scan --wavelengths 400:700:5nm --depths {NEAR_DEPTH},inf --pixels 64`: the central 5 × 5 energy of "
+        f"the far (∞) PSF at each wavelength in {lo}-{hi} nm (5 nm steps): mean, maximum and the share of wavelengths at "
+        "≥ ½ the maximum; and of the channel PSFs (the wavelengths weighted by filter × camera response; the broadband "
+        "and hyperbolic presets have no filter), far and near.",
+        "",
+        "| design | far mean | far max | share ≥ ½ max | far R / G / B (channel) | near R / G / B (channel) |",
+        "|---|---|---|---|---|---|",
+    ]
     stats = {}
     for name in DESIGNS:
         far = scan[name]["far"]
         peak = max(far)
         stats[name] = (statistics.fmean(far), sum(e >= peak / 2 for e in far) / len(far))
-        channel = {(m["channel"], "far" if m["depth_m"] is None else "near"): m["energy_center_5x5"] for m in scan[name]["channels"]}
-        lines.append(f"| {LABELS[name]} | {stats[name][0]:.4f} | {peak:.4f} | {100 * stats[name][1]:.0f} % | "
-                     + " | ".join(" / ".join(f"{channel[c, d]:.4f}" for c in "RGB") for d in ("far", "near")) + " |")
+        channel = {
+            (m["channel"], "far" if m["depth_m"] is None else "near"): m["energy_center_5x5"]
+            for m in scan[name]["channels"]
+        }
+        lines.append(
+            f"| {LABELS[name]} | {stats[name][0]:.4f} | {peak:.4f} | {100 * stats[name][1]:.0f} % | "
+            + " | ".join(" / ".join(f"{channel[c, d]:.4f}" for c in "RGB") for d in ("far", "near"))
+            + " |"
+        )
     broad, hyper = stats["quick-broadband"], stats["hyperbolic-532"]
     ratio = broad[0] / hyper[0]
-    verdicts = [f"- (b2) learned broadband far 5 × 5 mean over {lo}-{hi} nm {broad[0]:.4f} = {ratio:.2f} × the hyperbolic lens's "
-                f"{hyper[0]:.4f}: target ≥ 2 × " + ("met." if ratio >= 2 else "NOT met."),
-                f"- (b2) learned broadband at ≥ ½ its own maximum at {100 * broad[1]:.0f} % of those wavelengths: target ≥ 60 % "
-                + ("met." if broad[1] >= 0.6 else "NOT met.")]
+    verdicts = [
+        f"- (b2) learned broadband far 5 × 5 mean over {lo}-{hi} nm {broad[0]:.4f} = {ratio:.2f} × the hyperbolic lens's "
+        f"{hyper[0]:.4f}: target ≥ 2 × " + ("met." if ratio >= 2 else "NOT met."),
+        f"- (b2) learned broadband at ≥ ½ its own maximum at {100 * broad[1]:.0f} % of those wavelengths: target ≥ 60 % "
+        + ("met." if broad[1] >= 0.6 else "NOT met."),
+    ]
     return lines, verdicts
 
 
 def recon_section(reports: dict[str, dict]) -> list[str]:
     """The reconstruction networks' training: cost and validation PSNR before → after."""
-    lines = ["", "## Reconstruction networks", "",
-             "`metalens reconstruct train runs/NAME --preset presets/quick-reconstruct.toml -o runs/recon-NAME`: one network per "
-             "design on pairs simulated through it (dirt and fence). Validation: the run's held-out simulated pairs, PSNR after "
-             "the least-squares match, raw capture → network output.", "",
-             "| design | steps | s/step (median) | training time | setup (PSF bank + pools) | validation obstructed PSNR raw → recon "
-             "| validation unobstructed PSNR raw → recon | loss terms |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "",
+        "## Reconstruction networks",
+        "",
+        "`metalens reconstruct train runs/NAME --preset presets/quick-reconstruct.toml -o runs/recon-NAME`: one network per "
+        "design on pairs simulated through it (dirt and fence). Validation: the run's held-out simulated pairs, PSNR after "
+        "the least-squares match, raw capture → network output.",
+        "",
+        "| design | steps | s/step (median) | training time | setup (PSF bank + pools) | validation obstructed PSNR raw → recon "
+        "| validation unobstructed PSNR raw → recon | loss terms |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for name in DESIGNS:
         r = reports[name]
         cost, final = r["cost"], r["validation"]["final"]
         setup = sum(cost["setup_seconds"].values())
-        lines.append(f"| {LABELS[name]} | {r['settings']['train']['steps']} | {cost['seconds_per_step_median']:.3f} | "
-                     f"{cost['training_seconds'] / 60:.1f} min | {setup:.0f} s | "
-                     f"{final['raw_obstructed_psnr_db']:.2f} → {final['recon_obstructed_psnr_db']:.2f} | "
-                     f"{final['raw_unobstructed_psnr_db']:.2f} → {final['recon_unobstructed_psnr_db']:.2f} | {', '.join(r['loss_terms'])} |")
+        lines.append(
+            f"| {LABELS[name]} | {r['settings']['train']['steps']} | {cost['seconds_per_step_median']:.3f} | "
+            f"{cost['training_seconds'] / 60:.1f} min | {setup:.0f} s | "
+            f"{final['raw_obstructed_psnr_db']:.2f} → {final['recon_obstructed_psnr_db']:.2f} | "
+            f"{final['raw_unobstructed_psnr_db']:.2f} → {final['recon_unobstructed_psnr_db']:.2f} | {', '.join(r['loss_terms'])} |"
+        )
     return lines
 
 
@@ -359,21 +554,37 @@ def grey_wall(runs: Path) -> dict[str, list]:
         write_exr_rgb(folder / f"grey_{n}.exr", np.full((3, n, n), GREY, dtype=np.float32))
     out = {}
     for name in DESIGNS:
-        report = metalens("reconstruct", "apply", str(runs / f"recon-{name}"), str(folder / "grey_128.exr"), str(folder / "grey_512.exr"),
-                          "-o", str(runs / f"recon-{name}" / "grey_wall"), "--overwrite", "--quiet")
+        report = metalens(
+            "reconstruct",
+            "apply",
+            str(runs / f"recon-{name}"),
+            str(folder / "grey_128.exr"),
+            str(folder / "grey_512.exr"),
+            "-o",
+            str(runs / f"recon-{name}" / "grey_wall"),
+            "--overwrite",
+            "--quiet",
+        )
         out[name] = [(image["height"], read_exr_rgb(image["exr"])) for image in report["images"]]
-    return {name: [(n, [float(v) for v in a.mean(axis=(1, 2))], float(a.std(axis=(1, 2)).max())) for n, a in rows]
-            for name, rows in out.items()}
+    return {
+        name: [(n, [float(v) for v in a.mean(axis=(1, 2))], float(a.std(axis=(1, 2)).max())) for n, a in rows]
+        for name, rows in out.items()
+    }
 
 
 def grey_section(walls: dict[str, list]) -> list[str]:
-    lines = ["", f"A uniform grey wall (linear {GREY}) through each network (`metalens reconstruct apply`): mean R, G, B of the "
-             "output and the largest standard deviation over its pixels. The raw capture of a grey wall is that grey "
-             "(PSFs sum to one). The networks tint it (R lowest) and leave a faint pattern: a known "
-             "limit, not yet traced (suspects: the obstructed training inputs, 80 %, which the veil darkens; the "
-             "positional encodings and CBAM's pooling for the pattern). The evaluation's photometric match removes a "
-             "common gain and bias, not a tint.", "",
-             "| design | size | mean R | mean G | mean B | largest std |", "|---|---|---|---|---|---|"]
+    lines = [
+        "",
+        f"A uniform grey wall (linear {GREY}) through each network (`metalens reconstruct apply`): mean R, G, B of the "
+        "output and the largest standard deviation over its pixels. The raw capture of a grey wall is that grey "
+        "(PSFs sum to one). The networks tint it (R lowest) and leave a faint pattern: a known "
+        "limit, not yet traced (suspects: the obstructed training inputs, 80 %, which the veil darkens; the "
+        "positional encodings and CBAM's pooling for the pattern). The evaluation's photometric match removes a "
+        "common gain and bias, not a tint.",
+        "",
+        "| design | size | mean R | mean G | mean B | largest std |",
+        "|---|---|---|---|---|---|",
+    ]
     for name in DESIGNS:
         for n, means, std in walls[name]:
             lines.append(f"| {LABELS[name]} | {n}² | " + " | ".join(f"{m:.4f}" for m in means) + f" | {std:.4f} |")
@@ -381,44 +592,79 @@ def grey_section(walls: dict[str, list]) -> list[str]:
 
 
 def write(path: Path, reports, recon_reports, walls, tables, energies, bands, seeds, visible, medium) -> None:
-    lines = ["# Results: the quick presets against both baselines, raw and reconstructed", "",
-             "Written by `python examples/quick_results.py` (all numbers below come from the commands it runs; "
-             "re-running it rewrites this file). Machine: 2 CPU cores.", "",
-             "## Commands", "", "```bash"]
+    lines = [
+        "# Results: the quick presets against both baselines, raw and reconstructed",
+        "",
+        "Written by `python examples/quick_results.py` (all numbers below come from the commands it runs; "
+        "re-running it rewrites this file). Machine: 2 CPU cores.",
+        "",
+        "## Commands",
+        "",
+        "```bash",
+    ]
     lines += [f"metalens optimize presets/{n}.toml -o runs/{n}" for n in (*DESIGNS, MEDIUM)]
-    lines += [f"metalens reconstruct train runs/{n} --preset presets/quick-reconstruct.toml -o runs/recon-{n}" for n in DESIGNS]
-    lines += [f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --images {images} "
-              f"--obstruction {OBSTRUCTIONS} --pixels {pixels} --seed 0:{seeds - 1}"
-              + (" --recon " + ",".join(f"runs/recon-{n}" for n in DESIGNS) if any(r.get("capture") == "recon" for r in report["rows"]) else "")
-              + " --json" for (images, pixels), report in tables.items()]
-    lines += [f"metalens evaluate runs/{MEDIUM} runs/{DESIGNS[0]} --images photos --obstruction {OBSTRUCTIONS} --pixels 512 "
-              f"--seed 0:{seeds - 1} --json"]
     lines += [
-              "metalens psf-scan --design runs/{quick-split-spectrum,quick-broadband} --wavelengths "
-              + ",".join(f"{lo * 1e9:.0f}:{hi * 1e9:.0f}:2nm" for _, lo, hi in bands) + f" --depths {NEAR_DEPTH},inf --pixels 64 "
-              "-o runs/…/passbands.exr --json", "```", "", "## Training", "",
-             "| design | steps | torch threads | s/step (median) | training time | validation loss before → after (4 fixed draws) "
-             "| a step's PSF windows near / far (px, mean and max) | least light a step's windows kept |",
-             "|---|---|---|---|---|---|---|---|"]
+        f"metalens reconstruct train runs/{n} --preset presets/quick-reconstruct.toml -o runs/recon-{n}"
+        for n in DESIGNS
+    ]
+    lines += [
+        f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --images {images} "
+        f"--obstruction {OBSTRUCTIONS} --pixels {pixels} --seed 0:{seeds - 1}"
+        + (
+            " --recon " + ",".join(f"runs/recon-{n}" for n in DESIGNS)
+            if any(r.get("capture") == "recon" for r in report["rows"])
+            else ""
+        )
+        + " --json"
+        for (images, pixels), report in tables.items()
+    ]
+    lines += [
+        f"metalens evaluate runs/{MEDIUM} runs/{DESIGNS[0]} --images photos --obstruction {OBSTRUCTIONS} --pixels 512 "
+        f"--seed 0:{seeds - 1} --json"
+    ]
+    lines += [
+        "metalens psf-scan --design runs/{quick-split-spectrum,quick-broadband} --wavelengths "
+        + ",".join(f"{lo * 1e9:.0f}:{hi * 1e9:.0f}:2nm" for _, lo, hi in bands)
+        + f" --depths {NEAR_DEPTH},inf --pixels 64 "
+        "-o runs/…/passbands.exr --json",
+        "```",
+        "",
+        "## Training",
+        "",
+        "| design | steps | torch threads | s/step (median) | training time | validation loss before → after (4 fixed draws) "
+        "| a step's PSF windows near / far (px, mean and max) | least light a step's windows kept |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for name in DESIGNS:
         r = reports[name]
         v = r.get("validation_loss") or {}
         before_after = f"{v['initial']:.3f} → {v['final']:.3f}" if v else "—"
         per_step = r["cost"].get("seconds_per_step_median")
         threads = r["settings"].get("threads", "—")
-        lines.append(f"| {LABELS[name]} | {r['settings']['steps']} | {threads} | {per_step:.3f} |" if per_step
-                     else f"| {LABELS[name]} | 0 | {threads} | — |")
+        lines.append(
+            f"| {LABELS[name]} | {r['settings']['steps']} | {threads} | {per_step:.3f} |"
+            if per_step
+            else f"| {LABELS[name]} | 0 | {threads} | — |"
+        )
         windows = r.get("psf_windows") or {}
         kept = min((v["min"] for v in windows.get("kept", {}).values()), default=None)
         sizes = windows.get("window_px")
-        lines[-1] += (f" {r['cost'].get('seconds_training', 0) / 60:.1f} min | {before_after} | "
-                      + (" / ".join(f"{sizes[d]['mean']:.0f}, {sizes[d]['max']}" for d in ("near", "far")) if sizes else "—")
-                      + f" | {'—' if kept is None else f'{kept:.4f}'} |")
-    resumed = [f"{LABELS[n]} resumed at step {reports[n]['settings']['resumed_from_step']}"
-               for n in DESIGNS if reports[n]["settings"].get("resumed_from_step")]
-    lines += ["", "Threads, s/step and training time are as each run's `run.json` recorded them (a resumed run records the "
-              "steps after resuming only" + (": " + "; ".join(resumed) if resumed else "; none was resumed") + "). Runs made "
-              "side by side on the one 2-core machine take longer than a run alone: (c) has the step alone with 2 threads."]
+        lines[-1] += (
+            f" {r['cost'].get('seconds_training', 0) / 60:.1f} min | {before_after} | "
+            + (" / ".join(f"{sizes[d]['mean']:.0f}, {sizes[d]['max']}" for d in ("near", "far")) if sizes else "—")
+            + f" | {'—' if kept is None else f'{kept:.4f}'} |"
+        )
+    resumed = [
+        f"{LABELS[n]} resumed at step {reports[n]['settings']['resumed_from_step']}"
+        for n in DESIGNS
+        if reports[n]["settings"].get("resumed_from_step")
+    ]
+    lines += [
+        "",
+        "Threads, s/step and training time are as each run's `run.json` recorded them (a resumed run records the "
+        "steps after resuming only" + (": " + "; ".join(resumed) if resumed else "; none was resumed") + "). Runs made "
+        "side by side on the one 2-core machine take longer than a run alone: (c) has the step alone with 2 threads.",
+    ]
     lines += recon_section(recon_reports) + grey_section(walls)
     verdict_a = []
     for (images, pixels), report in tables.items():
@@ -428,33 +674,53 @@ def write(path: Path, reports, recon_reports, walls, tables, energies, bands, se
     section, verdicts = medium_section(*medium)
     lines += section
     verdict_a += verdicts
-    lines += ["", "### Reading Δ", "",
-              "Δ PSNR is a ratio: the error an obstruction adds, over the design's own unobstructed error. Dirt at "
-              "40-50 mm blurs over hundreds of pixels with every one of these lenses (see the windows above), so it reaches "
-              "the sensor as a smooth veil that blocks a similar fraction of the far light for all three: the added MSE "
-              "tables show how similar, and a design that images the far scene better (smaller unobstructed error) then "
-              "loses more dB to the same veil. Thin fence wires are where the near blur matters, and there the added "
-              "error ranks the designs by how well they blur the near plane. The verdicts below give both measures."]
-    lines += ["", "## (b) PSF energy in the central 5 × 5 pixels, per pass band", "",
-              "`metalens psf-scan`, mean over each pass band (centre ± FWHM/2, 2 nm steps); far = ∞, near = 45 mm. "
-              "Fractions of the power through the aperture.", "",
-              "| pass band | split-spectrum far | broadband far | split-spectrum near | broadband near |", "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "### Reading Δ",
+        "",
+        "Δ PSNR is a ratio: the error an obstruction adds, over the design's own unobstructed error. Dirt at "
+        "40-50 mm blurs over hundreds of pixels with every one of these lenses (see the windows above), so it reaches "
+        "the sensor as a smooth veil that blocks a similar fraction of the far light for all three: the added MSE "
+        "tables show how similar, and a design that images the far scene better (smaller unobstructed error) then "
+        "loses more dB to the same veil. Thin fence wires are where the near blur matters, and there the added "
+        "error ranks the designs by how well they blur the near plane. The verdicts below give both measures.",
+    ]
+    lines += [
+        "",
+        "## (b) PSF energy in the central 5 × 5 pixels, per pass band",
+        "",
+        "`metalens psf-scan`, mean over each pass band (centre ± FWHM/2, 2 nm steps); far = ∞, near = 45 mm. "
+        "Fractions of the power through the aperture.",
+        "",
+        "| pass band | split-spectrum far | broadband far | split-spectrum near | broadband near |",
+        "|---|---|---|---|---|",
+    ]
     verdict_b = []
     for band, lo, hi in bands:
         e = {(n, d): energies[(n, band, d)] for n in DESIGNS[:2] for d in ("far", "near")}
-        lines.append(f"| {band} ({lo * 1e9:.0f}-{hi * 1e9:.0f} nm) | {e[DESIGNS[0], 'far']:.4f} | {e[DESIGNS[1], 'far']:.4f} | "
-                     f"{e[DESIGNS[0], 'near']:.4f} | {e[DESIGNS[1], 'near']:.4f} |")
-        verdict_b.append((band, e[DESIGNS[0], "far"] > e[DESIGNS[1], "far"], e[DESIGNS[0], "near"] < e[DESIGNS[1], "near"],
-                          e[DESIGNS[0], "near"] / e[DESIGNS[1], "near"]))
+        lines.append(
+            f"| {band} ({lo * 1e9:.0f}-{hi * 1e9:.0f} nm) | {e[DESIGNS[0], 'far']:.4f} | {e[DESIGNS[1], 'far']:.4f} | "
+            f"{e[DESIGNS[0], 'near']:.4f} | {e[DESIGNS[1], 'near']:.4f} |"
+        )
+        verdict_b.append(
+            (
+                band,
+                e[DESIGNS[0], "far"] > e[DESIGNS[1], "far"],
+                e[DESIGNS[0], "near"] < e[DESIGNS[1], "near"],
+                e[DESIGNS[0], "near"] / e[DESIGNS[1], "near"],
+            )
+        )
     section, verdict_b2 = visible_section(visible)
     lines += section
     lines += ["", "## (c) Seconds per training step", "", step_benchmark()]
     lines += ["", "## Verdicts", ""]
     lines += verdict_a
     for band, far_ok, near_ok, near_ratio in verdict_b:
-        lines.append(f"- (b) {band}: far core energy {'higher' if far_ok else 'NOT higher'} and near core energy "
-                     f"{'lower' if near_ok else 'NOT lower'} than the broadband baseline's; near = {near_ratio:.2f} × broadband's "
-                     f"(target ≤ 1/5: {'met' if near_ratio <= 0.2 else 'NOT met'}).")
+        lines.append(
+            f"- (b) {band}: far core energy {'higher' if far_ok else 'NOT higher'} and near core energy "
+            f"{'lower' if near_ok else 'NOT lower'} than the broadband baseline's; near = {near_ratio:.2f} × broadband's "
+            f"(target ≤ 1/5: {'met' if near_ratio <= 0.2 else 'NOT met'})."
+        )
     lines += verdict_b2
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
@@ -465,7 +731,9 @@ def step_benchmark() -> str:
     found = re.search(r"<!-- bench:optimize-cpu -->\n## [^\n]*\n(.*?)\n<!-- /bench:optimize-cpu -->", text, re.S)
     if found is None:
         return "Not measured yet: run `python benchmarks/bench_optimize.py`, then this script again."
-    return ("Copied from docs/benchmarks.md (written by `python benchmarks/bench_optimize.py`).\n" + found.group(1).rstrip())
+    return (
+        "Copied from docs/benchmarks.md (written by `python benchmarks/bench_optimize.py`).\n" + found.group(1).rstrip()
+    )
 
 
 def main() -> None:
@@ -473,19 +741,43 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=ROOT / "runs")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--pixels", type=int, nargs="+", default=[128, 512])
-    parser.add_argument("--recon-pixels", type=int, nargs="*", default=[128],
-                        help="Sizes evaluated with the reconstruction networks too (they train on the 128 × 128 sensor crop).")
+    parser.add_argument(
+        "--recon-pixels",
+        type=int,
+        nargs="*",
+        default=[128],
+        help="Sizes evaluated with the reconstruction networks too (they train on the 128 × 128 sensor crop).",
+    )
     parser.add_argument("--reuse", action="store_true")
     parser.add_argument("--output", type=Path, default=ROOT / "docs" / "results.md")
     args = parser.parse_args()
     reports = train(args.runs, args.reuse)
-    medium = (train(args.runs, args.reuse, (MEDIUM,))[MEDIUM], reports[DESIGNS[0]], evaluate_medium(args.runs, args.seeds, args.reuse))
+    medium = (
+        train(args.runs, args.reuse, (MEDIUM,))[MEDIUM],
+        reports[DESIGNS[0]],
+        evaluate_medium(args.runs, args.seeds, args.reuse),
+    )
     recon_reports = train_recon(args.runs, args.reuse)
-    tables = {(images, p): evaluate(args.runs, args.seeds, images, p, args.reuse, p in args.recon_pixels and images == "photos")
-              for images in ("photos", "charts") for p in args.pixels}
+    tables = {
+        (images, p): evaluate(
+            args.runs, args.seeds, images, p, args.reuse, p in args.recon_pixels and images == "photos"
+        )
+        for images in ("photos", "charts")
+        for p in args.pixels
+    }
     bands = pass_bands(ROOT / "presets" / "quick-split-spectrum.toml")
-    write(args.output, reports, recon_reports, grey_wall(args.runs), tables, core_energy(args.runs, bands), bands, args.seeds,
-          visible_scan(args.runs), medium)
+    write(
+        args.output,
+        reports,
+        recon_reports,
+        grey_wall(args.runs),
+        tables,
+        core_energy(args.runs, bands),
+        bands,
+        args.seeds,
+        visible_scan(args.runs),
+        medium,
+    )
     print(args.output)
 
 

@@ -50,47 +50,112 @@ SPLINE = {"theta_basis": "spline", "design_grid": 64}
 SPLINE_256 = {"theta_basis": "spline", "design_grid": 256}
 # (name, preset, overrides {section: {key: value}}, what it tests)
 VARIANTS = [
-    ("broadband: before", "quick-broadband", changed(), "400 linear samples, mean 1/E_c (the quick preset before this study)"),
-    ("broadband: spline", "quick-broadband", changed(SPLINE), "64 cubic B-spline coefficients in (r/a)² instead of 400 samples"),
-    ("broadband: spline, log", "quick-broadband", changed(SPLINE, {"sharp_mode": "log"}),
-     "L_sharp = −mean log E_c (gradient −1/E instead of −1/E²)"),
-    ("broadband: spline, log, w 0.01", "quick-broadband", changed(SPLINE, {"sharp_mode": "log", "sharp": 0.01, "bright": 0.01}),
-     "PSF terms weighted down to the image terms' gradient scale"),
-    ("broadband: spline, log, lr 0.3", "quick-broadband", changed({**SPLINE, "learning_rate": 0.3}, {"sharp_mode": "log"}),
-     "θ moves 3× further per step"),
-    ("broadband: spline, log, midpoint λ", "quick-broadband",
-     changed({**SPLINE, "spectral_sampling": "midpoint"}, {"sharp_mode": "log"}),
-     "fixed spectral quadrature (strata midpoints) instead of random draws"),
-    ("broadband: spline, paper's L_sharp", "quick-broadband", changed(SPLINE, {"sharp_mode": "total"}), "the paper's 1/ΣE − 1"),
-    ("broadband: spline 256, log", "quick-broadband", changed(SPLINE_256, {"sharp_mode": "log"}), "the quick preset's θ basis and loss before the harmonic rows below"),
-    ("broadband: spline 256, log per λ", "quick-broadband", changed(SPLINE_256, {"sharp_mode": "log_wavelength"}),
-     "L_sharp = −mean log E_λ over the wavelength samples, each its own core: asks every wavelength to be sharp"),
-    ("broadband: spline 256, harmonic per λ", "quick-broadband", changed(SPLINE_256, {"sharp_mode": "harmonic_wavelength"}),
-     "L_sharp = log mean 1/E_λ (−log of the harmonic mean): the weakest wavelengths steer most"),
-    ("broadband: spline 256, harmonic per λ, 6 per channel", "quick-broadband",
-     changed({**SPLINE_256, "wavelengths_per_channel": 6}, {"sharp_mode": "harmonic_wavelength"}),
-     "as above with 6 wavelength draws per channel a step: the quick preset"),
+    (
+        "broadband: before",
+        "quick-broadband",
+        changed(),
+        "400 linear samples, mean 1/E_c (the quick preset before this study)",
+    ),
+    (
+        "broadband: spline",
+        "quick-broadband",
+        changed(SPLINE),
+        "64 cubic B-spline coefficients in (r/a)² instead of 400 samples",
+    ),
+    (
+        "broadband: spline, log",
+        "quick-broadband",
+        changed(SPLINE, {"sharp_mode": "log"}),
+        "L_sharp = −mean log E_c (gradient −1/E instead of −1/E²)",
+    ),
+    (
+        "broadband: spline, log, w 0.01",
+        "quick-broadband",
+        changed(SPLINE, {"sharp_mode": "log", "sharp": 0.01, "bright": 0.01}),
+        "PSF terms weighted down to the image terms' gradient scale",
+    ),
+    (
+        "broadband: spline, log, lr 0.3",
+        "quick-broadband",
+        changed({**SPLINE, "learning_rate": 0.3}, {"sharp_mode": "log"}),
+        "θ moves 3× further per step",
+    ),
+    (
+        "broadband: spline, log, midpoint λ",
+        "quick-broadband",
+        changed({**SPLINE, "spectral_sampling": "midpoint"}, {"sharp_mode": "log"}),
+        "fixed spectral quadrature (strata midpoints) instead of random draws",
+    ),
+    (
+        "broadband: spline, paper's L_sharp",
+        "quick-broadband",
+        changed(SPLINE, {"sharp_mode": "total"}),
+        "the paper's 1/ΣE − 1",
+    ),
+    (
+        "broadband: spline 256, log",
+        "quick-broadband",
+        changed(SPLINE_256, {"sharp_mode": "log"}),
+        "the quick preset's θ basis and loss before the harmonic rows below",
+    ),
+    (
+        "broadband: spline 256, log per λ",
+        "quick-broadband",
+        changed(SPLINE_256, {"sharp_mode": "log_wavelength"}),
+        "L_sharp = −mean log E_λ over the wavelength samples, each its own core: asks every wavelength to be sharp",
+    ),
+    (
+        "broadband: spline 256, harmonic per λ",
+        "quick-broadband",
+        changed(SPLINE_256, {"sharp_mode": "harmonic_wavelength"}),
+        "L_sharp = log mean 1/E_λ (−log of the harmonic mean): the weakest wavelengths steer most",
+    ),
+    (
+        "broadband: spline 256, harmonic per λ, 6 per channel",
+        "quick-broadband",
+        changed({**SPLINE_256, "wavelengths_per_channel": 6}, {"sharp_mode": "harmonic_wavelength"}),
+        "as above with 6 wavelength draws per channel a step: the quick preset",
+    ),
     ("split: before", "quick-split-spectrum", changed(), "as broadband: before"),
     ("split: spline, log", "quick-split-spectrum", changed(SPLINE, {"sharp_mode": "log"}), "as broadband"),
-    ("split: spline 256, log", "quick-split-spectrum", changed(SPLINE_256, {"sharp_mode": "log"}),
-     "4× finer spline"),
+    ("split: spline 256, log", "quick-split-spectrum", changed(SPLINE_256, {"sharp_mode": "log"}), "4× finer spline"),
     ("split: spline, 1/E per channel", "quick-split-spectrum", changed(SPLINE), "the old L_sharp on the spline"),
-    ("split: spline 256, harmonic per λ", "quick-split-spectrum", changed(SPLINE_256, {"sharp_mode": "harmonic_wavelength"}),
-     "the broadband baseline's L_sharp on the split lens (its draws lie in the pass bands)"),
-    ("split: spline 256, log, fence", "quick-split-spectrum",
-     changed({**SPLINE_256, "obstructions": ("fence",)}, {"sharp_mode": "log"}), "trained with fences instead of dirt"),
-    ("split: spline 256, log, dirt + fence", "quick-split-spectrum",
-     changed({**SPLINE_256, "obstructions": ("dirt", "fence")}, {"sharp_mode": "log"}),
-     "each batch entry dirt or fence at random"),
-    ("split: spline 256, log, w 0.01", "quick-split-spectrum",
-     changed(SPLINE_256, {"sharp_mode": "log", "sharp": 0.01, "bright": 0.01}),
-     "PSF terms weighted down to the image terms' gradient scale, trained with dirt"),
-    ("split: spline 256, log, w 0.01, fence", "quick-split-spectrum",
-     changed({**SPLINE_256, "obstructions": ("fence",)}, {"sharp_mode": "log", "sharp": 0.01, "bright": 0.01}),
-     "the same trained with fences: does the obstruction steer the lens once the image terms can?"),
-    ("split: spline 256, log, cosine over 200", "quick-split-spectrum",
-     changed({**SPLINE_256, "t_max": 200}, {"sharp_mode": "log"}),
-     "the learning rate annealed to 0 within the run (the others: t_max 1500, still near 0.1 at step 200)"),
+    (
+        "split: spline 256, harmonic per λ",
+        "quick-split-spectrum",
+        changed(SPLINE_256, {"sharp_mode": "harmonic_wavelength"}),
+        "the broadband baseline's L_sharp on the split lens (its draws lie in the pass bands)",
+    ),
+    (
+        "split: spline 256, log, fence",
+        "quick-split-spectrum",
+        changed({**SPLINE_256, "obstructions": ("fence",)}, {"sharp_mode": "log"}),
+        "trained with fences instead of dirt",
+    ),
+    (
+        "split: spline 256, log, dirt + fence",
+        "quick-split-spectrum",
+        changed({**SPLINE_256, "obstructions": ("dirt", "fence")}, {"sharp_mode": "log"}),
+        "each batch entry dirt or fence at random",
+    ),
+    (
+        "split: spline 256, log, w 0.01",
+        "quick-split-spectrum",
+        changed(SPLINE_256, {"sharp_mode": "log", "sharp": 0.01, "bright": 0.01}),
+        "PSF terms weighted down to the image terms' gradient scale, trained with dirt",
+    ),
+    (
+        "split: spline 256, log, w 0.01, fence",
+        "quick-split-spectrum",
+        changed({**SPLINE_256, "obstructions": ("fence",)}, {"sharp_mode": "log", "sharp": 0.01, "bright": 0.01}),
+        "the same trained with fences: does the obstruction steer the lens once the image terms can?",
+    ),
+    (
+        "split: spline 256, log, cosine over 200",
+        "quick-split-spectrum",
+        changed({**SPLINE_256, "t_max": 200}, {"sharp_mode": "log"}),
+        "the learning rate annealed to 0 within the run (the others: t_max 1500, still near 0.1 at step 200)",
+    ),
 ]
 REFERENCE = "hyperbolic:532nm"
 VARIANT_T_MAX = 1500  # every variant's cosine schedule (its runs stop at --steps, early in it)
@@ -133,20 +198,38 @@ def core_energy(spec: str, preset_path: Path) -> dict:
     preset = load_preset(preset_path)
     design = resolve_design(spec, preset if spec.startswith("hyperbolic:") else None)
     waves = list(CORE_WAVES_NM * 1e-9)
-    psf = compute_psf(design.lens, waves, [math.inf, NEAR_M], 5, preset.sensor.pixel_pitch_m, design.focal_length_m,
-                      dtype=torch.float64).psf
+    psf = compute_psf(
+        design.lens,
+        waves,
+        [math.inf, NEAR_M],
+        5,
+        preset.sensor.pixel_pitch_m,
+        design.focal_length_m,
+        dtype=torch.float64,
+    ).psf
     far, near = psf[0].sum(dim=(-2, -1)).numpy(), psf[1].sum(dim=(-2, -1)).numpy()
     centre = psf[0, :, 2, 2].numpy()  # the axis pixel: ∝ on-axis intensity, whose integral over defocus is fixed
-    return {"far_mean": float(far.mean()), "far_half_max_fraction": float((far >= far.max() / 2).mean()),
-            "near_mean": float(near.mean()), "far": far.tolist(), "centre_mean": float(centre.mean())}
+    return {
+        "far_mean": float(far.mean()),
+        "far_half_max_fraction": float((far >= far.max() / 2).mean()),
+        "near_mean": float(near.mean()),
+        "far": far.tolist(),
+        "centre_mean": float(centre.mean()),
+    }
 
 
 def scores(spec: str, preset_path: Path) -> dict:
-    report = metalens("evaluate", spec, "--preset", str(preset_path), "--pixels", "128", "--seed", "0", "--obstruction", "dirt,fence")
+    report = metalens(
+        "evaluate", spec, "--preset", str(preset_path), "--pixels", "128", "--seed", "0", "--obstruction", "dirt,fence"
+    )
     out = {}
     for row in report["rows"]:
         out[(row["obstruction"], row["condition"])] = row["psnr_db"]
-    return {"unobstructed": out[("dirt", "unobstructed")], "dirt": out[("dirt", "obstructed")], "fence": out[("fence", "obstructed")]}
+    return {
+        "unobstructed": out[("dirt", "unobstructed")],
+        "dirt": out[("dirt", "obstructed")],
+        "fence": out[("fence", "obstructed")],
+    }
 
 
 def run_variant(name: str, preset_name: str, overrides: dict, out: Path, steps: int, reuse: bool) -> dict:
@@ -157,10 +240,17 @@ def run_variant(name: str, preset_name: str, overrides: dict, out: Path, steps: 
             subprocess.run(["rm", "-rf", str(run)], check=True)
         metalens("optimize", str(preset_path), "-o", str(run), "--steps", str(steps))
     report = json.loads((run / "run.json").read_text())
-    return {"name": name, "run": str(run), "scores": scores(str(run), preset_path), "core": core_energy(str(run), preset_path),
-            "gradients": report["validation_loss"].get("gradient_norms", {}), "validation": report["validation_loss"],
-            "windows": report["psf_windows"].get("window_px", {}), "kept": report["psf_windows"].get("kept", {}),
-            "seconds_per_step": report["cost"]["seconds_per_step_median"]}
+    return {
+        "name": name,
+        "run": str(run),
+        "scores": scores(str(run), preset_path),
+        "core": core_energy(str(run), preset_path),
+        "gradients": report["validation_loss"].get("gradient_norms", {}),
+        "validation": report["validation_loss"],
+        "windows": report["psf_windows"].get("window_px", {}),
+        "kept": report["psf_windows"].get("kept", {}),
+        "seconds_per_step": report["cost"]["seconds_per_step_median"],
+    }
 
 
 def ratio_text(gradients: dict) -> str:
@@ -189,9 +279,11 @@ def write(results: list[dict], reference: dict, steps: int, final: list[str]) ->
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for camera, r in reference.items():
-        lines.append(f"| {REFERENCE}, {camera} camera (reference) | not trained | {r['scores']['unobstructed']:.2f} | "
-                     f"{r['scores']['dirt']:.2f} | {r['scores']['fence']:.2f} | {r['core']['far_mean']:.4f} | "
-                     f"{r['core']['far_half_max_fraction']:.2f} | {r['core']['near_mean']:.4f} | — | — | — | — |")
+        lines.append(
+            f"| {REFERENCE}, {camera} camera (reference) | not trained | {r['scores']['unobstructed']:.2f} | "
+            f"{r['scores']['dirt']:.2f} | {r['scores']['fence']:.2f} | {r['core']['far_mean']:.4f} | "
+            f"{r['core']['far_half_max_fraction']:.2f} | {r['core']['near_mean']:.4f} | — | — | — | — |"
+        )
     for res in results:
         g, w = res["gradients"], res["windows"].get("far", {})
         kept = min((v["min"] for v in res["kept"].values()), default=float("nan"))
@@ -199,13 +291,21 @@ def write(results: list[dict], reference: dict, steps: int, final: list[str]) ->
             f"| {res['name']} | {res['what']} | {res['scores']['unobstructed']:.2f} | {res['scores']['dirt']:.2f} | "
             f"{res['scores']['fence']:.2f} | {res['core']['far_mean']:.4f} | {res['core']['far_half_max_fraction']:.2f} | "
             f"{res['core']['near_mean']:.4f} | {ratio_text(g.get('initial', {}))} → {ratio_text(g.get('final', {}))} | "
-            f"{w.get('mean', float('nan')):.0f} / {w.get('max', float('nan')):.0f} | {kept:.4f} | {res['seconds_per_step']:.2f} |")
-    lines += ["", "Gradient norms per term (start → end):", "",
-              "| variant | L1 | SSIM | L_bright | L_sharp |", "|---|---|---|---|---|"]
+            f"{w.get('mean', float('nan')):.0f} / {w.get('max', float('nan')):.0f} | {kept:.4f} | {res['seconds_per_step']:.2f} |"
+        )
+    lines += [
+        "",
+        "Gradient norms per term (start → end):",
+        "",
+        "| variant | L1 | SSIM | L_bright | L_sharp |",
+        "|---|---|---|---|---|",
+    ]
     for res in results:
         g = res["gradients"]
-        cells = [f"{g.get('initial', {}).get(t, float('nan')):.3g} → {g.get('final', {}).get(t, float('nan')):.3g}"
-                 for t in ("l1", "ssim", "bright", "sharp")]
+        cells = [
+            f"{g.get('initial', {}).get(t, float('nan')):.3g} → {g.get('final', {}).get(t, float('nan')):.3g}"
+            for t in ("l1", "ssim", "bright", "sharp")
+        ]
         lines.append(f"| {res['name']} | " + " | ".join(cells) + " |")
     lines += ["", "Far 5 × 5 energy per wavelength (430-650 nm, 5 nm):", ""]
     lines.append("| variant | " + " ".join(f"{int(x)}" for x in CORE_WAVES_NM[::4]) + " (every 20 nm) |")
@@ -255,8 +355,19 @@ def band_energy(run: str) -> dict:
     out = {"far": {}, "near": {}}
     for channel, (lo, hi) in PASS_BANDS.items():
         waves = list(np.arange(lo, hi + 0.5e-9, 1e-9))
-        psf = compute_psf(design.lens, waves, [math.inf, NEAR_M], 5, design.preset.sensor.pixel_pitch_m, design.focal_length_m,
-                          dtype=torch.float64).psf.sum(dim=(-2, -1)).numpy()
+        psf = (
+            compute_psf(
+                design.lens,
+                waves,
+                [math.inf, NEAR_M],
+                5,
+                design.preset.sensor.pixel_pitch_m,
+                design.focal_length_m,
+                dtype=torch.float64,
+            )
+            .psf.sum(dim=(-2, -1))
+            .numpy()
+        )
         out["far"][channel], out["near"][channel] = float(psf[0].mean()), float(psf[1].mean())
     return out
 
@@ -267,13 +378,20 @@ def final_section(runs: list[str]) -> list[str]:
     label = {run: Path(run).name.removeprefix("final-") for run in runs}
     steps = {run: json.loads((Path(run) / "run.json").read_text())["settings"]["steps"] for run in runs}
     minutes = {run: json.loads((Path(run) / "run.json").read_text())["cost"]["seconds_training"] / 60 for run in runs}
-    lines = ["", "## The quick presets as they are, at the full 512 × 512 sensor", "",
-             "`metalens evaluate " + " ".join(f"runs/study/{Path(r).name}" for r in runs) + " --pixels 512 --seed 0:2 "
-             "--obstruction dirt,fence` (9 held-out photographs × 3 seeds = 27 units per cell; raw captures; "
-             "PSNR in dB after the least-squares match, mean [95 % bootstrap CI]). `-3x`: the same preset trained 3× as many steps.",
-             "", "| design | steps | training min | unobstructed | dirt obstructed | fence obstructed | dirt Δ | fence Δ |",
-             "|---|---|---|---|---|---|---|---|"]
-    rows = {(r["design"], r["obstruction"], r["condition"]): r for r in report["rows"] if r.get("capture", "raw") == "raw"}
+    lines = [
+        "",
+        "## The quick presets as they are, at the full 512 × 512 sensor",
+        "",
+        "`metalens evaluate " + " ".join(f"runs/study/{Path(r).name}" for r in runs) + " --pixels 512 --seed 0:2 "
+        "--obstruction dirt,fence` (9 held-out photographs × 3 seeds = 27 units per cell; raw captures; "
+        "PSNR in dB after the least-squares match, mean [95 % bootstrap CI]). `-3x`: the same preset trained 3× as many steps.",
+        "",
+        "| design | steps | training min | unobstructed | dirt obstructed | fence obstructed | dirt Δ | fence Δ |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    rows = {
+        (r["design"], r["obstruction"], r["condition"]): r for r in report["rows"] if r.get("capture", "raw") == "raw"
+    }
     deltas = {(d["design"], d["obstruction"]): d for d in report["deltas"] if d.get("capture", "raw") == "raw"}
 
     def cell(value, ci):
@@ -282,26 +400,50 @@ def final_section(runs: list[str]) -> list[str]:
     for run in runs:
         u = rows[run, "dirt", "unobstructed"]
         cells = [cell(u["psnr_db"], u["psnr_db_ci"])]
-        cells += [cell(rows[run, k, "obstructed"]["psnr_db"], rows[run, k, "obstructed"]["psnr_db_ci"]) for k in ("dirt", "fence")]
+        cells += [
+            cell(rows[run, k, "obstructed"]["psnr_db"], rows[run, k, "obstructed"]["psnr_db_ci"])
+            for k in ("dirt", "fence")
+        ]
         cells += [cell(deltas[run, k]["delta_psnr_db"], deltas[run, k]["delta_psnr_db_ci"]) for k in ("dirt", "fence")]
         lines.append(f"| {label[run]} | {steps[run]} | {minutes[run]:.1f} | " + " | ".join(cells) + " |")
-    lines += ["", "Energy in the central 5 × 5 pixels (fraction of the power through the aperture), mean over each pass "
-              "band of the tri-band filter at 1 nm (the split lens's; the broadband and hyperbolic lenses measured in the "
-              "same bands), far (∞) and near (45 mm):", "",
-              "| design | " + " | ".join(f"far {c}" for c in PASS_BANDS) + " | " + " | ".join(f"near {c}" for c in PASS_BANDS) + " |",
-              "|---|" + "---|" * (2 * len(PASS_BANDS))]
+    lines += [
+        "",
+        "Energy in the central 5 × 5 pixels (fraction of the power through the aperture), mean over each pass "
+        "band of the tri-band filter at 1 nm (the split lens's; the broadband and hyperbolic lenses measured in the "
+        "same bands), far (∞) and near (45 mm):",
+        "",
+        "| design | "
+        + " | ".join(f"far {c}" for c in PASS_BANDS)
+        + " | "
+        + " | ".join(f"near {c}" for c in PASS_BANDS)
+        + " |",
+        "|---|" + "---|" * (2 * len(PASS_BANDS)),
+    ]
     bands = {run: band_energy(run) for run in runs}
     for run in runs:
-        lines.append(f"| {label[run]} | " + " | ".join(f"{bands[run][d][c]:.4f}" for d in ("far", "near") for c in PASS_BANDS) + " |")
-    lines += ["", "Paired PSNR differences on the same units (dB, 95 % CI):", "",
-              "| design − versus | condition | dirt | fence |", "|---|---|---|---|"]
+        lines.append(
+            f"| {label[run]} | "
+            + " | ".join(f"{bands[run][d][c]:.4f}" for d in ("far", "near") for c in PASS_BANDS)
+            + " |"
+        )
+    lines += [
+        "",
+        "Paired PSNR differences on the same units (dB, 95 % CI):",
+        "",
+        "| design − versus | condition | dirt | fence |",
+        "|---|---|---|---|",
+    ]
     pairs = {}
     for c in report["comparisons"]:
         if c["metric"] == "psnr_db" and c.get("capture", "raw") == "raw" and c.get("versus_capture", "raw") == "raw":
-            pairs.setdefault((c["design"], c["versus"], c["condition"]), {})[c["obstruction"]] = cell(c["difference"], c["ci"])
+            pairs.setdefault((c["design"], c["versus"], c["condition"]), {})[c["obstruction"]] = cell(
+                c["difference"], c["ci"]
+            )
     for (design, versus, condition), by_kind in pairs.items():
-        lines.append(f"| {label.get(design, design)} − {label.get(versus, versus)} | {condition} | "
-                     f"{by_kind.get('dirt', '—')} | {by_kind.get('fence', '—')} |")
+        lines.append(
+            f"| {label.get(design, design)} − {label.get(versus, versus)} | {condition} | "
+            f"{by_kind.get('dirt', '—')} | {by_kind.get('fence', '—')} |"
+        )
     return lines
 
 

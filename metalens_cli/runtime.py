@@ -16,7 +16,7 @@ import sys
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's largest accepted mmap threshold on 64-bit systems
-TRIM_THRESHOLD_BYTES = 1 << 30   # free heap kept before memory is handed back to the kernel
+TRIM_THRESHOLD_BYTES = 1 << 30  # free heap kept before memory is handed back to the kernel
 
 
 def retain_freed_memory() -> bool:

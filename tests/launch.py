@@ -46,5 +46,8 @@ def _rank_logs(folder: Path) -> str:
     """The non-empty std*.log files torchrun wrote under ``folder`` (LOG_DIR/run/attempt/rank/)."""
     if not folder.is_dir():
         return ""
-    return "\n".join(f"--- {p.relative_to(folder)}:\n{text[-3000:]}" for p in sorted(folder.rglob("std*.log"))
-                     if (text := p.read_text(errors="replace")).strip())
+    return "\n".join(
+        f"--- {p.relative_to(folder)}:\n{text[-3000:]}"
+        for p in sorted(folder.rglob("std*.log"))
+        if (text := p.read_text(errors="replace")).strip()
+    )

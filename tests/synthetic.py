@@ -28,8 +28,14 @@ def gaussian_spot(height: int, width: int, centre: tuple[float, float], sigma_px
     return np.outer(np.diff(ndtr(rows / sigma_px)), np.diff(ndtr(cols / sigma_px)))
 
 
-def bench_frame(spot: np.ndarray, rng: np.random.Generator, photons: float = 1.2e6, dark_level: float = 600.0,
-                read_noise: float = 4.0, background: float = 30.0) -> np.ndarray:
+def bench_frame(
+    spot: np.ndarray,
+    rng: np.random.Generator,
+    photons: float = 1.2e6,
+    dark_level: float = 600.0,
+    read_noise: float = 4.0,
+    background: float = 30.0,
+) -> np.ndarray:
     """A 16-bit camera frame of a spot (unit energy): Poisson photons, a dark offset, a flat
     background and Gaussian read noise, clipped to 0..65535 like the camera does."""
     signal = rng.poisson(photons * spot + background) + dark_level + rng.normal(0, read_noise, spot.shape)
@@ -50,7 +56,9 @@ def texture(height: int, width: int, seed: int) -> np.ndarray:
     return (0.05 + 0.9 * scene / scene.max()).astype(np.float32)
 
 
-def warp(image: np.ndarray, homography: np.ndarray, ripple_px: float = 0.0, size: tuple[int, int] | None = None) -> np.ndarray:
+def warp(
+    image: np.ndarray, homography: np.ndarray, ripple_px: float = 0.0, size: tuple[int, int] | None = None
+) -> np.ndarray:
     """``image`` (H, W, C) seen through a camera: output pixel (x, y) samples the image at
     H·(x, y, 1) plus a smooth ripple of ``ripple_px`` pixels (a lens distortion stand-in)."""
     import cv2

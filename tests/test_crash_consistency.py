@@ -40,13 +40,25 @@ pytestmark = pytest.mark.slow
 
 
 def _command(args: list[str], env: dict) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "metalens_cli", *map(str, args)], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "metalens_cli", *map(str, args)],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def _finish(args: list[str], env: dict) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "metalens_cli", *map(str, args)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "metalens_cli", *map(str, args)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def _environment(cache: Path) -> dict:
@@ -92,10 +104,18 @@ def _weights(run: Path) -> dict:
 
 
 TRAININGS = {
-    "optimize": (["optimize", TINY, "--steps", "6", "--threads", "1", "--quiet"], "preset.toml", _theta,
-                 lambda a, b: np.array_equal(a, b)),
-    "reconstruct train": (["reconstruct", "train", "hyperbolic:532nm", *LENS, "--preset", TINY_RECONSTRUCT, "--threads", "1",
-                           "--quiet"], "reconstruct.toml", _weights, lambda a, b: a.keys() == b.keys() and all((a[k] == b[k]).all() for k in a)),
+    "optimize": (
+        ["optimize", TINY, "--steps", "6", "--threads", "1", "--quiet"],
+        "preset.toml",
+        _theta,
+        lambda a, b: np.array_equal(a, b),
+    ),
+    "reconstruct train": (
+        ["reconstruct", "train", "hyperbolic:532nm", *LENS, "--preset", TINY_RECONSTRUCT, "--threads", "1", "--quiet"],
+        "reconstruct.toml",
+        _weights,
+        lambda a, b: a.keys() == b.keys() and all((a[k] == b[k]).all() for k in a),
+    ),
 }
 
 
@@ -111,7 +131,9 @@ def test_a_killed_training_run_resumes_to_the_same_result(name, tmp_path):
         if (run / preset_file).is_file():
             done = _finish([*args, "-o", run, "--resume"], env)
         else:  # killed before the run existed: its folder is absent or holds no file a reader sees
-            assert not run.exists() or not any(p for p in run.rglob("*") if p.is_file() and not p.name.startswith(".metalens-"))
+            assert not run.exists() or not any(
+                p for p in run.rglob("*") if p.is_file() and not p.name.startswith(".metalens-")
+            )
             done = _finish([*args, "-o", run], env)
         assert done.returncode == 0, f"kill at {moment:.2f} s: {done.stderr}"
         assert same(result(run), expected), f"kill at {moment:.2f} s of {duration:.2f} s: not the uninterrupted result"
@@ -131,10 +153,43 @@ def _same_cube(path: Path, reference: Path) -> bool:
 
 
 FILES = {
-    "psf-scan": (["psf-scan", "--design", "hyperbolic:532nm", *LENS, "--pixels", "256", "--wavelengths", "430:650:2nm",
-                  "--depths", "10mm,inf", "--quiet"], "cube.exr", _same_cube),
-    "export-gds": (["export-gds", "--design", "hyperbolic:532nm", "--f", "1mm", "--aperture", "0.6mm", "--pitch", "395nm",
-                    "--width", "200nm", "--length", "100nm", "--quiet"], "lens.gds", _gds_whole),
+    "psf-scan": (
+        [
+            "psf-scan",
+            "--design",
+            "hyperbolic:532nm",
+            *LENS,
+            "--pixels",
+            "256",
+            "--wavelengths",
+            "430:650:2nm",
+            "--depths",
+            "10mm,inf",
+            "--quiet",
+        ],
+        "cube.exr",
+        _same_cube,
+    ),
+    "export-gds": (
+        [
+            "export-gds",
+            "--design",
+            "hyperbolic:532nm",
+            "--f",
+            "1mm",
+            "--aperture",
+            "0.6mm",
+            "--pitch",
+            "395nm",
+            "--width",
+            "200nm",
+            "--length",
+            "100nm",
+            "--quiet",
+        ],
+        "lens.gds",
+        _gds_whole,
+    ),
 }
 
 
@@ -155,14 +210,30 @@ def test_a_killed_writer_publishes_a_whole_file_or_none(name, tmp_path):
         shutil.rmtree(folder)  # a layout is 116 MB
 
 
-SWEEP = ["nanofin", "sweep", "--width", "250nm,300nm", "--length", "100nm,150nm", "--harmonics", "3", "--max-harmonics", "9",
-         "--band", "530nm:20nm", "--json", "--quiet"]
+SWEEP = [
+    "nanofin",
+    "sweep",
+    "--width",
+    "250nm,300nm",
+    "--length",
+    "100nm,150nm",
+    "--harmonics",
+    "3",
+    "--max-harmonics",
+    "9",
+    "--band",
+    "530nm:20nm",
+    "--json",
+    "--quiet",
+]
 
 
 def _recommended(done: subprocess.CompletedProcess) -> dict:
     fin = json.loads(done.stdout)["recommended"]
     return {k: v for k, v in fin.items() if "second" not in k and k != "converged"} | {
-        "eta": fin["converged"]["eta_per_band"], "harmonics": fin["converged"]["harmonics"]}
+        "eta": fin["converged"]["eta_per_band"],
+        "harmonics": fin["converged"]["harmonics"],
+    }
 
 
 def test_a_killed_sweep_leaves_no_partial_folder_and_no_corrupt_cache(tmp_path):

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from metalens_cli.analysis.symmetry import shift_factor
 from metalens_cli.errors import InputError
-from metalens_cli.io.tables import as_fractions, read_table_csv, TRANSMISSION_TABLE
+from metalens_cli.io.tables import TRANSMISSION_TABLE, as_fractions, read_table_csv
 
 THREE_BAND_LABELS = ("B", "G", "R")
 
@@ -182,14 +182,17 @@ def _clear_of_pass_bands(
         if p_hi <= p_lo:
             continue
         # Whichever side of the pass band the shifted band is nearer to decides the relation.
-        candidate = _condition(name, hi, "<", p_lo, z_lo) if p_lo - hi >= lo - p_hi else _condition(name, lo, ">", p_hi, z_hi)
+        candidate = (
+            _condition(name, hi, "<", p_lo, z_lo) if p_lo - hi >= lo - p_hi else _condition(name, lo, ">", p_hi, z_hi)
+        )
         if best is None or candidate.margin_m < best.margin_m:
             best = candidate
     return best if best is not None else _condition(name, lo, ">", sensor[0], z_hi)
 
 
-def split_conditions(bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float,
-                     sensor_range_m: tuple[float, float]) -> list[Condition]:
+def split_conditions(
+    bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float, sensor_range_m: tuple[float, float]
+) -> list[Condition]:
     """The paper's inequalities and the general condition of every band, at their worst depths.
 
     Band edges may be 0-d torch tensors (a filter being learned, ``design.filter_learning``):
@@ -202,8 +205,11 @@ def split_conditions(bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: flo
 def incidence_factor(max_incidence_rad: float, n_eff: float) -> float:
     """k = √(1 − sin²θ/n_eff²): the factor by which a filter's bands move for rays at θ (≤ 1)."""
     if not (0 <= max_incidence_rad < math.pi / 2 and n_eff >= 1):
-        raise InputError("filter.max_incidence", f"{math.degrees(max_incidence_rad):g}° with n_eff {n_eff:g}",
-                         "an angle in [0, 90) degrees and n_eff >= 1")
+        raise InputError(
+            "filter.max_incidence",
+            f"{math.degrees(max_incidence_rad):g}° with n_eff {n_eff:g}",
+            "an angle in [0, 90) degrees and n_eff >= 1",
+        )
     return math.sqrt(1.0 - (math.sin(max_incidence_rad) / n_eff) ** 2)
 
 
@@ -270,7 +276,9 @@ def check_bands(
     active = tuple(b for b in bands if b.hi_m > sensor_range_m[0] and b.lo_m < sensor_range_m[1])
     ignored = tuple(b for b in bands if b not in active)
     if not active:
-        raise InputError("--sensor-range", "no pass band lies inside the sensor range", "a range that overlaps the filter")
+        raise InputError(
+            "--sensor-range", "no pass band lies inside the sensor range", "a range that overlaps the filter"
+        )
     seen = oblique_bands(active, incidence)
     conditions = split_conditions(seen, f_m, z_lo, z_hi, sensor_range_m)
     z_window, f_window = windows(seen, f_m, z_lo, z_hi)

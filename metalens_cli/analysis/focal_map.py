@@ -33,8 +33,15 @@ def _simpson_weights(n: int, h: float) -> np.ndarray:
     return w * h / 3.0
 
 
-def required_samples(wavelengths_m, depths_m, lambda_d_m: float, f_m: float, aperture_m: float,
-                     distance_m: float | None = None, per_period: int = SAMPLES_PER_PERIOD) -> int:
+def required_samples(
+    wavelengths_m,
+    depths_m,
+    lambda_d_m: float,
+    f_m: float,
+    aperture_m: float,
+    distance_m: float | None = None,
+    per_period: int = SAMPLES_PER_PERIOD,
+) -> int:
     """Odd number of u = r² samples giving ``per_period`` samples per period of the integrand's phase.
 
     dφ/du = k/(2√(u + z²)) + k/(2√(u + d²)) − kd/(2√(u + f²)) is monotone between its
@@ -137,7 +144,9 @@ def _best_depth(wavelength, lambda_d, f, aperture, lo, hi, samples, fine_points:
     j = int(np.clip(np.argmax(values), 1, fine_points - 2))
 
     def negative(log_z):
-        return -on_axis_intensity(np.array([wavelength]), np.array([math.exp(log_z)]), lambda_d, f, aperture, samples=samples)[0, 0]
+        return -on_axis_intensity(
+            np.array([wavelength]), np.array([math.exp(log_z)]), lambda_d, f, aperture, samples=samples
+        )[0, 0]
 
     bounds = (math.log(fine[j - 1]), math.log(fine[j + 1]))
     result = minimize_scalar(negative, bounds=bounds, method="bounded", options={"xatol": 1e-8})
@@ -147,15 +156,23 @@ def _best_depth(wavelength, lambda_d, f, aperture, lo, hi, samples, fine_points:
 PHASE_RATE = 1e8  # (wavelength, depth, sample) terms of the on-axis integral per second, 2 cores
 
 
-def estimate_validation(wavelengths_m, lambda_d_m: float, f_m: float, aperture_m: float,
-                        depth_range_m: tuple[float, float] | None = None, depth_points: int = 161) -> tuple[int, float]:
+def estimate_validation(
+    wavelengths_m,
+    lambda_d_m: float,
+    f_m: float,
+    aperture_m: float,
+    depth_range_m: tuple[float, float] | None = None,
+    depth_points: int = 161,
+) -> tuple[int, float]:
     """(peak bytes, seconds) of :func:`validate_symmetry` with these arguments, from its sample
     count: about a dozen float64 (depth × sample) arrays at once (the per-depth factors and a
     chunk of the integrand), and every term of the map and of the refinements (~106 depths per
     wavelength at S and 2S samples) at ``PHASE_RATE``."""
     wavelengths = np.asarray(wavelengths_m, dtype=np.float64)
     if depth_range_m is None:
-        real = [m for m in (depth_for_wavelength(float(w), lambda_d_m, f_m).depth_m for w in wavelengths) if m is not None]
+        real = [
+            m for m in (depth_for_wavelength(float(w), lambda_d_m, f_m).depth_m for w in wavelengths) if m is not None
+        ]
         depth_range_m = (max(1e-3, 0.5 * min(real, default=1e-3)), 1e3)
     depths = np.geomspace(depth_range_m[0], depth_range_m[1], depth_points)
     samples = required_samples(wavelengths, depths, lambda_d_m, f_m, aperture_m)

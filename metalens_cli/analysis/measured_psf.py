@@ -44,8 +44,8 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -58,17 +58,17 @@ from metalens_cli.io.psf_manifest import FrameEntry, Manifest, read_frame
 NORMALIZATIONS = ("sum-to-one", "peak-one")
 CENTRINGS = ("centroid", "peak")
 MAD_TO_SIGMA = 1.4826
-LIGHT_SIGMA = 3.0          # pixels above this many σ are light
-LIGHT_FRACTION = 0.995     # of the light above LIGHT_SIGMA inside the automatic window
-WINDOW_MARGIN = 4          # pixels a side beyond the light radius in the automatic window
-CROP_MARGIN = 8            # pixels kept a side around the light for centring
-HOT_FRAME_FRACTION = 0.9   # a hot pixel spikes in this fraction of the frames
+LIGHT_SIGMA = 3.0  # pixels above this many σ are light
+LIGHT_FRACTION = 0.995  # of the light above LIGHT_SIGMA inside the automatic window
+WINDOW_MARGIN = 4  # pixels a side beyond the light radius in the automatic window
+CROP_MARGIN = 8  # pixels kept a side around the light for centring
+HOT_FRAME_FRACTION = 0.9  # a hot pixel spikes in this fraction of the frames
 HOT_ISOLATED_FRACTION = 0.5  # ... and on a dark background in this fraction
-LOW_SNR = 20.0             # peak / σ below this is warned about
-BORDER_BULGE_SIGMA = 1.0   # side middles above corners of the border strip, in σ: the PSF's wings are in the background
-MIN_FRAMES_FOR_HOT = 3     # without a dark frame, hot pixels are told from light by recurring in this many frames
-KEPT_LIGHT = 0.99          # a given window keeping less of a frame's light is warned about
-SPOT_SHARE = 0.1           # a separate patch of light with this share of the main spot's light is a second spot
+LOW_SNR = 20.0  # peak / σ below this is warned about
+BORDER_BULGE_SIGMA = 1.0  # side middles above corners of the border strip, in σ: the PSF's wings are in the background
+MIN_FRAMES_FOR_HOT = 3  # without a dark frame, hot pixels are told from light by recurring in this many frames
+KEPT_LIGHT = 0.99  # a given window keeping less of a frame's light is warned about
+SPOT_SHARE = 0.1  # a separate patch of light with this share of the main spot's light is a second spot
 
 
 @dataclass(frozen=True)
@@ -112,14 +112,14 @@ class _Frame:
     """A frame after the first pass: its light cropped to a window around the brightest spot."""
 
     entry: FrameEntry
-    crop: np.ndarray          # (S, S) float32, background subtracted, per second if exposed
-    origin: tuple[int, int]   # frame (row, column) of crop pixel (0, 0)
-    rough: tuple[int, int]    # crop pixel of the brightest smoothed spot
-    radius: float             # light radius (pixels) holding LIGHT_FRACTION of the light
+    crop: np.ndarray  # (S, S) float32, background subtracted, per second if exposed
+    origin: tuple[int, int]  # frame (row, column) of crop pixel (0, 0)
+    rough: tuple[int, int]  # crop pixel of the brightest smoothed spot
+    radius: float  # light radius (pixels) holding LIGHT_FRACTION of the light
     noise: float
     report: dict
-    spikes: np.ndarray        # flat frame indices of pixels above their neighbourhood by k·σ
-    isolated: np.ndarray      # ... of those on a dark background
+    spikes: np.ndarray  # flat frame indices of pixels above their neighbourhood by k·σ
+    isolated: np.ndarray  # ... of those on a dark background
 
 
 BORDER_SAMPLES = 40_000  # border pixels the background is fitted to (a fixed stride through the strip)
@@ -152,7 +152,9 @@ def frame_stats(frame: np.ndarray, field: str = "frame") -> tuple[tuple[float, f
     plane's rounding error must not stand above it as light."""
     h, w = frame.shape
     if 2 * max(4, round(0.05 * min(h, w))) >= min(h, w):
-        raise InputError(field, f"{w} × {h} pixels", "frames of at least 16 × 16 pixels (the border gives the background)")
+        raise InputError(
+            field, f"{w} × {h} pixels", "frames of at least 16 × 16 pixels (the border gives the background)"
+        )
     rows, cols, corner, middle = _border_samples(frame.shape)
     values = frame[rows, cols].astype(np.float64)
     design = np.stack([np.ones_like(values), cols / w, rows / h], axis=1)
@@ -171,8 +173,11 @@ def subtract_plane(frame: np.ndarray, plane: tuple[float, float, float]) -> np.n
     """``frame`` (H, W) less the plane a + b·x/W + c·y/H, float32."""
     a, b, c = plane
     h, w = frame.shape
-    return frame - (np.float32(a) + np.float32(b) * np.arange(w, dtype=np.float32) / w)[None, :] \
+    return (
+        frame
+        - (np.float32(a) + np.float32(b) * np.arange(w, dtype=np.float32) / w)[None, :]
         - (np.float32(c) * np.arange(h, dtype=np.float32) / h)[:, None]
+    )
 
 
 def dark_frame(values: np.ndarray, hot_pixel_sigma: float) -> tuple[np.ndarray, np.ndarray]:
@@ -185,8 +190,13 @@ def dark_frame(values: np.ndarray, hot_pixel_sigma: float) -> tuple[np.ndarray, 
     return frame, np.flatnonzero(excess > hot_pixel_sigma * sigma)
 
 
-def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.ndarray, np.ndarray] | None = None,
-                on_progress: Callable[[int, int], None] | None = None, workers: int = 2) -> MeasuredCube:
+def import_psfs(
+    manifest: Manifest,
+    settings: ImportSettings,
+    dark: tuple[np.ndarray, np.ndarray] | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+    workers: int = 2,
+) -> MeasuredCube:
     """Every frame of ``manifest`` through the protocol above, into a (D, W, N, N) cube.
 
     ``dark``: (frame, hot pixel indices) from :func:`dark_frame`, or None. Refuses (InputError
@@ -201,28 +211,40 @@ def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.nda
     frames: list[_Frame] = []
     shape = None if dark is None else dark[0].shape
     pending: deque = deque()
-    with ThreadPoolExecutor(max_workers=workers) as pool:  # this thread reads (C-library output is captured per read), the pool processes
+    with ThreadPoolExecutor(
+        max_workers=workers
+    ) as pool:  # this thread reads (C-library output is captured per read), the pool processes
         for entry in [*manifest.frames, None]:
             if entry is not None:
                 values, full_scale = read_frame(entry)
-                pending.append(pool.submit(_first_pass, entry, values, full_scale, settings, None if dark is None else dark[0]))
+                pending.append(
+                    pool.submit(_first_pass, entry, values, full_scale, settings, None if dark is None else dark[0])
+                )
             while pending and (entry is None or len(pending) > workers):
                 frame = pending.popleft().result()
                 frame_shape = (frame.report["height"], frame.report["width"])
                 if shape is not None and frame_shape != shape:
-                    raise InputError(frame.entry.where, f"{frame.entry.name} is {frame_shape[1]} × {frame_shape[0]} pixels, "
-                                     f"{'the dark frame' if dark is not None else 'the first frame'} {shape[1]} × {shape[0]}",
-                                     "frames (and the dark frame) of one size")
+                    raise InputError(
+                        frame.entry.where,
+                        f"{frame.entry.name} is {frame_shape[1]} × {frame_shape[0]} pixels, "
+                        f"{'the dark frame' if dark is not None else 'the first frame'} {shape[1]} × {shape[0]}",
+                        "frames (and the dark frame) of one size",
+                    )
                 shape = frame_shape
                 frames.append(frame)
                 if on_progress is not None:
                     on_progress(len(frames), total)
     if settings.pixels is not None and settings.pixels > min(shape):
-        raise InputError("pixels", f"a {settings.pixels}-pixel window is larger than the {shape[1]} × {shape[0]} frames",
-                         f"at most {min(shape)} pixels")
+        raise InputError(
+            "pixels",
+            f"a {settings.pixels}-pixel window is larger than the {shape[1]} × {shape[0]} frames",
+            f"at most {min(shape)} pixels",
+        )
     hot = _hot_pixels(frames, shape, dark[1] if dark is not None else np.zeros(0, np.int64), settings.hot_pixel_sigma)
     n = settings.pixels or _automatic_window(frames, shape)
-    warnings = [w for f in frames for w in _frame_warnings(f, settings)] + (_dark_warnings(frames) if dark is not None else [])
+    warnings = [w for f in frames for w in _frame_warnings(f, settings)] + (
+        _dark_warnings(frames) if dark is not None else []
+    )
     depths, wavelengths = manifest.depths_m, manifest.wavelengths_m
     sums = np.zeros((len(depths), len(wavelengths), n, n))
     counts = np.zeros((len(depths), len(wavelengths)), dtype=int)
@@ -231,27 +253,40 @@ def import_psfs(manifest: Manifest, settings: ImportSettings, dark: tuple[np.nda
         frame.report["centre_px"] = [round(c, 4) for c in centre]
         frame.report["light_in_window"] = kept
         if kept < KEPT_LIGHT:
-            warnings.append(f"{frame.entry.where}: the {n}-pixel window keeps {100 * kept:.1f} % of the light (--pixels)")
+            warnings.append(
+                f"{frame.entry.where}: the {n}-pixel window keeps {100 * kept:.1f} % of the light (--pixels)"
+            )
         i, j = depths.index(frame.entry.depth_m), wavelengths.index(frame.entry.wavelength_m)
         sums[i, j] += psf
         counts[i, j] += 1
         if on_progress is not None:
             on_progress(len(frames) + k + 1, total)
     psf = sums / counts[:, :, None, None]
-    return MeasuredCube(_normalised(psf, settings.normalization, manifest), np.array(wavelengths), np.array(depths),
-                        settings.pixel_pitch_m, [f.report for f in frames], int(hot.size), warnings)
+    return MeasuredCube(
+        _normalised(psf, settings.normalization, manifest),
+        np.array(wavelengths),
+        np.array(depths),
+        settings.pixel_pitch_m,
+        [f.report for f in frames],
+        int(hot.size),
+        warnings,
+    )
 
 
-def _first_pass(entry: FrameEntry, values: np.ndarray, full_scale: float | None, settings: ImportSettings,
-                dark: np.ndarray | None) -> _Frame:
+def _first_pass(
+    entry: FrameEntry, values: np.ndarray, full_scale: float | None, settings: ImportSettings, dark: np.ndarray | None
+) -> _Frame:
     """One frame as read (:func:`read_frame`): count saturation; subtract dark and background;
     find its light."""
     level = settings.saturation if settings.saturation is not None else full_scale
     colour = values[:, :, :3] if values.shape[2] >= 3 else values
     saturated = 0 if level is None else int(np.count_nonzero((colour >= level).any(axis=2)))
     if saturated and not settings.allow_saturated:
-        raise InputError(entry.where, f"{entry.name} has {saturated} saturated pixel(s) (≥ {level:g})",
-                         "frames below saturation (shorten the exposure), or --allow-saturated to import them, reported")
+        raise InputError(
+            entry.where,
+            f"{entry.name} has {saturated} saturated pixel(s) (≥ {level:g})",
+            "frames below saturation (shorten the exposure), or --allow-saturated to import them, reported",
+        )
     frame = _monochrome(values)
     if dark is not None and frame.shape == dark.shape:
         frame = frame - dark
@@ -264,32 +299,53 @@ def _first_pass(entry: FrameEntry, values: np.ndarray, full_scale: float | None,
         frame = subtract_plane(frame, background)
     _check_finite(frame, entry)
     median = _median3(frame)
-    spikes = np.flatnonzero(frame - median > settings.hot_pixel_sigma * noise) if settings.hot_pixel_sigma > 0 else np.zeros(0, np.int64)
+    spikes = (
+        np.flatnonzero(frame - median > settings.hot_pixel_sigma * noise)
+        if settings.hot_pixel_sigma > 0
+        else np.zeros(0, np.int64)
+    )
     isolated = spikes[median.ravel()[spikes] < LIGHT_SIGMA * noise]
     light = _light(median, noise)
     if light is None:
         clipped = f" ({saturated} of its {frame.size} pixels saturated)" if saturated else ""
-        raise InputError(entry.where, f"{entry.name} has no light above the background noise{clipped}",
-                         "a frame with a PSF brighter than 3σ of its border")
+        raise InputError(
+            entry.where,
+            f"{entry.name} has no light above the background noise{clipped}",
+            "a frame with a PSF brighter than 3σ of its border",
+        )
     rough, radius, others = light
     crop, origin = _window(frame, rough, math.ceil(1.5 * radius) + CROP_MARGIN + (settings.pixels or 0) // 2)
     peak = float(crop.max())
     report = {
-        "file": entry.name, "where": entry.where, "wavelength_m": entry.wavelength_m,
-        "depth_m": None if entry.depth_m == math.inf else entry.depth_m, "exposure_s": entry.exposure_s,
-        "height": frame.shape[0], "width": frame.shape[1], "saturated_pixels": saturated,
-        "background": background[0] + (background[1] + background[2]) / 2, "background_tilt": [background[1], background[2]],
-        "noise": noise, "peak_snr": peak / noise, "light_radius_px": radius,
-        "border_bulge_sigma": bulge, "other_spots": others,
+        "file": entry.name,
+        "where": entry.where,
+        "wavelength_m": entry.wavelength_m,
+        "depth_m": None if entry.depth_m == math.inf else entry.depth_m,
+        "exposure_s": entry.exposure_s,
+        "height": frame.shape[0],
+        "width": frame.shape[1],
+        "saturated_pixels": saturated,
+        "background": background[0] + (background[1] + background[2]) / 2,
+        "background_tilt": [background[1], background[2]],
+        "noise": noise,
+        "peak_snr": peak / noise,
+        "light_radius_px": radius,
+        "border_bulge_sigma": bulge,
+        "other_spots": others,
     }
-    return _Frame(entry, crop, origin, (rough[0] - origin[0], rough[1] - origin[1]), radius, noise, report, spikes, isolated)
+    return _Frame(
+        entry, crop, origin, (rough[0] - origin[0], rough[1] - origin[1]), radius, noise, report, spikes, isolated
+    )
 
 
 def _check_finite(frame: np.ndarray, entry: FrameEntry) -> None:
     """Refuse a frame whose values overflowed single precision (huge values, tiny exposures)."""
     if not np.isfinite(frame).all():
-        raise InputError(entry.where, f"{entry.name}'s values overflow single precision (after the exposure)",
-                         "frame values and exposures whose ratio stays below 1e38")
+        raise InputError(
+            entry.where,
+            f"{entry.name}'s values overflow single precision (after the exposure)",
+            "frame values and exposures whose ratio stays below 1e38",
+        )
 
 
 def _monochrome(values: np.ndarray) -> np.ndarray:
@@ -321,7 +377,9 @@ def _light(median: np.ndarray, noise: float) -> tuple[tuple[int, int], float, li
     smooth = cv2.GaussianBlur(median, (0, 0), 2.0)
     rough = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
     b = max(1, min(h, w) // 512)
-    binned = cv2.resize(median[: h - h % b, : w - w % b], ((w - w % b) // b, (h - h % b) // b), interpolation=cv2.INTER_AREA)
+    binned = cv2.resize(
+        median[: h - h % b, : w - w % b], ((w - w % b) // b, (h - h % b) // b), interpolation=cv2.INTER_AREA
+    )
     excess = np.clip(binned - LIGHT_SIGMA * noise / b, 0, None)
     if not excess.any():
         return None
@@ -348,12 +406,17 @@ def _other_spots(smooth: np.ndarray, level: float, rough: tuple[int, int]) -> li
     flat, excess = labels.ravel()[lit], (smooth.ravel()[lit] - level).astype(np.float64)
     light = np.bincount(flat, excess, count)
     rows, cols = np.divmod(lit, smooth.shape[1])
-    cy, cx = (np.divide(np.bincount(flat, excess * axis, count), light, out=np.zeros(count), where=light > 0)
-              for axis in (rows, cols))  # label 0, the background, holds no light
+    cy, cx = (
+        np.divide(np.bincount(flat, excess * axis, count), light, out=np.zeros(count), where=light > 0)
+        for axis in (rows, cols)
+    )  # label 0, the background, holds no light
     main = labels[rough]
     reach = 2 * math.sqrt(np.count_nonzero(flat == main) / math.pi) + 2
-    return [{"at_px": [float(cy[k]), float(cx[k])], "share": float(light[k] / light[main])} for k in range(1, count)
-            if k != main and light[k] >= SPOT_SHARE * light[main] and math.hypot(cy[k] - cy[main], cx[k] - cx[main]) > reach]
+    return [
+        {"at_px": [float(cy[k]), float(cx[k])], "share": float(light[k] / light[main])}
+        for k in range(1, count)
+        if k != main and light[k] >= SPOT_SHARE * light[main] and math.hypot(cy[k] - cy[main], cx[k] - cx[main]) > reach
+    ]
 
 
 def _window(frame: np.ndarray, centre: tuple[int, int], half: int) -> tuple[np.ndarray, tuple[int, int]]:
@@ -376,8 +439,10 @@ def _hot_pixels(frames: list[_Frame], shape: tuple[int, int], dark_hot: np.ndarr
     size = shape[0] * shape[1]
     spikes = np.bincount(np.concatenate([f.spikes for f in frames]), minlength=size) if frames else np.zeros(size)
     isolated = np.bincount(np.concatenate([f.isolated for f in frames]), minlength=size) if frames else np.zeros(size)
-    found = np.flatnonzero((spikes >= math.ceil(HOT_FRAME_FRACTION * len(frames)))
-                           & (isolated >= max(1, math.ceil(HOT_ISOLATED_FRACTION * len(frames)))))
+    found = np.flatnonzero(
+        (spikes >= math.ceil(HOT_FRAME_FRACTION * len(frames)))
+        & (isolated >= max(1, math.ceil(HOT_ISOLATED_FRACTION * len(frames))))
+    )
     return np.union1d(found, dark_hot)
 
 
@@ -388,8 +453,9 @@ def _automatic_window(frames: list[_Frame], shape: tuple[int, int]) -> int:
     return min(n, min(shape) - (1 - min(shape) % 2))
 
 
-def _centred(frame: _Frame, hot: np.ndarray, shape: tuple[int, int], n: int,
-             centring: str) -> tuple[np.ndarray, tuple[float, float], float]:
+def _centred(
+    frame: _Frame, hot: np.ndarray, shape: tuple[int, int], n: int, centring: str
+) -> tuple[np.ndarray, tuple[float, float], float]:
     """The frame's N × N PSF with its centre on pixel (N//2, N//2), that centre in frame pixels
     (row, column), and the fraction of the crop's light above LIGHT_SIGMA·σ the window keeps."""
     crop = frame.crop.copy()
@@ -431,8 +497,11 @@ def _centroid(crop: np.ndarray, frame: _Frame) -> tuple[float, float]:
         inside = weights * (((yy - cy) ** 2 + (xx - cx) ** 2) <= radius**2)
         total = inside.sum()
         if total <= 0:
-            raise InputError(frame.entry.where, f"{frame.entry.name} has no light above the background noise",
-                             "a frame with a PSF brighter than 3σ of its border")
+            raise InputError(
+                frame.entry.where,
+                f"{frame.entry.name} has no light above the background noise",
+                "a frame with a PSF brighter than 3σ of its border",
+            )
         ny, nx = float((inside * yy).sum() / total), float((inside * xx).sum() / total)
         if abs(ny - cy) < 1e-6 and abs(nx - cx) < 1e-6:
             break
@@ -457,8 +526,11 @@ def _normalised(psf: np.ndarray, normalization: str, manifest: Manifest) -> np.n
     scale = psf.sum(axis=(-2, -1)) if normalization == "sum-to-one" else psf.max(axis=(-2, -1))
     if np.any(scale <= 0):
         i, j = np.argwhere(scale <= 0)[0]
-        raise InputError(manifest.source, f"the PSF at {manifest.wavelengths_m[j] * 1e9:g} nm, depth index {i} holds no light",
-                         "frames with light above their background")
+        raise InputError(
+            manifest.source,
+            f"the PSF at {manifest.wavelengths_m[j] * 1e9:g} nm, depth index {i} holds no light",
+            "frames with light above their background",
+        )
     return (psf / scale[:, :, None, None]).astype(np.float32)
 
 
@@ -470,9 +542,11 @@ def _dark_warnings(frames: list[_Frame]) -> list[str]:
     if not darker:
         return []
     worst = max(darker, key=lambda f: -f.report["background"] / f.noise)
-    return [f"the dark frame is brighter than the background of {len(darker)} of {len(frames)} frame(s) (by up to "
-            f"{-worst.report['background'] / worst.noise:.0f}σ, {worst.entry.where}): was it taken at another exposure or gain? "
-            "Its excess is removed with the background, its pattern may not match the frames'"]
+    return [
+        f"the dark frame is brighter than the background of {len(darker)} of {len(frames)} frame(s) (by up to "
+        f"{-worst.report['background'] / worst.noise:.0f}σ, {worst.entry.where}): was it taken at another exposure or gain? "
+        "Its excess is removed with the background, its pattern may not match the frames'"
+    ]
 
 
 def _frame_warnings(frame: _Frame, settings: ImportSettings) -> list[str]:
@@ -486,11 +560,15 @@ def _frame_warnings(frame: _Frame, settings: ImportSettings) -> list[str]:
     if min(y, x, r["height"] - 1 - y, r["width"] - 1 - x) < frame.radius:
         out.append(f"{frame.entry.where}: the light reaches the frame's edge; the PSF is clipped")
     elif r["border_bulge_sigma"] > BORDER_BULGE_SIGMA:
-        out.append(f"{frame.entry.where}: the border strip bulges {r['border_bulge_sigma']:.1f}σ between its corners: the PSF's "
-                   "wings reach it and are taken for background (use a larger frame)")
+        out.append(
+            f"{frame.entry.where}: the border strip bulges {r['border_bulge_sigma']:.1f}σ between its corners: the PSF's "
+            "wings reach it and are taken for background (use a larger frame)"
+        )
     if r["other_spots"]:
         first = max(r["other_spots"], key=lambda spot: spot["share"])
-        out.append(f"{frame.entry.where}: {1 + len(r['other_spots'])} separate spots of light (one at row {first['at_px'][0]:.0f}, "
-                   f"column {first['at_px'][1]:.0f} with {first['share']:.0%} of the brightest's light): the PSF takes them "
-                   "together; crop the frame to one spot (a ghost or a second source)")
+        out.append(
+            f"{frame.entry.where}: {1 + len(r['other_spots'])} separate spots of light (one at row {first['at_px'][0]:.0f}, "
+            f"column {first['at_px'][1]:.0f} with {first['share']:.0%} of the brightest's light): the PSF takes them "
+            "together; crop the frame to one spot (a ghost or a second source)"
+        )
     return out

@@ -84,7 +84,9 @@ class RadialGrid:
         all leading indices; float32 values give float32 averages."""
         values = np.asarray(values)
         lead = values.shape[:-2]
-        operator = self.operator if sample_weights is None else self.operator.multiply(sample_weights.reshape(1, -1)).tocsr()
+        operator = (
+            self.operator if sample_weights is None else self.operator.multiply(sample_weights.reshape(1, -1)).tocsr()
+        )
         flat = values.reshape(-1, values.shape[-2] * values.shape[-1])
         return np.asarray((operator.astype(values.dtype) @ flat.T).T).reshape(*lead, self.rings)
 
@@ -114,10 +116,14 @@ def radial_grid(n: int, pixel_pitch_m: float) -> RadialGrid:
     centres = np.bincount(bins, weights=weights * radius.ravel()[kept] * n, minlength=rings)  # mean ring radius / Δν
     binning = sparse.csr_matrix((weights, (bins, kept)), shape=(rings, radius.size))
     nominal = np.arange(rings)
-    lower = np.clip(np.searchsorted(centres, nominal, side="right") - 1, 0, rings - 2)  # no ring is empty: (k, 0) is in ring k
+    lower = np.clip(
+        np.searchsorted(centres, nominal, side="right") - 1, 0, rings - 2
+    )  # no ring is empty: (k, 0) is in ring k
     upper = lower + 1
     fraction = (nominal - centres[lower]) / (centres[upper] - centres[lower])
-    interpolation = sparse.csr_matrix((np.r_[1 - fraction, fraction], (np.r_[nominal, nominal], np.r_[lower, upper])), shape=(rings, rings))
+    interpolation = sparse.csr_matrix(
+        (np.r_[1 - fraction, fraction], (np.r_[nominal, nominal], np.r_[lower, upper])), shape=(rings, rings)
+    )
     pixel = np.abs(np.sinc(fx) * np.sinc(fy))
     return RadialGrid(n, float(pixel_pitch_m), (interpolation @ binning).tocsr(), radius / pixel_pitch_m, pixel)
 
@@ -138,7 +144,11 @@ def psf_mtf(psf: np.ndarray, grid: RadialGrid, remove_pixel_mtf: bool = False, f
     dc = otf[..., 0, 0].real
     if np.any(dc <= 0):
         index = np.unravel_index(int(np.argmin(dc)), dc.shape)
-        raise InputError(field, f"PSF at index {tuple(int(i) for i in index)} has no power (sum {float(dc[index]):.3g})", "PSFs with a positive sum")
+        raise InputError(
+            field,
+            f"PSF at index {tuple(int(i) for i in index)} has no power (sum {float(dc[index]):.3g})",
+            "PSFs with a positive sum",
+        )
     reweight = 1.0 / grid.pixel_mtf_2d if remove_pixel_mtf else None
     return grid.average(np.abs(otf), reweight) / dc[..., None]
 
@@ -158,7 +168,9 @@ def diffraction_mtf(frequency_per_m: np.ndarray, na: float, wavelength_m: np.nda
     return 2 / np.pi * (np.arccos(s) - s * np.sqrt(1 - s * s))
 
 
-def diffraction_limited_mtf(grid: RadialGrid, na: float, wavelengths_m: np.ndarray, include_pixel: bool = True) -> np.ndarray:
+def diffraction_limited_mtf(
+    grid: RadialGrid, na: float, wavelengths_m: np.ndarray, include_pixel: bool = True
+) -> np.ndarray:
     """(W, K) ring averages of the diffraction MTF at NA and each wavelength, on ``grid``.
 
     With ``include_pixel`` the 2-D pixel-aperture MTF multiplies it sample by sample (what an
@@ -198,7 +210,11 @@ def mtf_at(frequencies: np.ndarray, mtf: np.ndarray, at: np.ndarray, field: str 
     at = np.asarray(at, dtype=float)
     outside = at[(at < frequencies[0]) | (at > frequencies[-1])]
     if outside.size:
-        raise InputError(field, f"{outside[0]:g} is outside the frequency axis", f"frequencies in {frequencies[0]:g}…{frequencies[-1]:.4g}")
+        raise InputError(
+            field,
+            f"{outside[0]:g} is outside the frequency axis",
+            f"frequencies in {frequencies[0]:g}…{frequencies[-1]:.4g}",
+        )
     k = np.clip(np.searchsorted(frequencies, at, side="right") - 1, 0, frequencies.size - 2)
     t = (at - frequencies[k]) / (frequencies[k + 1] - frequencies[k])
     return mtf[..., k] * (1 - t) + mtf[..., k + 1] * t
@@ -239,16 +255,34 @@ class CubeMtf:
         records = []
         for i, depth in enumerate(self.depths_m):
             for j, wavelength in enumerate(self.wavelengths_m):
-                records.append(_record(depth, "wavelength_m", float(wavelength), self.mtf[i, j], self.mtf50_lpmm[i, j], self.mtf_at[i, j]))
+                records.append(
+                    _record(
+                        depth,
+                        "wavelength_m",
+                        float(wavelength),
+                        self.mtf[i, j],
+                        self.mtf50_lpmm[i, j],
+                        self.mtf_at[i, j],
+                    )
+                )
         if self.rgb_mtf is not None:
             for i, depth in enumerate(self.depths_m):
                 for c, name in enumerate(RGB_NAMES):
-                    records.append(_record(depth, "channel", name, self.rgb_mtf[i, c], self.rgb_mtf50_lpmm[i, c], self.rgb_mtf_at[i, c]))
+                    records.append(
+                        _record(
+                            depth, "channel", name, self.rgb_mtf[i, c], self.rgb_mtf50_lpmm[i, c], self.rgb_mtf_at[i, c]
+                        )
+                    )
         return records
 
 
 def _record(depth: float, key: str, value, mtf: np.ndarray, mtf50_value: float, at_values: np.ndarray) -> dict:
-    record = {"depth_m": float(depth), key: value, "mtf": mtf.tolist(), "mtf50_lpmm": None if np.isnan(mtf50_value) else float(mtf50_value)}
+    record = {
+        "depth_m": float(depth),
+        key: value,
+        "mtf": mtf.tolist(),
+        "mtf50_lpmm": None if np.isnan(mtf50_value) else float(mtf50_value),
+    }
     if at_values.size:
         record["mtf_at"] = at_values.tolist()
     return record

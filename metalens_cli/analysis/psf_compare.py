@@ -90,41 +90,62 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
     warnings += _light_warning("simulated", simulated, _light_kept(simulated.psf, sim_psf), n)
     radii_outside = [r for r in radii if r > n * pitch / 2]
     if radii_outside:
-        warnings.append(f"encircled energy at {_lengths(radii_outside)} is not reported: "
-                        f"{'the disc is' if len(radii_outside) == 1 else 'the discs are'} wider than the compared window "
-                        f"({n} × {n} pixels of {format_length(pitch)}, {format_length(n * pitch)} across: radii up to "
-                        f"{format_length(n * pitch / 2)})")
+        warnings.append(
+            f"encircled energy at {_lengths(radii_outside)} is not reported: "
+            f"{'the disc is' if len(radii_outside) == 1 else 'the discs are'} wider than the compared window "
+            f"({n} × {n} pixels of {format_length(pitch)}, {format_length(n * pitch)} across: radii up to "
+            f"{format_length(n * pitch / 2)})"
+        )
     grid = radial_grid(n, pitch)
     pairs, refused, scans = [], [], []
     for i, depth in enumerate(measured.depths_m):
         k = _depth_index(simulated.depths_m, depth)
         if k is None:
-            refused += [{"depth_m": _json_depth(depth), "wavelength_m": float(w), "reason": "no simulated PSF at this depth"}
-                        for w in measured.wavelengths_m]
+            refused += [
+                {"depth_m": _json_depth(depth), "wavelength_m": float(w), "reason": "no simulated PSF at this depth"}
+                for w in measured.wavelengths_m
+            ]
             continue
         rows_m, rows_s, waves = [], [], []
         for j, wavelength in enumerate(measured.wavelengths_m):
             if kept[i, j] < LIGHT_REQUIRED:
-                refused.append({"depth_m": _json_depth(depth), "wavelength_m": float(wavelength),
-                                "reason": f"the compared window ({n} × {n} pixels of {format_length(pitch)}) holds {_percent(kept[i, j])} "
-                                          "of its light (a simulated window as wide as the measured PSF's light is needed)"})
+                refused.append(
+                    {
+                        "depth_m": _json_depth(depth),
+                        "wavelength_m": float(wavelength),
+                        "reason": f"the compared window ({n} × {n} pixels of {format_length(pitch)}) holds {_percent(kept[i, j])} "
+                        "of its light (a simulated window as wide as the measured PSF's light is needed)",
+                    }
+                )
                 continue
             mix, how = _wavelength_mix(simulated.wavelengths_m, float(wavelength), interpolate)
             if mix is None:
                 refused.append({"depth_m": _json_depth(depth), "wavelength_m": float(wavelength), "reason": how})
                 continue
             reference = sum(weight * sim_psf[k, index].astype(np.float64) for index, weight in mix)
-            record, aligned, reference = _compare_pair(meas_psf[i, j].astype(np.float64), reference, pitch, radii, grid, n * pitch / 2)
+            record, aligned, reference = _compare_pair(
+                meas_psf[i, j].astype(np.float64), reference, pitch, radii, grid, n * pitch / 2
+            )
             pairs.append({"depth_m": _json_depth(depth), "wavelength_m": float(wavelength), "simulated": how, **record})
             rows_m.append(aligned[n // 2])
             rows_s.append(reference[n // 2])
             waves.append(float(wavelength))
         if waves:
-            scans.append({"depth_m": float(depth), "wavelengths_m": waves, "measured": np.array(rows_m), "simulated": np.array(rows_s)})
+            scans.append(
+                {
+                    "depth_m": float(depth),
+                    "wavelengths_m": waves,
+                    "measured": np.array(rows_m),
+                    "simulated": np.array(rows_s),
+                }
+            )
     if not pairs:
         reason = refused[0]["reason"] if refused else "no PSFs"
-        raise InputError("MEASURED", f"no (depth, wavelength) of the measured cube can be compared: {reason}",
-                         "cubes sharing depths and overlapping in wavelength")
+        raise InputError(
+            "MEASURED",
+            f"no (depth, wavelength) of the measured cube can be compared: {reason}",
+            "cubes sharing depths and overlapping in wavelength",
+        )
     return CubeComparison(pairs, refused, n, pitch, resampled, radii, scans, warnings)
 
 
@@ -134,19 +155,27 @@ def _check_pitches(measured, simulated) -> list[str]:
     for which, cube in (("MEASURED", measured), ("SIMULATED", simulated)):
         n, pitch, shortest = cube.psf.shape[-1], cube.pixel_pitch_m, float(np.min(cube.wavelengths_m))
         if n * pitch < shortest / 2:
-            raise InputError(which, f"its {n} pixels of {format_length(pitch)} span {format_length(n * pitch)}, less than half its "
-                             f"shortest wavelength ({shortest * 1e9:g} nm): no PSF is that small",
-                             "a cube whose pixel_pitch_m is the pixel pitch in metres")
+            raise InputError(
+                which,
+                f"its {n} pixels of {format_length(pitch)} span {format_length(n * pitch)}, less than half its "
+                f"shortest wavelength ({shortest * 1e9:g} nm): no PSF is that small",
+                "a cube whose pixel_pitch_m is the pixel pitch in metres",
+            )
     measured_pitch, simulated_pitch = format_length(measured.pixel_pitch_m), format_length(simulated.pixel_pitch_m)
     ratio = simulated.pixel_pitch_m / measured.pixel_pitch_m
     if measured.psf.shape[-1] < 3 * ratio:
-        raise InputError("MEASURED", f"its window ({measured.psf.shape[-1]} pixels of {measured_pitch}) spans under 3 simulated "
-                         f"pixels of {simulated_pitch}",
-                         "a measured window at least 3 simulated pixels wide (check both cubes' pixel_pitch_m)")
+        raise InputError(
+            "MEASURED",
+            f"its window ({measured.psf.shape[-1]} pixels of {measured_pitch}) spans under 3 simulated "
+            f"pixels of {simulated_pitch}",
+            "a measured window at least 3 simulated pixels wide (check both cubes' pixel_pitch_m)",
+        )
     if ratio > COARSE_SIMULATION:
-        return [f"the simulated pixels ({simulated_pitch}) are {ratio:.3g}× the measured ({measured_pitch}): the simulation is "
-                f"interpolated onto the measured grid, not resolved on it (psf-scan --pixel-pitch {measured.pixel_pitch_m * 1e6:.3g}um "
-                "simulates at the measured pitch)"]
+        return [
+            f"the simulated pixels ({simulated_pitch}) are {ratio:.3g}× the measured ({measured_pitch}): the simulation is "
+            f"interpolated onto the measured grid, not resolved on it (psf-scan --pixel-pitch {measured.pixel_pitch_m * 1e6:.3g}um "
+            "simulates at the measured pitch)"
+        ]
     return []
 
 
@@ -155,13 +184,19 @@ def _small_window(measured, simulated, n: int, resampled_n: int) -> tuple[str, s
     naming the cube whose window limits it."""
     pitch = format_length(measured.pixel_pitch_m)
     if measured.psf.shape[-1] <= resampled_n:
-        return ("MEASURED", f"the common window is {n} × {n} pixels of {pitch}, its own window: too small to compare PSFs",
-                f"a measured window of at least {MIN_COMMON_PIXELS} × {MIN_COMMON_PIXELS} pixels")
+        return (
+            "MEASURED",
+            f"the common window is {n} × {n} pixels of {pitch}, its own window: too small to compare PSFs",
+            f"a measured window of at least {MIN_COMMON_PIXELS} × {MIN_COMMON_PIXELS} pixels",
+        )
     own = simulated.psf.shape[-1]
-    return ("SIMULATED", f"its window ({own} × {own} pixels of {format_length(simulated.pixel_pitch_m)}, "
-            f"{format_length(own * simulated.pixel_pitch_m)} across) covers {n} × {n} measured pixels of {pitch}: too small to compare PSFs",
-            f"a simulated window at least {MIN_COMMON_PIXELS} measured pixels ({format_length(MIN_COMMON_PIXELS * measured.pixel_pitch_m)}) "
-            "wide (check both cubes' pixel_pitch_m)")
+    return (
+        "SIMULATED",
+        f"its window ({own} × {own} pixels of {format_length(simulated.pixel_pitch_m)}, "
+        f"{format_length(own * simulated.pixel_pitch_m)} across) covers {n} × {n} measured pixels of {pitch}: too small to compare PSFs",
+        f"a simulated window at least {MIN_COMMON_PIXELS} measured pixels ({format_length(MIN_COMMON_PIXELS * measured.pixel_pitch_m)}) "
+        "wide (check both cubes' pixel_pitch_m)",
+    )
 
 
 def _light_kept(own: np.ndarray, cropped: np.ndarray) -> np.ndarray:
@@ -178,9 +213,11 @@ def _light_warning(which: str, cube, kept: np.ndarray, n: int) -> list[str]:
     k, j = np.unravel_index(int(np.argmin(kept)), kept.shape)
     if kept[k, j] >= LIGHT_KEPT:
         return []
-    return [f"the compared window ({n} × {n} pixels) holds only {_percent(kept[k, j])} of the {which} PSF's light at "
-            f"{cube.wavelengths_m[j] * 1e9:g} nm, {format_length(float(cube.depths_m[k]))} ({int(np.sum(kept < LIGHT_KEPT))} of "
-            f"{kept.size} PSFs under {LIGHT_KEPT:.0%}): the figures describe the window's part of the PSFs"]
+    return [
+        f"the compared window ({n} × {n} pixels) holds only {_percent(kept[k, j])} of the {which} PSF's light at "
+        f"{cube.wavelengths_m[j] * 1e9:g} nm, {format_length(float(cube.depths_m[k]))} ({int(np.sum(kept < LIGHT_KEPT))} of "
+        f"{kept.size} PSFs under {LIGHT_KEPT:.0%}): the figures describe the window's part of the PSFs"
+    ]
 
 
 def _percent(fraction: float) -> str:
@@ -189,7 +226,7 @@ def _percent(fraction: float) -> str:
 
 
 def _lengths(values: list[float]) -> str:
-    """"9.25 µm", "9.25 µm and 18.5 µm", "1 µm, 2 µm and 3 µm"."""
+    """ "9.25 µm", "9.25 µm and 18.5 µm", "1 µm, 2 µm and 3 µm"."""
     texts = [format_length(v) for v in values]
     return texts[0] if len(texts) == 1 else f"{', '.join(texts[:-1])} and {texts[-1]}"
 
@@ -201,12 +238,15 @@ def _json_depth(depth: float) -> float | None:
 def _depth_index(depths: np.ndarray, depth: float) -> int | None:
     for k, other in enumerate(depths):
         if (math.isinf(depth) and math.isinf(other)) or (
-                math.isfinite(depth) and math.isfinite(other) and abs(other - depth) <= DEPTH_TOLERANCE * depth):
+            math.isfinite(depth) and math.isfinite(other) and abs(other - depth) <= DEPTH_TOLERANCE * depth
+        ):
             return k
     return None
 
 
-def _wavelength_mix(wavelengths: np.ndarray, wavelength: float, interpolate: bool) -> tuple[list[tuple[int, float]] | None, str]:
+def _wavelength_mix(
+    wavelengths: np.ndarray, wavelength: float, interpolate: bool
+) -> tuple[list[tuple[int, float]] | None, str]:
     """[(simulated index, weight)] and how the simulated PSF is made ("exact", "interpolated
     from 530 and 535 nm"), or (None, why it is refused)."""
     exact = np.flatnonzero(np.abs(wavelengths - wavelength) <= WAVELENGTH_TOLERANCE_M)
@@ -221,7 +261,10 @@ def _wavelength_mix(wavelengths: np.ndarray, wavelength: float, interpolate: boo
     upper = int(np.searchsorted(ordered, wavelength))
     lo, hi = ordered[upper - 1], ordered[upper]
     t = (wavelength - lo) / (hi - lo)
-    return [(int(order[upper - 1]), 1 - t), (int(order[upper]), t)], f"interpolated from {lo * 1e9:g} and {hi * 1e9:g} nm"
+    return [
+        (int(order[upper - 1]), 1 - t),
+        (int(order[upper]), t),
+    ], f"interpolated from {lo * 1e9:g} and {hi * 1e9:g} nm"
 
 
 def _on_pitch(psf: np.ndarray, pitch_m: float, target_m: float, target_n: int) -> tuple[np.ndarray, bool]:
@@ -239,8 +282,11 @@ def _on_pitch(psf: np.ndarray, pitch_m: float, target_m: float, target_n: int) -
     extent = (n - 1) - n // 2 + 0.5  # source pixels from the axis to its nearer window edge
     half = min(target_n // 2, math.floor(extent / ratio - 0.5))
     if half < 1:
-        raise InputError("SIMULATED", f"its window ({n} pixels of {pitch_m * 1e6:g} µm) covers under 3 measured pixels",
-                         "a simulated window at least 3 measured pixels wide")
+        raise InputError(
+            "SIMULATED",
+            f"its window ({n} pixels of {pitch_m * 1e6:g} µm) covers under 3 measured pixels",
+            "a simulated window at least 3 measured pixels wide",
+        )
     edges = (np.arange(-half, half + 2) - 0.5) * ratio + n // 2 + 0.5  # target pixel edges, in integral-image indices
     yy, xx = np.meshgrid(edges, edges, indexing="ij")
     flat = psf.reshape(-1, n, n).astype(np.float64)
@@ -259,14 +305,18 @@ def _crop(psf: np.ndarray, n: int) -> np.ndarray:
     return psf[..., start : start + n, start : start + n]
 
 
-def _compare_pair(measured: np.ndarray, simulated: np.ndarray, pitch: float, radii: list[float], grid,
-                  max_radius: float) -> tuple[dict, np.ndarray, np.ndarray]:
+def _compare_pair(
+    measured: np.ndarray, simulated: np.ndarray, pitch: float, radii: list[float], grid, max_radius: float
+) -> tuple[dict, np.ndarray, np.ndarray]:
     """Metrics of one pair (encircled energy None at radii over ``max_radius``); also the
     registered measured PSF and the simulated one, both normalised to sum to one."""
     total_m, total_s = measured.sum(), simulated.sum()
     if total_m <= 0 or total_s <= 0:
-        raise InputError("MEASURED" if total_m <= 0 else "SIMULATED", "a PSF holds no light in the common window",
-                         "PSFs with positive sums")
+        raise InputError(
+            "MEASURED" if total_m <= 0 else "SIMULATED",
+            "a PSF holds no light in the common window",
+            "PSFs with positive sums",
+        )
     measured, simulated = measured / total_m, simulated / total_s
     dy = dx = 0.0
     aligned = measured
@@ -282,10 +332,15 @@ def _compare_pair(measured: np.ndarray, simulated: np.ndarray, pitch: float, rad
         "shift_px": [float(dy), float(dx)],
         "peak_ratio": float(aligned.max() / simulated.max()),
         "fwhm_m": {"measured": _fwhm(measured, pitch), "simulated": _fwhm(simulated, pitch)},
-        "encircled_energy": {"measured": _encircled(measured, pitch, radii, max_radius),
-                             "simulated": _encircled(simulated, pitch, radii, max_radius)},
+        "encircled_energy": {
+            "measured": _encircled(measured, pitch, radii, max_radius),
+            "simulated": _encircled(simulated, pitch, radii, max_radius),
+        },
         "relative_l2": float(np.linalg.norm(aligned - simulated) / np.linalg.norm(simulated)),
-        "mtf50_lpmm": {"measured": None if np.isnan(m50[0]) else float(m50[0]), "simulated": None if np.isnan(m50[1]) else float(m50[1])},
+        "mtf50_lpmm": {
+            "measured": None if np.isnan(m50[0]) else float(m50[0]),
+            "simulated": None if np.isnan(m50[1]) else float(m50[1]),
+        },
     }
     return record, aligned, simulated
 

@@ -29,12 +29,15 @@ def fwhm_pixels(row: np.ndarray) -> float | None:
     c = row.shape[0] // 2
     if row[c] <= 0:
         return None
-    below = np.flatnonzero(row < 0.45 * row[max(c - 1, 0):c + 2].max())  # under any half maximum the spline can have
+    below = np.flatnonzero(row < 0.45 * row[max(c - 1, 0) : c + 2].max())  # under any half maximum the spline can have
     left, right = below[below < c], below[below > c]
     if not left.size or not right.size:
         return None
-    lo, hi = max(left[-1] - SPLINE_MARGIN, 0), min(right[0] + SPLINE_MARGIN, row.shape[0] - 1)  # a spline of the light only
-    spline = CubicSpline(np.arange(lo, hi + 1), row[lo:hi + 1])
+    lo, hi = (
+        max(left[-1] - SPLINE_MARGIN, 0),
+        min(right[0] + SPLINE_MARGIN, row.shape[0] - 1),
+    )  # a spline of the light only
+    spline = CubicSpline(np.arange(lo, hi + 1), row[lo : hi + 1])
     stationary = spline.derivative().roots(extrapolate=False)
     candidates = np.concatenate([[c], stationary[np.abs(stationary - c) <= 1]])
     top = candidates[int(np.argmax(spline(candidates)))]

@@ -106,7 +106,9 @@ def _srgb_to_linear(value: np.ndarray) -> np.ndarray:
     return np.where(value <= 0.04045, value / 12.92, ((value + 0.055) / 1.055) ** 2.4)
 
 
-def slanted_edge_sfr(image: np.ndarray, channel_names: list[str], roi: tuple[int, int, int, int] | None = None) -> EdgeAnalysis:
+def slanted_edge_sfr(
+    image: np.ndarray, channel_names: list[str], roi: tuple[int, int, int, int] | None = None
+) -> EdgeAnalysis:
     """The SFR of each channel of ``image`` (H, W, C) (or (H, W)) over ``roi`` = (x, y, w, h).
 
     Without ``roi`` the image must hold one dominant straight edge: it is located on the
@@ -117,7 +119,9 @@ def slanted_edge_sfr(image: np.ndarray, channel_names: list[str], roi: tuple[int
     image = np.asarray(image, dtype=float)
     image = image[..., None] if image.ndim == 2 else image
     if image.ndim != 3 or image.shape[2] != len(channel_names):
-        raise InputError("image", f"shape {image.shape} for channels {channel_names}", "(H, W, C) with one name per channel")
+        raise InputError(
+            "image", f"shape {image.shape} for channels {channel_names}", "(H, W, C) with one name per channel"
+        )
     x, y, w, h = (0, 0, image.shape[1], image.shape[0]) if roi is None else _check_roi(roi, image.shape)
     if min(w, h) < MIN_COLUMNS:  # before any statistics of too few pixels
         raise InputError("roi", f"{w} × {h} pixels", f"an image or ROI of at least {MIN_COLUMNS} × {MIN_COLUMNS}")
@@ -129,7 +133,11 @@ def slanted_edge_sfr(image: np.ndarray, channel_names: list[str], roi: tuple[int
         oriented = oriented[r0:r1, c0:c1]
         x, y, w, h = (c0, r0, c1 - c0, r1 - r0) if vertical else (r0, c0, r1 - r0, c1 - c0)
     if oriented.shape[0] < MIN_ROWS or oriented.shape[1] < MIN_COLUMNS:
-        raise InputError("roi", f"{oriented.shape[0]} pixels along the edge × {oriented.shape[1]} across", f"at least {MIN_ROWS} × {MIN_COLUMNS}")
+        raise InputError(
+            "roi",
+            f"{oriented.shape[0]} pixels along the edge × {oriented.shape[1]} across",
+            f"at least {MIN_ROWS} × {MIN_COLUMNS}",
+        )
     channels = [_channel_sfr(oriented[..., k], name) for k, name in enumerate(channel_names)]
     return EdgeAnalysis((int(x), int(y), int(w), int(h)), "vertical" if vertical else "horizontal", channels)
 
@@ -138,7 +146,11 @@ def _check_roi(roi, shape) -> tuple[int, int, int, int]:
     """(x, y, w, h) inside an image of ``shape`` (H, W, …)."""
     x, y, w, h = (int(v) for v in roi)
     if x < 0 or y < 0 or w < 1 or h < 1 or x + w > shape[1] or y + h > shape[0]:
-        raise InputError("roi", f"{x},{y},{w},{h} is not inside the {shape[1]} × {shape[0]} image", "x,y,w,h with 0 ≤ x, x + w ≤ width, 0 ≤ y, y + h ≤ height")
+        raise InputError(
+            "roi",
+            f"{x},{y},{w},{h} is not inside the {shape[1]} × {shape[0]} image",
+            "x,y,w,h with 0 ≤ x, x + w ≤ width, 0 ≤ y, y + h ≤ height",
+        )
     return x, y, w, h
 
 
@@ -159,7 +171,11 @@ def _auto_roi(plane: np.ndarray) -> tuple[int, int, int, int]:
     half = min(AUTO_HALF_WIDTH_PX, int(np.floor(np.quantile(distance, 0.25))))
     inside = np.flatnonzero(distance >= half)
     if half < MIN_COLUMNS // 2 or inside.size < MIN_ROWS:
-        raise InputError("roi", f"the edge keeps < {MIN_COLUMNS // 2} px from the image sides", "an edge across the image's middle, or --roi x,y,w,h")
+        raise InputError(
+            "roi",
+            f"the edge keeps < {MIN_COLUMNS // 2} px from the image sides",
+            "an edge across the image's middle, or --roi x,y,w,h",
+        )
     r0, r1 = int(inside[0]), int(inside[-1]) + 1
     c0 = max(int(math.floor(edge[r0:r1].min())) - half, 0)
     c1 = min(int(math.ceil(edge[r0:r1].max())) + half + 1, width)
@@ -184,7 +200,11 @@ def _check_contrast(plane: np.ndarray, name: str) -> None:
     step = abs(plane[:, -3:].mean() - plane[:, :3].mean())
     noise = 1.4826 * np.median(np.abs(np.diff(plane, axis=0))) / math.sqrt(2)
     if step <= 0 or step <= MIN_CONTRAST_TO_NOISE * noise:
-        raise InputError(name, f"no edge in the ROI (step {step:.3g} against pixel noise {noise:.3g})", "one brightness step (an edge) across the ROI")
+        raise InputError(
+            name,
+            f"no edge in the ROI (step {step:.3g} against pixel noise {noise:.3g})",
+            "one brightness step (an edge) across the ROI",
+        )
 
 
 def _edge_line(plane: np.ndarray, name: str) -> tuple[float, float]:
@@ -206,7 +226,9 @@ def _edge_line(plane: np.ndarray, name: str) -> tuple[float, float]:
         b, a = np.polyfit(rows[valid], centroid, 1)
     rms = float(np.sqrt(np.mean((centroid - (a + b * rows[valid])) ** 2)))
     if rms > MAX_LINE_RMS_PX:
-        raise InputError(name, f"the edge is not straight (rms {rms:.2f} px from a line)", "one straight edge in the ROI")
+        raise InputError(
+            name, f"the edge is not straight (rms {rms:.2f} px from a line)", "one straight edge in the ROI"
+        )
     return float(a), float(b)
 
 
@@ -223,16 +245,28 @@ def _check_angle(angle_deg: float, name: str) -> None:
     """Refuse tilts within ANGLE_MARGIN_DEG of 0° (90°) or of 45°: too few sampling phases."""
     tilt = abs(angle_deg)
     if tilt < ANGLE_MARGIN_DEG:
-        raise InputError(name, f"edge tilted {angle_deg:.2f}° from the pixel grid: too few sub-pixel phases", "an edge tilted 2° to 10° (not within 1° of 0° or 90°)")
+        raise InputError(
+            name,
+            f"edge tilted {angle_deg:.2f}° from the pixel grid: too few sub-pixel phases",
+            "an edge tilted 2° to 10° (not within 1° of 0° or 90°)",
+        )
     if abs(tilt - 45) < ANGLE_MARGIN_DEG:
-        raise InputError(name, f"edge tilted {angle_deg:.2f}°, within 1° of 45°: every row samples the same phases", "an edge tilted 2° to 10° (not within 1° of 45°)")
+        raise InputError(
+            name,
+            f"edge tilted {angle_deg:.2f}°, within 1° of 45°: every row samples the same phases",
+            "an edge tilted 2° to 10° (not within 1° of 45°)",
+        )
 
 
 def _whole_phase_rows(rows: int, slope: float, name: str) -> int:
     """The largest row count ≤ ``rows`` over which the edge shifts a whole number of pixels."""
     shifts = math.floor(rows * abs(slope))
     if shifts < 1:
-        raise InputError(name, f"the edge shifts {rows * abs(slope):.2f} px over the ROI's {rows} rows", "an ROI long enough for the edge to shift at least 1 px")
+        raise InputError(
+            name,
+            f"the edge shifts {rows * abs(slope):.2f} px over the ROI's {rows} rows",
+            "an ROI long enough for the edge to shift at least 1 px",
+        )
     return min(rows, int(round(shifts / abs(slope))))
 
 
@@ -246,14 +280,20 @@ def _binned_esf(plane: np.ndarray, a: float, b: float, name: str) -> tuple[np.nd
     lo = math.ceil(-edge.min() * cos * OVERSAMPLING)  # bins [lo, hi) / OVERSAMPLING: reached by every row
     hi = math.floor((width - 1 - edge.max()) * cos * OVERSAMPLING)
     if hi - lo < 4 * OVERSAMPLING:
-        raise InputError(name, f"the ROI spans {(hi - lo) / OVERSAMPLING:.1f} px across the edge", "at least 4 px on the edge normal")
+        raise InputError(
+            name, f"the ROI spans {(hi - lo) / OVERSAMPLING:.1f} px across the edge", "at least 4 px on the edge normal"
+        )
     index = np.floor(distance * OVERSAMPLING).astype(np.int64).ravel() - lo
     inside = (index >= 0) & (index < hi - lo)
     counts = np.bincount(index[inside], minlength=hi - lo)
     sums = np.bincount(index[inside], weights=plane.ravel()[inside], minlength=hi - lo)
     filled = counts > 0
     if filled.mean() < 1 - MAX_EMPTY_BINS:
-        raise InputError(name, f"the edge tilt leaves {100 * (1 - filled.mean()):.0f} % of the ¼-pixel ESF bins empty (tan θ near 1/2 or 1/3?)", "an edge tilted 2° to 10°")
+        raise InputError(
+            name,
+            f"the edge tilt leaves {100 * (1 - filled.mean()):.0f} % of the ¼-pixel ESF bins empty (tan θ near 1/2 or 1/3?)",
+            "an edge tilted 2° to 10°",
+        )
     centres = np.arange(hi - lo)
     esf = np.interp(centres, centres[filled], sums[filled] / counts[filled])
     return esf, -lo - 0.5

@@ -26,8 +26,9 @@ def _sample(values, metric: str) -> np.ndarray:
     return x
 
 
-def mean_ci(values, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0, *,
-            metric: str = "metric") -> dict:
+def mean_ci(
+    values, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0, *, metric: str = "metric"
+) -> dict:
     """{"mean", "ci": [lo, hi], "n"}: the mean of ``values`` (one per unit) and its two-sided
     percentile-bootstrap interval at ``confidence``; ``metric`` names the values in errors."""
     if not 0 < confidence < 1:
@@ -38,13 +39,20 @@ def mean_ci(values, confidence: float = 0.95, n_resamples: int = 2000, seed: int
     mean = float(np.mean(x))
     if x.size == 1 or np.all(x == x[0]):
         return {"mean": mean, "ci": [mean, mean], "n": int(x.size)}
-    ci = scipy.stats.bootstrap((x,), np.mean, n_resamples=int(n_resamples), confidence_level=confidence,
-                               method="percentile", random_state=np.random.default_rng(seed)).confidence_interval
+    ci = scipy.stats.bootstrap(
+        (x,),
+        np.mean,
+        n_resamples=int(n_resamples),
+        confidence_level=confidence,
+        method="percentile",
+        random_state=np.random.default_rng(seed),
+    ).confidence_interval
     return {"mean": mean, "ci": [float(ci.low), float(ci.high)], "n": int(x.size)}
 
 
-def paired_difference_ci(a, b, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0, *,
-                         metric: str = "metric") -> dict:
+def paired_difference_ci(
+    a, b, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0, *, metric: str = "metric"
+) -> dict:
     """:func:`mean_ci` of the per-unit differences a − b (same units, same order in both)."""
     x, y = _sample(a, metric), _sample(b, metric)
     if x.size != y.size:

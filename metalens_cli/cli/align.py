@@ -11,7 +11,14 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import check_output_unused, json_option, MetalensCommand, OutputFile, OutputFolder, overwrite_option
+from metalens_cli.cli.options import (
+    MetalensCommand,
+    OutputFile,
+    OutputFolder,
+    check_output_unused,
+    json_option,
+    overwrite_option,
+)
 from metalens_cli.errors import InputError
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
@@ -35,16 +42,35 @@ class FileOrFolder(OutputFile):
 @click.command("align", cls=MetalensCommand)
 @click.argument("reference", metavar="REFERENCE")
 @click.argument("target", metavar="TARGET")
-@click.option("-o", "--output", required=True, type=FileOrFolder(OUTPUT_SUFFIXES),
-              help="Aligned image (.png, .tif: 16-bit; .exr for an EXR target), or a folder for two folders (created).")
-@click.option("--refine", type=click.Choice(REFINES), default="flow", show_default=True,
-              help="After the homography: flow (dense optical flow), tps (thin-plate spline through the matches) or none.")
-@click.option("--warp-out", type=FileOrFolder((".npz",)),
-              help="Save the warp: WARP.npz for two images; for two folders, a folder (created, apart from -o) of NAME.warp.npz.")
-@click.option("--warp", "warp_path", type=click.Path(dir_okay=False),
-              help="Reapply this saved warp (WARP.npz) to every target instead of registering.")
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=FileOrFolder(OUTPUT_SUFFIXES),
+    help="Aligned image (.png, .tif: 16-bit; .exr for an EXR target), or a folder for two folders (created).",
+)
+@click.option(
+    "--refine",
+    type=click.Choice(REFINES),
+    default="flow",
+    show_default=True,
+    help="After the homography: flow (dense optical flow), tps (thin-plate spline through the matches) or none.",
+)
+@click.option(
+    "--warp-out",
+    type=FileOrFolder((".npz",)),
+    help="Save the warp: WARP.npz for two images; for two folders, a folder (created, apart from -o) of NAME.warp.npz.",
+)
+@click.option(
+    "--warp",
+    "warp_path",
+    type=click.Path(dir_okay=False),
+    help="Reapply this saved warp (WARP.npz) to every target instead of registering.",
+)
 @overwrite_option
-@click.option("--quiet", is_flag=True, help="No table, progress or 'wrote' lines (warnings and errors still go to stderr).")
+@click.option(
+    "--quiet", is_flag=True, help="No table, progress or 'wrote' lines (warnings and errors still go to stderr)."
+)
 @json_option
 @click.pass_context
 def align(ctx, reference, target, output, refine, warp_out, warp_path, overwrite, quiet, as_json):
@@ -71,28 +97,46 @@ def align(ctx, reference, target, output, refine, warp_out, warp_path, overwrite
     """
     folders = [os.path.isdir(path) for path in (reference, target)]
     if folders[0] != folders[1]:
-        raise InputError("TARGET", f"{target!r} is {'a folder' if folders[1] else 'a file'} but REFERENCE {reference!r} "
-                         f"is {'a folder' if folders[0] else 'a file'}", "two image files or two folders")
+        raise InputError(
+            "TARGET",
+            f"{target!r} is {'a folder' if folders[1] else 'a file'} but REFERENCE {reference!r} "
+            f"is {'a folder' if folders[0] else 'a file'}",
+            "two image files or two folders",
+        )
     is_folder = folders[0]
     if warp_path is not None:
         if warp_out is not None:
             raise click.UsageError("--warp-out does not apply with --warp (the warp is saved already)")
         if ctx.get_parameter_source("refine") == click.core.ParameterSource.COMMANDLINE:
             raise click.UsageError("--refine does not apply with --warp (the saved warp was refined when it was made)")
-    pairs = _folder_pairs(Path(reference), Path(target)) if is_folder else [(Path(target).stem, Path(reference), Path(target))]
+    pairs = (
+        _folder_pairs(Path(reference), Path(target))
+        if is_folder
+        else [(Path(target).stem, Path(reference), Path(target))]
+    )
     _check_outputs(is_folder, output, warp_out, pairs, overwrite)
     from metalens_cli.imaging.registration import load_warp
 
     saved = None if warp_path is None else load_warp(warp_path, "--warp")
     if is_folder:
-        rows, warnings = _align_folders(pairs, Path(output), None if warp_out is None else Path(warp_out), refine, saved, quiet)
+        rows, warnings = _align_folders(
+            pairs, Path(output), None if warp_out is None else Path(warp_out), refine, saved, quiet
+        )
     else:
         rows, warnings = _align_pair(pairs[0], Path(output), warp_out, refine, saved)
     for name, warning in warnings:
         render.say([f"{name}: {warning}"])
     if as_json:
-        render.emit_json({"reference": reference, "target": target, "output": output, "refine": rows[0]["registration"]["refine"],
-                          "warp": warp_path, "pairs": rows})
+        render.emit_json(
+            {
+                "reference": reference,
+                "target": target,
+                "output": output,
+                "refine": rows[0]["registration"]["refine"],
+                "warp": warp_path,
+                "pairs": rows,
+            }
+        )
     elif not quiet:
         _render(rows, reference, is_folder, output, warp_out)
 
@@ -105,8 +149,11 @@ def _folder_pairs(reference: Path, target: Path) -> list[tuple[str, Path, Path]]
     alone = sorted(set(targets) - set(references))
     if alone:
         listed = ", ".join(targets[stem].name for stem in alone[:5]) + (", …" if len(alone) > 5 else "")
-        raise InputError("TARGET", f"{len(alone)} image(s) without a reference of the same name in {str(reference)!r}: {listed}",
-                         "REF_DIR/NAME.* for every TARGET_DIR/NAME.*")
+        raise InputError(
+            "TARGET",
+            f"{len(alone)} image(s) without a reference of the same name in {str(reference)!r}: {listed}",
+            "REF_DIR/NAME.* for every TARGET_DIR/NAME.*",
+        )
     return [(stem, references[stem], targets[stem]) for stem in sorted(targets)]
 
 
@@ -121,8 +168,9 @@ def _images(folder: Path, field: str) -> dict[str, Path]:
         if path.suffix.lower() not in IMAGE_SUFFIXES or path.name.startswith(".") or not path.is_file():
             continue
         if path.stem in found:
-            raise InputError(field, f"{found[path.stem].name} and {path.name} in {str(folder)!r} share a name",
-                             "one image per name")
+            raise InputError(
+                field, f"{found[path.stem].name} and {path.name} in {str(folder)!r} share a name", "one image per name"
+            )
         found[path.stem] = path
     return found
 
@@ -131,20 +179,32 @@ def _check_outputs(is_folder: bool, output: str, warp_out: str | None, pairs, ov
     """Outputs of the right kind for the mode (output folders unused, unless ``overwrite``), and
     an output encoding that is the target's."""
     if is_folder:
-        for option, value, kind in (("--output", output, "an output folder"), ("--warp-out", warp_out, "a folder of warps")):
-            if value is not None and not os.path.isdir(value) and Path(value).suffix.lower() in (*OUTPUT_SUFFIXES, ".npz"):
+        for option, value, kind in (
+            ("--output", output, "an output folder"),
+            ("--warp-out", warp_out, "a folder of warps"),
+        ):
+            if (
+                value is not None
+                and not os.path.isdir(value)
+                and Path(value).suffix.lower() in (*OUTPUT_SUFFIXES, ".npz")
+            ):
                 raise InputError(option, f"{value!r} names a file, but REFERENCE and TARGET are folders", kind)
             if value is not None:
                 check_output_unused(value, overwrite, option)
         return
     if Path(output).suffix.lower() not in OUTPUT_SUFFIXES:
-        raise InputError("--output", f"{output!r} does not end in .png, .tif, .tiff or .exr", "an image file for two images")
+        raise InputError(
+            "--output", f"{output!r} does not end in .png, .tif, .tiff or .exr", "an image file for two images"
+        )
     if warp_out is not None and not warp_out.lower().endswith(".npz"):
         raise InputError("--warp-out", f"{warp_out!r} does not end in .npz", "WARP.npz for two images")
     target_exr = pairs[0][2].suffix.lower() == ".exr"
     if target_exr != (Path(output).suffix.lower() == ".exr"):
-        raise InputError("--output", f"{Path(output).name!r}: the output keeps the target's encoding",
-                         "a .exr output for an EXR target" if target_exr else ".png or .tif (16-bit) for an 8/16-bit target")
+        raise InputError(
+            "--output",
+            f"{Path(output).name!r}: the output keeps the target's encoding",
+            "a .exr output for an EXR target" if target_exr else ".png or .tif (16-bit) for an 8/16-bit target",
+        )
 
 
 def _align_pair(pair, output: Path, warp_out: str | None, refine: str, saved):
@@ -166,15 +226,26 @@ def _align_folders(pairs, output: Path, warp_out: Path | None, refine: str, save
 
     rows, warnings = [], []
     warp_folder = atomic_folder(warp_out, field="--warp-out") if warp_out is not None else nullcontext()
-    with progress_bar("align", quiet) as update, atomic_folder(output) as staging, warp_folder as warp_staging:  # all or none
+    with (
+        progress_bar("align", quiet) as update,
+        atomic_folder(output) as staging,
+        warp_folder as warp_staging,
+    ):  # all or none
         for k, (stem, reference, target) in enumerate(pairs):
-            row, registration, aligned, is_linear, said = _align_one((stem, reference, target), refine, saved, str(target), str(reference))
+            row, registration, aligned, is_linear, said = _align_one(
+                (stem, reference, target), refine, saved, str(target), str(reference)
+            )
             name = f"{stem}.exr" if is_linear else f"{stem}.png"
             _write_image(staging / name, aligned, is_linear)
             if warp_staging is not None:
                 save_warp(warp_staging / f"{stem}{WARP_SUFFIX}", registration)
-            rows.append({**row, "output": str(output / name),
-                         "warp_out": None if warp_out is None else str(warp_out / f"{stem}{WARP_SUFFIX}")})
+            rows.append(
+                {
+                    **row,
+                    "output": str(output / name),
+                    "warp_out": None if warp_out is None else str(warp_out / f"{stem}{WARP_SUFFIX}"),
+                }
+            )
             warnings += said
             update(k + 1, len(pairs))
     return rows, warnings
@@ -198,14 +269,27 @@ def _align_one(pair, refine: str, saved, field: str, reference_field: str = "REF
         registration = register(reference, target, refine=refine, field=field, reference_field=reference_field)
     else:
         registration = saved
-        for role, image, shape in (("REFERENCE", reference, saved.reference_shape), ("TARGET", target, saved.target_shape)):
+        for role, image, shape in (
+            ("REFERENCE", reference, saved.reference_shape),
+            ("TARGET", target, saved.target_shape),
+        ):
             if image.shape[:2] != tuple(shape):
-                raise InputError(role, f"{(reference_path if role == 'REFERENCE' else target_path).name} is "
-                                 f"{image.shape[1]} × {image.shape[0]} pixels", f"{shape[1]} × {shape[0]} pixels, as the --warp was made for")
+                raise InputError(
+                    role,
+                    f"{(reference_path if role == 'REFERENCE' else target_path).name} is "
+                    f"{image.shape[1]} × {image.shape[0]} pixels",
+                    f"{shape[1]} × {shape[0]} pixels, as the --warp was made for",
+                )
     aligned = registration.apply(target)
     report = registration.to_report()
-    row = {"name": stem, "reference": str(reference_path), "target": str(target_path), "reapplied": saved is not None,
-           "seconds": time.perf_counter() - start, "registration": report}
+    row = {
+        "name": stem,
+        "reference": str(reference_path),
+        "target": str(target_path),
+        "reapplied": saved is not None,
+        "seconds": time.perf_counter() - start,
+        "registration": report,
+    }
     return row, registration, aligned, is_linear, [(str(target_path), warning) for warning in report["warnings"]]
 
 
@@ -226,8 +310,18 @@ def _render(rows, reference: str, is_folder: bool, output: str, warp_out: str | 
     for row in rows:
         r = row["registration"]
         flow = "—" if r["flow_rms_px"] is None else f"{r['flow_rms_px']:.2f} / {r['flow_max_px']:.2f}"
-        table_rows.append([Path(row["target"]).name, str(r["matches"]), f"{r['inliers']} ({100 * r['inlier_fraction']:.0f} %)",
-                           f"{r['residual_px']:.2f}", r["refine"], flow, f"{100 * r['valid_fraction']:.1f}", f"{row['seconds']:.2f}"])
+        table_rows.append(
+            [
+                Path(row["target"]).name,
+                str(r["matches"]),
+                f"{r['inliers']} ({100 * r['inlier_fraction']:.0f} %)",
+                f"{r['residual_px']:.2f}",
+                r["refine"],
+                flow,
+                f"{100 * r['valid_fraction']:.1f}",
+                f"{row['seconds']:.2f}",
+            ]
+        )
     title = f"Aligned onto {reference}" + (" (saved warp)" if rows[0]["reapplied"] else "")
     columns = ["target", "matches", "inliers", "residual (px)", "refine", "flow rms / max (px)", "valid %", "s"]
     con = render.console()

@@ -10,15 +10,15 @@ from metalens_cli.cli.options import (
     Angle,
     BandSpec,
     Interval,
-    json_option,
     Length,
-    load_preset_option,
     MetalensGroup,
     Number,
+    WavelengthInterval,
+    json_option,
+    load_preset_option,
     pick,
     plot_option,
     preset_option,
-    WavelengthInterval,
 )
 from metalens_cli.errors import InputError
 from metalens_cli.io.units import INTERVAL_FORM, LENGTH_FORM, format_length
@@ -29,8 +29,10 @@ def _incidence(preset, max_incidence, n_eff) -> float:
     if max_incidence is None and n_eff is None and preset is not None:
         return model.preset_incidence_factor(preset)
     band_filter = preset.filter if preset is not None else None
-    return model.incidence_factor(max_incidence if max_incidence is not None else 0.0,
-                                  n_eff if n_eff is not None else (band_filter.n_eff if band_filter is not None else 1.8))
+    return model.incidence_factor(
+        max_incidence if max_incidence is not None else 0.0,
+        n_eff if n_eff is not None else (band_filter.n_eff if band_filter is not None else 1.8),
+    )
 
 
 @click.group(cls=MetalensGroup)
@@ -49,7 +51,9 @@ def _filter_bands(preset, band_specs, filter_csv, threshold):
     if preset is not None and preset.filter is not None:
         return model.filter_bands(preset.filter)
     where = f" (preset {preset.name} has no [filter])" if preset is not None else ""
-    raise InputError("--band", f"no filter given{where}", "--band CENTER:WIDTH (repeatable), --filter-csv FILE or --preset FILE")
+    raise InputError(
+        "--band", f"no filter given{where}", "--band CENTER:WIDTH (repeatable), --filter-csv FILE or --preset FILE"
+    )
 
 
 def report_json(report: model.BandsReport) -> dict:
@@ -63,7 +67,15 @@ def report_json(report: model.BandsReport) -> dict:
         "bands": [{"label": b.label, "lo_m": b.lo_m, "hi_m": b.hi_m} for b in report.bands],
         "ignored_bands": [{"label": b.label, "lo_m": b.lo_m, "hi_m": b.hi_m} for b in report.ignored_bands],
         "conditions": [
-            {"name": c.name, "lhs_m": c.lhs_m, "relation": c.relation, "rhs_m": c.rhs_m, "depth_m": c.depth_m, "margin_m": c.margin_m, "ok": c.ok}
+            {
+                "name": c.name,
+                "lhs_m": c.lhs_m,
+                "relation": c.relation,
+                "rhs_m": c.rhs_m,
+                "depth_m": c.depth_m,
+                "margin_m": c.margin_m,
+                "ok": c.ok,
+            }
             for c in report.conditions
         ],
         "z_near_window_m": list(report.z_near_window_m) if report.z_near_window_m else None,
@@ -80,14 +92,29 @@ def _render(report: model.BandsReport, efficiency: dict | None) -> None:
     z_lo, z_hi = report.z_near_m
     depth = format_length(z_lo) if z_lo == z_hi else f"{format_length(z_lo)} to {format_length(z_hi)}"
     s = f"{report.s[0]:.5f}" if report.s[0] == report.s[1] else f"{report.s[0]:.5f} to {report.s[1]:.5f}"
-    con.print("Pass bands: " + ", ".join(f"{b.label} {render.nm(b.lo_m, 1)}-{render.nm(b.hi_m, 1)} nm" for b in report.bands))
+    con.print(
+        "Pass bands: " + ", ".join(f"{b.label} {render.nm(b.lo_m, 1)}-{render.nm(b.hi_m, 1)} nm" for b in report.bands)
+    )
     if report.incidence_factor < 1:
-        con.print(f"Oblique rays move the bands blue by up to {100 * (1 - report.incidence_factor):.2f} %: the conditions use "
-                  + ", ".join(f"{b.label} {render.nm(b.lo_m * report.incidence_factor, 1)}-{render.nm(b.hi_m, 1)} nm" for b in report.bands))
+        con.print(
+            f"Oblique rays move the bands blue by up to {100 * (1 - report.incidence_factor):.2f} %: the conditions use "
+            + ", ".join(
+                f"{b.label} {render.nm(b.lo_m * report.incidence_factor, 1)}-{render.nm(b.hi_m, 1)} nm"
+                for b in report.bands
+            )
+        )
     if report.ignored_bands:
         con.print("Outside the sensor range (ignored): " + ", ".join(b.label for b in report.ignored_bands))
     rows = [
-        [c.name, render.nm(c.lhs_m), c.relation, render.nm(c.rhs_m), format_length(c.depth_m), f"{c.margin_m * 1e9:+.2f}", "[green]yes[/]" if c.ok else "[red]NO[/]"]
+        [
+            c.name,
+            render.nm(c.lhs_m),
+            c.relation,
+            render.nm(c.rhs_m),
+            format_length(c.depth_m),
+            f"{c.margin_m * 1e9:+.2f}",
+            "[green]yes[/]" if c.ok else "[red]NO[/]",
+        ]
         for c in report.conditions
     ]
     title = f"Split-spectrum conditions: f = {format_length(report.f_m)}, z_near = {depth}, s = 1 + f/z = {s}"
@@ -97,8 +124,13 @@ def _render(report: model.BandsReport, efficiency: dict | None) -> None:
     failed = [c.name for c in report.conditions if not c.ok]
     if efficiency is not None:
         source = efficiency["source"]
-        how = (f"RCWA, {efficiency['material']} on {efficiency['substrate']}, N = {efficiency['harmonics']}" if source == "rcwa"
-               else "the preset's table" if source == "table" else efficiency["file"])
+        how = (
+            f"RCWA, {efficiency['material']} on {efficiency['substrate']}, N = {efficiency['harmonics']}"
+            if source == "rcwa"
+            else "the preset's table"
+            if source == "table"
+            else efficiency["file"]
+        )
         means = ", ".join(f"{b.label} {v:.3f}" for b, v in zip(report.bands, efficiency["band_mean"]))
         con.print(f"Nanofin conversion efficiency η, mean per pass band ({how}): {means}", markup=False)
     con.print("[green]All conditions hold.[/]" if not failed else f"[red]Failing:[/] {', '.join(failed)}")
@@ -106,19 +138,61 @@ def _render(report: model.BandsReport, efficiency: dict | None) -> None:
 
 @bands.command()
 @preset_option
-@click.option("--band", "band_specs", type=BandSpec(), multiple=True, help="Pass band CENTER:WIDTH (width = FWHM), e.g. 457nm:22nm; repeatable.")
-@click.option("--filter-csv", type=click.Path(dir_okay=False), help="Filter transmission CSV: wavelength_nm,transmission (0-1 or %).")
-@click.option("--threshold", type=Number(0, 1, min_open=True, max_open=True), default=0.5, show_default=True, help="Transmission above which a CSV filter passes.")
+@click.option(
+    "--band",
+    "band_specs",
+    type=BandSpec(),
+    multiple=True,
+    help="Pass band CENTER:WIDTH (width = FWHM), e.g. 457nm:22nm; repeatable.",
+)
+@click.option(
+    "--filter-csv",
+    type=click.Path(dir_okay=False),
+    help="Filter transmission CSV: wavelength_nm,transmission (0-1 or %).",
+)
+@click.option(
+    "--threshold",
+    type=Number(0, 1, min_open=True, max_open=True),
+    default=0.5,
+    show_default=True,
+    help="Transmission above which a CSV filter passes.",
+)
 @click.option("--f", "f_m", type=Length(), help="Focal length, e.g. 4mm.")
-@click.option("--z-near", "z_near", type=Interval(), help="Near (obstruction) depth, or a range that must hold throughout: 45mm or 40mm:50mm.")
-@click.option("--sensor-range", type=WavelengthInterval(), help="Sensor's wavelength range [default: preset's, else 400nm:700nm].")
-@click.option("--max-incidence", type=Angle(), help="Steepest ray on the filter, e.g. 25deg; the bands move blue for it "
-              "[default: the preset's filter.max_incidence, else 0deg].")
-@click.option("--n-eff", type=Number(1, 5), help="The filter coating's effective index [default: the preset's, else 1.8].")
+@click.option(
+    "--z-near",
+    "z_near",
+    type=Interval(),
+    help="Near (obstruction) depth, or a range that must hold throughout: 45mm or 40mm:50mm.",
+)
+@click.option(
+    "--sensor-range", type=WavelengthInterval(), help="Sensor's wavelength range [default: preset's, else 400nm:700nm]."
+)
+@click.option(
+    "--max-incidence",
+    type=Angle(),
+    help="Steepest ray on the filter, e.g. 25deg; the bands move blue for it "
+    "[default: the preset's filter.max_incidence, else 0deg].",
+)
+@click.option(
+    "--n-eff", type=Number(1, 5), help="The filter coating's effective index [default: the preset's, else 1.8]."
+)
 @json_option
 @plot_option
 @click.pass_context
-def check(ctx, preset_path, band_specs, filter_csv, threshold, f_m, z_near, sensor_range, max_incidence, n_eff, as_json, plot_path):
+def check(
+    ctx,
+    preset_path,
+    band_specs,
+    filter_csv,
+    threshold,
+    f_m,
+    z_near,
+    sensor_range,
+    max_incidence,
+    n_eff,
+    as_json,
+    plot_path,
+):
     """Check the split-spectrum conditions (Suppl. Note 1). Exit 0: all hold; 1: one fails; 2: bad input."""
     preset = load_preset_option(preset_path)
     filter_bands = _filter_bands(preset, band_specs, filter_csv, threshold)

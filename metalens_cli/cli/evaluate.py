@@ -6,60 +6,155 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import (announce, json_option, max_memory_option, MetalensCommand, OutputFile, plot_option,
-                                      refuse_overwriting, SeedList)
+from metalens_cli.cli.options import (
+    MetalensCommand,
+    OutputFile,
+    SeedList,
+    announce,
+    json_option,
+    max_memory_option,
+    plot_option,
+    refuse_overwriting,
+)
 from metalens_cli.cli.progress import efficiency_used, progress_bar
 from metalens_cli.cli.simulate import capture_options, setup
 
-MATCH_METHODS = ("lstsq", "luminance")  # imaging.metrics.MATCH_METHODS, the first the default (not imported: it pulls in torch)
+MATCH_METHODS = (
+    "lstsq",
+    "luminance",
+)  # imaging.metrics.MATCH_METHODS, the first the default (not imported: it pulls in torch)
 ALIGN_MODES = ("unobstructed", "each", "none")  # imaging.captured_pairs.ALIGN_MODES
 REFINEMENTS = ("flow", "tps", "none")  # imaging.registration.REFINEMENTS
 LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 
 
 # the options that apply to --pairs (its run is estimated and announced: --max-memory and --max-time hold)
-PAIRS_OPTIONS = {"pairs", "align", "refine", "match", "csv_path", "lpips_weights", "quiet", "as_json", "plot_path", "max_memory",
-                 "max_time", "specs"}
+PAIRS_OPTIONS = {
+    "pairs",
+    "align",
+    "refine",
+    "match",
+    "csv_path",
+    "lpips_weights",
+    "quiet",
+    "as_json",
+    "plot_path",
+    "max_memory",
+    "max_time",
+    "specs",
+}
 
 
 @click.command("evaluate", cls=MetalensCommand)
 @click.argument("specs", metavar="DESIGN...", nargs=-1)
 @capture_options
-@click.option("--seed", "seeds", type=SeedList(), default="0:2", show_default=True,
-              help="Seeds of depths, obstructions and noise: 0, 0,1,2 or 0:2; units are images × seeds "
-                   "(default: 9 photographs × 3 seeds = 27 units, where paired differences between the quick designs "
-                   "have 95 % CIs 0.1-0.6 dB wide; under 20 units a cell is warned about).")
-@click.option("--obstruction", default="dirt,fence", show_default=True, help="Comma-separated: dirt, fence, drops, rain, file:PATH.png.")
-@click.option("--match", type=click.Choice(MATCH_METHODS), default=MATCH_METHODS[0], show_default=True,
-              help="Photometric match before the metrics: least-squares gain and bias, or the paper's luminance mean/std "
-                   "(which can let an obstruction raise a blurred capture's score).")
+@click.option(
+    "--seed",
+    "seeds",
+    type=SeedList(),
+    default="0:2",
+    show_default=True,
+    help="Seeds of depths, obstructions and noise: 0, 0,1,2 or 0:2; units are images × seeds "
+    "(default: 9 photographs × 3 seeds = 27 units, where paired differences between the quick designs "
+    "have 95 % CIs 0.1-0.6 dB wide; under 20 units a cell is warned about).",
+)
+@click.option(
+    "--obstruction",
+    default="dirt,fence",
+    show_default=True,
+    help="Comma-separated: dirt, fence, drops, rain, file:PATH.png.",
+)
+@click.option(
+    "--match",
+    type=click.Choice(MATCH_METHODS),
+    default=MATCH_METHODS[0],
+    show_default=True,
+    help="Photometric match before the metrics: least-squares gain and bias, or the paper's luminance mean/std "
+    "(which can let an obstruction raise a blurred capture's score).",
+)
 @click.option("--csv", "csv_path", type=OutputFile(), help="Write the rows (means and CIs) as CSV.")
-@click.option("--lpips-weights", "lpips_weights", type=click.Path(exists=True, file_okay=False),
-              help="Directory with alexnet-owt-7be5be79.pth and lpips's v0.1 alex.pth "
-                   "(without it: $METALENS_LPIPS_WEIGHTS, then torch hub's checkpoints with an installed lpips; "
-                   "none found: LPIPS is skipped with a note; nothing is downloaded).")
-@click.option("--recon", "recon_runs", multiple=True,
-              help="Reconstruction runs (metalens reconstruct train), one per DESIGN in order, comma-separated or repeated; "
-                   "'-' for a design without one. Adds Recon rows.")
-@click.option("--pairs", type=click.Path(exists=True, file_okay=False),
-              help="Score real captures instead of simulating: DIR/gt/NAME.png, DIR/DESIGN/unobstructed/NAME.png, "
-                   "DIR/DESIGN/obstructed[-KIND]/NAME.png, optional DIR/DESIGN/recon-unobstructed/ and recon-obstructed[-KIND]/.")
-@click.option("--align", type=click.Choice(ALIGN_MODES), default="unobstructed", show_default=True,
-              help="--pairs: register each scene's unobstructed capture onto gt and reuse its warp, register every capture, "
-                   "or none (already aligned).")
-@click.option("--refine", type=click.Choice(REFINEMENTS), default="flow", show_default=True,
-              help="--pairs: the non-linear refinement after the homography (see metalens align).")
-@click.option("--photons-before-filter", is_flag=True,
-              help="--photons counts the light before each design's filter: its channels get their filter's throughput of it "
-                   "(designs with different filters compared at the same light).")
+@click.option(
+    "--lpips-weights",
+    "lpips_weights",
+    type=click.Path(exists=True, file_okay=False),
+    help="Directory with alexnet-owt-7be5be79.pth and lpips's v0.1 alex.pth "
+    "(without it: $METALENS_LPIPS_WEIGHTS, then torch hub's checkpoints with an installed lpips; "
+    "none found: LPIPS is skipped with a note; nothing is downloaded).",
+)
+@click.option(
+    "--recon",
+    "recon_runs",
+    multiple=True,
+    help="Reconstruction runs (metalens reconstruct train), one per DESIGN in order, comma-separated or repeated; "
+    "'-' for a design without one. Adds Recon rows.",
+)
+@click.option(
+    "--pairs",
+    type=click.Path(exists=True, file_okay=False),
+    help="Score real captures instead of simulating: DIR/gt/NAME.png, DIR/DESIGN/unobstructed/NAME.png, "
+    "DIR/DESIGN/obstructed[-KIND]/NAME.png, optional DIR/DESIGN/recon-unobstructed/ and recon-obstructed[-KIND]/.",
+)
+@click.option(
+    "--align",
+    type=click.Choice(ALIGN_MODES),
+    default="unobstructed",
+    show_default=True,
+    help="--pairs: register each scene's unobstructed capture onto gt and reuse its warp, register every capture, "
+    "or none (already aligned).",
+)
+@click.option(
+    "--refine",
+    type=click.Choice(REFINEMENTS),
+    default="flow",
+    show_default=True,
+    help="--pairs: the non-linear refinement after the homography (see metalens align).",
+)
+@click.option(
+    "--photons-before-filter",
+    is_flag=True,
+    help="--photons counts the light before each design's filter: its channels get their filter's throughput of it "
+    "(designs with different filters compared at the same light).",
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 @plot_option
 @click.pass_context
-def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
-             pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seeds, obstruction, match,
-             csv_path, lpips_weights, recon_runs, pairs, align, refine, photons_before_filter, quiet, max_memory, as_json, plot_path):
+def evaluate(
+    ctx,
+    specs,
+    preset_path,
+    f_m,
+    aperture_m,
+    pitch_m,
+    images,
+    limit,
+    z_near_m,
+    z_far_m,
+    pixels,
+    psf_pixels,
+    pixel_pitch_m,
+    wavelengths,
+    formation,
+    alpha_gain,
+    photons,
+    read_noise,
+    device,
+    seeds,
+    obstruction,
+    match,
+    csv_path,
+    lpips_weights,
+    recon_runs,
+    pairs,
+    align,
+    refine,
+    photons_before_filter,
+    quiet,
+    max_memory,
+    as_json,
+    plot_path,
+):
     """Unobstructed and obstructed captures of each DESIGN against the clean images, or of real
     captures with --pairs DIR.
 
@@ -75,12 +170,15 @@ def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z
     refinement), the metrics over the region every capture of the scene covers.
     """
     if pairs is not None:
-        return _evaluate_pairs(ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path)
+        return _evaluate_pairs(
+            ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path
+        )
     if not specs:
         raise click.UsageError("give at least one DESIGN, or --pairs DIR for captured photographs")
-    from metalens_cli.imaging.evaluation import EvaluationSettings, evaluate as run_evaluation, metric_names
-    from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
+    from metalens_cli.imaging.evaluation import EvaluationSettings, metric_names
+    from metalens_cli.imaging.evaluation import evaluate as run_evaluation
     from metalens_cli.imaging.images import image_count
+    from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
     from metalens_cli.imaging.obstructions import parse_obstructions
     from metalens_cli.imaging.pipeline import estimate_captures
     from metalens_cli.io.resources import Estimate
@@ -89,28 +187,87 @@ def evaluate(ctx, specs, preset_path, f_m, aperture_m, pitch_m, images, limit, z
     lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
     lpips_model = Lpips.from_files(lpips_paths.alexnet, lpips_paths.lin) if lpips_paths else None
     metrics = metric_names(lpips_model)
-    s = setup(list(specs), preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device)
-    settings = EvaluationSettings(s["pixels"], s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]),
-                                  s["wavelengths_m"], images, limit, s["obstruction_params"], formation, match, alpha_gain,
-                                  photons, read_noise, photons_before_filter, psf_pixels, s["device"])
+    s = setup(
+        list(specs),
+        preset_path,
+        f_m,
+        aperture_m,
+        pitch_m,
+        z_near_m,
+        z_far_m,
+        pixels,
+        pixel_pitch_m,
+        wavelengths,
+        device,
+    )
+    settings = EvaluationSettings(
+        s["pixels"],
+        s["pixel_pitch_m"],
+        tuple(s["z_near_interval_m"]),
+        tuple(s["z_far_interval_m"]),
+        s["wavelengths_m"],
+        images,
+        limit,
+        s["obstruction_params"],
+        formation,
+        match,
+        alpha_gain,
+        photons,
+        read_noise,
+        photons_before_filter,
+        psf_pixels,
+        s["device"],
+    )
     reconstructors = _reconstructors(recon_runs, s["designs"], s["device"])
     count = image_count(images, limit)
-    costs = [estimate_captures(design, s["z_near_interval_m"][0], s["z_far_interval_m"][0], s["wavelengths_m"], s["pixel_pitch_m"],
-                               s["pixels"], count, psf_pixels) for design in s["designs"]]
+    costs = [
+        estimate_captures(
+            design,
+            s["z_near_interval_m"][0],
+            s["z_far_interval_m"][0],
+            s["wavelengths_m"],
+            s["pixel_pitch_m"],
+            s["pixels"],
+            count,
+            psf_pixels,
+        )
+        for design in s["designs"]
+    ]
     # PSFs once per design and seed (the depths are the seed's), captures per obstruction kind too
-    announce(Estimate(f"evaluate of {len(s['designs'])} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} obstruction(s)",
-                      max(memory for memory, _, _ in costs), "--psf-pixels" if psf_pixels else "--pixels",
-                      len(seeds) * sum(psf + len(kinds) * captures for _, psf, captures in costs)), max_memory)
+    announce(
+        Estimate(
+            f"evaluate of {len(s['designs'])} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} obstruction(s)",
+            max(memory for memory, _, _ in costs),
+            "--psf-pixels" if psf_pixels else "--pixels",
+            len(seeds) * sum(psf + len(kinds) * captures for _, psf, captures in costs),
+        ),
+        max_memory,
+    )
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s["designs"]}
     with progress_bar("evaluate", quiet) as update:
         result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update, reconstructors)
     notes = [n for n in (lpips_skip,) if n]
     n = result.rows[0]["n"] if result.rows else 0
     what = "Raw and reconstructed captures" if any(reconstructors) else "Raw captures"
-    _report(result, [d.spec for d in s["designs"]], kinds, metrics, notes, csv_path, plot_path, as_json,
-            {"photometric_match": match, "psfs": result.psfs, "seeds": seeds, "formation": formation,
-             "recon": [None if r is None else r.source for r in reconstructors], "efficiency": efficiency},
-            f"{what} vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units")
+    _report(
+        result,
+        [d.spec for d in s["designs"]],
+        kinds,
+        metrics,
+        notes,
+        csv_path,
+        plot_path,
+        as_json,
+        {
+            "photometric_match": match,
+            "psfs": result.psfs,
+            "seeds": seeds,
+            "formation": formation,
+            "recon": [None if r is None else r.source for r in reconstructors],
+            "efficiency": efficiency,
+        },
+        f"{what} vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units",
+    )
 
 
 def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, extra: dict, title: str) -> None:
@@ -124,59 +281,123 @@ def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, 
 
         comparison_figure(plot_path, specs, result.panels)
     if as_json:
-        render.emit_json({"rows": result.rows, "deltas": result.deltas, "comparisons": result.comparisons,
-                          "units": result.units, "images": result.images,
-                          "confidence": 0.95, **extra, "notes": notes, "warnings": result.warnings,
-                          **({"csv": str(csv_path)} if csv_path else {}), **({"plot": str(plot_path)} if plot_path else {})})
+        render.emit_json(
+            {
+                "rows": result.rows,
+                "deltas": result.deltas,
+                "comparisons": result.comparisons,
+                "units": result.units,
+                "images": result.images,
+                "confidence": 0.95,
+                **extra,
+                "notes": notes,
+                "warnings": result.warnings,
+                **({"csv": str(csv_path)} if csv_path else {}),
+                **({"plot": str(plot_path)} if plot_path else {}),
+            }
+        )
         return
     con = render.console()
-    con.print(render.table(title, ["design", "condition"] + [f"{k} {_short(m)}" for k in kinds for m in metrics],
-                           _table_rows(result, kinds, metrics)))
+    con.print(
+        render.table(
+            title,
+            ["design", "condition"] + [f"{k} {_short(m)}" for k in kinds for m in metrics],
+            _table_rows(result, kinds, metrics),
+        )
+    )
     pairs = [c for c in result.comparisons if c["metric"] == "psnr_db" and c["condition"] in ("obstructed", "delta")]
     if pairs:
-        con.print(render.table("Paired PSNR differences (design − versus, same units), dB [95 % CI]",
-                               ["design", "versus", "obstruction", "condition", "difference", "CI width"],
-                               [[f"{c['design']} ({c['capture']})", f"{c['versus']} ({c['versus_capture']})", c["obstruction"],
-                                 LABELS[c["condition"]], _ci(c["difference"], c["ci"], 2, lines=False), f"{c['ci'][1] - c['ci'][0]:.2f}"]
-                                for c in pairs]))
+        con.print(
+            render.table(
+                "Paired PSNR differences (design − versus, same units), dB [95 % CI]",
+                ["design", "versus", "obstruction", "condition", "difference", "CI width"],
+                [
+                    [
+                        f"{c['design']} ({c['capture']})",
+                        f"{c['versus']} ({c['versus_capture']})",
+                        c["obstruction"],
+                        LABELS[c["condition"]],
+                        _ci(c["difference"], c["ci"], 2, lines=False),
+                        f"{c['ci'][1] - c['ci'][0]:.2f}",
+                    ]
+                    for c in pairs
+                ],
+            )
+        )
 
 
-def _evaluate_pairs(ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path) -> None:
+def _evaluate_pairs(
+    ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path
+) -> None:
     """evaluate --pairs: the table of captured photographs (imaging.captured_pairs)."""
     from pathlib import Path
 
     from metalens_cli.errors import InputError
     from metalens_cli.imaging.captured_pairs import estimate_pairs, evaluate_pairs, read_layout
-    from metalens_cli.io.resources import Estimate
     from metalens_cli.imaging.evaluation import metric_names
     from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
+    from metalens_cli.io.resources import Estimate
 
-    given = [p for p in ctx.command.params if p.name not in PAIRS_OPTIONS
-             and ctx.get_parameter_source(p.name) == click.core.ParameterSource.COMMANDLINE]
+    given = [
+        p
+        for p in ctx.command.params
+        if p.name not in PAIRS_OPTIONS and ctx.get_parameter_source(p.name) == click.core.ParameterSource.COMMANDLINE
+    ]
     if ctx.params["specs"] or given:
-        applying = [max(p.opts, key=len) for p in ctx.command.params if p.name in PAIRS_OPTIONS - {"pairs", "specs"} and p.opts]
-        raise InputError("DESIGN" if not given else max(given[0].opts, key=len),
-                         "does not apply to --pairs (the designs are the folders of DIR)",
-                         f"--pairs DIR with only {', '.join(applying)}")
+        applying = [
+            max(p.opts, key=len) for p in ctx.command.params if p.name in PAIRS_OPTIONS - {"pairs", "specs"} and p.opts
+        ]
+        raise InputError(
+            "DESIGN" if not given else max(given[0].opts, key=len),
+            "does not apply to --pairs (the designs are the folders of DIR)",
+            f"--pairs DIR with only {', '.join(applying)}",
+        )
     layout = read_layout(folder)
     for option, path in (("--csv", csv_path), ("--plot", plot_path)):
         if path is not None and Path(folder).resolve() in Path(path).resolve().parents:
-            raise InputError(option, f"{path!r} is inside --pairs {folder!r}; a later run would read it as a capture",
-                             "an output path outside the pairs folder")
-    refuse_overwriting([("--csv", csv_path), ("--plot", plot_path)],
-                       [*layout.gt.values(), *(p for d in layout.captures.values() for paths in d.values() for p in paths.values())])
+            raise InputError(
+                option,
+                f"{path!r} is inside --pairs {folder!r}; a later run would read it as a capture",
+                "an output path outside the pairs folder",
+            )
+    refuse_overwriting(
+        [("--csv", csv_path), ("--plot", plot_path)],
+        [*layout.gt.values(), *(p for d in layout.captures.values() for paths in d.values() for p in paths.values())],
+    )
     memory, seconds = estimate_pairs(layout)
-    announce(Estimate(f"evaluate --pairs of {len(layout.designs)} design(s) × {len(layout.names)} scene(s)", memory,
-                      "--pairs", seconds), max_memory)
+    announce(
+        Estimate(
+            f"evaluate --pairs of {len(layout.designs)} design(s) × {len(layout.names)} scene(s)",
+            memory,
+            "--pairs",
+            seconds,
+        ),
+        max_memory,
+    )
     lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
     lpips_model = Lpips.from_files(lpips_paths.alexnet, lpips_paths.lin) if lpips_paths else None
     metrics = metric_names(lpips_model)
     with progress_bar("evaluate --pairs", quiet) as update:
         result = evaluate_pairs(layout, lpips_model, match, align, refine, update)
     notes = [n for n in (lpips_skip,) if n]
-    _report(result, layout.designs, layout.kinds, metrics, notes, csv_path, plot_path, as_json,
-            {"photometric_match": match, "pairs": str(folder), "alignment": align, "refine": refine, "alignments": result.alignments},
-            f"Captures vs gt: mean [95 % CI] over {len(result.images)} scenes")
+    _report(
+        result,
+        layout.designs,
+        layout.kinds,
+        metrics,
+        notes,
+        csv_path,
+        plot_path,
+        as_json,
+        {
+            "photometric_match": match,
+            "pairs": str(folder),
+            "alignment": align,
+            "refine": refine,
+            "alignments": result.alignments,
+        },
+        f"Captures vs gt: mean [95 % CI] over {len(result.images)} scenes",
+    )
 
 
 def _reconstructors(runs, designs, device) -> list:
@@ -187,7 +408,9 @@ def _reconstructors(runs, designs, device) -> list:
     if not names:
         return [None] * len(designs)
     if len(names) != len(designs):
-        raise InputError("--recon", f"{len(names)} runs for {len(designs)} designs", "one run (or '-') per DESIGN, in order")
+        raise InputError(
+            "--recon", f"{len(names)} runs for {len(designs)} designs", "one run (or '-') per DESIGN, in order"
+        )
     from metalens_cli.imaging.restore import design_fingerprint, load_reconstructor
 
     out = []
@@ -198,8 +421,11 @@ def _reconstructors(runs, designs, device) -> list:
         recon = load_reconstructor(name, device, field_name="--recon")
         made_for = recon.design.get("fingerprint")
         if made_for != design_fingerprint(design):
-            raise InputError("--recon", f"{name!r} was trained for {recon.design.get('spec')!r}, not for {design.spec!r}",
-                             "the reconstruction run of each DESIGN, in order")
+            raise InputError(
+                "--recon",
+                f"{name!r} was trained for {recon.design.get('spec')!r}, not for {design.spec!r}",
+                "the reconstruction run of each DESIGN, in order",
+            )
         out.append(recon)
     return out
 
@@ -224,11 +450,19 @@ def _table_rows(result, kinds, metrics) -> list[list[str]]:
             cells = []
             for kind in kinds:
                 if condition == "delta":
-                    d = next(x for x in result.deltas if (x["design"], x["capture"], x["obstruction"]) == (design, capture, kind))
+                    d = next(
+                        x
+                        for x in result.deltas
+                        if (x["design"], x["capture"], x["obstruction"]) == (design, capture, kind)
+                    )
                     cells += [_ci(d[f"delta_{m}"], d[f"delta_{m}_ci"], digits[m]) for m in metrics]
                 else:
-                    r = next(x for x in result.rows
-                             if (x["design"], x["capture"], x["obstruction"], x["condition"]) == (design, capture, kind, condition))
+                    r = next(
+                        x
+                        for x in result.rows
+                        if (x["design"], x["capture"], x["obstruction"], x["condition"])
+                        == (design, capture, kind, condition)
+                    )
                     cells += [_ci(r[m], r[f"{m}_ci"], digits[m]) for m in metrics]
             first = condition == "unobstructed" and capture == "raw"
             table.append([design if first else "", f"{capture.capitalize()} {LABELS[condition]}", *cells])
@@ -241,12 +475,22 @@ def _write_csv(path, rows, metrics=("psnr_db", "ssim")) -> None:
 
     from metalens_cli.io.atomic import atomic_write
 
-    columns = ["design", "capture", "obstruction", "condition", "n"] + [c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")]
+    columns = ["design", "capture", "obstruction", "condition", "n"] + [
+        c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")
+    ]
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     for row in rows:
-        writer.writerow({**{k: row[k] for k in ("design", "capture", "obstruction", "condition", "n")},
-                         **{c: v for m in metrics for c, v in ((m, row[m]), (f"{m}_lo", row[f"{m}_ci"][0]), (f"{m}_hi", row[f"{m}_ci"][1]))}})
+        writer.writerow(
+            {
+                **{k: row[k] for k in ("design", "capture", "obstruction", "condition", "n")},
+                **{
+                    c: v
+                    for m in metrics
+                    for c, v in ((m, row[m]), (f"{m}_lo", row[f"{m}_ci"][0]), (f"{m}_hi", row[f"{m}_ci"][1]))
+                },
+            }
+        )
     with atomic_write(path) as temporary:
         temporary.write_text(buffer.getvalue(), encoding="utf-8")

@@ -5,7 +5,17 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import announce, design_options, json_option, Length, load_preset_option, max_memory_option, MetalensCommand, OutputFile, pick
+from metalens_cli.cli.options import (
+    Length,
+    MetalensCommand,
+    OutputFile,
+    announce,
+    design_options,
+    json_option,
+    load_preset_option,
+    max_memory_option,
+    pick,
+)
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.io import units
 
@@ -34,7 +44,9 @@ class AnglesSpec(click.ParamType):
         if value is None or text == "exact":
             return None
         if not text.isdigit():
-            self.fail(f"{value!r} is neither exact nor a whole number of levels (expected exact or K, e.g. 128)", param, ctx)
+            self.fail(
+                f"{value!r} is neither exact nor a whole number of levels (expected exact or K, e.g. 128)", param, ctx
+            )
         return int(text)
 
 
@@ -43,18 +55,46 @@ class AnglesSpec(click.ParamType):
 @click.option("--width", "width_m", type=Length(), help="Nanofin width (the side at angle θ) [preset's].")
 @click.option("--length", "length_m", type=Length(), help="Nanofin length [preset's].")
 @click.option("--layer", type=LayerSpec(), default="1/0", show_default=True, help="GDS layer/datatype.")
-@click.option("--dbu", "dbu_m", type=Length(), default="1nm", show_default=True, help="Database unit: vertices are rounded to it.")
+@click.option(
+    "--dbu", "dbu_m", type=Length(), default="1nm", show_default=True, help="Database unit: vertices are rounded to it."
+)
 @click.option("-o", "--output", type=OutputFile(), required=True, help="Output file, .gds or .oas.")
 @click.option("--format", "fmt", type=click.Choice(("gds", "oas")), help="Output format [from the extension].")
-@click.option("--angles", type=AnglesSpec(), default="exact", show_default=True,
-              help="exact: one polygon per fin at its own θ; K: θ quantised to K referenced cells (phase error ≤ π/K).")
-@click.option("--verify", is_flag=True, help="Read the file back with KLayout and check count and a random sample of fins; exit 1 on mismatch.")
+@click.option(
+    "--angles",
+    type=AnglesSpec(),
+    default="exact",
+    show_default=True,
+    help="exact: one polygon per fin at its own θ; K: θ quantised to K referenced cells (phase error ≤ π/K).",
+)
+@click.option(
+    "--verify",
+    is_flag=True,
+    help="Read the file back with KLayout and check count and a random sample of fins; exit 1 on mismatch.",
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 @click.pass_context
-def export_gds(ctx, spec, preset_path, f_m, aperture_m, pitch_m, width_m, length_m, layer, dbu_m, output, fmt, angles,
-               verify, quiet, max_memory, as_json):
+def export_gds(
+    ctx,
+    spec,
+    preset_path,
+    f_m,
+    aperture_m,
+    pitch_m,
+    width_m,
+    length_m,
+    layer,
+    dbu_m,
+    output,
+    fmt,
+    angles,
+    verify,
+    quiet,
+    max_memory,
+    as_json,
+):
     """Write the nanofin layout of a design for e-beam lithography.
 
     The lens centre is the layout origin and a site; sites at multiples of the pitch within D/2
@@ -97,13 +137,21 @@ def export_gds(ctx, spec, preset_path, f_m, aperture_m, pitch_m, width_m, length
         efficiency = efficiency_used(in_force, quiet)
         fin = in_force.nanofin
         if (geometry.width_m, geometry.length_m, geometry.pitch_m) != (fin.width_m, fin.length_m, fin.pitch_m):
-            warnings.append(f"the layout's fin ({geometry.width_m * 1e9:g} × {geometry.length_m * 1e9:g} nm at {geometry.pitch_m * 1e9:g} nm) "
-                            f"is not the preset's ({fin.width_m * 1e9:g} × {fin.length_m * 1e9:g} nm at {fin.pitch_m * 1e9:g} nm), "
-                            "whose η the optics used")
+            warnings.append(
+                f"the layout's fin ({geometry.width_m * 1e9:g} × {geometry.length_m * 1e9:g} nm at {geometry.pitch_m * 1e9:g} nm) "
+                f"is not the preset's ({fin.width_m * 1e9:g} × {fin.length_m * 1e9:g} nm at {fin.pitch_m * 1e9:g} nm), "
+                "whose η the optics used"
+            )
     render.say(warnings)
     if as_json:
-        render.emit_json({**report.to_dict(), "efficiency": efficiency, "warnings": warnings,
-                          **({"verify": checked.to_dict()} if checked else {})})
+        render.emit_json(
+            {
+                **report.to_dict(),
+                "efficiency": efficiency,
+                "warnings": warnings,
+                **({"verify": checked.to_dict()} if checked else {}),
+            }
+        )
     else:
         _render(report, checked)
     ctx.exit(1 if checked is not None and not checked.ok else 0)
@@ -111,16 +159,24 @@ def export_gds(ctx, spec, preset_path, f_m, aperture_m, pitch_m, width_m, length
 
 def _render(report, checked) -> None:
     con = render.console()
-    phase = "exact rotations" if report.max_phase_error_rad == 0 else f"max phase error {report.max_phase_error_rad:.4f} rad"
-    con.print(f"wrote {report.file}: {report.atoms:,} nanofins, {report.bytes / 1e6:.1f} MB {report.format.upper()}, "
-              f"top cell {report.top_cell}, {phase}, {report.seconds:.1f} s")
+    phase = (
+        "exact rotations"
+        if report.max_phase_error_rad == 0
+        else f"max phase error {report.max_phase_error_rad:.4f} rad"
+    )
+    con.print(
+        f"wrote {report.file}: {report.atoms:,} nanofins, {report.bytes / 1e6:.1f} MB {report.format.upper()}, "
+        f"top cell {report.top_cell}, {phase}, {report.seconds:.1f} s"
+    )
     if checked is None:
         return
     w = checked.worst
     status = "[green]verified[/]" if checked.ok else "[red]MISMATCH[/]"
-    con.print(f"{status}: {checked.found_atoms:,} fins read (expected {checked.expected_atoms:,}); {checked.samples} sampled sites, worst "
-              f"centre {w.get('centre_m', 0) * 1e9:.2f} nm, width {w.get('width_m', 0) * 1e9:.2f} nm, length "
-              f"{w.get('length_m', 0) * 1e9:.2f} nm, rotation {w.get('rotation_rad', 0):.4f} rad, phase vs design "
-              f"{w.get('phase_vs_design_rad', 0):.4f} rad")
+    con.print(
+        f"{status}: {checked.found_atoms:,} fins read (expected {checked.expected_atoms:,}); {checked.samples} sampled sites, worst "
+        f"centre {w.get('centre_m', 0) * 1e9:.2f} nm, width {w.get('width_m', 0) * 1e9:.2f} nm, length "
+        f"{w.get('length_m', 0) * 1e9:.2f} nm, rotation {w.get('rotation_rad', 0):.4f} rad, phase vs design "
+        f"{w.get('phase_vs_design_rad', 0):.4f} rad"
+    )
     for failure in checked.failures:
         con.print(f"  {failure}")

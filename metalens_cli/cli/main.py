@@ -24,8 +24,17 @@ from metalens_cli.errors import MetalensError, ResultFailed, Terminated
 from metalens_cli.runtime import retain_freed_memory
 
 OUT_OF_MEMORY = "out of memory; ask for less (fewer pixels, wavelengths or a smaller batch) or set --max-memory"
-BAD_PATH_ERRNOS = {errno.ENOENT, errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR,
-                   errno.ENAMETOOLONG, errno.ELOOP, errno.EEXIST}
+BAD_PATH_ERRNOS = {
+    errno.ENOENT,
+    errno.EACCES,
+    errno.EPERM,
+    errno.EROFS,
+    errno.ENOTDIR,
+    errno.EISDIR,
+    errno.ENAMETOOLONG,
+    errno.ELOOP,
+    errno.EEXIST,
+}
 
 
 class LazyGroup(click.Group):
@@ -70,8 +79,9 @@ COMMANDS = {
 }
 
 
-@click.group(cls=LazyGroup, lazy=COMMANDS, invoke_without_command=True,
-             context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(
+    cls=LazyGroup, lazy=COMMANDS, invoke_without_command=True, context_settings={"help_option_names": ["-h", "--help"]}
+)
 @click.version_option(__version__, prog_name="metalens")
 @click.pass_context
 def app(ctx):
@@ -112,7 +122,10 @@ def run(argv: list[str] | None = None) -> int:
         if "allocate" in str(exc) and "memory" in str(exc):  # torch's allocator refusing
             return _fail(OUT_OF_MEMORY, 1)
         first_line = (str(exc).strip().splitlines() or [""])[0]
-        return _fail(f"internal error: {type(exc).__name__}: {first_line} (METALENS_TRACEBACK=1 shows where; please report it)", 1)
+        return _fail(
+            f"internal error: {type(exc).__name__}: {first_line} (METALENS_TRACEBACK=1 shows where; please report it)",
+            1,
+        )
     return code if isinstance(code, int) else 0
 
 
@@ -120,8 +133,10 @@ def os_error_line(exc: OSError) -> str:
     """``PATH: reason`` for an OSError, with a hint for full disks and size limits."""
     where = exc.filename if exc.filename is not None else "standard output"
     reason = exc.strerror or str(exc)
-    hint = {errno.ENOSPC: " (free space on that disk or write elsewhere)",
-            errno.EFBIG: " (the file-size limit, ulimit -f, is reached)"}.get(exc.errno, "")
+    hint = {
+        errno.ENOSPC: " (free space on that disk or write elsewhere)",
+        errno.EFBIG: " (the file-size limit, ulimit -f, is reached)",
+    }.get(exc.errno, "")
     return f"{where}: {reason}{hint}"
 
 
@@ -138,8 +153,10 @@ def _raise_terminated(signum, frame):
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Python and numpy warnings as one line each, like every other message."""
     with suppress(OSError):  # stderr itself gone: the exit code still tells
-        click.echo(f"metalens: warning: {category.__name__}: {str(message).strip().splitlines()[0] if str(message).strip() else ''}",
-                   err=True)
+        click.echo(
+            f"metalens: warning: {category.__name__}: {str(message).strip().splitlines()[0] if str(message).strip() else ''}",
+            err=True,
+        )
 
 
 def cli() -> None:

@@ -8,7 +8,7 @@ import math
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import json_option, Length, MetalensCommand, Number, OutputFile, plot_option
+from metalens_cli.cli.options import Length, MetalensCommand, Number, OutputFile, json_option, plot_option
 from metalens_cli.io.atomic import atomic_write
 
 NYQUIST_CY_PER_PX = 0.5
@@ -41,14 +41,41 @@ def _roi(ctx, param, text: str | None) -> tuple[int, int, int, int] | None:
 
 @click.command("mtf", cls=MetalensCommand)
 @click.argument("cube", required=False, type=click.Path(dir_okay=False))
-@click.option("--edge", "edge_path", type=click.Path(dir_okay=False), help="Slanted-edge image (PNG/TIFF 8/16-bit, EXR float; 1 or 3 channels) instead of a cube.")
-@click.option("--at", "at_lpmm", callback=_frequencies, help="Cube: also report the MTF at these frequencies (lp/mm), e.g. 50,100.")
-@click.option("--na", type=Number(0, 1, min_open=True, max_open=True), help="Cube: NA for the diffraction-limited reference [the file's na].")
-@click.option("--remove-pixel-mtf", is_flag=True, help="Cube: divide the square-pixel aperture MTF out of every curve (included by default).")
+@click.option(
+    "--edge",
+    "edge_path",
+    type=click.Path(dir_okay=False),
+    help="Slanted-edge image (PNG/TIFF 8/16-bit, EXR float; 1 or 3 channels) instead of a cube.",
+)
+@click.option(
+    "--at",
+    "at_lpmm",
+    callback=_frequencies,
+    help="Cube: also report the MTF at these frequencies (lp/mm), e.g. 50,100.",
+)
+@click.option(
+    "--na",
+    type=Number(0, 1, min_open=True, max_open=True),
+    help="Cube: NA for the diffraction-limited reference [the file's na].",
+)
+@click.option(
+    "--remove-pixel-mtf",
+    is_flag=True,
+    help="Cube: divide the square-pixel aperture MTF out of every curve (included by default).",
+)
 @click.option("--roi", callback=_roi, help="Edge: region x,y,w,h in pixels [automatic: around the one dominant edge].")
-@click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Edge: pixel pitch, to add lp/mm to cycles/pixel, e.g. 1.85um.")
-@click.option("--srgb", is_flag=True, help="Edge: decode 8/16-bit sRGB values to linear first (default: taken as linear).")
-@click.option("--csv", "csv_path", type=OutputFile(), help="Also write the curves as CSV (one row per curve and frequency).")
+@click.option(
+    "--pixel-pitch",
+    "pixel_pitch_m",
+    type=Length(),
+    help="Edge: pixel pitch, to add lp/mm to cycles/pixel, e.g. 1.85um.",
+)
+@click.option(
+    "--srgb", is_flag=True, help="Edge: decode 8/16-bit sRGB values to linear first (default: taken as linear)."
+)
+@click.option(
+    "--csv", "csv_path", type=OutputFile(), help="Also write the curves as CSV (one row per curve and frequency)."
+)
 @json_option
 @plot_option
 def mtf(cube, edge_path, at_lpmm, na, remove_pixel_mtf, roi, pixel_pitch_m, srgb, csv_path, as_json, plot_path):
@@ -62,13 +89,22 @@ def mtf(cube, edge_path, at_lpmm, na, remove_pixel_mtf, roi, pixel_pitch_m, srgb
     --edge IMAGE: ISO 12233-style slanted-edge SFR per channel (4× oversampled ESF, Tukey
     window), 0 to 1 cycle/pixel, for edges tilted 2°-10° from the pixel grid.
     """
-    options = {"at_lpmm": at_lpmm, "na": na, "remove_pixel_mtf": remove_pixel_mtf, "roi": roi, "pixel_pitch_m": pixel_pitch_m, "srgb": srgb}
+    options = {
+        "at_lpmm": at_lpmm,
+        "na": na,
+        "remove_pixel_mtf": remove_pixel_mtf,
+        "roi": roi,
+        "pixel_pitch_m": pixel_pitch_m,
+        "srgb": srgb,
+    }
     if (cube is None) == (edge_path is None):
         raise click.UsageError("give either a PSF cube (metalens mtf CUBE.exr) or --edge IMAGE")
     wrong = EDGE_ONLY if cube is not None else CUBE_ONLY
     used = [flag for key, flag in wrong.items() if options[key]]
     if used:
-        raise click.UsageError(f"{', '.join(used)} only applies {'with --edge' if cube is not None else 'to a PSF cube'}")
+        raise click.UsageError(
+            f"{', '.join(used)} only applies {'with --edge' if cube is not None else 'to a PSF cube'}"
+        )
     if cube is not None:
         _cube(cube, at_lpmm or [], na, remove_pixel_mtf, csv_path, as_json, plot_path)
     else:
@@ -93,22 +129,28 @@ def _cube(path, at_lpmm, na, remove_pixel_mtf, csv_path, as_json, plot_path) -> 
 
         plot_cube_mtf(plot_path, result)
     if as_json:
-        diffraction = None if result.diffraction is None else [
-            {"wavelength_m": float(w), "mtf": d.tolist()} for w, d in zip(result.wavelengths_m, result.diffraction)
-        ]
-        render.emit_json({
-            "file": str(path),
-            "pixel_mtf": "removed" if remove_pixel_mtf else "included",
-            "nyquist_lpmm": result.nyquist_lpmm,
-            "na": result.na,
-            **({"at_lpmm": list(at_lpmm)} if at_lpmm else {}),
-            "frequencies_lpmm": result.frequencies_lpmm.tolist(),
-            "curves": curves,
-            "pixel_aperture_mtf": result.pixel_mtf.tolist(),
-            "diffraction_limited": diffraction,
-            **({"csv": str(csv_path)} if csv_path else {}),
-            **({"plot": str(plot_path)} if plot_path else {}),
-        })
+        diffraction = (
+            None
+            if result.diffraction is None
+            else [
+                {"wavelength_m": float(w), "mtf": d.tolist()} for w, d in zip(result.wavelengths_m, result.diffraction)
+            ]
+        )
+        render.emit_json(
+            {
+                "file": str(path),
+                "pixel_mtf": "removed" if remove_pixel_mtf else "included",
+                "nyquist_lpmm": result.nyquist_lpmm,
+                "na": result.na,
+                **({"at_lpmm": list(at_lpmm)} if at_lpmm else {}),
+                "frequencies_lpmm": result.frequencies_lpmm.tolist(),
+                "curves": curves,
+                "pixel_aperture_mtf": result.pixel_mtf.tolist(),
+                "diffraction_limited": diffraction,
+                **({"csv": str(csv_path)} if csv_path else {}),
+                **({"plot": str(plot_path)} if plot_path else {}),
+            }
+        )
         return
     _render_cube(result, curves, at_lpmm, path)
     _report_files(csv_path, plot_path)
@@ -121,18 +163,30 @@ def _render_cube(result, curves, at_lpmm, path) -> None:
     for c in curves:
         label = render.nm(c["wavelength_m"], 1) if "wavelength_m" in c else c["channel"]
         mtf50 = "—" if c["mtf50_lpmm"] is None else f"{c['mtf50_lpmm']:.1f}"
-        rows.append([format_length(c["depth_m"]), label, mtf50, *(f"{v:.3f}" for v in [*c.get("mtf_at", []), c["mtf"][-1]])])
+        rows.append(
+            [format_length(c["depth_m"]), label, mtf50, *(f"{v:.3f}" for v in [*c.get("mtf_at", []), c["mtf"][-1]])]
+        )
     last = result.frequencies_lpmm[-1]
-    columns = ["depth", "λ (nm) / channel", "MTF50 (lp/mm)", *[f"MTF @ {f:g}" for f in at_lpmm], f"MTF @ {last:.1f} (Nyquist)"]
+    columns = [
+        "depth",
+        "λ (nm) / channel",
+        "MTF50 (lp/mm)",
+        *[f"MTF @ {f:g}" for f in at_lpmm],
+        f"MTF @ {last:.1f} (Nyquist)",
+    ]
     con = render.console()
     con.print(render.table(f"MTF of {path}", columns, rows))
     pixel = "divided out" if result.pixel_mtf_removed else "included (--remove-pixel-mtf divides it out)"
-    con.print(f"{result.frequencies_lpmm.size} frequencies, 0-{result.frequencies_lpmm[-1]:.1f} lp/mm (Nyquist {result.nyquist_lpmm:.1f} lp/mm); pixel aperture {pixel}")
+    con.print(
+        f"{result.frequencies_lpmm.size} frequencies, 0-{result.frequencies_lpmm[-1]:.1f} lp/mm (Nyquist {result.nyquist_lpmm:.1f} lp/mm); pixel aperture {pixel}"
+    )
     if result.na is None:
         con.print("no diffraction-limited reference: the file has no na (give --na)")
     else:
         cutoffs = 2 * result.na / result.wavelengths_m * 1e-3
-        con.print(f"diffraction limit at NA {result.na:.3g}: cutoff 2·NA/λ = {cutoffs.min():.0f}-{cutoffs.max():.0f} lp/mm")
+        con.print(
+            f"diffraction limit at NA {result.na:.3g}: cutoff 2·NA/λ = {cutoffs.min():.0f}-{cutoffs.max():.0f} lp/mm"
+        )
 
 
 def _edge(path, roi, pixel_pitch_m, srgb, csv_path, as_json, plot_path) -> None:
@@ -144,7 +198,11 @@ def _edge(path, roi, pixel_pitch_m, srgb, csv_path, as_json, plot_path) -> None:
     if csv_path:
         lpmm = ["frequency_lpmm"] if pixel_pitch_m else []
         rows = [
-            [e["channel"], e["angle_deg"], *[e[key][k] for key in ("frequencies_cy_per_px", *(["frequencies_lpmm"] if lpmm else []), "mtf")]]
+            [
+                e["channel"],
+                e["angle_deg"],
+                *[e[key][k] for key in ("frequencies_cy_per_px", *(["frequencies_lpmm"] if lpmm else []), "mtf")],
+            ]
             for e in entries
             for k in range(len(e["mtf"]))
         ]
@@ -154,16 +212,18 @@ def _edge(path, roi, pixel_pitch_m, srgb, csv_path, as_json, plot_path) -> None:
 
         plot_edge_sfr(plot_path, analysis, pixel_pitch_m)
     if as_json:
-        render.emit_json({
-            "file": str(path),
-            "roi": list(analysis.roi),
-            "orientation": analysis.orientation,
-            "values": "sRGB decoded to linear" if srgb else "linear as stored",
-            **({"pixel_pitch_m": pixel_pitch_m} if pixel_pitch_m else {}),
-            "edge": entries,
-            **({"csv": str(csv_path)} if csv_path else {}),
-            **({"plot": str(plot_path)} if plot_path else {}),
-        })
+        render.emit_json(
+            {
+                "file": str(path),
+                "roi": list(analysis.roi),
+                "orientation": analysis.orientation,
+                "values": "sRGB decoded to linear" if srgb else "linear as stored",
+                **({"pixel_pitch_m": pixel_pitch_m} if pixel_pitch_m else {}),
+                "edge": entries,
+                **({"csv": str(csv_path)} if csv_path else {}),
+                **({"plot": str(plot_path)} if plot_path else {}),
+            }
+        )
         return
     _render_edge(analysis, entries, pixel_pitch_m, path)
     _report_files(csv_path, plot_path)
@@ -197,7 +257,9 @@ def _render_edge(analysis, entries, pixel_pitch_m, path) -> None:
     columns = ["channel", "tilt (°)", "MTF50 (cy/px)", *(["MTF50 (lp/mm)"] if pixel_pitch_m else []), "SFR @ Nyquist"]
     con = render.console()
     x, y, w, h = analysis.roi
-    con.print(render.table(f"Slanted-edge SFR of {path} ({analysis.orientation} edge, ROI {x},{y},{w},{h})", columns, rows))
+    con.print(
+        render.table(f"Slanted-edge SFR of {path} ({analysis.orientation} edge, ROI {x},{y},{w},{h})", columns, rows)
+    )
 
 
 def _write_csv(path, header: list[str], rows: list[list]) -> None:

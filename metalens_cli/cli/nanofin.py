@@ -5,9 +5,24 @@ from __future__ import annotations
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import (announce, BandSpec, check_output_unused, device_option, json_option, Length, LengthList,
-                                      load_preset_option, max_memory_option, MetalensGroup, Number, OutputFolder, overwrite_option,
-                                      plot_option, torch_device, WavelengthList)
+from metalens_cli.cli.options import (
+    BandSpec,
+    Length,
+    LengthList,
+    MetalensGroup,
+    Number,
+    OutputFolder,
+    WavelengthList,
+    announce,
+    check_output_unused,
+    device_option,
+    json_option,
+    load_preset_option,
+    max_memory_option,
+    overwrite_option,
+    plot_option,
+    torch_device,
+)
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.errors import InputError
 from metalens_cli.optics.nanofin import FIRST_HARMONICS
@@ -17,31 +32,45 @@ LEAST_MAX_HARMONICS = FIRST_HARMONICS + 4
 PAPER_BANDS = ((457e-9, 22e-9), (530e-9, 20e-9), (628e-9, 28e-9))  # the tri-band filter (presets/split-spectrum.toml)
 MAX_FINS = 10_000
 TYPICAL_HARMONICS = 25  # what auto picks for the paper's fin (docs/benchmarks.md)
-SOLVERS = {"modes": "fin_modes (this package's RCWA, mirror symmetries, Li's factorisation)",
-           "meent": "meent (RCWA, Li's factorisation; the reference)"}
-solver_option = click.option("--solver", type=click.Choice(tuple(SOLVERS)), default="modes", show_default=True,
-                             help="RCWA: modes (fast, symmetric subspaces, --device) or meent (the slower reference, CPU).")
+SOLVERS = {
+    "modes": "fin_modes (this package's RCWA, mirror symmetries, Li's factorisation)",
+    "meent": "meent (RCWA, Li's factorisation; the reference)",
+}
+solver_option = click.option(
+    "--solver",
+    type=click.Choice(tuple(SOLVERS)),
+    default="modes",
+    show_default=True,
+    help="RCWA: modes (fast, symmetric subspaces, --device) or meent (the slower reference, CPU).",
+)
 
 
 def _odd_harmonics(least: int, auto: bool = False):
     """A callback parsing an odd number of Fourier harmonics per axis from ``least`` to
     MAX_HARMONICS (or ``auto``, as None, when ``auto``)."""
+
     def parse(ctx, param, text) -> int | None:
         text = str(text)
         if auto and text == "auto":
             return None
         if not text.isdigit() or int(text) % 2 == 0 or not least <= int(text) <= MAX_HARMONICS:
-            raise click.BadParameter(f"{text!r} (expected {'auto, or ' if auto else ''}an odd number of Fourier harmonics per axis "
-                                     f"from {least} to {MAX_HARMONICS})")
+            raise click.BadParameter(
+                f"{text!r} (expected {'auto, or ' if auto else ''}an odd number of Fourier harmonics per axis "
+                f"from {least} to {MAX_HARMONICS})"
+            )
         return int(text)
 
     return parse
 
 
 max_harmonics_option = click.option(
-    "--max-harmonics", default=35, show_default=True, callback=_odd_harmonics(LEAST_MAX_HARMONICS),
+    "--max-harmonics",
+    default=35,
+    show_default=True,
+    callback=_odd_harmonics(LEAST_MAX_HARMONICS),
     help=f"The largest N tried when converging (odd, {LEAST_MAX_HARMONICS} to {MAX_HARMONICS}: N = {FIRST_HARMONICS}, "
-         f"{FIRST_HARMONICS + 2}, … until η moves less than the tolerance from both N − 2 and N − 4).")
+    f"{FIRST_HARMONICS + 2}, … until η moves less than the tolerance from both N − 2 and N − 4).",
+)
 
 
 @click.group("nanofin", cls=MetalensGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -51,25 +80,63 @@ def nanofin():
 
 @nanofin.command("efficiency")
 @click.option("--period", "period_m", type=Length(), default="395nm", show_default=True, help="Square lattice period.")
-@click.option("--height", "height_m", type=Length(), default="700nm", show_default=True, help="Fin height (film thickness).")
+@click.option(
+    "--height", "height_m", type=Length(), default="700nm", show_default=True, help="Fin height (film thickness)."
+)
 @click.option("--width", "width_m", type=Length(), default="305nm", show_default=True, help="Fin width, along x.")
 @click.option("--length", "length_m", type=Length(), default="125nm", show_default=True, help="Fin length, along y.")
-@click.option("--material", default="sinx", show_default=True,
-              help="Fin: sinx, fused-silica, tio2, a-si, air; a number (2.0, 2.0+0.01j); cauchy:A,B[,C] (λ in µm); a CSV wavelength_nm,n[,k].")
-@click.option("--substrate", default="fused-silica", show_default=True, help="Substrate, in the forms of --material (its real index is used).")
+@click.option(
+    "--material",
+    default="sinx",
+    show_default=True,
+    help="Fin: sinx, fused-silica, tio2, a-si, air; a number (2.0, 2.0+0.01j); cauchy:A,B[,C] (λ in µm); a CSV wavelength_nm,n[,k].",
+)
+@click.option(
+    "--substrate",
+    default="fused-silica",
+    show_default=True,
+    help="Substrate, in the forms of --material (its real index is used).",
+)
 @click.option("--wavelengths", type=WavelengthList(), multiple=True, help="Wavelengths [430:660:10nm].")
-@click.option("--harmonics", default="auto", show_default=True, callback=_odd_harmonics(1, auto=True),
-              help="Fourier harmonics N per axis (odd), or auto: the first N whose η moves less than --tolerance from N − 2 and N − 4.")
+@click.option(
+    "--harmonics",
+    default="auto",
+    show_default=True,
+    callback=_odd_harmonics(1, auto=True),
+    help="Fourier harmonics N per axis (odd), or auto: the first N whose η moves less than --tolerance from N − 2 and N − 4.",
+)
 @max_harmonics_option
-@click.option("--tolerance", type=Number(1e-6, 0.1), default=1e-3, show_default=True, help="auto: the change of η that counts as converged.")
+@click.option(
+    "--tolerance",
+    type=Number(1e-6, 0.1),
+    default=1e-3,
+    show_default=True,
+    help="auto: the change of η that counts as converged.",
+)
 @solver_option
 @device_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 @plot_option
-def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavelengths, harmonics, max_harmonics, tolerance,
-               solver, device, quiet, max_memory, as_json, plot_path):
+def efficiency(
+    period_m,
+    height_m,
+    width_m,
+    length_m,
+    material,
+    substrate,
+    wavelengths,
+    harmonics,
+    max_harmonics,
+    tolerance,
+    solver,
+    device,
+    quiet,
+    max_memory,
+    as_json,
+    plot_path,
+):
     """η(λ) of a rectangular fin in air on a substrate, light from the substrate at normal
     incidence: η = |t_xx − t_yy|²/4 (power into the opposite circular polarisation),
     co-polarised |t_xx + t_yy|²/4, T and R, by RCWA with Li's factorisation.
@@ -81,31 +148,61 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.resources import Estimate
     from metalens_cli.io.units import parse_length_list
-    from metalens_cli.optics.nanofin import converge, convergence_seconds, estimate_bytes, estimate_seconds, Fin, fin_response
+    from metalens_cli.optics.nanofin import (
+        Fin,
+        converge,
+        convergence_seconds,
+        estimate_bytes,
+        estimate_seconds,
+        fin_response,
+    )
 
     fin = Fin(period_m, height_m, width_m, length_m)
     fin.check()
     wavelengths_m = [w for group in wavelengths for w in group] or parse_length_list("430:660:10nm", "--wavelengths")
     fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
-    n_fin, n_sub = fin_material.index(wavelengths_m, "--material"), substrate_material.index(wavelengths_m, "--substrate")
+    n_fin, n_sub = (
+        fin_material.index(wavelengths_m, "--material"),
+        substrate_material.index(wavelengths_m, "--substrate"),
+    )
     worst = harmonics or max_harmonics
     typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)
     if harmonics:
         seconds = longest = estimate_seconds(harmonics, len(wavelengths_m), solver)
     else:
         seconds, longest = (convergence_seconds(n, len(wavelengths_m), solver) for n in (typical, worst))
-    announce(Estimate(f"nanofin efficiency at {len(wavelengths_m)} wavelengths, up to {worst} × {worst} harmonics",
-                      estimate_bytes(worst, solver), "--harmonics", seconds, seconds_max=longest), max_memory)
+    announce(
+        Estimate(
+            f"nanofin efficiency at {len(wavelengths_m)} wavelengths, up to {worst} × {worst} harmonics",
+            estimate_bytes(worst, solver),
+            "--harmonics",
+            seconds,
+            seconds_max=longest,
+        ),
+        max_memory,
+    )
     table, chosen = [], harmonics
     warnings = []
     with progress_bar("nanofin efficiency", quiet) as update:
         if harmonics is None:
-            chosen, table, r = converge(fin, n_fin, n_sub, wavelengths_m, FIRST_HARMONICS, max_harmonics, tolerance,
-                                        torch_device(device), solver, update)
+            chosen, table, r = converge(
+                fin,
+                n_fin,
+                n_sub,
+                wavelengths_m,
+                FIRST_HARMONICS,
+                max_harmonics,
+                tolerance,
+                torch_device(device),
+                solver,
+                update,
+            )
             if chosen is None:
                 chosen = table[-1]["harmonics"]
-                warnings.append(f"η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}, more than "
-                                f"--tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)")
+                warnings.append(
+                    f"η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}, more than "
+                    f"--tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)"
+                )
         else:
             r = fin_response(fin, n_fin, n_sub, wavelengths_m, chosen, update, torch_device(device), solver)
     if plot_path:
@@ -115,26 +212,44 @@ def efficiency(period_m, height_m, width_m, length_m, material, substrate, wavel
     render.say(warnings)
     report = {
         "fin": {"period_m": period_m, "height_m": height_m, "width_m": width_m, "length_m": length_m},
-        "material": fin_material.describe(), "substrate": substrate_material.describe(),
-        "wavelengths_m": r.wavelengths_m.tolist(), "conversion_efficiency": r.conversion.tolist(),
-        "co_polarized": r.co_polarized.tolist(), "transmittance": r.transmittance.tolist(), "reflectance": r.reflectance.tolist(),
-        "t_xx": [[z.real, z.imag] for z in r.t_xx.tolist()], "t_yy": [[z.real, z.imag] for z in r.t_yy.tolist()],
-        "harmonics": chosen, "convergence": table, "tolerance": tolerance if harmonics is None else None,
-        "solver": SOLVERS[solver], "seconds": float(r.seconds.sum() + sum(t["seconds"] for t in table[:-1])), "warnings": warnings,
+        "material": fin_material.describe(),
+        "substrate": substrate_material.describe(),
+        "wavelengths_m": r.wavelengths_m.tolist(),
+        "conversion_efficiency": r.conversion.tolist(),
+        "co_polarized": r.co_polarized.tolist(),
+        "transmittance": r.transmittance.tolist(),
+        "reflectance": r.reflectance.tolist(),
+        "t_xx": [[z.real, z.imag] for z in r.t_xx.tolist()],
+        "t_yy": [[z.real, z.imag] for z in r.t_yy.tolist()],
+        "harmonics": chosen,
+        "convergence": table,
+        "tolerance": tolerance if harmonics is None else None,
+        "solver": SOLVERS[solver],
+        "seconds": float(r.seconds.sum() + sum(t["seconds"] for t in table[:-1])),
+        "warnings": warnings,
         **({"plot": str(plot_path)} if plot_path else {}),
     }
     if as_json:
         render.emit_json(report)
         return
     con = render.console()
-    rows = [[render.nm(w, 1), f"{e:.4f}", f"{c:.4f}", f"{t:.4f}", f"{rr:.4f}"]
-            for w, e, c, t, rr in zip(r.wavelengths_m, r.conversion, r.co_polarized, r.transmittance, r.reflectance)]
-    con.print(render.table(f"Nanofin {width_m * 1e9:g} × {length_m * 1e9:g} × {height_m * 1e9:g} nm at period {period_m * 1e9:g} nm, "
-                           f"{fin_material.name} on {substrate_material.name}, {chosen} × {chosen} harmonics",
-                           ["λ (nm)", "η conversion", "co-polarised", "T", "R"], rows))
+    rows = [
+        [render.nm(w, 1), f"{e:.4f}", f"{c:.4f}", f"{t:.4f}", f"{rr:.4f}"]
+        for w, e, c, t, rr in zip(r.wavelengths_m, r.conversion, r.co_polarized, r.transmittance, r.reflectance)
+    ]
+    con.print(
+        render.table(
+            f"Nanofin {width_m * 1e9:g} × {length_m * 1e9:g} × {height_m * 1e9:g} nm at period {period_m * 1e9:g} nm, "
+            f"{fin_material.name} on {substrate_material.name}, {chosen} × {chosen} harmonics",
+            ["λ (nm)", "η conversion", "co-polarised", "T", "R"],
+            rows,
+        )
+    )
     if table:
-        con.print("convergence (largest change of η over the wavelengths from N − 2): "
-                  + ", ".join(f"N = {t['harmonics']}: {t['max_change']:.1e} ({t['seconds']:.2f} s)" for t in table[1:]))
+        con.print(
+            "convergence (largest change of η over the wavelengths from N − 2): "
+            + ", ".join(f"N = {t['harmonics']}: {t['max_change']:.1e} ({t['seconds']:.2f} s)" for t in table[1:])
+        )
     con.print(f"{report['seconds']:.1f} s for {r.wavelengths_m.size} wavelengths")
 
 
@@ -154,32 +269,83 @@ def _check_bands(bands: tuple[tuple[float, float], ...]) -> None:
 @nanofin.command("sweep")
 @click.option("--width", "width_m", type=LengthList(), required=True, help="Fin widths, e.g. 210:360:5nm.")
 @click.option("--length", "length_m", type=LengthList(), required=True, help="Fin lengths, e.g. 40:190:5nm.")
-@click.option("--preset", "preset_path", type=click.Path(dir_okay=False),
-              help="Preset whose [nanofin] and filter bands are the defaults below; OUTPUT/preset.toml is this preset with the "
-                   "recommended fin.")
-@click.option("--period", "period_m", type=Length(), help="Square lattice period [the preset's nanofin.pitch, else 395nm].")
+@click.option(
+    "--preset",
+    "preset_path",
+    type=click.Path(dir_okay=False),
+    help="Preset whose [nanofin] and filter bands are the defaults below; OUTPUT/preset.toml is this preset with the "
+    "recommended fin.",
+)
+@click.option(
+    "--period", "period_m", type=Length(), help="Square lattice period [the preset's nanofin.pitch, else 395nm]."
+)
 @click.option("--height", "height_m", type=Length(), help="Fin height [the preset's, else 700nm].")
 @click.option("--material", help="Fin material, as for nanofin efficiency [the preset's, else sinx].")
 @click.option("--substrate", help="Substrate material [the preset's, else fused-silica].")
-@click.option("--band", "bands", type=BandSpec(), multiple=True,
-              help="Pass band CENTER:FWHM, repeatable [the preset's filter bands, else the paper's 457nm:22nm, 530nm:20nm, 628nm:28nm].")
-@click.option("--harmonics", default=9, show_default=True, callback=_odd_harmonics(1),
-              help="Fourier harmonics per axis for the map (odd; the chosen fin and its neighbours are recomputed converged).")
+@click.option(
+    "--band",
+    "bands",
+    type=BandSpec(),
+    multiple=True,
+    help="Pass band CENTER:FWHM, repeatable [the preset's filter bands, else the paper's 457nm:22nm, 530nm:20nm, 628nm:28nm].",
+)
+@click.option(
+    "--harmonics",
+    default=9,
+    show_default=True,
+    callback=_odd_harmonics(1),
+    help="Fourier harmonics per axis for the map (odd; the chosen fin and its neighbours are recomputed converged).",
+)
 @max_harmonics_option
-@click.option("--samples-per-band", type=click.IntRange(1, 64), default=8, show_default=True,
-              help="Wavelengths evenly across each band's FWHM whose η is averaged (3 bands × 8: 24 wavelengths).")
-@click.option("--fabrication-tolerance", "tolerance_m", type=Length(), default="10nm", show_default=True,
-              help="The recommended fin keeps --keep of its η for every grid fin within ± this in width and length.")
+@click.option(
+    "--samples-per-band",
+    type=click.IntRange(1, 64),
+    default=8,
+    show_default=True,
+    help="Wavelengths evenly across each band's FWHM whose η is averaged (3 bands × 8: 24 wavelengths).",
+)
+@click.option(
+    "--fabrication-tolerance",
+    "tolerance_m",
+    type=Length(),
+    default="10nm",
+    show_default=True,
+    help="The recommended fin keeps --keep of its η for every grid fin within ± this in width and length.",
+)
 @click.option("--keep", type=Number(0, 1, min_open=True), default=0.95, show_default=True)
-@click.option("-o", "--output", type=OutputFolder(), required=True,
-              help="Folder for sweep.npz, sweep.csv, sweep.png, sweep.json, nanofin.toml (and preset.toml with --preset).")
+@click.option(
+    "-o",
+    "--output",
+    type=OutputFolder(),
+    required=True,
+    help="Folder for sweep.npz, sweep.csv, sweep.png, sweep.json, nanofin.toml (and preset.toml with --preset).",
+)
 @overwrite_option
 @device_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
-def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrate, bands, harmonics, max_harmonics, samples_per_band,
-          tolerance_m, keep, output, overwrite, device, quiet, max_memory, as_json):
+def sweep(
+    width_m,
+    length_m,
+    preset_path,
+    period_m,
+    height_m,
+    material,
+    substrate,
+    bands,
+    harmonics,
+    max_harmonics,
+    samples_per_band,
+    tolerance_m,
+    keep,
+    output,
+    overwrite,
+    device,
+    quiet,
+    max_memory,
+    as_json,
+):
     """η over a grid of fin widths × lengths, per pass band and their mean (the paper's Suppl.
     Note 7), and the recommended fin: the best mean η whose neighbours within
     --fabrication-tolerance keep --keep of it, recomputed with converged harmonics.
@@ -197,16 +363,22 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
     from metalens_cli.io.materials import parse_material
     from metalens_cli.io.presets import section_toml, to_toml
     from metalens_cli.io.resources import Estimate
-    from metalens_cli.optics.nanofin import convergence_seconds, estimate_bytes, estimate_seconds, Fin
+    from metalens_cli.optics.nanofin import Fin, convergence_seconds, estimate_bytes, estimate_seconds
 
     check_output_unused(output, overwrite)
     preset = load_preset_option(preset_path)
     fin0 = preset.nanofin if preset is not None else None
     period_m = period_m if period_m is not None else (fin0.pitch_m if fin0 else 395e-9)
     height_m = height_m if height_m is not None else (fin0.height_m if fin0 else 700e-9)
-    material, substrate = material or (fin0.material if fin0 else "sinx"), substrate or (fin0.substrate if fin0 else "fused-silica")
-    preset_bands = [] if preset is None or preset.filter is None else [((b.lo_m + b.hi_m) / 2, b.hi_m - b.lo_m)
-                                                                        for b in filter_bands(preset.filter)]
+    material, substrate = (
+        material or (fin0.material if fin0 else "sinx"),
+        substrate or (fin0.substrate if fin0 else "fused-silica"),
+    )
+    preset_bands = (
+        []
+        if preset is None or preset.filter is None
+        else [((b.lo_m + b.hi_m) / 2, b.hi_m - b.lo_m) for b in filter_bands(preset.filter)]
+    )
     widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
     if len(widths_m) * len(lengths_m) > MAX_FINS:
         raise InputError("--width", f"{len(widths_m)} × {len(lengths_m)} fins", f"at most {MAX_FINS} fins")
@@ -226,37 +398,90 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
     neighbours = largest_neighbourhood(widths_m, lengths_m, tolerance_m)
     coarse = estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m))
     # the chosen fin converges (N = 5, 7, …), then its neighbourhood is recomputed at that N
-    typical, worst = ((coarse + convergence_seconds(n, waves.size) + estimate_seconds(n, waves.size * neighbours))
-                      for n in (min(TYPICAL_HARMONICS, max_harmonics), max_harmonics))
-    announce(Estimate(f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} harmonics",
-                      estimate_bytes(max(harmonics, max_harmonics)), "--harmonics", typical, seconds_max=worst), max_memory)
-    result = sweep_fins(period_m, height_m, widths_m, lengths_m, bands_m, n_fin, n_sub, harmonics, samples_per_band, tolerance_m, keep,
-                        max_harmonics, torch_device(device), lambda stage: progress_bar(stage, quiet))
+    typical, worst = (
+        (coarse + convergence_seconds(n, waves.size) + estimate_seconds(n, waves.size * neighbours))
+        for n in (min(TYPICAL_HARMONICS, max_harmonics), max_harmonics)
+    )
+    announce(
+        Estimate(
+            f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} harmonics",
+            estimate_bytes(max(harmonics, max_harmonics)),
+            "--harmonics",
+            typical,
+            seconds_max=worst,
+        ),
+        max_memory,
+    )
+    result = sweep_fins(
+        period_m,
+        height_m,
+        widths_m,
+        lengths_m,
+        bands_m,
+        n_fin,
+        n_sub,
+        harmonics,
+        samples_per_band,
+        tolerance_m,
+        keep,
+        max_harmonics,
+        torch_device(device),
+        lambda stage: progress_bar(stage, quiet),
+    )
     m, choice, warnings = result.map, result.choice, result.warnings
     render.say(warnings)
-    report = {"period_m": period_m, "height_m": height_m, "material": fin_material.describe(), "substrate": substrate_material.describe(),
-              "bands_m": [list(b) for b in bands_m], "wavelengths_m": m.wavelengths_m.tolist(), "harmonics": harmonics,
-              "widths_m": widths_m, "lengths_m": lengths_m, "recommended": choice, "seconds": m.seconds, "cached": result.cached,
-              "converged_cached": result.converged_cached,
-              "solver": SOLVERS["modes"], "warnings": warnings,
-              "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json", "nanofin.toml"] + (["preset.toml"] if preset else []),
-              "output": str(output), "preset": preset_path}
+    report = {
+        "period_m": period_m,
+        "height_m": height_m,
+        "material": fin_material.describe(),
+        "substrate": substrate_material.describe(),
+        "bands_m": [list(b) for b in bands_m],
+        "wavelengths_m": m.wavelengths_m.tolist(),
+        "harmonics": harmonics,
+        "widths_m": widths_m,
+        "lengths_m": lengths_m,
+        "recommended": choice,
+        "seconds": m.seconds,
+        "cached": result.cached,
+        "converged_cached": result.converged_cached,
+        "solver": SOLVERS["modes"],
+        "warnings": warnings,
+        "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json", "nanofin.toml"]
+        + (["preset.toml"] if preset else []),
+        "output": str(output),
+        "preset": preset_path,
+    }
     section = recommended_nanofin(period_m, height_m, material, substrate, choice)
     from metalens_cli.io.json_files import jsonable
     from metalens_cli.plotting.nanofin import plot_fin_map
 
     with atomic_folder(output) as folder:
-        np.savez_compressed(folder / "sweep.npz", widths_m=m.widths_m, lengths_m=m.lengths_m, wavelengths_m=m.wavelengths_m,
-                            bands_m=np.array(bands_m), eta=m.eta, score=m.score)
+        np.savez_compressed(
+            folder / "sweep.npz",
+            widths_m=m.widths_m,
+            lengths_m=m.lengths_m,
+            wavelengths_m=m.wavelengths_m,
+            bands_m=np.array(bands_m),
+            eta=m.eta,
+            score=m.score,
+        )
         rows = ["width_nm,length_nm," + ",".join(f"eta_{c * 1e9:g}nm" for c, _ in bands_m) + ",eta_mean"]
         for i, length in enumerate(m.lengths_m):
             for j, width in enumerate(m.widths_m):
-                rows.append(f"{width * 1e9:g},{length * 1e9:g}," + ",".join(f"{v:.6f}" for v in m.eta[i, j]) + f",{m.score[i, j]:.6f}")
+                rows.append(
+                    f"{width * 1e9:g},{length * 1e9:g},"
+                    + ",".join(f"{v:.6f}" for v in m.eta[i, j])
+                    + f",{m.score[i, j]:.6f}"
+                )
         (folder / "sweep.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
         plot_fin_map(folder / "sweep.png", m, choice)
-        (folder / "sweep.json").write_text(json.dumps(jsonable(report), allow_nan=False, indent=1) + "\n", encoding="utf-8")
-        (folder / "nanofin.toml").write_text("# the recommended fin of metalens nanofin sweep, for a preset\n" + section_toml("nanofin", section),
-                                             encoding="utf-8")
+        (folder / "sweep.json").write_text(
+            json.dumps(jsonable(report), allow_nan=False, indent=1) + "\n", encoding="utf-8"
+        )
+        (folder / "nanofin.toml").write_text(
+            "# the recommended fin of metalens nanofin sweep, for a preset\n" + section_toml("nanofin", section),
+            encoding="utf-8",
+        )
         if preset is not None:
             (folder / "preset.toml").write_text(to_toml(preset, nanofin=vars(section)), encoding="utf-8")
     if as_json:
@@ -264,10 +489,18 @@ def sweep(width_m, length_m, preset_path, period_m, height_m, material, substrat
         return
     c = choice
     con = render.console()
-    con.print(f"recommended fin: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.4f} at {harmonics} harmonics "
-              f"(worst within ±{tolerance_m * 1e9:g} nm: {c['worst_neighbour']:.4f}{'' if c['robust'] else '; no fin keeps ' + format(keep, 'g')})")
+    con.print(
+        f"recommended fin: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.4f} at {harmonics} harmonics "
+        f"(worst within ±{tolerance_m * 1e9:g} nm: {c['worst_neighbour']:.4f}{'' if c['robust'] else '; no fin keeps ' + format(keep, 'g')})"
+    )
     f = c["converged"]
-    con.print(f"converged ({f['harmonics']} harmonics): mean η {f['score']:.4f}, per band " + " / ".join(f"{v:.4f}" for v in f["eta_per_band"])
-              + f"; worst of {f['fins']} fins within ±{tolerance_m * 1e9:g} nm: {f['worst_neighbour']:.4f}")
-    con.print(f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds + f['seconds']:.1f} s of RCWA), nanofin.toml "
-              "(the fin as a preset's [nanofin])" + (f", preset.toml ({preset.name} with that fin)" if preset else ""), markup=False)
+    con.print(
+        f"converged ({f['harmonics']} harmonics): mean η {f['score']:.4f}, per band "
+        + " / ".join(f"{v:.4f}" for v in f["eta_per_band"])
+        + f"; worst of {f['fins']} fins within ±{tolerance_m * 1e9:g} nm: {f['worst_neighbour']:.4f}"
+    )
+    con.print(
+        f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds + f['seconds']:.1f} s of RCWA), nanofin.toml "
+        "(the fin as a preset's [nanofin])" + (f", preset.toml ({preset.name} with that fin)" if preset else ""),
+        markup=False,
+    )

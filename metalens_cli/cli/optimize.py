@@ -8,7 +8,14 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import announce, max_memory_option, MetalensCommand, OutputFolder, torch_device, training_options
+from metalens_cli.cli.options import (
+    MetalensCommand,
+    OutputFolder,
+    announce,
+    max_memory_option,
+    torch_device,
+    training_options,
+)
 from metalens_cli.cli.progress import efficiency_used, run_training
 
 
@@ -29,8 +36,8 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
 
     from metalens_cli.design.rundir import RunDirectory
     from metalens_cli.design.training import estimate_training, train
-    from metalens_cli.io.resources import Estimate
     from metalens_cli.io.presets import load_preset
+    from metalens_cli.io.resources import Estimate
 
     if threads:
         torch.set_num_threads(threads)
@@ -39,16 +46,34 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
     run = RunDirectory(run_dir)
     if not resume:
         run.check_fresh()
-    planned = run.load_preset() if resume and run.preset_path.is_file() else preset  # a resumed run goes on with its own
-    planned = dataclasses.replace(planned, optimize=dataclasses.replace(
-        planned.optimize, **{k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}))
+    planned = (
+        run.load_preset() if resume and run.preset_path.is_file() else preset
+    )  # a resumed run goes on with its own
+    planned = dataclasses.replace(
+        planned,
+        optimize=dataclasses.replace(
+            planned.optimize, **{k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
+        ),
+    )
     efficiency_used(planned, quiet)  # RCWA η, when the preset asks for it, before the estimate and the run
     memory, seconds = estimate_training(planned)
-    announce(Estimate(f"optimize of {planned.optimize.steps} steps, batch {planned.optimize.batch_size}", memory,
-                      "optimize.batch_size" if seconds is not None else "lens.aperture (its 2-D θ grid)", seconds), max_memory)
-    report = run_training("optimize", quiet, f"metalens optimize {preset_path} -o {run_dir} --resume",
-                          lambda progress: train(preset, run_dir, steps=steps, seed=seed, device=torch_device(device),
-                                                 resume=resume, on_step=progress.step))
+    announce(
+        Estimate(
+            f"optimize of {planned.optimize.steps} steps, batch {planned.optimize.batch_size}",
+            memory,
+            "optimize.batch_size" if seconds is not None else "lens.aperture (its 2-D θ grid)",
+            seconds,
+        ),
+        max_memory,
+    )
+    report = run_training(
+        "optimize",
+        quiet,
+        f"metalens optimize {preset_path} -o {run_dir} --resume",
+        lambda progress: train(
+            preset, run_dir, steps=steps, seed=seed, device=torch_device(device), resume=resume, on_step=progress.step
+        ),
+    )
     if report is None:
         return
     if as_json:
@@ -66,10 +91,16 @@ def _render(run_dir: Path, report: dict) -> None:
         label = "far (∞)" if depth is None or depth == float("inf") else f"near ({depth * 1e3:g} mm)"
         for c, channel in enumerate(psf["channels"]):
             rows.append([label, channel, f"{psf['energy_in_window'][d][c]:.4f}", f"{psf[window][d][c]:.4f}"])
-    con.print(render.table(f"Channel PSFs of {run_dir}", ["depth", "channel", "in window", window.replace("energy_", "")], rows))
+    con.print(
+        render.table(
+            f"Channel PSFs of {run_dir}", ["depth", "channel", "in window", window.replace("energy_", "")], rows
+        )
+    )
     final = report["final_loss"]
     per_step = cost["seconds_per_step_median"]
-    con.print(f"{report['settings']['steps']} steps"
-              + (f", {per_step:.3f} s/step (median)" if per_step else "")
-              + (f", final loss {final['total']:.4f} (mean of the last steps)" if final else ""))
+    con.print(
+        f"{report['settings']['steps']} steps"
+        + (f", {per_step:.3f} s/step (median)" if per_step else "")
+        + (f", final loss {final['total']:.4f} (mean of the last steps)" if final else "")
+    )
     con.print(f"wrote {run_dir}/ (theta.npy, psf.exr, loss.csv, run.json, …)")

@@ -178,8 +178,18 @@ class MemorySize(click.ParamType):
     """A memory size: ``8GiB``, ``500MB``, ``2e9`` (bytes) → int bytes."""
 
     name = "size"
-    UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12,
-             "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
+    UNITS = {
+        "": 1,
+        "b": 1,
+        "kb": 10**3,
+        "mb": 10**6,
+        "gb": 10**9,
+        "tb": 10**12,
+        "kib": 2**10,
+        "mib": 2**20,
+        "gib": 2**30,
+        "tib": 2**40,
+    }
 
     def convert(self, value, param, ctx):
         if isinstance(value, int):
@@ -208,12 +218,21 @@ def _remember_max_time(ctx, param, value):
 def max_memory_option(function):
     """``--max-memory`` (passed to the command) and ``--max-time`` (kept in the context for
     :func:`announce`): the limits every command that estimates its cost accepts."""
-    function = click.option("--max-time", type=Duration(), default="24h", expose_value=False,
-                            callback=_remember_max_time, show_default=True,
-                            help="Refuse to start when the estimated run time (its longest) exceeds this, e.g. 30min or 2h; "
-                                 "inf for no limit.")(function)
-    return click.option("--max-memory", type=MemorySize(),
-                        help="Refuse to start when the estimated memory exceeds this, e.g. 8GiB [90 % of the available memory].")(function)
+    function = click.option(
+        "--max-time",
+        type=Duration(),
+        default="24h",
+        expose_value=False,
+        callback=_remember_max_time,
+        show_default=True,
+        help="Refuse to start when the estimated run time (its longest) exceeds this, e.g. 30min or 2h; "
+        "inf for no limit.",
+    )(function)
+    return click.option(
+        "--max-memory",
+        type=MemorySize(),
+        help="Refuse to start when the estimated memory exceeds this, e.g. 8GiB [90 % of the available memory].",
+    )(function)
 
 
 def announce(estimate, max_memory: int | None, output=None) -> None:
@@ -276,18 +295,31 @@ class MetalensCommand(click.Command):
                 outputs += [(param, v) for v in values if v is not None]
             else:  # paths, also inside lists such as --kinds dirt,file:mask.png
                 texts = [v for v in values if isinstance(v, str)]
-                inputs += [p for v in texts for p in {v, *(part.strip().removeprefix("file:") for part in v.split(","))}
-                           if p and os.path.exists(p)]
+                inputs += [
+                    p
+                    for v in texts
+                    for p in {v, *(part.strip().removeprefix("file:") for part in v.split(","))}
+                    if p and os.path.exists(p)
+                ]
         for (param, output), (other_param, other) in itertools.combinations(outputs, 2):
             if same_file(output, other):
-                raise InputError(_option_name(other_param), f"{other!r} is also {_option_name(param)}'s output",
-                                 "a separate path for each output")
+                raise InputError(
+                    _option_name(other_param),
+                    f"{other!r} is also {_option_name(param)}'s output",
+                    "a separate path for each output",
+                )
         for param, output in outputs:
             for path in inputs:
-                if same_file(output, path) or (isinstance(param.type, OutputFolder) and os.path.isfile(path)
-                                               and same_file(output, os.path.dirname(path) or ".")):
-                    raise InputError(_option_name(param), f"{output!r} is also an input ({path!r}); it would be overwritten",
-                                     "an output path apart from the inputs")
+                if same_file(output, path) or (
+                    isinstance(param.type, OutputFolder)
+                    and os.path.isfile(path)
+                    and same_file(output, os.path.dirname(path) or ".")
+                ):
+                    raise InputError(
+                        _option_name(param),
+                        f"{output!r} is also an input ({path!r}); it would be overwritten",
+                        "an output path apart from the inputs",
+                    )
         try:
             return super().invoke(ctx)
         except InputError as exc:  # the core names its argument (wavelengths): name the option (--wavelengths)
@@ -306,8 +338,11 @@ def refuse_overwriting(outputs: list[tuple[str, str | None]], inputs: list) -> N
     for option, path in outputs:
         clash = next((item for item in inputs if path is not None and same_file(path, item)), None)
         if clash is not None:
-            raise InputError(option, f"{path!r} is also an input ({str(clash)!r}); it would be overwritten",
-                             "an output path apart from the inputs")
+            raise InputError(
+                option,
+                f"{path!r} is also an input ({str(clash)!r}); it would be overwritten",
+                "an output path apart from the inputs",
+            )
 
 
 class MetalensGroup(click.Group):
@@ -339,12 +374,17 @@ def apply_options(command, options: list):
 
 def geometry_options(command):
     """--preset and the lens geometry overrides (``preset_path``, ``f_m``, ``aperture_m``, ``pitch_m``)."""
-    return apply_options(command, [
-        preset_option,
-        click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length)."),
-        click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D."),
-        click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [preset's; hyperbolic default 395nm]."),
-    ])
+    return apply_options(
+        command,
+        [
+            preset_option,
+            click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length)."),
+            click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D."),
+            click.option(
+                "--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [preset's; hyperbolic default 395nm]."
+            ),
+        ],
+    )
 
 
 def design_options(command):
@@ -355,17 +395,38 @@ def design_options(command):
 def training_options(section: str):
     """--steps, --seed, --device, --resume, --threads, --quiet and --json of a training command whose
     preset holds steps and seed in ``[section]``."""
+
     def decorate(command):
-        return apply_options(command, [
-            click.option("--steps", type=click.IntRange(0), help=f"Training steps [the preset's {section}.steps]."),
-            click.option("--seed", type=click.IntRange(0), help=f"Seed of every random draw [the preset's {section}.seed]."),
-            click.option("--device", type=Device(), default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps (under torchrun: each rank's)."),
-            click.option("--resume", is_flag=True, help="Continue the run in --output from its newest checkpoint (with the preset saved there)."),
-            click.option("--threads", type=click.IntRange(1), callback=_usable_threads,
-                         help="CPU threads for torch, at most the cores this process may use [torch's default]."),
-            click.option("--quiet", is_flag=True, help="No progress bar or progress lines."),
-            json_option,
-        ])
+        return apply_options(
+            command,
+            [
+                click.option("--steps", type=click.IntRange(0), help=f"Training steps [the preset's {section}.steps]."),
+                click.option(
+                    "--seed", type=click.IntRange(0), help=f"Seed of every random draw [the preset's {section}.seed]."
+                ),
+                click.option(
+                    "--device",
+                    type=Device(),
+                    default="cpu",
+                    show_default=True,
+                    help="torch device: cpu, cuda, cuda:1, mps (under torchrun: each rank's).",
+                ),
+                click.option(
+                    "--resume",
+                    is_flag=True,
+                    help="Continue the run in --output from its newest checkpoint (with the preset saved there).",
+                ),
+                click.option(
+                    "--threads",
+                    type=click.IntRange(1),
+                    callback=_usable_threads,
+                    help="CPU threads for torch, at most the cores this process may use [torch's default].",
+                ),
+                click.option("--quiet", is_flag=True, help="No progress bar or progress lines."),
+                json_option,
+            ],
+        )
+
     return decorate
 
 
@@ -376,13 +437,18 @@ def _usable_threads(ctx, param, threads: int | None) -> int | None:
         return None
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     if threads > cores:
-        raise InputError("--threads", f"{threads} threads on the {cores} CPU core(s) this process may use", f"at most {cores}")
+        raise InputError(
+            "--threads", f"{threads} threads on the {cores} CPU core(s) this process may use", f"at most {cores}"
+        )
     return threads
 
 
-overwrite_option = click.option("--overwrite", is_flag=True,
-                                help="Write into an output folder that already holds files, replacing same-named ones "
-                                     "(without it such a folder is refused).")
+overwrite_option = click.option(
+    "--overwrite",
+    is_flag=True,
+    help="Write into an output folder that already holds files, replacing same-named ones "
+    "(without it such a folder is refused).",
+)
 
 
 def check_output_unused(output: str, overwrite: bool, field: str = "--output") -> None:
@@ -394,9 +460,14 @@ def check_output_unused(output: str, overwrite: bool, field: str = "--output") -
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else.")
 plot_option = click.option(
-    "--plot", "plot_path", type=OutputFile(PLOT_SUFFIXES), help="Write a figure (PNG, PDF or SVG, by the suffix) to this file."
+    "--plot",
+    "plot_path",
+    type=OutputFile(PLOT_SUFFIXES),
+    help="Write a figure (PNG, PDF or SVG, by the suffix) to this file.",
 )
-device_option = click.option("--device", type=Device(), default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps.")
+device_option = click.option(
+    "--device", type=Device(), default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps."
+)
 
 
 def load_preset_option(path: str | None):
@@ -429,7 +500,9 @@ def torch_device(name: str):
     if device.type == "cuda" and not torch.cuda.is_available():
         raise InputError("--device", "CUDA is not available on this machine", "cpu")
     if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
-        raise InputError("--device", f"{name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)", "cuda:0 … cuda:N-1")
+        raise InputError(
+            "--device", f"{name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)", "cuda:0 … cuda:N-1"
+        )
     if device.type == "mps" and not torch.backends.mps.is_available():
         raise InputError("--device", "MPS is not available on this machine", "cpu")
     return device

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.options import json_option, MetalensGroup
+from metalens_cli.cli.options import MetalensGroup, json_option
 from metalens_cli.io.presets import load_preset, read_toml, to_dict
 
 

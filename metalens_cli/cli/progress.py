@@ -17,7 +17,13 @@ def progress_bar(description: str, quiet: bool = False) -> Iterator[Callable[[in
         return
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(), TimeRemainingColumn())
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
     with Progress(*columns, transient=True, console=_stderr_console()) as bar:
         task = bar.add_task(description, total=None)
 
@@ -47,13 +53,20 @@ class TrainingProgress:
     def __init__(self, name: str, quiet: bool):
         self.name, self.quiet, self.bar, self.recent = name, quiet, None, []
 
-    def __enter__(self) -> "TrainingProgress":
+    def __enter__(self) -> TrainingProgress:
         if not self.quiet and sys.stderr.isatty():
             from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-            self.bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                                TextColumn("loss {task.fields[loss]}"), TimeElapsedColumn(), TimeRemainingColumn(),
-                                console=_stderr_console(), transient=True)
+            self.bar = Progress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                TextColumn("{task.completed}/{task.total}"),
+                TextColumn("loss {task.fields[loss]}"),
+                TimeElapsedColumn(),
+                TimeRemainingColumn(),
+                console=_stderr_console(),
+                transient=True,
+            )
             self.bar.__enter__()
             self.task = self.bar.add_task(self.name, total=None, loss="—")
         return self
@@ -70,7 +83,11 @@ class TrainingProgress:
         if self.bar is not None:
             self.bar.update(self.task, completed=done, total=total, loss=f"{mean:.4f}", description=self.name)
         elif not self.quiet and (done == total or done % max(total // 10, 1) == 0):
-            print(f"{self.name}: step {done}/{total} loss {mean:.4f} ({row['seconds']:.2f} s/step)", file=sys.stderr, flush=True)
+            print(
+                f"{self.name}: step {done}/{total} loss {mean:.4f} ({row['seconds']:.2f} s/step)",
+                file=sys.stderr,
+                flush=True,
+            )
 
     def __exit__(self, *exc) -> bool:
         if self.bar is not None:
@@ -78,7 +95,9 @@ class TrainingProgress:
         return False
 
 
-def run_training(name: str, quiet: bool, resume_command: str, start: Callable[["TrainingProgress"], object]) -> dict | None:
+def run_training(
+    name: str, quiet: bool, resume_command: str, start: Callable[[TrainingProgress], object]
+) -> dict | None:
     """Run ``start(progress)`` (a training call returning an object with ``report``) under a
     :class:`TrainingProgress` shown by rank 0 only; print its notes. Ctrl-C: the checkpoint and
     ``resume_command`` on stderr, exit 130 (143 after SIGTERM). Returns the report on rank 0, None on other ranks."""
@@ -96,8 +115,11 @@ def run_training(name: str, quiet: bool, resume_command: str, start: Callable[["
         except TrainingInterrupted as stop:
             terminated = isinstance(stop.__context__, Terminated)
             if rank0:
-                click.echo(f"metalens: {'terminated' if terminated else 'interrupted'} after step {stop.step}; "
-                           f"checkpoint {stop.checkpoint}; continue with: {resume_command}", err=True)
+                click.echo(
+                    f"metalens: {'terminated' if terminated else 'interrupted'} after step {stop.step}; "
+                    f"checkpoint {stop.checkpoint}; continue with: {resume_command}",
+                    err=True,
+                )
             sys.exit(143 if terminated else 130)
     if not rank0:
         return None

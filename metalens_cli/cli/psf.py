@@ -10,14 +10,14 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
-    announce,
-    json_option,
     Length,
     LengthList,
-    max_memory_option,
     MetalensGroup,
     Number,
     OutputFile,
+    announce,
+    json_option,
+    max_memory_option,
     plot_option,
     refuse_overwriting,
 )
@@ -27,7 +27,7 @@ from metalens_cli.errors import InputError
 NORMALIZATIONS = ("sum-to-one", "peak-one")  # analysis.measured_psf.NORMALIZATIONS (numpy-free import)
 CENTRINGS = ("centroid", "peak")
 WORKERS = 2
-BYTES_PER_FRAME_PIXEL = 48       # float32 working copies of one frame (values, median, smoothed, masks)
+BYTES_PER_FRAME_PIXEL = 48  # float32 working copies of one frame (values, median, smoothed, masks)
 SECONDS_PER_FRAME_PIXEL = 2.5e-8  # measured 1.5e-8 (16-bit PNG, 2 cores: docs/benchmarks.md), with a margin
 CAMERA_PITCH_M = (0.1e-6, 100e-6)  # camera pixels: from a phone sensor's 0.56 µm to a large-format CCD's tens of µm
 
@@ -40,36 +40,90 @@ def psf():
 def _hot_sigma(ctx, param, value: float) -> float:
     """0 (off) or at least 3: below, noise itself would be replaced."""
     if 0 < value < 3:
-        raise click.BadParameter(f"{value:g} would take noise for hot pixels (expected 0 to turn removal off, or at least 3)")
+        raise click.BadParameter(
+            f"{value:g} would take noise for hot pixels (expected 0 to turn removal off, or at least 3)"
+        )
     return value
 
 
 @psf.command("import")
 @click.argument("manifest", type=click.Path())
-@click.option("--pattern", help="MANIFEST is a folder: file names such as psf_{wavelength}_{depth}.png ({exposure} optional; "
-                                "{wavelength:nm} gives bare numbers a unit).")
+@click.option(
+    "--pattern",
+    help="MANIFEST is a folder: file names such as psf_{wavelength}_{depth}.png ({exposure} optional; "
+    "{wavelength:nm} gives bare numbers a unit).",
+)
 @click.option("-o", "--output", type=OutputFile((".exr",)), required=True, help="PSF cube to write (docs/formats.md).")
-@click.option("--dark", "dark_path", type=click.Path(dir_okay=False),
-              help="Dark frame (image, .npy, or a .npy stack averaged) subtracted from every frame [manifest's dark].")
-@click.option("--pixels", type=click.IntRange(3, 8192), help="Window N × N [automatic: as large as the light of every frame].")
-@click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Camera pixel pitch, e.g. 3.45um [manifest's pixel_pitch].")
-@click.option("--magnification", type=Number(0, 1e4, min_open=True),
-              help="Magnification of the relay optics onto the camera; the cube's pitch is pitch / magnification [manifest's, else 1].")
-@click.option("--normalize", "normalization", type=click.Choice(NORMALIZATIONS), default="sum-to-one", show_default=True)
-@click.option("--centre", "centring", type=click.Choice(CENTRINGS), default="centroid", show_default=True,
-              help="Put the light's centroid or its peak on pixel (N//2, N//2).")
-@click.option("--saturation", type=Number(0, 1e30, min_open=True),
-              help="Saturation level in the frames' units, e.g. 4095 for 12-bit data in 16-bit files [the file's full scale].")
-@click.option("--allow-saturated", is_flag=True, help="Import frames with saturated pixels (reported) instead of refusing them.")
-@click.option("--hot-pixel-sigma", type=Number(0, 1e3), default=6.0, show_default=True, callback=_hot_sigma,
-              help="Hot pixels stand this many σ (at least 3) above their neighbours; 0 turns removal off.")
-@click.option("--design", help="What was measured, stored as the cube's design [manifest's design, else 'measured: MANIFEST'].")
+@click.option(
+    "--dark",
+    "dark_path",
+    type=click.Path(dir_okay=False),
+    help="Dark frame (image, .npy, or a .npy stack averaged) subtracted from every frame [manifest's dark].",
+)
+@click.option(
+    "--pixels", type=click.IntRange(3, 8192), help="Window N × N [automatic: as large as the light of every frame]."
+)
+@click.option(
+    "--pixel-pitch", "pixel_pitch_m", type=Length(), help="Camera pixel pitch, e.g. 3.45um [manifest's pixel_pitch]."
+)
+@click.option(
+    "--magnification",
+    type=Number(0, 1e4, min_open=True),
+    help="Magnification of the relay optics onto the camera; the cube's pitch is pitch / magnification [manifest's, else 1].",
+)
+@click.option(
+    "--normalize", "normalization", type=click.Choice(NORMALIZATIONS), default="sum-to-one", show_default=True
+)
+@click.option(
+    "--centre",
+    "centring",
+    type=click.Choice(CENTRINGS),
+    default="centroid",
+    show_default=True,
+    help="Put the light's centroid or its peak on pixel (N//2, N//2).",
+)
+@click.option(
+    "--saturation",
+    type=Number(0, 1e30, min_open=True),
+    help="Saturation level in the frames' units, e.g. 4095 for 12-bit data in 16-bit files [the file's full scale].",
+)
+@click.option(
+    "--allow-saturated", is_flag=True, help="Import frames with saturated pixels (reported) instead of refusing them."
+)
+@click.option(
+    "--hot-pixel-sigma",
+    type=Number(0, 1e3),
+    default=6.0,
+    show_default=True,
+    callback=_hot_sigma,
+    help="Hot pixels stand this many σ (at least 3) above their neighbours; 0 turns removal off.",
+)
+@click.option(
+    "--design", help="What was measured, stored as the cube's design [manifest's design, else 'measured: MANIFEST']."
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 @plot_option
-def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, magnification, normalization, centring,
-                  saturation, allow_saturated, hot_pixel_sigma, design, quiet, max_memory, as_json, plot_path):
+def import_frames(
+    manifest,
+    pattern,
+    output,
+    dark_path,
+    pixels,
+    pixel_pitch_m,
+    magnification,
+    normalization,
+    centring,
+    saturation,
+    allow_saturated,
+    hot_pixel_sigma,
+    design,
+    quiet,
+    max_memory,
+    as_json,
+    plot_path,
+):
     """Measured PSF frames listed in MANIFEST → a PSF cube (EXR).
 
     MANIFEST: a CSV with a header and columns file,wavelength,depth[,exposure] (values with
@@ -83,35 +137,61 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
     """
     from pathlib import Path
 
-    from metalens_cli.analysis.measured_psf import dark_frame, ImportSettings, import_psfs
+    from metalens_cli.analysis.measured_psf import ImportSettings, dark_frame, import_psfs
     from metalens_cli.io.atomic import atomic_files
     from metalens_cli.io.exr import write_psf_cube
     from metalens_cli.io.psf_manifest import frame_shape, read_frame_file, read_manifest
     from metalens_cli.io.resources import Estimate
 
     m = read_manifest(manifest, pattern)
-    refuse_overwriting([("-o", output), ("--plot", plot_path)],
-                       [f.path for f in m.frames] + [p for p in (dark_path, m.settings.get("dark")) if p is not None])
+    refuse_overwriting(
+        [("-o", output), ("--plot", plot_path)],
+        [f.path for f in m.frames] + [p for p in (dark_path, m.settings.get("dark")) if p is not None],
+    )
     pitch = pixel_pitch_m or m.settings.get("pixel_pitch_m")
     if pitch is None:
-        raise InputError("--pixel-pitch", "the camera's pixel pitch is not given", "--pixel-pitch 3.45um or pixel_pitch in a TOML manifest")
+        raise InputError(
+            "--pixel-pitch",
+            "the camera's pixel pitch is not given",
+            "--pixel-pitch 3.45um or pixel_pitch in a TOML manifest",
+        )
     if not CAMERA_PITCH_M[0] <= pitch <= CAMERA_PITCH_M[1]:
         from metalens_cli.io.units import format_length
 
-        raise InputError("--pixel-pitch" if pixel_pitch_m else f"{Path(manifest).name}: pixel_pitch",
-                         f"{format_length(pitch)} is not a camera's pixel pitch", "0.1 µm to 100 µm, e.g. 3.45um")
-    settings = ImportSettings(pitch, magnification or m.settings.get("magnification", 1.0), pixels, normalization, centring,
-                              saturation or m.settings.get("saturation"), allow_saturated, hot_pixel_sigma)
+        raise InputError(
+            "--pixel-pitch" if pixel_pitch_m else f"{Path(manifest).name}: pixel_pitch",
+            f"{format_length(pitch)} is not a camera's pixel pitch",
+            "0.1 µm to 100 µm, e.g. 3.45um",
+        )
+    settings = ImportSettings(
+        pitch,
+        magnification or m.settings.get("magnification", 1.0),
+        pixels,
+        normalization,
+        centring,
+        saturation or m.settings.get("saturation"),
+        allow_saturated,
+        hot_pixel_sigma,
+    )
     if not 1e-12 <= settings.pixel_pitch_m <= 1e-2:
-        raise InputError("--magnification" if magnification else f"{Path(manifest).name}: magnification",
-                         f"the cube's pitch {settings.pixel_pitch_m:.3g} m (camera pitch / magnification) is not a pixel's",
-                         "a camera pitch and magnification giving 1 pm to 1 cm")
+        raise InputError(
+            "--magnification" if magnification else f"{Path(manifest).name}: magnification",
+            f"the cube's pitch {settings.pixel_pitch_m:.3g} m (camera pitch / magnification) is not a pixel's",
+            "a camera pitch and magnification giving 1 pm to 1 cm",
+        )
     dark_source = dark_path or m.settings.get("dark")
     height, width = frame_shape(m.frames[0])
-    announce(Estimate(f"psf import of {len(m.frames)} frames of {width} × {height} pixels",
-                      BYTES_PER_FRAME_PIXEL * WORKERS * height * width, "--pixels",
-                      SECONDS_PER_FRAME_PIXEL * len(m.frames) * height * width,
-                      disk_bytes=len(m.depths_m) * len(m.wavelengths_m) * (pixels or 64) ** 2 * 4), max_memory, output)
+    announce(
+        Estimate(
+            f"psf import of {len(m.frames)} frames of {width} × {height} pixels",
+            BYTES_PER_FRAME_PIXEL * WORKERS * height * width,
+            "--pixels",
+            SECONDS_PER_FRAME_PIXEL * len(m.frames) * height * width,
+            disk_bytes=len(m.depths_m) * len(m.wavelengths_m) * (pixels or 64) ** 2 * 4,
+        ),
+        max_memory,
+        output,
+    )
     dark = None
     if dark_source is not None:
         values, _ = read_frame_file(Path(dark_source), None, "--dark" if dark_path else f"{Path(manifest).name}: dark")
@@ -121,23 +201,47 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
         cube = import_psfs(m, settings, dark, update, WORKERS)
     seconds = time.perf_counter() - start
     name = design or m.settings.get("design") or f"measured: {click.format_filename(manifest)}"
-    extra = {"source": "measured", "camera_pixel_pitch_m": pitch, "magnification": settings.magnification,
-             "centring": centring, "hot_pixels": cube.hot_pixels, "dark": None if dark_source is None else str(dark_source),
-             "frames": cube.frames}
+    extra = {
+        "source": "measured",
+        "camera_pixel_pitch_m": pitch,
+        "magnification": settings.magnification,
+        "centring": centring,
+        "hot_pixels": cube.hot_pixels,
+        "dark": None if dark_source is None else str(dark_source),
+        "frames": cube.frames,
+    }
     with atomic_files(output, plot_path) as (cube_file, plot_file):  # both or neither
-        write_psf_cube(cube_file, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m, name,
-                       normalization=normalization, extra=render.jsonable(extra))
+        write_psf_cube(
+            cube_file,
+            cube.psf,
+            cube.wavelengths_m,
+            cube.depths_m,
+            cube.pixel_pitch_m,
+            name,
+            normalization=normalization,
+            extra=render.jsonable(extra),
+        )
         if plot_file is not None:
             from metalens_cli.plotting.psf_scan import plot_psf_scan
 
             plot_psf_scan(plot_file, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m)
     render.say(cube.warnings)
     if as_json:
-        render.emit_json({"file": str(output), "design": name, "pixels": int(cube.psf.shape[-1]), "pixel_pitch_m": cube.pixel_pitch_m,
-                          "wavelengths_m": cube.wavelengths_m.tolist(),
-                          "depths_m": [None if math.isinf(d) else float(d) for d in cube.depths_m],
-                          "normalization": normalization, **extra, "seconds": seconds, "warnings": cube.warnings,
-                          **({"plot": str(plot_path)} if plot_path else {})})
+        render.emit_json(
+            {
+                "file": str(output),
+                "design": name,
+                "pixels": int(cube.psf.shape[-1]),
+                "pixel_pitch_m": cube.pixel_pitch_m,
+                "wavelengths_m": cube.wavelengths_m.tolist(),
+                "depths_m": [None if math.isinf(d) else float(d) for d in cube.depths_m],
+                "normalization": normalization,
+                **extra,
+                "seconds": seconds,
+                "warnings": cube.warnings,
+                **({"plot": str(plot_path)} if plot_path else {}),
+            }
+        )
         return
     _render_import(cube, output, seconds)
 
@@ -145,21 +249,48 @@ def import_frames(manifest, pattern, output, dark_path, pixels, pixel_pitch_m, m
 def _render_import(cube, output, seconds: float) -> None:
     from metalens_cli.io.units import format_length
 
-    rows = [[f["file"], render.nm(f["wavelength_m"], 1), format_length(math.inf if f["depth_m"] is None else f["depth_m"]),
-             f"{f['peak_snr']:.0f}", f"{f['noise']:.3g}", str(f["saturated_pixels"]), f"{f['centre_px'][0]:.2f}, {f['centre_px'][1]:.2f}"]
-            for f in cube.frames]
+    rows = [
+        [
+            f["file"],
+            render.nm(f["wavelength_m"], 1),
+            format_length(math.inf if f["depth_m"] is None else f["depth_m"]),
+            f"{f['peak_snr']:.0f}",
+            f"{f['noise']:.3g}",
+            str(f["saturated_pixels"]),
+            f"{f['centre_px'][0]:.2f}, {f['centre_px'][1]:.2f}",
+        ]
+        for f in cube.frames
+    ]
     con = render.console()
-    con.print(render.table(f"Frames imported into {output}", ["file", "λ (nm)", "depth", "peak/σ", "noise σ", "saturated", "centre (row, col)"], rows))
+    con.print(
+        render.table(
+            f"Frames imported into {output}",
+            ["file", "λ (nm)", "depth", "peak/σ", "noise σ", "saturated", "centre (row, col)"],
+            rows,
+        )
+    )
     n = cube.psf.shape[-1]
-    con.print(f"{len(cube.depths_m)} depths × {len(cube.wavelengths_m)} wavelengths of {n} × {n} pixels at "
-              f"{cube.pixel_pitch_m * 1e6:.4g} µm; {cube.hot_pixels} hot pixel(s) replaced; {seconds:.2f} s")
+    con.print(
+        f"{len(cube.depths_m)} depths × {len(cube.wavelengths_m)} wavelengths of {n} × {n} pixels at "
+        f"{cube.pixel_pitch_m * 1e6:.4g} µm; {cube.hot_pixels} hot pixel(s) replaced; {seconds:.2f} s"
+    )
 
 
 @psf.command("compare")
 @click.argument("measured", type=click.Path(dir_okay=False))
 @click.argument("simulated", type=click.Path(dir_okay=False))
-@click.option("--radii", "radii_m", type=LengthList(), multiple=True, help="Encircled-energy radii, e.g. 2um,5um [2, 5 and 10 measured pixels].")
-@click.option("--no-interpolate", is_flag=True, help="Refuse measured wavelengths the simulated cube lacks instead of interpolating.")
+@click.option(
+    "--radii",
+    "radii_m",
+    type=LengthList(),
+    multiple=True,
+    help="Encircled-energy radii, e.g. 2um,5um [2, 5 and 10 measured pixels].",
+)
+@click.option(
+    "--no-interpolate",
+    is_flag=True,
+    help="Refuse measured wavelengths the simulated cube lacks instead of interpolating.",
+)
 @click.option("--csv", "csv_path", type=OutputFile((".csv",)), help="Also write the table as CSV.")
 @json_option
 @plot_option
@@ -191,25 +322,61 @@ def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plo
             plot_psf_comparison(plot_file, result)
     render.say(result.warnings)
     if as_json:
-        render.emit_json({"measured": str(measured), "simulated": str(simulated), "pixels": result.pixels,
-                          "pixel_pitch_m": result.pixel_pitch_m, "simulated_resampled": result.resampled, "radii_m": result.radii_m,
-                          "pairs": result.pairs, "refused": result.refused, "warnings": result.warnings,
-                          **({"csv": str(csv_path)} if csv_path else {}), **({"plot": str(plot_path)} if plot_path else {})})
+        render.emit_json(
+            {
+                "measured": str(measured),
+                "simulated": str(simulated),
+                "pixels": result.pixels,
+                "pixel_pitch_m": result.pixel_pitch_m,
+                "simulated_resampled": result.resampled,
+                "radii_m": result.radii_m,
+                "pairs": result.pairs,
+                "refused": result.refused,
+                "warnings": result.warnings,
+                **({"csv": str(csv_path)} if csv_path else {}),
+                **({"plot": str(plot_path)} if plot_path else {}),
+            }
+        )
         return
     _render_compare(result, measured, simulated)
 
 
 def _compare_rows(result) -> tuple[list[str], list[list]]:
     """Header and rows (numbers) of the comparison table, shared by the CSV and the screen."""
-    header = ["depth_m", "wavelength_m", "simulated", "peak_ratio", "relative_l2", "fwhm_measured_m", "fwhm_simulated_m",
-              "mtf50_measured_lpmm", "mtf50_simulated_lpmm",
-              *[f"ee_{which}_{r * 1e6:g}um" for r in result.radii_m for which in ("measured", "simulated")], "shift_y_px", "shift_x_px"]
+    header = [
+        "depth_m",
+        "wavelength_m",
+        "simulated",
+        "peak_ratio",
+        "relative_l2",
+        "fwhm_measured_m",
+        "fwhm_simulated_m",
+        "mtf50_measured_lpmm",
+        "mtf50_simulated_lpmm",
+        *[f"ee_{which}_{r * 1e6:g}um" for r in result.radii_m for which in ("measured", "simulated")],
+        "shift_y_px",
+        "shift_x_px",
+    ]
     rows = []
     for p in result.pairs:
-        ee = [p["encircled_energy"][which][k] for k in range(len(result.radii_m)) for which in ("measured", "simulated")]
-        rows.append([p["depth_m"] if p["depth_m"] is not None else "inf", p["wavelength_m"], p["simulated"], p["peak_ratio"], p["relative_l2"],
-                     p["fwhm_m"]["measured"], p["fwhm_m"]["simulated"], p["mtf50_lpmm"]["measured"], p["mtf50_lpmm"]["simulated"],
-                     *ee, *p["shift_px"]])
+        ee = [
+            p["encircled_energy"][which][k] for k in range(len(result.radii_m)) for which in ("measured", "simulated")
+        ]
+        rows.append(
+            [
+                p["depth_m"] if p["depth_m"] is not None else "inf",
+                p["wavelength_m"],
+                p["simulated"],
+                p["peak_ratio"],
+                p["relative_l2"],
+                p["fwhm_m"]["measured"],
+                p["fwhm_m"]["simulated"],
+                p["mtf50_lpmm"]["measured"],
+                p["mtf50_lpmm"]["simulated"],
+                *ee,
+                *p["shift_px"],
+            ]
+        )
     return header, rows
 
 
@@ -237,14 +404,39 @@ def _render_compare(result, measured, simulated) -> None:
 
     rows = []
     for p in result.pairs:
-        ee = [f"{number(m, 3)} / {number(s, 3)}" for m, s in zip(p["encircled_energy"]["measured"], p["encircled_energy"]["simulated"])]
-        rows.append([format_length(math.inf if p["depth_m"] is None else p["depth_m"]), render.nm(p["wavelength_m"], 1), p["simulated"],
-                     f"{p['peak_ratio']:.3f}", f"{p['relative_l2']:.3f}", f"{um(p['fwhm_m']['measured'])} / {um(p['fwhm_m']['simulated'])}",
-                     f"{number(p['mtf50_lpmm']['measured'], 1)} / {number(p['mtf50_lpmm']['simulated'], 1)}", *ee])
+        ee = [
+            f"{number(m, 3)} / {number(s, 3)}"
+            for m, s in zip(p["encircled_energy"]["measured"], p["encircled_energy"]["simulated"])
+        ]
+        rows.append(
+            [
+                format_length(math.inf if p["depth_m"] is None else p["depth_m"]),
+                render.nm(p["wavelength_m"], 1),
+                p["simulated"],
+                f"{p['peak_ratio']:.3f}",
+                f"{p['relative_l2']:.3f}",
+                f"{um(p['fwhm_m']['measured'])} / {um(p['fwhm_m']['simulated'])}",
+                f"{number(p['mtf50_lpmm']['measured'], 1)} / {number(p['mtf50_lpmm']['simulated'], 1)}",
+                *ee,
+            ]
+        )
     con = render.console()
-    con.print(render.table(f"{measured} (measured) against {simulated} (simulated), {result.pixels}² pixels of {result.pixel_pitch_m * 1e6:.4g} µm",
-                           ["depth", "λ (nm)", "simulated", "peak ratio", "rel. L2", "FWHM (µm) meas / sim", "MTF50 (lp/mm) meas / sim",
-                            *[f"EE {r * 1e6:.3g} µm meas / sim" for r in result.radii_m]], rows))
+    con.print(
+        render.table(
+            f"{measured} (measured) against {simulated} (simulated), {result.pixels}² pixels of {result.pixel_pitch_m * 1e6:.4g} µm",
+            [
+                "depth",
+                "λ (nm)",
+                "simulated",
+                "peak ratio",
+                "rel. L2",
+                "FWHM (µm) meas / sim",
+                "MTF50 (lp/mm) meas / sim",
+                *[f"EE {r * 1e6:.3g} µm meas / sim" for r in result.radii_m],
+            ],
+            rows,
+        )
+    )
     if result.resampled:
         con.print("the simulated cube was resampled onto the measured pixel pitch")
     for r in result.refused:

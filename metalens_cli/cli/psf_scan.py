@@ -8,20 +8,20 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
+    Length,
+    LengthList,
+    MetalensCommand,
+    OutputFile,
+    WavelengthList,
     announce,
     design_options,
     device_option,
     flatten,
     json_option,
-    Length,
-    LengthList,
     load_preset_option,
     max_memory_option,
-    MetalensCommand,
-    OutputFile,
     plot_option,
     torch_device,
-    WavelengthList,
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
 from metalens_cli.errors import InputError
@@ -32,22 +32,60 @@ DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
 
 @click.command("psf-scan", cls=MetalensCommand)
 @design_options
-@click.option("--wavelengths", type=WavelengthList(), multiple=True, help="Wavelengths, e.g. 430:645:5nm (default) or 457nm,530nm.")
-@click.option("--depths", type=LengthList(allow_inf=True), multiple=True, help="Source depths, e.g. 45mm,inf (default).")
+@click.option(
+    "--wavelengths",
+    type=WavelengthList(),
+    multiple=True,
+    help="Wavelengths, e.g. 430:645:5nm (default) or 457nm,530nm.",
+)
+@click.option(
+    "--depths", type=LengthList(allow_inf=True), multiple=True, help="Source depths, e.g. 45mm,inf (default)."
+)
 @click.option("--pixels", type=click.IntRange(1, 8192), help="Sensor window N × N [preset's, else 512].")
 @click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um].")
-@click.option("--propagator", type=click.Choice(PROPAGATORS), default="auto", show_default=True, help="auto: radial for radially symmetric designs, else asm.")
+@click.option(
+    "--propagator",
+    type=click.Choice(PROPAGATORS),
+    default="auto",
+    show_default=True,
+    help="auto: radial for radially symmetric designs, else asm.",
+)
 @click.option("--dtype", type=click.Choice(("float32", "float64")), default="float32", show_default=True)
 @device_option
 @click.option("--force", is_flag=True, help="Compute even when the sampling guard refuses the grid.")
-@click.option("--check-accuracy", is_flag=True, help="Recompute the sharpest PSF with doubled sampling and with the rs reference; report relative L2.")
-@click.option("-o", "--output", type=OutputFile((".exr",)), required=True, help="Output EXR file (see docs/formats.md).")
+@click.option(
+    "--check-accuracy",
+    is_flag=True,
+    help="Recompute the sharpest PSF with doubled sampling and with the rs reference; report relative L2.",
+)
+@click.option(
+    "-o", "--output", type=OutputFile((".exr",)), required=True, help="Output EXR file (see docs/formats.md)."
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 @plot_option
-def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, pixels, pixel_pitch_m, propagator, dtype,
-             device, force, check_accuracy, output, quiet, max_memory, as_json, plot_path):
+def psf_scan(
+    spec,
+    preset_path,
+    f_m,
+    aperture_m,
+    pitch_m,
+    wavelengths,
+    depths,
+    pixels,
+    pixel_pitch_m,
+    propagator,
+    dtype,
+    device,
+    force,
+    check_accuracy,
+    output,
+    quiet,
+    max_memory,
+    as_json,
+    plot_path,
+):
     """PSF cube over wavelength × depth of a design, with cost and accuracy, written as EXR.
 
     Each PSF is the fraction of the power through the aperture landing on each pixel of an
@@ -56,12 +94,12 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
     """
     import torch
 
+    from metalens_cli.imaging.psf_scan import run_scan
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS, write_psf_cube
     from metalens_cli.io.resources import Estimate
-    from metalens_cli.optics.psf import estimate_psf
     from metalens_cli.io.units import parse_length_list
-    from metalens_cli.imaging.psf_scan import run_scan
+    from metalens_cli.optics.psf import estimate_psf
 
     preset = load_preset_option(preset_path)
     design = resolve_design(spec, preset, f_m, aperture_m, pitch_m)
@@ -70,17 +108,51 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
     pixel_pitch_m = pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M)
     wavelengths_m = flatten(wavelengths) or parse_length_list("430:645:5nm", "--wavelengths")
     depths_m = flatten(depths) or [0.045, math.inf]
-    for option, values, limit in (("--wavelengths", wavelengths_m, MAX_WAVELENGTHS), ("--depths", depths_m, MAX_DEPTHS)):
+    for option, values, limit in (
+        ("--wavelengths", wavelengths_m, MAX_WAVELENGTHS),
+        ("--depths", depths_m, MAX_DEPTHS),
+    ):
         if len(values) > limit:
-            raise InputError(option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values")
-    cost = estimate_psf(design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, propagator,
-                        getattr(torch, dtype), force)
-    announce(Estimate(f"psf-scan of {len(wavelengths_m) * len(depths_m)} PSFs of {pixels}² pixels", cost.memory_bytes,
-                      "--pixels", cost.seconds, disk_bytes=len(wavelengths_m) * len(depths_m) * pixels**2 * 4), max_memory, output)
+            raise InputError(
+                option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values"
+            )
+    cost = estimate_psf(
+        design.lens,
+        wavelengths_m,
+        depths_m,
+        pixels,
+        pixel_pitch_m,
+        design.focal_length_m,
+        propagator,
+        getattr(torch, dtype),
+        force,
+    )
+    announce(
+        Estimate(
+            f"psf-scan of {len(wavelengths_m) * len(depths_m)} PSFs of {pixels}² pixels",
+            cost.memory_bytes,
+            "--pixels",
+            cost.seconds,
+            disk_bytes=len(wavelengths_m) * len(depths_m) * pixels**2 * 4,
+        ),
+        max_memory,
+        output,
+    )
     efficiency = efficiency_used(design.preset, quiet)
     with progress_bar("psf-scan", quiet) as update:
-        scan = run_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, propagator,
-                        getattr(torch, dtype), torch_device(device), force, check_accuracy, update)
+        scan = run_scan(
+            design,
+            wavelengths_m,
+            depths_m,
+            pixels,
+            pixel_pitch_m,
+            propagator,
+            getattr(torch, dtype),
+            torch_device(device),
+            force,
+            check_accuracy,
+            update,
+        )
     lens = design.lens
     half = lens.aperture_m / 2
     metadata = {
@@ -95,7 +167,16 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
         "spectra": scan.spectra,
         "efficiency": efficiency,
     }
-    write_psf_cube(output, scan.psf, wavelengths_m, depths_m, pixel_pitch_m, design.describe(), rgb=scan.rgb, extra=render.jsonable(metadata))
+    write_psf_cube(
+        output,
+        scan.psf,
+        wavelengths_m,
+        depths_m,
+        pixel_pitch_m,
+        design.describe(),
+        rgb=scan.rgb,
+        extra=render.jsonable(metadata),
+    )
     if plot_path:
         from metalens_cli.plotting.psf_scan import plot_psf_scan
 
@@ -106,19 +187,21 @@ def psf_scan(spec, preset_path, f_m, aperture_m, pitch_m, wavelengths, depths, p
         plot_psf_scan(plot_path, scan.psf, wavelengths_m, depths_m, pixel_pitch_m, bands)
     render.say(scan.warnings)
     if as_json:
-        render.emit_json({
-            "file": str(output),
-            "design": design.describe(),
-            "wavelengths_m": wavelengths_m,
-            "depths_m": depths_m,
-            "pixels": pixels,
-            "pixel_pitch_m": pixel_pitch_m,
-            **metadata,
-            "psfs": scan.metrics,
-            "channel_psfs": scan.channel_metrics,
-            "warnings": scan.warnings,
-            **({"plot": str(plot_path)} if plot_path else {}),
-        })
+        render.emit_json(
+            {
+                "file": str(output),
+                "design": design.describe(),
+                "wavelengths_m": wavelengths_m,
+                "depths_m": depths_m,
+                "pixels": pixels,
+                "pixel_pitch_m": pixel_pitch_m,
+                **metadata,
+                "psfs": scan.metrics,
+                "channel_psfs": scan.channel_metrics,
+                "warnings": scan.warnings,
+                **({"plot": str(plot_path)} if plot_path else {}),
+            }
+        )
         return
     _render(scan, design, output)
 
@@ -130,16 +213,34 @@ def _render(scan, design, output) -> None:
     columns = ["peak", "in window", "centre 5×5", "FWHM (µm)"]
 
     def cells(m: dict) -> list[str]:
-        return [f"{m['peak']:.4f}", f"{m['energy_in_window']:.4f}", f"{m['energy_center_5x5']:.4f}",
-                "—" if m["fwhm_m"] is None else f"{m['fwhm_m'] * 1e6:.2f}"]
+        return [
+            f"{m['peak']:.4f}",
+            f"{m['energy_in_window']:.4f}",
+            f"{m['energy_center_5x5']:.4f}",
+            "—" if m["fwhm_m"] is None else f"{m['fwhm_m'] * 1e6:.2f}",
+        ]
 
-    con.print(render.table(f"PSF scan of {design.spec} ({scan.propagator})", ["depth", "λ (nm)", *columns],
-                           [[format_length(m["depth_m"]), render.nm(m["wavelength_m"], 1), *cells(m)] for m in scan.metrics]))
+    con.print(
+        render.table(
+            f"PSF scan of {design.spec} ({scan.propagator})",
+            ["depth", "λ (nm)", *columns],
+            [[format_length(m["depth_m"]), render.nm(m["wavelength_m"], 1), *cells(m)] for m in scan.metrics],
+        )
+    )
     if scan.channel_metrics:
-        con.print(render.table("Channel PSFs: the wavelengths weighted by filter × camera response", ["depth", "channel", *columns],
-                               [[format_length(m["depth_m"]), m["channel"], *cells(m)] for m in scan.channel_metrics]))
+        con.print(
+            render.table(
+                "Channel PSFs: the wavelengths weighted by filter × camera response",
+                ["depth", "channel", *columns],
+                [[format_length(m["depth_m"]), m["channel"], *cells(m)] for m in scan.channel_metrics],
+            )
+        )
     t = scan.timing_s
-    con.print(f"{len(scan.metrics)} PSFs in {t['total']:.2f} s (" + ", ".join(f"{k} {v:.2f} s" for k, v in t.items() if k != "total") + ")")
+    con.print(
+        f"{len(scan.metrics)} PSFs in {t['total']:.2f} s ("
+        + ", ".join(f"{k} {v:.2f} s" for k, v in t.items() if k != "total")
+        + ")"
+    )
     if scan.accuracy:
         a = scan.accuracy
         text = f"accuracy at {render.nm(a['wavelength_m'], 1)} nm, {format_length(a['depth_m'])}: doubled sampling rel. L2 {a['doubled_sampling_rel_l2']:.2e}"

@@ -10,15 +10,15 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
-    check_output_unused,
-    device_option,
     Interval,
-    json_option,
     Length,
     MetalensGroup,
     Number,
     OutputFile,
     OutputFolder,
+    check_output_unused,
+    device_option,
+    json_option,
     overwrite_option,
     torch_device,
     training_options,
@@ -39,24 +39,59 @@ def reconstruct():
 
 @reconstruct.command("train")
 @click.argument("spec", metavar="DESIGN")
-@click.option("--preset", "preset_path", type=click.Path(dir_okay=False),
-              help="Reconstruction preset TOML ([network], [train], [data]) [built-in defaults]; with --resume the run's own is "
-                   "used, and one given must match it (steps and seed aside).")
+@click.option(
+    "--preset",
+    "preset_path",
+    type=click.Path(dir_okay=False),
+    help="Reconstruction preset TOML ([network], [train], [data]) [built-in defaults]; with --resume the run's own is "
+    "used, and one given must match it (steps and seed aside).",
+)
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Run directory (created).")
-@click.option("--camera", "camera_path", type=click.Path(dir_okay=False),
-              help="Preset giving the camera (lens geometry, filter, sensor, depths) [the design's own, else the paper's sensor].")
+@click.option(
+    "--camera",
+    "camera_path",
+    type=click.Path(dir_okay=False),
+    help="Preset giving the camera (lens geometry, filter, sensor, depths) [the design's own, else the paper's sensor].",
+)
 @click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length) [camera's].")
 @click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D [camera's].")
 @click.option("--pitch", "pitch_m", type=Length(), help="Meta-atom pitch [camera's; hyperbolic default 395nm].")
-@click.option("--pairs", type=click.Path(exists=True, file_okay=False), help="Captured pairs DIR/gt, DIR/captures instead of simulation.")
+@click.option(
+    "--pairs",
+    type=click.Path(exists=True, file_okay=False),
+    help="Captured pairs DIR/gt, DIR/captures instead of simulation.",
+)
 @click.option("--z-near", "z_near_m", type=Interval(), help="Obstruction depth interval [camera's, else 40mm:50mm].")
 @click.option("--z-far", "z_far_m", type=Interval(), help="Scene depth interval [camera's, else 1m:20m].")
 @click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [camera's, else 1.85um].")
-@click.option("--lpips-weights", "lpips_weights", type=click.Path(exists=True, file_okay=False),
-              help="Directory with the LPIPS weights for the loss's LPIPS term (else looked up as evaluate does; none: left out).")
+@click.option(
+    "--lpips-weights",
+    "lpips_weights",
+    type=click.Path(exists=True, file_okay=False),
+    help="Directory with the LPIPS weights for the loss's LPIPS term (else looked up as evaluate does; none: left out).",
+)
 @training_options("train")
-def train(spec, preset_path, output, camera_path, f_m, aperture_m, pitch_m, pairs, z_near_m, z_far_m,
-          pixel_pitch_m, lpips_weights, steps, seed, device, resume, threads, quiet, as_json):
+def train(
+    spec,
+    preset_path,
+    output,
+    camera_path,
+    f_m,
+    aperture_m,
+    pitch_m,
+    pairs,
+    z_near_m,
+    z_far_m,
+    pixel_pitch_m,
+    lpips_weights,
+    steps,
+    seed,
+    device,
+    resume,
+    threads,
+    quiet,
+    as_json,
+):
     """Train the reconstruction network of DESIGN into a run directory.
 
     Pairs are simulated on the fly through DESIGN with the image formation of `simulate`
@@ -79,27 +114,59 @@ def train(spec, preset_path, output, camera_path, f_m, aperture_m, pitch_m, pair
     preset = load_reconstruct_preset(preset_path) if preset_path else None
     ensure_folder(Path(output).parent, "--output")
     s = setup([spec], camera_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, None, pixel_pitch_m, (), device)
-    camera = Camera(s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]), s["obstruction_params"])
-    report = run_training("reconstruct", quiet, f"metalens reconstruct train {spec} -o {output} --resume",
-                          lambda progress: train_reconstruction(s["designs"][0], camera, preset, output, steps=steps, seed=seed,
-                                                                device=s["device"], resume=resume, pairs=pairs,
-                                                                lpips_weights=lpips_weights, on_step=progress.step,
-                                                                on_stage=progress.stage))
+    camera = Camera(
+        s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]), s["obstruction_params"]
+    )
+    report = run_training(
+        "reconstruct",
+        quiet,
+        f"metalens reconstruct train {spec} -o {output} --resume",
+        lambda progress: train_reconstruction(
+            s["designs"][0],
+            camera,
+            preset,
+            output,
+            steps=steps,
+            seed=seed,
+            device=s["device"],
+            resume=resume,
+            pairs=pairs,
+            lpips_weights=lpips_weights,
+            on_step=progress.step,
+            on_stage=progress.stage,
+        ),
+    )
     if report is None:
         return
     if as_json:
         render.emit_json({"run_dir": str(output), **report})
         return
     final, cost = report["validation"]["final"], report["cost"]
-    rows = [[condition, f"{final[f'raw_{condition}_psnr_db']:.2f}", f"{final[f'recon_{condition}_psnr_db']:.2f}",
-             f"{final[f'raw_{condition}_ssim']:.3f}", f"{final[f'recon_{condition}_ssim']:.3f}"]
-            for condition in ("obstructed", "unobstructed") if f"raw_{condition}_psnr_db" in final]
+    rows = [
+        [
+            condition,
+            f"{final[f'raw_{condition}_psnr_db']:.2f}",
+            f"{final[f'recon_{condition}_psnr_db']:.2f}",
+            f"{final[f'raw_{condition}_ssim']:.3f}",
+            f"{final[f'recon_{condition}_ssim']:.3f}",
+        ]
+        for condition in ("obstructed", "unobstructed")
+        if f"raw_{condition}_psnr_db" in final
+    ]
     con = render.console()
-    con.print(render.table(f"Validation pairs of {output} (after the photometric match, sRGB)",
-                           ["condition", "Raw PSNR", "Recon PSNR", "Raw SSIM", "Recon SSIM"], rows))
+    con.print(
+        render.table(
+            f"Validation pairs of {output} (after the photometric match, sRGB)",
+            ["condition", "Raw PSNR", "Recon PSNR", "Raw SSIM", "Recon SSIM"],
+            rows,
+        )
+    )
     per_step = cost["seconds_per_step_median"]
-    con.print(f"{cost['steps_run']} steps" + (f", {per_step:.3f} s/step (median)" if per_step else "")
-              + f"; loss terms: {', '.join(report['loss_terms'])}")
+    con.print(
+        f"{cost['steps_run']} steps"
+        + (f", {per_step:.3f} s/step (median)" if per_step else "")
+        + f"; loss terms: {', '.join(report['loss_terms'])}"
+    )
     con.print(f"wrote {output}/ (model.pt, loss.csv, validation/, run.json, …)")
 
 
@@ -109,7 +176,9 @@ def _inputs(paths) -> list[Path]:
     for text in paths:
         path = Path(text)
         if path.is_dir():
-            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+            found = sorted(
+                p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")
+            )
             if not found:
                 raise InputError("INPUT", f"{text!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}")
             files += found
@@ -122,7 +191,9 @@ def _inputs(paths) -> list[Path]:
     stems = [p.stem for p in files]
     twice = sorted({s for s in stems if stems.count(s) > 1})
     if twice:
-        raise InputError("INPUT", f"two inputs named {twice[0]!r} would write the same outputs", "inputs with distinct names")
+        raise InputError(
+            "INPUT", f"two inputs named {twice[0]!r} would write the same outputs", "inputs with distinct names"
+        )
     return files
 
 
@@ -132,8 +203,13 @@ def _inputs(paths) -> list[Path]:
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Output folder (created).")
 @overwrite_option
 @device_option
-@click.option("--memory-mib", type=click.IntRange(16), default=1024, show_default=True,
-              help="Memory budget of one forward pass; larger images are tiled with overlap.")
+@click.option(
+    "--memory-mib",
+    type=click.IntRange(16),
+    default=1024,
+    show_default=True,
+    help="Memory budget of one forward pass; larger images are tiled with overlap.",
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @json_option
 def apply(run, inputs, output, overwrite, device, memory_mib, quiet, as_json):
@@ -166,25 +242,58 @@ def apply(run, inputs, output, overwrite, device, memory_mib, quiet, as_json):
             write_exr_rgb(staging / f"{path.stem}.exr", estimate)
             write_png(staging / f"{path.stem}.png", linear_to_srgb(estimate))
             side = recon.tile_side(*linear.shape[-2:])
-            rows.append({"input": str(path), "exr": str(out / f"{path.stem}.exr"), "png": str(out / f"{path.stem}.png"),
-                         "height": int(linear.shape[1]), "width": int(linear.shape[2]), "tile_px": side, "seconds": seconds})
+            rows.append(
+                {
+                    "input": str(path),
+                    "exr": str(out / f"{path.stem}.exr"),
+                    "png": str(out / f"{path.stem}.png"),
+                    "height": int(linear.shape[1]),
+                    "width": int(linear.shape[2]),
+                    "tile_px": side,
+                    "seconds": seconds,
+                }
+            )
             update(k + 1, len(files))
     if as_json:
-        render.emit_json({"run": str(run), "device": str(recon.device), "design": recon.design, "images": rows,
-                          "seconds_total": sum(r["seconds"] for r in rows)})
+        render.emit_json(
+            {
+                "run": str(run),
+                "device": str(recon.device),
+                "design": recon.design,
+                "images": rows,
+                "seconds_total": sum(r["seconds"] for r in rows),
+            }
+        )
         return
     con = render.console()
-    con.print(render.table(f"Reconstructed with {run}", ["input", "size", "tiles", "seconds"],
-                           [[r["input"], f"{r['width']} × {r['height']}", "—" if r["tile_px"] is None else f"{r['tile_px']} px",
-                             f"{r['seconds']:.3f}"] for r in rows]))
+    con.print(
+        render.table(
+            f"Reconstructed with {run}",
+            ["input", "size", "tiles", "seconds"],
+            [
+                [
+                    r["input"],
+                    f"{r['width']} × {r['height']}",
+                    "—" if r["tile_px"] is None else f"{r['tile_px']} px",
+                    f"{r['seconds']:.3f}",
+                ]
+                for r in rows
+            ],
+        )
+    )
     con.print(f"wrote {len(rows)} × (EXR, PNG) to {out}/")
 
 
 @reconstruct.command("export")
 @click.argument("run", metavar="RUN")
 @click.option("-o", "--output", type=OutputFile((".pt2",)), required=True, help="Exported program (.pt2).")
-@click.option("--tolerance", type=Number(0, min_open=True), default=1e-5, show_default=True,
-              help="Largest absolute difference from `apply` accepted in the check.")
+@click.option(
+    "--tolerance",
+    type=Number(0, min_open=True),
+    default=1e-5,
+    show_default=True,
+    help="Largest absolute difference from `apply` accepted in the check.",
+)
 @json_option
 def export(run, output, tolerance, as_json):
     """Export the network of RUN with torch.export (any image size; load with
@@ -193,11 +302,12 @@ def export(run, output, tolerance, as_json):
     """
     from metalens_cli.imaging.export import export_program
     from metalens_cli.imaging.restore import load_reconstructor
-
     from metalens_cli.io.atomic import check_output_file
 
     if not str(output).endswith(".pt2"):
-        raise InputError("--output", f"{output!r} does not end in .pt2", "a file name ending in .pt2 (torch.export's format)")
+        raise InputError(
+            "--output", f"{output!r} does not end in .pt2", "a file name ending in .pt2 (torch.export's format)"
+        )
     check_output_file(output, "--output")
     recon = load_reconstructor(run)
     report = export_program(recon, output, tolerance)
@@ -205,8 +315,12 @@ def export(run, output, tolerance, as_json):
         render.emit_json({"run": str(run), **report})
     else:
         con = render.console()
-        con.print(f"wrote {output} ({report['bytes']} bytes, {report['seconds']:.1f} s); max |export − apply| = "
-                  f"{report['max_abs_difference']:.2e} over {len(report['checked_sizes'])} sizes (tolerance {tolerance:g})")
+        con.print(
+            f"wrote {output} ({report['bytes']} bytes, {report['seconds']:.1f} s); max |export − apply| = "
+            f"{report['max_abs_difference']:.2e} over {len(report['checked_sizes'])} sizes (tolerance {tolerance:g})"
+        )
     if not report["passed"]:
-        click.echo(f"metalens: export differs from apply by {report['max_abs_difference']:.2e} > {tolerance:g}", err=True)
+        click.echo(
+            f"metalens: export differs from apply by {report['max_abs_difference']:.2e} > {tolerance:g}", err=True
+        )
         sys.exit(1)

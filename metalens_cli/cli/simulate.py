@@ -8,27 +8,28 @@ from pathlib import Path
 import click
 
 from metalens_cli.cli import render
-from metalens_cli.cli.progress import efficiency_used
 from metalens_cli.cli.options import (
+    Interval,
+    Length,
+    MetalensCommand,
+    Number,
+    OutputFolder,
+    WavelengthList,
     announce,
-    max_memory_option,
     apply_options,
     check_output_unused,
     device_option,
     flatten,
     geometry_options,
-    Interval,
     json_option,
-    Length,
     load_preset_option,
-    MetalensCommand,
-    Number,
-    OutputFolder,
+    max_memory_option,
     overwrite_option,
     torch_device,
-    WavelengthList,
 )
+from metalens_cli.cli.progress import efficiency_used
 from metalens_cli.errors import InputError
+
 
 class Photons(Number):
     """A full well in electrons: 0 (no shot noise) or at least 1."""
@@ -48,20 +49,51 @@ DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
 def capture_options(f):
     """Options shared by simulate and evaluate: geometry, sensor, depths, PSF sampling, device."""
     options = [
-        click.option("--images", default="photos", show_default=True,
-                     help="photos (the photographs scikit-image and matplotlib ship), charts (dead-leaves), all, "
-                          "a folder of PNG/JPEG/TIFF/EXR images, or one file."),
+        click.option(
+            "--images",
+            default="photos",
+            show_default=True,
+            help="photos (the photographs scikit-image and matplotlib ship), charts (dead-leaves), all, "
+            "a folder of PNG/JPEG/TIFF/EXR images, or one file.",
+        ),
         click.option("--limit", type=click.IntRange(1), help="Use at most this many images."),
-        click.option("--z-near", "z_near_m", type=Interval(), help="Obstruction depth or interval, e.g. 45mm or 40mm:50mm [preset's, else 40mm:50mm]."),
-        click.option("--z-far", "z_far_m", type=Interval(), help="Scene depth or interval, e.g. 1m or 1m:20m [preset's, else 1m:20m]."),
+        click.option(
+            "--z-near",
+            "z_near_m",
+            type=Interval(),
+            help="Obstruction depth or interval, e.g. 45mm or 40mm:50mm [preset's, else 40mm:50mm].",
+        ),
+        click.option(
+            "--z-far",
+            "z_far_m",
+            type=Interval(),
+            help="Scene depth or interval, e.g. 1m or 1m:20m [preset's, else 1m:20m].",
+        ),
         click.option("--pixels", type=click.IntRange(16, 8192), help="Sensor N × N [preset's, else 512]."),
-        click.option("--psf-pixels", type=click.IntRange(3, 8192),
-                     help="Force one PSF window size for both depths [from the optics: the window that holds the light]."),
-        click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um]."),
-        click.option("--wavelengths", type=WavelengthList(), multiple=True, help="PSF wavelengths mixed into R, G, B [400:700:5nm]."),
-        click.option("--formation", type=click.Choice(FORMATIONS), default="physical", show_default=True,
-                     help="physical: obstruction light P̂_near ∗ (m ⊙ I_obs); paper: the paper's α ⊙ (P̂_near ∗ I_obs)."),
-        click.option("--alpha-gain", type=Number(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."),
+        click.option(
+            "--psf-pixels",
+            type=click.IntRange(3, 8192),
+            help="Force one PSF window size for both depths [from the optics: the window that holds the light].",
+        ),
+        click.option(
+            "--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um]."
+        ),
+        click.option(
+            "--wavelengths",
+            type=WavelengthList(),
+            multiple=True,
+            help="PSF wavelengths mixed into R, G, B [400:700:5nm].",
+        ),
+        click.option(
+            "--formation",
+            type=click.Choice(FORMATIONS),
+            default="physical",
+            show_default=True,
+            help="physical: obstruction light P̂_near ∗ (m ⊙ I_obs); paper: the paper's α ⊙ (P̂_near ∗ I_obs).",
+        ),
+        click.option(
+            "--alpha-gain", type=Number(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."
+        ),
         click.option("--photons", type=Photons(0, 1e15), help="Full-well electrons for shot noise (0/absent: none)."),
         click.option("--read-noise", type=Number(0, 1), default=0.0, help="Read-noise σ as a fraction of full scale."),
         device_option,
@@ -69,8 +101,20 @@ def capture_options(f):
     return geometry_options(apply_options(f, options))
 
 
-def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device,
-          design_field="DESIGN"):
+def setup(
+    spec_list,
+    preset_path,
+    f_m,
+    aperture_m,
+    pitch_m,
+    z_near_m,
+    z_far_m,
+    pixels,
+    pixel_pitch_m,
+    wavelengths,
+    device,
+    design_field="DESIGN",
+):
     """Resolve designs, sensor, depth intervals and wavelengths (shared by simulate, evaluate and
     reconstruct train); a malformed design is refused naming ``design_field`` (their positional
     DESIGN argument), not resolve_design's ``--design``."""
@@ -91,25 +135,55 @@ def setup(spec_list, preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, p
     z_near = z_near_m or (scene.z_near_m if scene else DEFAULT_Z_NEAR_M)
     z_far = z_far_m or (scene.z_far_m if scene else DEFAULT_Z_FAR_M)
     waves = flatten(wavelengths) or parse_length_list(DEFAULT_WAVELENGTHS, "--wavelengths")
-    return {"designs": designs, "pixels": pixels or (sensor.pixels if sensor else DEFAULT_PIXELS),
-            "pixel_pitch_m": pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M),
-            "z_near_interval_m": list(z_near), "z_far_interval_m": list(z_far),
-            "wavelengths_m": waves, "device": torch_device(device),
-            "obstruction_params": in_force.obstruction if in_force is not None else None}
+    return {
+        "designs": designs,
+        "pixels": pixels or (sensor.pixels if sensor else DEFAULT_PIXELS),
+        "pixel_pitch_m": pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M),
+        "z_near_interval_m": list(z_near),
+        "z_far_interval_m": list(z_far),
+        "wavelengths_m": waves,
+        "device": torch_device(device),
+        "obstruction_params": in_force.obstruction if in_force is not None else None,
+    }
 
 
 @click.command("simulate", cls=MetalensCommand)
 @click.argument("spec", metavar="DESIGN")
 @capture_options
-@click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of depths, obstructions and noise.")
+@click.option(
+    "--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of depths, obstructions and noise."
+)
 @click.option("--obstruction", default="dirt", show_default=True, help="dirt, fence, drops, rain or file:PATH.png.")
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Output folder (created).")
 @overwrite_option
 @max_memory_option
 @json_option
-def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_m, z_far_m, pixels, psf_pixels,
-             pixel_pitch_m, wavelengths, formation, alpha_gain, photons, read_noise, device, seed, obstruction, output,
-             overwrite, max_memory, as_json):
+def simulate(
+    spec,
+    preset_path,
+    f_m,
+    aperture_m,
+    pitch_m,
+    images,
+    limit,
+    z_near_m,
+    z_far_m,
+    pixels,
+    psf_pixels,
+    pixel_pitch_m,
+    wavelengths,
+    formation,
+    alpha_gain,
+    photons,
+    read_noise,
+    device,
+    seed,
+    obstruction,
+    output,
+    overwrite,
+    max_memory,
+    as_json,
+):
     """Simulated captures of clean images through DESIGN with a near obstruction.
 
     Writes, per image, the clean scene and the unobstructed and obstructed captures (PNG for
@@ -123,18 +197,48 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
     start = time.perf_counter()
     check_output_unused(output, overwrite)
     (kind,) = _single(parse_obstructions(obstruction))
-    s = setup([spec], preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device)
+    s = setup(
+        [spec], preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device
+    )
     design = s["designs"][0]
     z_near, z_far = draw_depths(s["z_near_interval_m"], s["z_far_interval_m"], seed)
-    memory, psf_seconds, capture_seconds = estimate_captures(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"],
-                                                             s["pixels"], image_count(images, limit), psf_pixels)
-    announce(Estimate(f"simulate on {s['pixels']}² pixels", memory, "--psf-pixels" if psf_pixels else "--pixels",
-                      psf_seconds + capture_seconds), max_memory)
+    memory, psf_seconds, capture_seconds = estimate_captures(
+        design,
+        z_near,
+        z_far,
+        s["wavelengths_m"],
+        s["pixel_pitch_m"],
+        s["pixels"],
+        image_count(images, limit),
+        psf_pixels,
+    )
+    announce(
+        Estimate(
+            f"simulate on {s['pixels']}² pixels",
+            memory,
+            "--psf-pixels" if psf_pixels else "--pixels",
+            psf_seconds + capture_seconds,
+        ),
+        max_memory,
+    )
     efficiency = efficiency_used(design.preset)
-    psfs = channel_psfs(design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], device=s["device"], window=psf_pixels)
+    psfs = channel_psfs(
+        design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], device=s["device"], window=psf_pixels
+    )
     clean = load_images(images, (s["pixels"], s["pixels"]), limit, psfs.margin)
-    captures = simulate_captures(clean, kind, psfs, design.focal_length_m, s["pixel_pitch_m"], seed, params=s["obstruction_params"],
-                                 formation=formation, alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
+    captures = simulate_captures(
+        clean,
+        kind,
+        psfs,
+        design.focal_length_m,
+        s["pixel_pitch_m"],
+        seed,
+        params=s["obstruction_params"],
+        formation=formation,
+        alpha_gain=alpha_gain,
+        photons=photons,
+        read_noise=read_noise,
+    )
     import json
 
     from metalens_cli.io.atomic import atomic_folder
@@ -146,47 +250,81 @@ def simulate(spec, preset_path, f_m, aperture_m, pitch_m, images, limit, z_near_
         contact_sheet(staging / "contact_sheet.png", captures)
         files = [str(out / name) for name in [*names, "contact_sheet.png"]]
         warnings = psfs.warnings()
-        report = render.jsonable({
-            "design": design.describe(),
-            "obstruction": kind,
-            "seed": seed,
-            "z_near_m": z_near, "z_far_m": z_far,
-            "z_near_interval_m": s["z_near_interval_m"], "z_far_interval_m": s["z_far_interval_m"],
-            "pixels": s["pixels"], "pixel_pitch_m": s["pixel_pitch_m"], "canvas_margin_px": psfs.margin,
-            "wavelengths_m": s["wavelengths_m"], "formation": formation,
-            "alpha_gain": alpha_gain, "photons": photons, "read_noise": read_noise,
-            **psfs.report(),
-            "spectral_coverage": dict(zip("RGB", psfs.coverage)),
-            "efficiency": efficiency,
-            "images": [{"name": c.name, "obstruction_coverage": c.obstruction.coverage, "alpha_coverage": c.alpha_coverage,
-                        "obstruction_settings": c.obstruction.settings, "seconds": c.seconds} for c in captures],
-            "timing_s": {"psf": psfs.seconds, "captures": sum(c.seconds for c in captures), "total": time.perf_counter() - start},
-            "warnings": warnings,
-            "files": files,
-        })
+        report = render.jsonable(
+            {
+                "design": design.describe(),
+                "obstruction": kind,
+                "seed": seed,
+                "z_near_m": z_near,
+                "z_far_m": z_far,
+                "z_near_interval_m": s["z_near_interval_m"],
+                "z_far_interval_m": s["z_far_interval_m"],
+                "pixels": s["pixels"],
+                "pixel_pitch_m": s["pixel_pitch_m"],
+                "canvas_margin_px": psfs.margin,
+                "wavelengths_m": s["wavelengths_m"],
+                "formation": formation,
+                "alpha_gain": alpha_gain,
+                "photons": photons,
+                "read_noise": read_noise,
+                **psfs.report(),
+                "spectral_coverage": dict(zip("RGB", psfs.coverage)),
+                "efficiency": efficiency,
+                "images": [
+                    {
+                        "name": c.name,
+                        "obstruction_coverage": c.obstruction.coverage,
+                        "alpha_coverage": c.alpha_coverage,
+                        "obstruction_settings": c.obstruction.settings,
+                        "seconds": c.seconds,
+                    }
+                    for c in captures
+                ],
+                "timing_s": {
+                    "psf": psfs.seconds,
+                    "captures": sum(c.seconds for c in captures),
+                    "total": time.perf_counter() - start,
+                },
+                "warnings": warnings,
+                "files": files,
+            }
+        )
         (staging / "simulate.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     render.say(warnings)
     if as_json:
         render.emit_json(report)
         return
     con = render.console()
-    rows = [[i["name"], f"{100 * i['obstruction_coverage']:.1f}", f"{100 * i['alpha_coverage']:.1f}", f"{i['seconds']:.2f}"]
-            for i in report["images"]]
-    con.print(render.table(f"simulate {design.spec}: {kind} at {z_near * 1e3:.1f} mm, scene at {z_far:.2f} m",
-                           ["image", "obstruction %", "α %", "s"], rows))
+    rows = [
+        [i["name"], f"{100 * i['obstruction_coverage']:.1f}", f"{100 * i['alpha_coverage']:.1f}", f"{i['seconds']:.2f}"]
+        for i in report["images"]
+    ]
+    con.print(
+        render.table(
+            f"simulate {design.spec}: {kind} at {z_near * 1e3:.1f} mm, scene at {z_far:.2f} m",
+            ["image", "obstruction %", "α %", "s"],
+            rows,
+        )
+    )
     con.print(kept_line(psfs))
     con.print(f"wrote {len(files) + 1} files to {out}")
 
 
 def kept_line(psfs) -> str:
     """One line: PSF windows and the fraction of the light each kept, per channel."""
-    return (f"PSF windows near {psfs.near.shape[-1]} px, far {psfs.far.shape[-1]} px; light kept (R, G, B): near "
-            + ", ".join(f"{e:.4f}" for e in psfs.kept_near) + "; far " + ", ".join(f"{e:.4f}" for e in psfs.kept_far))
+    return (
+        f"PSF windows near {psfs.near.shape[-1]} px, far {psfs.far.shape[-1]} px; light kept (R, G, B): near "
+        + ", ".join(f"{e:.4f}" for e in psfs.kept_near)
+        + "; far "
+        + ", ".join(f"{e:.4f}" for e in psfs.kept_far)
+    )
 
 
 def _single(specs):
     if len(specs) != 1:
-        raise InputError("--obstruction", f"{len(specs)} obstructions", "one obstruction for simulate (evaluate takes a list)")
+        raise InputError(
+            "--obstruction", f"{len(specs)} obstructions", "one obstruction for simulate (evaluate takes a list)"
+        )
     return specs
 
 

@@ -6,22 +6,22 @@ import click
 
 from metalens_cli.analysis import symmetry as model
 from metalens_cli.cli import render
-from metalens_cli.cli.progress import progress_bar
 from metalens_cli.cli.options import (
+    Length,
+    LengthList,
+    MetalensCommand,
+    Wavelength,
+    WavelengthList,
     announce,
     flatten,
     json_option,
-    Length,
-    LengthList,
     load_preset_option,
     max_memory_option,
-    MetalensCommand,
     pick,
     plot_option,
     preset_option,
-    Wavelength,
-    WavelengthList,
 )
+from metalens_cli.cli.progress import progress_bar
 from metalens_cli.io.units import LENGTH_FORM, format_length
 
 NOTES = {
@@ -35,19 +35,54 @@ NOTES = {
 @preset_option
 @click.option("--f", "f_m", type=Length(), help="Focal length (lens-to-design-plane distance), e.g. 4mm.")
 @click.option("--lambda-d", "lambda_d_m", type=Wavelength(), help="Design wavelength, e.g. 450nm.")
-@click.option("--wavelength", "wavelengths", type=WavelengthList(), multiple=True, help="Wavelengths: 530nm, 500nm,600nm or 430:645:5nm (repeatable). Default 400:700:10nm.")
-@click.option("--depth", "depths", type=LengthList(allow_inf=True), multiple=True, help="Depths z: the wavelength λd(1 + f/z) focused from there (repeatable; inf allowed).")
-@click.option("--delta-z", "delta_z_m", type=Length(), help="Depth step Δz (> 0, toward the lens) for Δλ = λd·f·(1/z − 1/(z − Δz)).")
+@click.option(
+    "--wavelength",
+    "wavelengths",
+    type=WavelengthList(),
+    multiple=True,
+    help="Wavelengths: 530nm, 500nm,600nm or 430:645:5nm (repeatable). Default 400:700:10nm.",
+)
+@click.option(
+    "--depth",
+    "depths",
+    type=LengthList(allow_inf=True),
+    multiple=True,
+    help="Depths z: the wavelength λd(1 + f/z) focused from there (repeatable; inf allowed).",
+)
+@click.option(
+    "--delta-z",
+    "delta_z_m",
+    type=Length(),
+    help="Depth step Δz (> 0, toward the lens) for Δλ = λd·f·(1/z − 1/(z − Δz)).",
+)
 @click.option("--at-depth", "at_depth_m", type=Length(allow_inf=True), help="Depth z at which --delta-z is taken.")
 @click.option("--z-near", "z_near_m", type=Length(), help="Near depth drawn on the plot.")
-@click.option("--validate", is_flag=True, help="Check the model against the on-axis Rayleigh-Sommerfeld intensity of the hyperbolic lens (needs --aperture).")
+@click.option(
+    "--validate",
+    is_flag=True,
+    help="Check the model against the on-axis Rayleigh-Sommerfeld intensity of the hyperbolic lens (needs --aperture).",
+)
 @click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D for --validate, e.g. 2.516mm.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 @plot_option
-def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_depth_m, z_near_m, validate, aperture_m, quiet,
-             max_memory, as_json, plot_path):
+def symmetry(
+    preset_path,
+    f_m,
+    lambda_d_m,
+    wavelengths,
+    depths,
+    delta_z_m,
+    at_depth_m,
+    z_near_m,
+    validate,
+    aperture_m,
+    quiet,
+    max_memory,
+    as_json,
+    plot_path,
+):
     """Depth z = λd·f/(λ − λd) at which each wavelength focuses on the design plane.
 
     Also the inverse λ = λd(1 + f/z) for --depth, and Δλ for a depth step (--delta-z with
@@ -64,7 +99,9 @@ def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_de
     if (delta_z_m is None) != (at_depth_m is None):
         raise click.UsageError("--delta-z and --at-depth go together (e.g. --delta-z 5mm --at-depth 45mm)")
 
-    rows = [model.depth_for_wavelength(w, lambda_d_m, f_m) for w in (flatten(wavelengths) or model.DEFAULT_WAVELENGTHS_M)]
+    rows = [
+        model.depth_for_wavelength(w, lambda_d_m, f_m) for w in (flatten(wavelengths) or model.DEFAULT_WAVELENGTHS_M)
+    ]
     focused = [(z, model.wavelength_for_depth(z, lambda_d_m, f_m)) for z in flatten(depths)]
     delta = None if delta_z_m is None else model.delta_wavelength(delta_z_m, at_depth_m, lambda_d_m, f_m)
     validation = None
@@ -75,8 +112,15 @@ def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_de
 
         wavelengths_m = [r.wavelength_m for r in rows]
         memory, seconds = estimate_validation(wavelengths_m, lambda_d_m, f_m, aperture_m)
-        announce(Estimate(f"symmetry --validate of {len(wavelengths_m)} wavelengths for D = {aperture_m * 1e3:g} mm", memory,
-                          "--aperture", seconds), max_memory)
+        announce(
+            Estimate(
+                f"symmetry --validate of {len(wavelengths_m)} wavelengths for D = {aperture_m * 1e3:g} mm",
+                memory,
+                "--aperture",
+                seconds,
+            ),
+            max_memory,
+        )
 
         with progress_bar("focal-intensity map", quiet) as update:
             validation = validate_symmetry(wavelengths_m, lambda_d_m, f_m, aperture_m, progress=update)
@@ -113,9 +157,21 @@ def symmetry(preset_path, f_m, lambda_d_m, wavelengths, depths, delta_z_m, at_de
 
     con = render.console()
     title = f"Depth-wavelength symmetry: f = {format_length(f_m)}, λd = {format_length(lambda_d_m)}"
-    con.print(render.table(title, ["λ (nm)", "depth z", "note"], [[render.nm(r.wavelength_m), format_length(r.depth_m) if r.depth_m else "—", NOTES[r.kind]] for r in rows]))
+    con.print(
+        render.table(
+            title,
+            ["λ (nm)", "depth z", "note"],
+            [[render.nm(r.wavelength_m), format_length(r.depth_m) if r.depth_m else "—", NOTES[r.kind]] for r in rows],
+        )
+    )
     if focused:
-        con.print(render.table("Wavelength focused from depth: λ = λd(1 + f/z)", ["depth z", "λ (nm)"], [[format_length(z), render.nm(w, 3)] for z, w in focused]))
+        con.print(
+            render.table(
+                "Wavelength focused from depth: λ = λd(1 + f/z)",
+                ["depth z", "λ (nm)"],
+                [[format_length(z), render.nm(w, 3)] for z, w in focused],
+            )
+        )
     if delta is not None:
         con.print(
             f"Δλ = λd·f·(1/z − 1/(z − Δz)) = {delta.delta_wavelength_m * 1e9:.4f} nm for z = {format_length(delta.at_depth_m)}, "
@@ -132,7 +188,12 @@ def validation_json(v, aperture_m: float) -> dict:
         "aperture_m": aperture_m,
         "method": "on-axis Rayleigh-Sommerfeld integral, Simpson in r², Brent refinement in log z",
         "rows": [
-            {"wavelength_m": r.wavelength_m, "model_depth_m": r.model_depth_m, "best_depth_m": r.best_depth_m, "rel_deviation": r.rel_deviation}
+            {
+                "wavelength_m": r.wavelength_m,
+                "model_depth_m": r.model_depth_m,
+                "best_depth_m": r.best_depth_m,
+                "rel_deviation": r.rel_deviation,
+            }
             for r in v.rows
         ],
         "max_abs_rel_deviation": v.max_abs_rel_deviation,
@@ -150,9 +211,24 @@ def _render_validation(con, v) -> None:
         note = "" if r.model_depth_m is not None else "λ ≤ λd: no model depth"
         if r.best_depth_m is None:
             note = note or "no maximum inside the depth range"
-        rows.append([render.nm(r.wavelength_m), format_length(r.model_depth_m) if r.model_depth_m else "—",
-                     format_length(r.best_depth_m) if r.best_depth_m else "—", deviation, note])
-    con.print(render.table("Validation: depth of maximum on-axis intensity at d = f (Rayleigh-Sommerfeld)", ["λ (nm)", "model z", "best z", "deviation", "note"], rows))
+        rows.append(
+            [
+                render.nm(r.wavelength_m),
+                format_length(r.model_depth_m) if r.model_depth_m else "—",
+                format_length(r.best_depth_m) if r.best_depth_m else "—",
+                deviation,
+                note,
+            ]
+        )
+    con.print(
+        render.table(
+            "Validation: depth of maximum on-axis intensity at d = f (Rayleigh-Sommerfeld)",
+            ["λ (nm)", "model z", "best z", "deviation", "note"],
+            rows,
+        )
+    )
     worst = v.max_abs_rel_deviation
-    con.print(f"max |deviation| = {'—' if worst is None else f'{100 * worst:.2f} %'}; quadrature {v.samples} samples, "
-              f"doubling changes best depths by ≤ {v.convergence:.1e}; {v.seconds:.1f} s")
+    con.print(
+        f"max |deviation| = {'—' if worst is None else f'{100 * worst:.2f} %'}; quadrature {v.samples} samples, "
+        f"doubling changes best depths by ≤ {v.convergence:.1e}; {v.seconds:.1f} s"
+    )

@@ -63,7 +63,9 @@ class Bottleneck(nn.Module):
         self.conv3 = nn.Conv2d(planes, out, 1, bias=False)
         self.bn3 = nn.BatchNorm2d(out)
         self.downsample = (
-            nn.Sequential(nn.Conv2d(inplanes, out, 1, stride=stride, bias=False), nn.BatchNorm2d(out)) if downsample else None
+            nn.Sequential(nn.Conv2d(inplanes, out, 1, stride=stride, bias=False), nn.BatchNorm2d(out))
+            if downsample
+            else None
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -181,7 +183,7 @@ class DeepLabFeatures(nn.Module):
         self.requires_grad_(False)
         self.eval()
 
-    def train(self, mode: bool = True) -> "DeepLabFeatures":
+    def train(self, mode: bool = True) -> DeepLabFeatures:
         """Always stays in eval mode: BatchNorm must use the checkpoint's running statistics."""
         return super().train(False)
 
@@ -250,7 +252,9 @@ def _read_state(path: Path, field: str) -> dict[str, torch.Tensor]:
         state = ckpt  # a bare state_dict of the same model
     else:
         raise InputError(field, "no 'model_state' dict in the checkpoint", _EXPECTED_FORM)
-    return {(k[7:] if k.startswith("module.") else k): v for k, v in state.items() if isinstance(k, str)}  # DataParallel
+    return {
+        (k[7:] if k.startswith("module.") else k): v for k, v in state.items() if isinstance(k, str)
+    }  # DataParallel
 
 
 def _blocks_per_stage(state: dict) -> tuple[int, ...]:
@@ -271,7 +275,9 @@ def _build(path: Path, field: str) -> DeepLabFeatures:
     if not any(blocks):
         raise InputError(field, "no ResNet backbone keys (backbone.layer1..4.*)", _EXPECTED_FORM)
     if depth is None:
-        raise InputError(field, f"backbone blocks per stage {blocks} are neither ResNet-50 nor ResNet-101", _EXPECTED_FORM)
+        raise InputError(
+            field, f"backbone blocks per stage {blocks} are neither ResNet-50 nor ResNet-101", _EXPECTED_FORM
+        )
     with torch.device("meta"):  # shapes only: skips the random initialisation of ~40-60 M weights
         model = DeepLabFeatures(depth, separable="classifier.aspp.convs.1.0.body.0.weight" in state)
     wanted = model.state_dict()

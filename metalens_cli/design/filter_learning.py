@@ -30,17 +30,25 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from metalens_cli.analysis.bands import (Band, BandsReport, bands_from_centers, check_bands, label_bands, oblique_bands,
-                                         preset_incidence_factor, split_conditions)
+from metalens_cli.analysis.bands import (
+    Band,
+    BandsReport,
+    bands_from_centers,
+    check_bands,
+    label_bands,
+    oblique_bands,
+    preset_incidence_factor,
+    split_conditions,
+)
 from metalens_cli.errors import InputError, ResultFailed
 from metalens_cli.io.filter_catalogue import CatalogueFilter, read_catalogue
-from metalens_cli.io.presets import to_toml
 from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
+from metalens_cli.io.presets import to_toml
 from metalens_cli.optics.spectra import bandpass_transmission, wavelength_grid
 
 NM = 1e-9
-FINE_STEP_M = 0.1e-9   # the weights' integration grid: a 2 nm edge's logistic scale (0.46 nm) over 4.6 samples
-EDGE_REACH = 1.6       # a band's transmission falls below 1e-3 of its peak 1.6 edge widths past its half-power point
+FINE_STEP_M = 0.1e-9  # the weights' integration grid: a 2 nm edge's logistic scale (0.46 nm) over 4.6 samples
+EDGE_REACH = 1.6  # a band's transmission falls below 1e-3 of its peak 1.6 edge widths past its half-power point
 SUPPORT_MARGIN_M = 20e-9  # rays of the initial windows: the bands' reach ± this
 
 
@@ -56,8 +64,13 @@ class LearnedFilter(torch.nn.Module):
 
     def transmission(self, wavelengths_m) -> torch.Tensor:
         """T(λ) (L,) at ``wavelengths_m`` (m), float64, differentiable in the parameters."""
-        return bandpass_transmission(torch.as_tensor(np.asarray(wavelengths_m, dtype=float)), self.centres_nm * NM,
-                                     self.widths_nm * NM, edge_width_m=self.edge_nm * NM, peak=self.peak)
+        return bandpass_transmission(
+            torch.as_tensor(np.asarray(wavelengths_m, dtype=float)),
+            self.centres_nm * NM,
+            self.widths_nm * NM,
+            edge_width_m=self.edge_nm * NM,
+            peak=self.peak,
+        )
 
     def bands(self) -> tuple[Band, ...]:
         """The pass bands [c − w/2, c + w/2] (m) with tensor edges (differentiable)."""
@@ -67,8 +80,11 @@ class LearnedFilter(torch.nn.Module):
 
     def values(self) -> tuple[list[float], list[float], float]:
         """(centres, widths, edge width) in metres, as floats."""
-        return ([float(c) * NM for c in self.centres_nm.detach()], [float(w) * NM for w in self.widths_nm.detach()],
-                float(self.edge_nm.detach()) * NM)
+        return (
+            [float(c) * NM for c in self.centres_nm.detach()],
+            [float(w) * NM for w in self.widths_nm.detach()],
+            float(self.edge_nm.detach()) * NM,
+        )
 
     def to_config(self, base):
         """``base`` (a ``FilterConfig``) with this filter's bands and edge."""
@@ -96,14 +112,22 @@ class LearnedFilter(torch.nn.Module):
 
 def filter_columns(n_bands: int) -> tuple[str, ...]:
     """loss.csv columns of a learned filter: centres, widths (nm), edge (nm), the split penalty."""
-    return (*(f"filter_center_{i}_nm" for i in range(n_bands)), *(f"filter_width_{i}_nm" for i in range(n_bands)),
-            "filter_edge_nm", "split", "light")
+    return (
+        *(f"filter_center_{i}_nm" for i in range(n_bands)),
+        *(f"filter_width_{i}_nm" for i in range(n_bands)),
+        "filter_edge_nm",
+        "split",
+        "light",
+    )
 
 
 def filter_row(band_filter: LearnedFilter) -> dict:
     centres, widths, edge = band_filter.values()
-    return {**{f"filter_center_{i}_nm": c / NM for i, c in enumerate(centres)},
-            **{f"filter_width_{i}_nm": w / NM for i, w in enumerate(widths)}, "filter_edge_nm": edge / NM}
+    return {
+        **{f"filter_center_{i}_nm": c / NM for i, c in enumerate(centres)},
+        **{f"filter_width_{i}_nm": w / NM for i, w in enumerate(widths)},
+        "filter_edge_nm": edge / NM,
+    }
 
 
 # ------------------------------------------------------------------------------ quadrature
@@ -124,7 +148,9 @@ def band_weights(nodes_m: np.ndarray, fine_m: np.ndarray, base: np.ndarray, tran
     """(3, W) channel weights of the nodes (module docstring): S^c = ``base`` (3, F) (camera × η
     on the uniform grid ``fine_m``) × ``transmission`` (F,); rows sum to 1; differentiable in T."""
     hats = np.stack([np.interp(fine_m, nodes_m, unit) for unit in np.eye(nodes_m.size)])
-    raw = (torch.from_numpy(base).to(transmission.dtype) * transmission) @ torch.from_numpy(hats).to(transmission.dtype).T
+    raw = (torch.from_numpy(base).to(transmission.dtype) * transmission) @ torch.from_numpy(hats).to(
+        transmission.dtype
+    ).T
     return raw / raw.sum(dim=1, keepdim=True)
 
 
@@ -167,7 +193,10 @@ class BandSampler:
         centres, widths, edge = self.band_filter.values()
         reach = [(c - w / 2 - EDGE_REACH * edge, c + w / 2 + EDGE_REACH * edge) for c, w in zip(centres, widths)]
         lo, hi = self.sensor_range_m
-        return [max(lo, min(r[0] for r in reach) - SUPPORT_MARGIN_M), min(hi, max(r[1] for r in reach) + SUPPORT_MARGIN_M)]
+        return [
+            max(lo, min(r[0] for r in reach) - SUPPORT_MARGIN_M),
+            min(hi, max(r[1] for r in reach) + SUPPORT_MARGIN_M),
+        ]
 
 
 def band_sampler(preset, band_filter: LearnedFilter | None = None) -> BandSampler:
@@ -189,8 +218,13 @@ def split_penalty(band_filter: LearnedFilter, preset, incidence: float) -> torch
     those of ``analysis.bands.split_conditions`` for the oblique bands: zero once all hold with
     the margin the preset asks for."""
     lo, hi = preset.scene.z_near_m
-    conditions = split_conditions(oblique_bands(band_filter.bands(), incidence), preset.lens.focal_length_m, lo, hi,
-                                  preset.sensor.wavelength_range_m)
+    conditions = split_conditions(
+        oblique_bands(band_filter.bands(), incidence),
+        preset.lens.focal_length_m,
+        lo,
+        hi,
+        preset.sensor.wavelength_range_m,
+    )
     need = preset.filter.split_margin_m
     total = torch.zeros((), dtype=torch.float64)
     for condition in conditions:
@@ -230,7 +264,9 @@ def check_filter(config, preset, incidence: float | None = None) -> BandsReport:
     and oblique incidence: the report the run writes and the one the CLI shows."""
     incidence = preset_incidence_factor(dataclasses.replace(preset, filter=config)) if incidence is None else incidence
     bands = bands_from_centers(list(config.centers_m), list(config.widths_m), field="filter.centers")
-    return check_bands(bands, preset.lens.focal_length_m, preset.scene.z_near_m, preset.sensor.wavelength_range_m, incidence)
+    return check_bands(
+        bands, preset.lens.focal_length_m, preset.scene.z_near_m, preset.sensor.wavelength_range_m, incidence
+    )
 
 
 def refuse_failing(report: BandsReport, what: str) -> None:
@@ -238,8 +274,10 @@ def refuse_failing(report: BandsReport, what: str) -> None:
     failing = [c for c in report.conditions if not c.ok]
     if failing:
         listed = ", ".join(f"{c.name} by {c.margin_m / NM:+.2f} nm at z = {c.depth_m * 1e3:g} mm" for c in failing)
-        raise ResultFailed(f"{what} fails the split-spectrum conditions ({listed}); it was not written: raise "
-                           "filter.split_weight or filter.split_margin, or narrow filter.max_width, and run again")
+        raise ResultFailed(
+            f"{what} fails the split-spectrum conditions ({listed}); it was not written: raise "
+            "filter.split_weight or filter.split_margin, or narrow filter.max_width, and run again"
+        )
 
 
 def snap_to_catalogue(config, catalogue: list[CatalogueFilter], preset) -> tuple[CatalogueFilter, float]:
@@ -250,15 +288,24 @@ def snap_to_catalogue(config, catalogue: list[CatalogueFilter], preset) -> tuple
     for entry in catalogue:
         if len(entry.centers_m) != len(config.centers_m):
             continue
-        candidate = dataclasses.replace(config, centers_m=entry.centers_m, widths_m=entry.widths_m, edge_width_m=entry.edge_width_m,
-                                        peak_transmission=entry.peak_transmission)
+        candidate = dataclasses.replace(
+            config,
+            centers_m=entry.centers_m,
+            widths_m=entry.widths_m,
+            edge_width_m=entry.edge_width_m,
+            peak_transmission=entry.peak_transmission,
+        )
         if not check_filter(candidate, preset).ok:
             continue
         diffs = [a - b for a, b in zip(entry.centers_m + entry.widths_m, config.centers_m + config.widths_m)]
         fits.append((math.sqrt(sum(d * d for d in diffs) / len(entry.centers_m)) / NM, entry.name, entry))
     if not fits:
-        raise InputError("filter.catalogue", f"no listed filter with {len(config.centers_m)} bands meets the split-spectrum "
-                         "conditions at this f and z_near", "a catalogue with such a filter, or no catalogue")
+        raise InputError(
+            "filter.catalogue",
+            f"no listed filter with {len(config.centers_m)} bands meets the split-spectrum "
+            "conditions at this f and z_near",
+            "a catalogue with such a filter, or no catalogue",
+        )
     distance, _, entry = min(fits, key=lambda fit: (fit[0], fit[1]))
     return entry, distance
 
@@ -278,27 +325,48 @@ def learned_filter(run, preset, band_filter: LearnedFilter) -> tuple[object, dic
     config = band_filter.to_config(start)
     learned = check_filter(config, preset)
     refuse_failing(learned, "the learned filter")
-    report = {"initial": _filter_json(start, preset), "learned": {**_filter_json(config, preset), "conditions": _conditions(learned)},
-              "incidence_factor": learned.incidence_factor}
+    report = {
+        "initial": _filter_json(start, preset),
+        "learned": {**_filter_json(config, preset), "conditions": _conditions(learned)},
+        "incidence_factor": learned.incidence_factor,
+    }
     if start.catalogue is not None:
         entry, distance = snap_to_catalogue(config, read_catalogue(start.catalogue), preset)
-        config = dataclasses.replace(config, centers_m=entry.centers_m, widths_m=entry.widths_m, edge_width_m=entry.edge_width_m,
-                                     peak_transmission=entry.peak_transmission)
-        report["catalogue"] = {"file": start.catalogue, "name": entry.name, "distance_nm": distance, **_filter_json(config, preset),
-                               "conditions": _conditions(check_filter(config, preset))}
+        config = dataclasses.replace(
+            config,
+            centers_m=entry.centers_m,
+            widths_m=entry.widths_m,
+            edge_width_m=entry.edge_width_m,
+            peak_transmission=entry.peak_transmission,
+        )
+        report["catalogue"] = {
+            "file": start.catalogue,
+            "name": entry.name,
+            "distance_nm": distance,
+            **_filter_json(config, preset),
+            "conditions": _conditions(check_filter(config, preset)),
+        }
     result = dataclasses.replace(preset, filter=config)
     run.write_text("preset.toml", to_toml(result))
     lo, hi = preset.sensor.wavelength_range_m
     grid = wavelength_grid(lo, hi, FILTER_CSV_STEP_M)
-    t = bandpass_transmission(grid, config.centers_m, config.widths_m, edge_width_m=config.edge_width_m, peak=config.peak_transmission)
-    run.write_text("filter.csv", "wavelength_nm,transmission\n" + "".join(f"{w / NM:.1f},{v:.6f}\n" for w, v in zip(grid, t)))
+    t = bandpass_transmission(
+        grid, config.centers_m, config.widths_m, edge_width_m=config.edge_width_m, peak=config.peak_transmission
+    )
+    run.write_text(
+        "filter.csv", "wavelength_nm,transmission\n" + "".join(f"{w / NM:.1f},{v:.6f}\n" for w, v in zip(grid, t))
+    )
     return result, report
 
 
 def _filter_json(config, preset) -> dict:
-    return {"centers_m": list(config.centers_m), "widths_m": list(config.widths_m), "edge_width_m": config.edge_width_m,
-            "peak_transmission": config.peak_transmission,
-            "throughput": dict(zip("RGB", channel_throughput(dataclasses.replace(preset, filter=config)).tolist()))}
+    return {
+        "centers_m": list(config.centers_m),
+        "widths_m": list(config.widths_m),
+        "edge_width_m": config.edge_width_m,
+        "peak_transmission": config.peak_transmission,
+        "throughput": dict(zip("RGB", channel_throughput(dataclasses.replace(preset, filter=config)).tolist())),
+    }
 
 
 def _conditions(report: BandsReport) -> dict:

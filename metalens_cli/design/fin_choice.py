@@ -29,7 +29,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.io import cache
 from metalens_cli.io.presets import NanofinConfig
 from metalens_cli.optics.fin_modes import fin_responses_symmetric
-from metalens_cli.optics.nanofin import converge, Fin, FIRST_HARMONICS, SOLVER
+from metalens_cli.optics.nanofin import FIRST_HARMONICS, SOLVER, Fin, converge
 
 BAND_SAMPLES = 8  # 3 bands × 8: the 24 wavelengths of issue 17's benchmark
 NEAR = 1 + 1e-9  # a grid fin at ± the tolerance, to rounding, is a neighbour
@@ -60,9 +60,19 @@ def band_wavelengths(bands_m: list[tuple[float, float]], samples: int = BAND_SAM
     return np.array([np.linspace(c - b / 2, c + b / 2, samples) for c, b in bands_m])
 
 
-def fin_map(period_m: float, height_m: float, widths_m, lengths_m, bands_m, fin_index: Callable, substrate_index: Callable,
-            harmonics: int, on_progress: Callable[[int, int], None] | None = None, samples_per_band: int = BAND_SAMPLES,
-            device=None) -> FinMap:
+def fin_map(
+    period_m: float,
+    height_m: float,
+    widths_m,
+    lengths_m,
+    bands_m,
+    fin_index: Callable,
+    substrate_index: Callable,
+    harmonics: int,
+    on_progress: Callable[[int, int], None] | None = None,
+    samples_per_band: int = BAND_SAMPLES,
+    device=None,
+) -> FinMap:
     """η of every (length, width) fin of the grid that fits in its cell (others NaN), averaged per
     band; ``fin_index``/``substrate_index`` map wavelengths (m) to complex indices; ``device``
     a torch device (None: cpu)."""
@@ -96,6 +106,7 @@ def _neighbourhood(m: FinMap, i: int, j: int, tolerance_m: float) -> tuple[np.nd
 def largest_neighbourhood(widths_m, lengths_m, tolerance_m: float) -> int:
     """The most grid fins that one fin's neighbourhood holds (cut at the grid's edges): the most
     :func:`refine` recomputes."""
+
     def most(grid) -> int:
         grid = np.sort(np.asarray(grid, float))
         reach = tolerance_m * NEAR
@@ -104,24 +115,46 @@ def largest_neighbourhood(widths_m, lengths_m, tolerance_m: float) -> int:
     return most(widths_m) * most(lengths_m)
 
 
-def refine(m: FinMap, choice: dict, period_m: float, height_m: float, fin_index: Callable, substrate_index: Callable,
-           harmonics: int, device=None) -> dict:
+def refine(
+    m: FinMap,
+    choice: dict,
+    period_m: float,
+    height_m: float,
+    fin_index: Callable,
+    substrate_index: Callable,
+    harmonics: int,
+    device=None,
+) -> dict:
     """The recommended fin (``choice`` from :func:`recommend`) and every grid fin of its
     neighbourhood recomputed with ``harmonics`` at the map's wavelengths: ``harmonics``,
     ``score``, ``eta_per_band``, ``worst_neighbour``, ``robust`` (the keep rule at this
     truncation), ``fins`` recomputed and ``seconds``."""
-    i, j = int(np.argmin(np.abs(m.lengths_m - choice["length_m"]))), int(np.argmin(np.abs(m.widths_m - choice["width_m"])))
+    i, j = (
+        int(np.argmin(np.abs(m.lengths_m - choice["length_m"]))),
+        int(np.argmin(np.abs(m.widths_m - choice["width_m"]))),
+    )
     rows, cols = _neighbourhood(m, i, j, choice["tolerance_m"])
-    sites = [(r, c) for r in np.nonzero(rows)[0] for c in np.nonzero(cols)[0]
-             if m.widths_m[c] <= period_m and m.lengths_m[r] <= period_m]
+    sites = [
+        (r, c)
+        for r in np.nonzero(rows)[0]
+        for c in np.nonzero(cols)[0]
+        if m.widths_m[c] <= period_m and m.lengths_m[r] <= period_m
+    ]
     flat = m.wavelengths_m.ravel()
     fins = [Fin(period_m, height_m, m.widths_m[c], m.lengths_m[r]) for r, c in sites]
     responses = fin_responses_symmetric(fins, fin_index(flat), substrate_index(flat), flat, harmonics, device)
     per_band = [r.conversion.reshape(m.wavelengths_m.shape).mean(axis=1) for r in responses]
     centre = per_band[sites.index((i, j))]
     score, worst = float(centre.mean()), float(min(p.mean() for p in per_band))
-    return {"harmonics": harmonics, "score": score, "eta_per_band": centre.tolist(), "worst_neighbour": worst,
-            "robust": worst >= choice["keep"] * score, "fins": len(fins), "seconds": sum(float(r.seconds.sum()) for r in responses)}
+    return {
+        "harmonics": harmonics,
+        "score": score,
+        "eta_per_band": centre.tolist(),
+        "worst_neighbour": worst,
+        "robust": worst >= choice["keep"] * score,
+        "fins": len(fins),
+        "seconds": sum(float(r.seconds.sum()) for r in responses),
+    }
 
 
 def recommend(m: FinMap, tolerance_m: float = 10e-9, keep: float = 0.95) -> dict:
@@ -141,9 +174,16 @@ def recommend(m: FinMap, tolerance_m: float = 10e-9, keep: float = 0.95) -> dict
             best = (i, j, worst, True)
             break
     i, j, worst, robust = best
-    return {"width_m": float(m.widths_m[j]), "length_m": float(m.lengths_m[i]), "score": float(score[i, j]),
-            "worst_neighbour": worst, "eta_per_band": m.eta[i, j].tolist(), "robust": robust,
-            "tolerance_m": tolerance_m, "keep": keep}
+    return {
+        "width_m": float(m.widths_m[j]),
+        "length_m": float(m.lengths_m[i]),
+        "score": float(score[i, j]),
+        "worst_neighbour": worst,
+        "eta_per_band": m.eta[i, j].tolist(),
+        "robust": robust,
+        "tolerance_m": tolerance_m,
+        "keep": keep,
+    }
 
 
 @dataclass
@@ -159,9 +199,22 @@ class Sweep:
     warnings: list[str] = field(default_factory=list)
 
 
-def sweep_fins(period_m: float, height_m: float, widths_m, lengths_m, bands_m, fin_index: Callable, substrate_index: Callable,
-               harmonics: int, samples_per_band: int = BAND_SAMPLES, tolerance_m: float = 10e-9, keep: float = 0.95,
-               max_harmonics: int = 35, device=None, progress: Callable = lambda stage: contextlib.nullcontext(None)) -> Sweep:
+def sweep_fins(
+    period_m: float,
+    height_m: float,
+    widths_m,
+    lengths_m,
+    bands_m,
+    fin_index: Callable,
+    substrate_index: Callable,
+    harmonics: int,
+    samples_per_band: int = BAND_SAMPLES,
+    tolerance_m: float = 10e-9,
+    keep: float = 0.95,
+    max_harmonics: int = 35,
+    device=None,
+    progress: Callable = lambda stage: contextlib.nullcontext(None),
+) -> Sweep:
     """The map at ``harmonics`` (:func:`fin_map`), the recommended fin (:func:`recommend`), its
     converged N (:func:`~metalens_cli.optics.nanofin.converge` at the map's wavelengths, up to
     ``max_harmonics``) and its neighbourhood at that N (:func:`refine`), each read from the disk
@@ -170,34 +223,81 @@ def sweep_fins(period_m: float, height_m: float, widths_m, lengths_m, bands_m, f
     widths, lengths = np.asarray(widths_m, float), np.asarray(lengths_m, float)
     waves = band_wavelengths(bands_m, samples_per_band)
     flat = waves.ravel()
-    key = cache.input_key({"period_m": period_m, "height_m": height_m, "widths_m": widths, "lengths_m": lengths, "wavelengths_m": flat,
-                           "fin_index": fin_index(flat), "substrate_index": substrate_index(flat), "harmonics": harmonics,
-                           "solver": SOLVER})
+    key = cache.input_key(
+        {
+            "period_m": period_m,
+            "height_m": height_m,
+            "widths_m": widths,
+            "lengths_m": lengths,
+            "wavelengths_m": flat,
+            "fin_index": fin_index(flat),
+            "substrate_index": substrate_index(flat),
+            "harmonics": harmonics,
+            "solver": SOLVER,
+        }
+    )
 
     def compute_map() -> dict[str, np.ndarray]:
         with progress("nanofin sweep") as update:
-            m = fin_map(period_m, height_m, widths, lengths, bands_m, fin_index, substrate_index, harmonics, update, samples_per_band,
-                        device)
+            m = fin_map(
+                period_m,
+                height_m,
+                widths,
+                lengths,
+                bands_m,
+                fin_index,
+                substrate_index,
+                harmonics,
+                update,
+                samples_per_band,
+                device,
+            )
         return {"eta": m.eta, "seconds": np.array(m.seconds)}
 
     fits = (lengths[:, None] <= period_m) & (widths[None, :] <= period_m)
     stored = cache.cached("nanofin-sweep", key, compute_map, lambda arrays: _map_problem(arrays, fits, len(bands_m)))
     m = FinMap(widths, lengths, list(bands_m), waves, stored.arrays["eta"], harmonics, float(stored.arrays["seconds"]))
     choice = recommend(m, tolerance_m, keep)
-    fine_key = cache.input_key({"map": key, "fin_m": [choice["width_m"], choice["length_m"]], "tolerance_m": tolerance_m, "keep": keep,
-                                "max_harmonics": max_harmonics})
+    fine_key = cache.input_key(
+        {
+            "map": key,
+            "fin_m": [choice["width_m"], choice["length_m"]],
+            "tolerance_m": tolerance_m,
+            "keep": keep,
+            "max_harmonics": max_harmonics,
+        }
+    )
 
     def compute_refinement() -> dict[str, np.ndarray]:
         fin = Fin(period_m, height_m, choice["width_m"], choice["length_m"])
         with progress("converging the chosen fin") as update:
-            chosen, table, _ = converge(fin, fin_index(flat), substrate_index(flat), flat, FIRST_HARMONICS, max_harmonics, 1e-3, device,
-                                        on_progress=update)
-        converged = {"harmonics": chosen or table[-1]["harmonics"], "convergence": table, "converged": chosen is not None}
-        converged.update(refine(m, choice, period_m, height_m, fin_index, substrate_index, converged["harmonics"], device))
+            chosen, table, _ = converge(
+                fin,
+                fin_index(flat),
+                substrate_index(flat),
+                flat,
+                FIRST_HARMONICS,
+                max_harmonics,
+                1e-3,
+                device,
+                on_progress=update,
+            )
+        converged = {
+            "harmonics": chosen or table[-1]["harmonics"],
+            "convergence": table,
+            "converged": chosen is not None,
+        }
+        converged.update(
+            refine(m, choice, period_m, height_m, fin_index, substrate_index, converged["harmonics"], device)
+        )
         return {"report": np.array(json.dumps(converged))}
 
-    stored_fine = cache.cached("nanofin-refine", fine_key, compute_refinement,
-                               lambda arrays: _refinement_problem(arrays, len(bands_m), max_harmonics))
+    stored_fine = cache.cached(
+        "nanofin-refine",
+        fine_key,
+        compute_refinement,
+        lambda arrays: _refinement_problem(arrays, len(bands_m), max_harmonics),
+    )
     choice["converged"] = json.loads(str(stored_fine.arrays["report"]))
     return Sweep(m, choice, stored.hit, stored_fine.hit, _warnings(m, choice))
 
@@ -205,8 +305,9 @@ def sweep_fins(period_m: float, height_m: float, widths_m, lengths_m, bands_m, f
 def _map_problem(stored: dict[str, np.ndarray], fits: np.ndarray, bands: int) -> str | None:
     """Why a cached map is not one :func:`fin_map` gives (None: it may be): ``eta`` (L, W, B) in
     0..1 for the fins that ``fits`` (L, W) in their cell, NaN for the others; seconds ≥ 0."""
-    reason = (cache.check_array(stored, "eta", (*fits.shape, bands), 0, 1, where=fits[..., None])
-              or cache.check_array(stored, "seconds", (), 0))
+    reason = cache.check_array(stored, "eta", (*fits.shape, bands), 0, 1, where=fits[..., None]) or cache.check_array(
+        stored, "seconds", (), 0
+    )
     if reason is None and not np.isnan(stored["eta"][~fits]).all():
         return "eta: a value for a fin that does not fit in its cell"
     return reason
@@ -219,7 +320,12 @@ def _refinement_problem(stored: dict[str, np.ndarray], bands: int, max_harmonics
     try:
         fine = json.loads(str(stored["report"]))
         table = fine["convergence"]
-        fractions = [fine["score"], fine["worst_neighbour"], *fine["eta_per_band"], *(row["conversion"] for row in table)]
+        fractions = [
+            fine["score"],
+            fine["worst_neighbour"],
+            *fine["eta_per_band"],
+            *(row["conversion"] for row in table),
+        ]
         orders = [fine["harmonics"], *(row["harmonics"] for row in table)]
         amounts = [fine["seconds"], *(row["seconds"] for row in table), *(row["max_change"] for row in table[1:])]
         flags, chosen = [fine["converged"], fine["robust"]], fine["harmonics"] == table[-1]["harmonics"]
@@ -229,15 +335,23 @@ def _refinement_problem(stored: dict[str, np.ndarray], bands: int, max_harmonics
         return f"report: η or scores outside 0..1, or not {bands} band(s)"
     if not (len(table) >= 3 and chosen and all(_whole(n, 1, max_harmonics) for n in orders)):
         return f"report: not a convergence table of at least 3 N up to {max_harmonics} ending at the N chosen"
-    if not (_whole(fine["fins"], 1, math.inf) and all(_number(v, 0, math.inf) for v in amounts)
-            and all(isinstance(f, bool) for f in flags)):
+    if not (
+        _whole(fine["fins"], 1, math.inf)
+        and all(_number(v, 0, math.inf) for v in amounts)
+        and all(isinstance(f, bool) for f in flags)
+    ):
         return "report: a count, time or change negative or not a number, or a flag not true/false"
     return None
 
 
 def _number(value, low: float, high: float) -> bool:
     """Whether a JSON value is a finite number within [low, high] (true and false are not)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and low <= value <= high and abs(value) != math.inf
+    return (
+        isinstance(value, (int, float))
+        and not isinstance(value, bool)
+        and low <= value <= high
+        and abs(value) != math.inf
+    )
 
 
 def _whole(value, low: float, high: float) -> bool:
@@ -251,13 +365,19 @@ def _warnings(m: FinMap, choice: dict) -> list[str]:
     fine, warnings = choice["converged"], []
     table = fine["convergence"]
     if not fine["converged"]:
-        warnings.append(f"the chosen fin's η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to "
-                        f"{table[-1]['harmonics']}; raise --max-harmonics")
+        warnings.append(
+            f"the chosen fin's η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to "
+            f"{table[-1]['harmonics']}; raise --max-harmonics"
+        )
     if choice["width_m"] in (m.widths_m[0], m.widths_m[-1]) or choice["length_m"] in (m.lengths_m[0], m.lengths_m[-1]):
-        warnings.append(f"the recommended fin ({choice['width_m'] * 1e9:g} × {choice['length_m'] * 1e9:g} nm) lies on the grid's edge: "
-                        "a better one may lie beyond it; widen --width/--length")
+        warnings.append(
+            f"the recommended fin ({choice['width_m'] * 1e9:g} × {choice['length_m'] * 1e9:g} nm) lies on the grid's edge: "
+            "a better one may lie beyond it; widen --width/--length"
+        )
     if not fine["robust"] and choice["robust"]:
-        warnings.append(f"converged at N = {fine['harmonics']}, a neighbour of the chosen fin keeps less than {choice['keep']:g} of its η")
+        warnings.append(
+            f"converged at N = {fine['harmonics']}, a neighbour of the chosen fin keeps less than {choice['keep']:g} of its η"
+        )
     return warnings
 
 
@@ -271,6 +391,13 @@ def recommended_nanofin(period_m: float, height_m: float, material: str, substra
     def spec(text: str) -> str:
         return str(Path(text).resolve()) if material_file(text) else text
 
-    return NanofinConfig(pitch_m=period_m, height_m=height_m, width_m=choice["width_m"], length_m=choice["length_m"],
-                         material=spec(material), substrate=spec(substrate), efficiency="rcwa",
-                         harmonics=int(choice["converged"]["harmonics"]))
+    return NanofinConfig(
+        pitch_m=period_m,
+        height_m=height_m,
+        width_m=choice["width_m"],
+        length_m=choice["length_m"],
+        material=spec(material),
+        substrate=spec(substrate),
+        efficiency="rcwa",
+        harmonics=int(choice["converged"]["harmonics"]),
+    )

@@ -37,7 +37,9 @@ def bright_loss(psf_far: torch.Tensor) -> torch.Tensor:
     return psf_far.shape[-3] / psf_far.sum(dim=(-3, -2, -1)) - 1
 
 
-def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total", cores: torch.Tensor | None = None) -> torch.Tensor:
+def sharp_loss(
+    psf_far: torch.Tensor, window: int = 5, mode: str = "total", cores: torch.Tensor | None = None
+) -> torch.Tensor:
     """Energy E_c in the central ``window`` × ``window`` pixels (axis at N//2) of each channel c.
 
     ``total`` (the paper's): 1/Σ_c E_c − 1, which rewards the channels' sum, so the cheapest
@@ -54,14 +56,17 @@ def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total", core
     """
     if mode in WAVELENGTH_MODES:
         if cores is None:
-            raise InputError("loss.sharp_mode", f"{mode} needs each wavelength's core energy",
-                             "cores from optics.channel_psf_stack(..., core_window=k)")
+            raise InputError(
+                "loss.sharp_mode",
+                f"{mode} needs each wavelength's core energy",
+                "cores from optics.channel_psf_stack(..., core_window=k)",
+            )
         if mode == "log_wavelength":
             return -torch.log(cores).mean(dim=-1)
         return torch.log((1 / cores).mean(dim=-1))
     n0, n1 = psf_far.shape[-2:]
     lo0, lo1 = n0 // 2 - window // 2, n1 // 2 - window // 2
-    core = psf_far[..., lo0:lo0 + window, lo1:lo1 + window].sum(dim=(-2, -1))
+    core = psf_far[..., lo0 : lo0 + window, lo1 : lo1 + window].sum(dim=(-2, -1))
     if mode == "total":
         return 1 / core.sum(dim=-1) - 1
     if mode == "per_channel":
@@ -71,9 +76,16 @@ def sharp_loss(psf_far: torch.Tensor, window: int = 5, mode: str = "total", core
     raise InputError("loss.sharp_mode", f"unknown mode {mode!r}", ", ".join(SHARP_MODES))
 
 
-def training_loss(captured: torch.Tensor, clean: torch.Tensor, psf_far: torch.Tensor, weights, features=None,
-                  image_share: float = 1.0, psf_share: float = 1.0,
-                  cores_far: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def training_loss(
+    captured: torch.Tensor,
+    clean: torch.Tensor,
+    psf_far: torch.Tensor,
+    weights,
+    features=None,
+    image_share: float = 1.0,
+    psf_share: float = 1.0,
+    cores_far: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Weighted total and its parts (each a scalar: image terms averaged over the batch).
 
     ``weights``: a ``LossConfig``. ``features``: a DeepLabv3+ feature extractor for L_DA, or None.

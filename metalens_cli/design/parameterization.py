@@ -53,7 +53,9 @@ class RadialTheta(_Theta):
     """θ at G design samples spanning the rings r_0..r_K, linear in between (G = K + 1: one per ring)."""
 
     def _upsample(self) -> torch.Tensor:
-        return torch.nn.functional.interpolate(self.theta[None, None], size=self.size, mode="linear", align_corners=True)[0, 0]
+        return torch.nn.functional.interpolate(
+            self.theta[None, None], size=self.size, mode="linear", align_corners=True
+        )[0, 0]
 
 
 class SplineTheta(torch.nn.Module):
@@ -90,7 +92,9 @@ class GridTheta(_Theta):
     """θ on a G × G design grid, bilinearly upsampled (corners aligned) to the M × M meta-atom grid."""
 
     def _upsample(self) -> torch.Tensor:
-        up = torch.nn.functional.interpolate(self.theta[None, None], size=(self.size,) * 2, mode="bilinear", align_corners=True)
+        up = torch.nn.functional.interpolate(
+            self.theta[None, None], size=(self.size,) * 2, mode="bilinear", align_corners=True
+        )
         return up[0, 0]
 
 
@@ -113,8 +117,17 @@ def random_radial_theta(r: np.ndarray, aperture_m: float, peak_frequency: float,
     return theta * (math.pi * peak_frequency / slope)  # |dφ/dr| = 2|dθ/dr| = 2π·peak
 
 
-def initial_parameterization(parameterization: str, init: str, lambda_d_m: float, focal_length_m: float,
-                             aperture_m: float, pitch_m: float, design_grid: int = 0, seed: int = 0, basis: str = "samples"):
+def initial_parameterization(
+    parameterization: str,
+    init: str,
+    lambda_d_m: float,
+    focal_length_m: float,
+    aperture_m: float,
+    pitch_m: float,
+    design_grid: int = 0,
+    seed: int = 0,
+    basis: str = "samples",
+):
     """The module to optimise: ``radial`` or ``2d``, initialised ``hyperbolic`` (λd, f) or ``random``.
     ``design_grid``: radial, the number of design samples (``basis = "samples"``) or spline
     coefficients (``"spline"``) along the radius; 2-D, the side of the design grid; 0 = one
@@ -122,22 +135,36 @@ def initial_parameterization(parameterization: str, init: str, lambda_d_m: float
     if init not in ("hyperbolic", "random"):
         raise InputError("optimize.init", f"unknown initialisation {init!r}", "hyperbolic or random")
     if basis not in ("samples", "spline") or (basis == "spline" and parameterization != "radial"):
-        raise InputError("optimize.theta_basis", f"{basis!r} for a {parameterization} θ", "samples, or spline for a radial θ")
+        raise InputError(
+            "optimize.theta_basis", f"{basis!r} for a {parameterization} θ", "samples, or spline for a radial θ"
+        )
     na = math.sin(math.atan(aperture_m / 2 / focal_length_m))
     if parameterization == "radial":
         rings = radial_radii(pitch_m, aperture_m)
         if basis == "spline":
             if not 4 <= design_grid <= rings.size:
-                raise InputError("optimize.design_grid", f"{design_grid} spline coefficients for {rings.size} rings", f"4..{rings.size}")
-            base = (hyperbolic_phase(rings, lambda_d_m, focal_length_m) / 2 if init == "hyperbolic"
-                    else random_radial_theta(rings, aperture_m, na / lambda_d_m, seed))
+                raise InputError(
+                    "optimize.design_grid",
+                    f"{design_grid} spline coefficients for {rings.size} rings",
+                    f"4..{rings.size}",
+                )
+            base = (
+                hyperbolic_phase(rings, lambda_d_m, focal_length_m) / 2
+                if init == "hyperbolic"
+                else random_radial_theta(rings, aperture_m, na / lambda_d_m, seed)
+            )
             return SplineTheta(base, design_grid, pitch_m, aperture_m, focal_length_m)
         g = rings.size if design_grid in (0, rings.size) else design_grid
         if g < 2 or g > rings.size:
-            raise InputError("optimize.design_grid", f"{design_grid} radial samples for {rings.size} rings", f"0 or 2..{rings.size}")
+            raise InputError(
+                "optimize.design_grid", f"{design_grid} radial samples for {rings.size} rings", f"0 or 2..{rings.size}"
+            )
         r = np.linspace(0.0, rings[-1], g)
-        theta = (hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2 if init == "hyperbolic"
-                 else random_radial_theta(r, aperture_m, na / lambda_d_m, seed))
+        theta = (
+            hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2
+            if init == "hyperbolic"
+            else random_radial_theta(r, aperture_m, na / lambda_d_m, seed)
+        )
         return RadialTheta(theta, rings.size, pitch_m, aperture_m, focal_length_m)
     if parameterization != "2d":
         raise InputError("lens.parameterization", f"unknown {parameterization!r}", "radial or 2d")
@@ -145,9 +172,14 @@ def initial_parameterization(parameterization: str, init: str, lambda_d_m: float
     m = 2 * half + 1
     g = m if design_grid in (0, m) else design_grid
     if g < 3 or g > m or g % 2 == 0:
-        raise InputError("optimize.design_grid", f"{design_grid} for a {m} × {m} meta-atom grid", f"0 or an odd size 3..{m}")
+        raise InputError(
+            "optimize.design_grid", f"{design_grid} for a {m} × {m} meta-atom grid", f"0 or an odd size 3..{m}"
+        )
     c = np.linspace(-half, half, g) * pitch_m
     r = np.hypot(c[:, None], c[None, :])
-    theta = (hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2 if init == "hyperbolic"
-             else random_radial_theta(r, aperture_m, na / lambda_d_m, seed))
+    theta = (
+        hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2
+        if init == "hyperbolic"
+        else random_radial_theta(r, aperture_m, na / lambda_d_m, seed)
+    )
     return GridTheta(theta, m, pitch_m, aperture_m, focal_length_m)

@@ -31,10 +31,10 @@ import torch
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
-from metalens_cli.io.input_files import IMAGE_SUFFIXES
 from metalens_cli.imaging.network import pixel_positions
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import ChannelPsfs, channel_psfs
+from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 VALIDATION_GENERATION = 2**40  # the held-out pool's generation, far from any training generation
 MIN_SCENES = 2  # captured scenes: one to train on, one held out for validation
@@ -84,10 +84,16 @@ class PsfBank:
         return canvas_margin(*(p.near.shape[-1] for p in self.near), *(p.far.shape[-1] for p in self.far))
 
     def report(self) -> dict:
-        return {"z_near_m": [p.z_near_m for p in self.near], "z_far_m": [p.z_far_m if math.isfinite(p.z_far_m) else None for p in self.far],
-                "windows_px": {"near": [p.near.shape[-1] for p in self.near], "far": [p.far.shape[-1] for p in self.far]},
-                "kept": {"near_min": min(min(p.kept_near) for p in self.near), "far_min": min(min(p.kept_far) for p in self.far)},
-                "seconds": sum(p.seconds for p in {id(p): p for p in self.near + self.far}.values())}
+        return {
+            "z_near_m": [p.z_near_m for p in self.near],
+            "z_far_m": [p.z_far_m if math.isfinite(p.z_far_m) else None for p in self.far],
+            "windows_px": {"near": [p.near.shape[-1] for p in self.near], "far": [p.far.shape[-1] for p in self.far]},
+            "kept": {
+                "near_min": min(min(p.kept_near) for p in self.near),
+                "far_min": min(min(p.kept_far) for p in self.far),
+            },
+            "seconds": sum(p.seconds for p in {id(p): p for p in self.near + self.far}.values()),
+        }
 
     def warnings(self) -> list[str]:
         return sorted({w for p in self.near + self.far for w in p.warnings()})
@@ -96,9 +102,18 @@ class PsfBank:
 def psf_bank(design, camera: Camera, data, device="cpu") -> PsfBank:
     """PSFs for every near and far depth stratum (one ``channel_psfs`` call per pair of strata)."""
     near_z, far_z = strata(camera.z_near_m, data.near_depths), strata(camera.z_far_m, data.far_depths)
-    calls = [channel_psfs(design, near_z[k % len(near_z)], far_z[k % len(far_z)], list(data.wavelengths_m), camera.pixel_pitch_m,
-                          device=device) for k in range(max(len(near_z), len(far_z)))]
-    return PsfBank(calls[:len(near_z)], calls[:len(far_z)])
+    calls = [
+        channel_psfs(
+            design,
+            near_z[k % len(near_z)],
+            far_z[k % len(far_z)],
+            list(data.wavelengths_m),
+            camera.pixel_pitch_m,
+            device=device,
+        )
+        for k in range(max(len(near_z), len(far_z)))
+    ]
+    return PsfBank(calls[: len(near_z)], calls[: len(far_z)])
 
 
 def _scene(data, canvas: int, sensor: int, rng: np.random.Generator, photos: list[np.ndarray] | None) -> np.ndarray:
@@ -113,8 +128,18 @@ def _scene(data, canvas: int, sensor: int, rng: np.random.Generator, photos: lis
     return dead_leaves((canvas, canvas), 1000 + int(rng.integers(2**31)), sensor_shape=(sensor, sensor))
 
 
-def simulate_pool(design, camera: Camera, data, bank: PsfBank, seed: int, generation: int, count: int,
-                  photos: list[np.ndarray] | None = None, device="cpu", threads: int = 1) -> Pool:
+def simulate_pool(
+    design,
+    camera: Camera,
+    data,
+    bank: PsfBank,
+    seed: int,
+    generation: int,
+    count: int,
+    photos: list[np.ndarray] | None = None,
+    device="cpu",
+    threads: int = 1,
+) -> Pool:
     """``count`` simulated pairs of generation ``generation`` (entries drawn from (seed, generation, index))."""
     import time
 
@@ -132,23 +157,45 @@ def simulate_pool(design, camera: Camera, data, bank: PsfBank, seed: int, genera
         clean = _scene(data, canvas, s, rng, photos)
         kind = data.obstructions[rng.integers(len(data.obstructions))]
         i, j = int(rng.integers(len(bank.near))), int(rng.integers(len(bank.far)))
-        obstruction = make_obstruction(kind, (s, s), bank.near[i].z_near_m, design.focal_length_m, camera.pixel_pitch_m,
-                                       [seed, generation, index, 31], camera.obstruction_params, clean=clean, margin=margin)
+        obstruction = make_obstruction(
+            kind,
+            (s, s),
+            bank.near[i].z_near_m,
+            design.focal_length_m,
+            camera.pixel_pitch_m,
+            [seed, generation, index, 31],
+            camera.obstruction_params,
+            clean=clean,
+            margin=margin,
+        )
         with torch.no_grad():
-            tensors = (torch.as_tensor(a, dtype=torch.float32, device=device) for a in (clean, obstruction.rgb, obstruction.mask))
+            tensors = (
+                torch.as_tensor(a, dtype=torch.float32, device=device)
+                for a in (clean, obstruction.rgb, obstruction.mask)
+            )
             capture = form_image(*tensors, transforms["near", i], transforms["far", j], margin)
             obstructed, unobstructed = capture.obstructed, capture.unobstructed
             if data.photons or data.read_noise:
                 noise_seed = int(rng.integers(2**62))
                 obstructed = add_noise(obstructed, data.photons or None, data.read_noise, noise_seed)
                 unobstructed = add_noise(unobstructed, data.photons or None, data.read_noise, noise_seed + 1)
-        return (clean[:, margin:margin + s, margin:margin + s], obstructed.cpu().numpy(), unobstructed.cpu().numpy(), kind)
+        return (
+            clean[:, margin : margin + s, margin : margin + s],
+            obstructed.cpu().numpy(),
+            unobstructed.cpu().numpy(),
+            kind,
+        )
 
     with ThreadPoolExecutor(max_workers=max(1, threads)) as workers:
         entries = list(workers.map(entry, range(count)))
     clean, obstructed, unobstructed, kinds = zip(*entries)
-    return Pool(np.stack(clean).astype(np.float32), np.stack(obstructed).astype(np.float32),
-                np.stack(unobstructed).astype(np.float32), list(kinds), time.perf_counter() - start)
+    return Pool(
+        np.stack(clean).astype(np.float32),
+        np.stack(obstructed).astype(np.float32),
+        np.stack(unobstructed).astype(np.float32),
+        list(kinds),
+        time.perf_counter() - start,
+    )
 
 
 def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
@@ -160,7 +207,9 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
     root = Path(folder)
     gt_dir, capture_dir = root / "gt", root / "captures"
     if not gt_dir.is_dir() or not capture_dir.is_dir():
-        raise InputError("--pairs", f"{str(root)!r} lacks gt/ or captures/", "a folder with gt/NAME.png and captures/NAME[@K].png")
+        raise InputError(
+            "--pairs", f"{str(root)!r} lacks gt/ or captures/", "a folder with gt/NAME.png and captures/NAME[@K].png"
+        )
 
     def files(d: Path) -> list[Path]:
         return sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
@@ -168,26 +217,37 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
     gts = images_by_stem(gt_dir, "--pairs")  # two files of one scene are refused, as by evaluate --pairs
     pairs = [(p.stem.split("@")[0], p) for p in files(capture_dir)]
     if not pairs:
-        raise InputError("--pairs", f"{str(capture_dir)!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}")
-    check_scenes("captures", {name for name, _ in pairs}, gts)  # evaluate --pairs' rule: every gt scene captured, and no more
+        raise InputError(
+            "--pairs", f"{str(capture_dir)!r} holds no images", f"files ending in {', '.join(IMAGE_SUFFIXES)}"
+        )
+    check_scenes(
+        "captures", {name for name, _ in pairs}, gts
+    )  # evaluate --pairs' rule: every gt scene captured, and no more
     scenes = sorted(gts)
     if len(scenes) < MIN_SCENES:
-        raise InputError("--pairs", f"{str(root)!r} holds {len(scenes)} scene ({scenes[0]}), too few to hold out validation scenes "
-                         "apart from the training ones", f"at least {MIN_SCENES} scenes with their captures: the last tenth by name, "
-                         "at least one, is held out for validation")
-    held = set(scenes[len(scenes) - max(1, len(scenes) // 10):])  # ≥ 1 scene left to train on
+        raise InputError(
+            "--pairs",
+            f"{str(root)!r} holds {len(scenes)} scene ({scenes[0]}), too few to hold out validation scenes "
+            "apart from the training ones",
+            f"at least {MIN_SCENES} scenes with their captures: the last tenth by name, "
+            "at least one, is held out for validation",
+        )
+    held = set(scenes[len(scenes) - max(1, len(scenes) // 10) :])  # ≥ 1 scene left to train on
     loaded = []
     for name, path in pairs:
         gt, capture = read_linear(gts[name], "--pairs"), read_linear(path, "--pairs")
         if gt.shape != capture.shape:
-            raise InputError("--pairs", f"{path.name} is {capture.shape[1:]} but gt/{gts[name].name} is {gt.shape[1:]}",
-                             "captures aligned to their gt image (metalens align), of equal size")
+            raise InputError(
+                "--pairs",
+                f"{path.name} is {capture.shape[1:]} but gt/{gts[name].name} is {gt.shape[1:]}",
+                "captures aligned to their gt image (metalens align), of equal size",
+            )
         loaded.append((name in held, gt, capture))
     side = min(min(gt.shape[1:]) for _, gt, _ in loaded)
 
     def centre(a: np.ndarray) -> np.ndarray:
         top, left = (a.shape[1] - side) // 2, (a.shape[2] - side) // 2
-        return a[:, top:top + side, left:left + side]
+        return a[:, top : top + side, left : left + side]
 
     def pool(hold: bool) -> Pool:  # the scenes of the two pools are disjoint, neither is empty
         chosen = [(centre(g), centre(c)) for h, g, c in loaded if h == hold]
@@ -206,7 +266,9 @@ class Batch:
     positions: torch.Tensor
 
 
-def batch(pool: Pool, data, crop: int, position_scale: float, seed: int, step: int, indices: list[int], device="cpu") -> Batch:
+def batch(
+    pool: Pool, data, crop: int, position_scale: float, seed: int, step: int, indices: list[int], device="cpu"
+) -> Batch:
     """Entries ``indices`` of step ``step``'s batch: a random pool entry (unobstructed with
     probability ``data.clear_fraction``), a random ``crop``² window with its sensor positions,
     one of the 8 flips/quarter turns applied to all three, then gain, contrast and Gaussian

@@ -32,15 +32,27 @@ import numpy as np
 import torch
 
 from metalens_cli.design import distributed
-from metalens_cli.design.reconstruct_data import (VALIDATION_GENERATION, Camera, Pool, batch, psf_bank, read_pairs,
-                                                  simulate_pool)
+from metalens_cli.design.reconstruct_data import (
+    VALIDATION_GENERATION,
+    Camera,
+    Pool,
+    batch,
+    psf_bank,
+    read_pairs,
+    simulate_pool,
+)
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.training import TrainingInterrupted
 from metalens_cli.errors import InputError, Terminated
 from metalens_cli.imaging.metrics import ssim
 from metalens_cli.imaging.network import NetworkShape, ReconstructionNet
 from metalens_cli.imaging.restore import MODEL_FILE, Reconstructor, design_fingerprint, save_model
-from metalens_cli.io.reconstruct_presets import ReconstructPreset, SECTIONS, load_reconstruct_preset, reconstruct_to_toml
+from metalens_cli.io.reconstruct_presets import (
+    SECTIONS,
+    ReconstructPreset,
+    load_reconstruct_preset,
+    reconstruct_to_toml,
+)
 
 PRESET_FILE = "reconstruct.toml"
 COLUMNS = ("step", "lr", "total", "l1", "ssim", "lpips", "seconds", "data_seconds")
@@ -85,11 +97,21 @@ class ReconstructSummary:
     report: dict
 
 
-def train_reconstruction(design, camera: Camera, preset: ReconstructPreset | None, run_dir: str | Path, *,
-                         steps: int | None = None, seed: int | None = None, device="cpu", resume: bool = False,
-                         pairs: str | Path | None = None, lpips_weights: str | Path | None = None,
-                         on_step: Callable[[int, int, dict], None] | None = None,
-                         on_stage: Callable[[str], None] | None = None) -> ReconstructSummary:
+def train_reconstruction(
+    design,
+    camera: Camera,
+    preset: ReconstructPreset | None,
+    run_dir: str | Path,
+    *,
+    steps: int | None = None,
+    seed: int | None = None,
+    device="cpu",
+    resume: bool = False,
+    pairs: str | Path | None = None,
+    lpips_weights: str | Path | None = None,
+    on_step: Callable[[int, int, dict], None] | None = None,
+    on_stage: Callable[[str], None] | None = None,
+) -> ReconstructSummary:
     """Train the network for ``design`` (a resolved design) with ``preset`` into ``run_dir``.
 
     ``resume`` continues from the newest checkpoint with the preset saved there (``steps`` may
@@ -99,15 +121,34 @@ def train_reconstruction(design, camera: Camera, preset: ReconstructPreset | Non
     up as ``evaluate`` does). ``on_step(done, total, row)`` and ``on_stage(text)`` report progress.
     """
     with distributed.session(torch.device(device)) as ctx:
-        return _train(design, camera, preset, run_directory(run_dir), steps, seed, ctx, resume, pairs, lpips_weights,
-                      on_step or (lambda *a: None), on_stage or (lambda text: None))
+        return _train(
+            design,
+            camera,
+            preset,
+            run_directory(run_dir),
+            steps,
+            seed,
+            ctx,
+            resume,
+            pairs,
+            lpips_weights,
+            on_step or (lambda *a: None),
+            on_stage or (lambda text: None),
+        )
 
 
 def _identity(design, camera: Camera, pairs) -> dict:
-    return {"spec": design.spec, "fingerprint": design_fingerprint(design), **design.describe(),
-            "camera": {"pixel_pitch_m": camera.pixel_pitch_m, "z_near_m": list(camera.z_near_m),
-                       "z_far_m": [z if math.isfinite(z) else None for z in camera.z_far_m]},
-            "pairs": None if pairs is None else str(Path(pairs).resolve())}
+    return {
+        "spec": design.spec,
+        "fingerprint": design_fingerprint(design),
+        **design.describe(),
+        "camera": {
+            "pixel_pitch_m": camera.pixel_pitch_m,
+            "z_near_m": list(camera.z_near_m),
+            "z_far_m": [z if math.isfinite(z) else None for z in camera.z_far_m],
+        },
+        "pairs": None if pairs is None else str(Path(pairs).resolve()),
+    }
 
 
 def _made_for(run: RunDirectory, identity: dict) -> dict:
@@ -119,22 +160,33 @@ def _made_for(run: RunDirectory, identity: dict) -> dict:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        raise InputError("--resume", f"{str(run.path)!r} lacks a readable design.json", "a run directory written by "
-                         "metalens reconstruct train") from None
+        raise InputError(
+            "--resume",
+            f"{str(run.path)!r} lacks a readable design.json",
+            "a run directory written by metalens reconstruct train",
+        ) from None
 
 
-def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, pairs, lpips_weights, on_step,
-           on_stage) -> ReconstructSummary:
+def _train(
+    design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, pairs, lpips_weights, on_step, on_stage
+) -> ReconstructSummary:
     identity = _identity(design, camera, pairs)
     checkpoint = None
     if resume:
         if not run.preset_path.is_file():
-            raise InputError("--resume", f"{str(run.path)!r} holds no run to resume", "a run directory written by metalens reconstruct train")
+            raise InputError(
+                "--resume",
+                f"{str(run.path)!r} holds no run to resume",
+                "a run directory written by metalens reconstruct train",
+            )
         preset = _resumed_preset(run, preset)
         made_for = _made_for(run, identity)
         if made_for.get("fingerprint") != identity["fingerprint"]:
-            raise InputError("DESIGN", f"{design.spec!r} is not the design the run was made for ({made_for.get('spec')!r})",
-                             "the run's own design")
+            raise InputError(
+                "DESIGN",
+                f"{design.spec!r} is not the design the run was made for ({made_for.get('spec')!r})",
+                "the run's own design",
+            )
         pairs = made_for.get("pairs")
         identity["pairs"] = pairs
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
@@ -148,8 +200,9 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
     data = _Data(design, camera, preset, pairs, ctx.device, on_stage)
     torch.manual_seed(t.seed)
     n = preset.network
-    net = ReconstructionNet(NetworkShape(n.width, n.depth, n.frequencies, n.reduction, data.position_scale,
-                                         n.spectral_bins)).to(ctx.device, memory_format=torch.channels_last)  # oneDNN's fast layout
+    net = ReconstructionNet(
+        NetworkShape(n.width, n.depth, n.frequencies, n.reduction, data.position_scale, n.spectral_bins)
+    ).to(ctx.device, memory_format=torch.channels_last)  # oneDNN's fast layout
     optimizer = torch.optim.AdamW(net.parameters(), lr=t.learning_rate, weight_decay=t.weight_decay)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: learning_rate_factor(s, t))
     if ctx.is_main and not resume:  # only now: every check above has passed
@@ -175,7 +228,9 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
             t1 = time.perf_counter()
             optimizer.zero_grad(set_to_none=True)
             net.train()
-            terms = loss_terms(net(b.inputs.contiguous(memory_format=torch.channels_last), b.positions), b.targets, t, lpips_model)
+            terms = loss_terms(
+                net(b.inputs.contiguous(memory_format=torch.channels_last), b.positions), b.targets, t, lpips_model
+            )
             (terms["total"] * share).backward()
             reported = torch.stack([terms[k].detach() * share for k in sorted(terms)]).double()
             if ctx.world > 1:
@@ -184,8 +239,13 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
                 distributed.all_reduce_sum(reported, ctx)
             optimizer.step()
             scheduler.step()
-            row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **dict(zip(sorted(terms), reported.tolist())),
-                   "seconds": time.perf_counter() - t0, "data_seconds": t1 - t0}
+            row = {
+                "step": step + 1,
+                "lr": optimizer.param_groups[0]["lr"],
+                **dict(zip(sorted(terms), reported.tolist())),
+                "seconds": time.perf_counter() - t0,
+                "data_seconds": t1 - t0,
+            }
             history.append(row)
             if ctx.is_main:
                 on_step(step + 1, t.steps, row)
@@ -196,7 +256,9 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
                     run.write_loss_csv(history)
     except (KeyboardInterrupt, Terminated):
         done = len(history)
-        path = run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, done)) if ctx.is_main else None
+        path = (
+            run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, done)) if ctx.is_main else None
+        )
         if ctx.is_main:
             run.write_loss_csv(history)
         raise TrainingInterrupted(done, path) from None
@@ -204,7 +266,9 @@ def _train(design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, 
     if ctx.is_main:
         if t.steps > start:
             run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, t.steps))
-        report = _finish(run, preset, net, identity, data, history, validations, start, notes + data.warnings, lpips_model, ctx)
+        report = _finish(
+            run, preset, net, identity, data, history, validations, start, notes + data.warnings, lpips_model, ctx
+        )
     return ReconstructSummary(run.path, report)
 
 
@@ -219,9 +283,12 @@ def _resumed_preset(run: RunDirectory, given: ReconstructPreset | None) -> Recon
         for f in fields(mine):
             was, now = getattr(mine, f.name), getattr(theirs, f.name)
             if was != now and (section, f.name) not in (("train", "steps"), ("train", "seed")):
-                raise InputError("--preset", f"{given.source or given.name} sets {section}.{f.metadata['key']} = {now!r}, but the run "
-                                 f"in {str(run.path)!r} was made with {was!r}",
-                                 f"no --preset with --resume (the run goes on with its own {PRESET_FILE}), or that same preset")
+                raise InputError(
+                    "--preset",
+                    f"{given.source or given.name} sets {section}.{f.metadata['key']} = {now!r}, but the run "
+                    f"in {str(run.path)!r} was made with {was!r}",
+                    f"no --preset with --resume (the run goes on with its own {PRESET_FILE}), or that same preset",
+                )
     return saved
 
 
@@ -240,15 +307,22 @@ class _Data:
             on_stage("reading pairs")
             self.pool, self.validation = read_pairs(pairs)
             if self.pool.clean.shape[-1] < preset.train.crop:
-                raise InputError("--pairs", f"images of {self.pool.clean.shape[-1]} px are smaller than train.crop {preset.train.crop}",
-                                 "captures at least as large as the crop")
+                raise InputError(
+                    "--pairs",
+                    f"images of {self.pool.clean.shape[-1]} px are smaller than train.crop {preset.train.crop}",
+                    "captures at least as large as the crop",
+                )
             self.generation = None
         else:
             self.pool_bytes = pool_bytes(d.pool_size + d.validation_pairs, d.pool_pixels)
             physical = _physical_memory()
             if physical and self.pool_bytes > physical / 2:
-                raise InputError("data.pool_size", f"{d.pool_size} pairs of {d.pool_pixels}² px need {self.pool_bytes / 2**30:.1f} GiB, "
-                                 f"over half of this machine's {physical / 2**30:.1f} GiB", "a smaller pool_size or pool_pixels")
+                raise InputError(
+                    "data.pool_size",
+                    f"{d.pool_size} pairs of {d.pool_pixels}² px need {self.pool_bytes / 2**30:.1f} GiB, "
+                    f"over half of this machine's {physical / 2**30:.1f} GiB",
+                    "a smaller pool_size or pool_pixels",
+                )
             on_stage("PSF bank")
             self.bank = psf_bank(design, camera, d, device)
             self.seconds["psf_bank"] = self.bank.report()["seconds"]
@@ -264,8 +338,18 @@ class _Data:
         self.position_scale = self.validation.clean.shape[-1] / 2
 
     def _simulate(self, generation: int, count: int) -> Pool:
-        pool = simulate_pool(self.design, self.camera, self.preset.data, self.bank, self.preset.train.seed, generation, count,
-                             self.photos, self.device, torch.get_num_threads())
+        pool = simulate_pool(
+            self.design,
+            self.camera,
+            self.preset.data,
+            self.bank,
+            self.preset.train.seed,
+            generation,
+            count,
+            self.photos,
+            self.device,
+            torch.get_num_threads(),
+        )
         self.seconds["pools"] += pool.seconds
         return pool
 
@@ -280,9 +364,17 @@ class _Data:
         return self.pool
 
     def report(self) -> dict:
-        source = {"kind": "captured pairs"} if self.bank is None else {"kind": "simulated", "psf_bank": self.bank.report()}
-        return {**source, "pool_entries": len(self.pool) if self.pool is not None else 0, "validation_entries": len(self.validation),
-                "pool_pixels": int(self.validation.clean.shape[-1]), "pool_bytes": self.pool_bytes, "seconds": self.seconds}
+        source = (
+            {"kind": "captured pairs"} if self.bank is None else {"kind": "simulated", "psf_bank": self.bank.report()}
+        )
+        return {
+            **source,
+            "pool_entries": len(self.pool) if self.pool is not None else 0,
+            "validation_entries": len(self.validation),
+            "pool_pixels": int(self.validation.clean.shape[-1]),
+            "pool_bytes": self.pool_bytes,
+            "seconds": self.seconds,
+        }
 
 
 def pool_bytes(entries: int, pixels: int) -> int:
@@ -317,7 +409,9 @@ def _validate(net, data: _Data, step: int, run: RunDirectory, ctx) -> dict:
     from metalens_cli.imaging.pipeline import score
     from metalens_cli.io.image_files import write_png
 
-    recon = Reconstructor(copy.deepcopy(net).eval(), device=ctx.device)  # a copy: apply's layout must not reach training
+    recon = Reconstructor(
+        copy.deepcopy(net).eval(), device=ctx.device
+    )  # a copy: apply's layout must not reach training
     pool = data.validation
     row: dict = {"step": step}
     previews = []
@@ -335,36 +429,63 @@ def _validate(net, data: _Data, step: int, run: RunDirectory, ctx) -> dict:
             for metric in ("psnr_db", "ssim"):
                 row[f"{name}_{condition}_{metric}"] = statistics.fmean(s[metric] for s in scores)
     (run.path / "validation").mkdir(exist_ok=True)  # a resumed run killed while its folder was being made
-    write_png(run.path / "validation" / f"step_{step:06d}.png", linear_to_srgb(np.clip(np.concatenate(previews, axis=-2), 0, 1)))
+    write_png(
+        run.path / "validation" / f"step_{step:06d}.png",
+        linear_to_srgb(np.clip(np.concatenate(previews, axis=-2), 0, 1)),
+    )
     return row
 
 
 def _state(net, optimizer, scheduler, history, validations, step) -> dict:
-    return {"step": step, "model": net.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-            "history": history, "validations": validations, "rng": "stateless: every draw is a function of (seed, step)"}
+    return {
+        "step": step,
+        "model": net.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "scheduler": scheduler.state_dict(),
+        "history": history,
+        "validations": validations,
+        "rng": "stateless: every draw is a function of (seed, step)",
+    }
 
 
-def _finish(run: RunDirectory, preset, net, identity, data: _Data, history, validations, start, notes, lpips_model, ctx) -> dict:
+def _finish(
+    run: RunDirectory, preset, net, identity, data: _Data, history, validations, start, notes, lpips_model, ctx
+) -> dict:
     from metalens_cli.io.presets import to_dict
     from metalens_cli.plotting.optimize import loss_figure
 
     terms = ["l1", "ssim"] + (["lpips"] if lpips_model is not None else [])
-    save_model(run.path / MODEL_FILE, net, {"spec": identity["spec"], "fingerprint": identity["fingerprint"]},
-               {"loss_terms": terms, "steps": preset.train.steps})
+    save_model(
+        run.path / MODEL_FILE,
+        net,
+        {"spec": identity["spec"], "fingerprint": identity["fingerprint"]},
+        {"loss_terms": terms, "steps": preset.train.steps},
+    )
     run.write_loss_csv(history)
     loss_figure(run.path / "loss.png", history, parts=("total", *terms))
     rows = history[start:]
     final = validations[-1]
     report = {
-        "design": identity, "settings": {name: to_dict(getattr(preset, name)) for name in SECTIONS},
-        "loss_terms": terms, "data": data.report(),
+        "design": identity,
+        "settings": {name: to_dict(getattr(preset, name)) for name in SECTIONS},
+        "loss_terms": terms,
+        "data": data.report(),
         "network": {**net.shape.to_dict(), "parameters": sum(p.numel() for p in net.parameters())},
-        "cost": {"steps_run": len(rows), "seconds_per_step_median": statistics.median(r["seconds"] for r in rows) if rows else None,
-                 "data_seconds_per_step_median": statistics.median(r["data_seconds"] for r in rows) if rows else None,
-                 "training_seconds": sum(r["seconds"] for r in rows), "setup_seconds": data.seconds,
-                 "device": str(ctx.device), "threads": torch.get_num_threads(), "world": ctx.world},
-        "validation": {"history": validations, "final": final,
-                       "gain_obstructed_psnr_db": final["recon_obstructed_psnr_db"] - final["raw_obstructed_psnr_db"]},
+        "cost": {
+            "steps_run": len(rows),
+            "seconds_per_step_median": statistics.median(r["seconds"] for r in rows) if rows else None,
+            "data_seconds_per_step_median": statistics.median(r["data_seconds"] for r in rows) if rows else None,
+            "training_seconds": sum(r["seconds"] for r in rows),
+            "setup_seconds": data.seconds,
+            "device": str(ctx.device),
+            "threads": torch.get_num_threads(),
+            "world": ctx.world,
+        },
+        "validation": {
+            "history": validations,
+            "final": final,
+            "gain_obstructed_psnr_db": final["recon_obstructed_psnr_db"] - final["raw_obstructed_psnr_db"],
+        },
         "notes": notes,
     }
     run.write_text("run.json", json.dumps(report, indent=2, allow_nan=False) + "\n")

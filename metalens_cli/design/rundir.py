@@ -39,16 +39,34 @@ from metalens_cli.io.presets import load_preset
 
 KEEP = 2
 STATES = ("model", "optimizer", "scheduler")  # the state dicts of a checkpoint, restored by Checkpoint.restore
-LOSS_COLUMNS = ("step", "lr", "total", "l1", "ssim", "domain_adaptation", "bright", "sharp", "z_near_m", "z_far_m", "seconds",
-                "window_near", "window_far")
+LOSS_COLUMNS = (
+    "step",
+    "lr",
+    "total",
+    "l1",
+    "ssim",
+    "domain_adaptation",
+    "bright",
+    "sharp",
+    "z_near_m",
+    "z_far_m",
+    "seconds",
+    "window_near",
+    "window_far",
+)
 
 
 class RunDirectory:
     """Paths and writers of one run directory: its preset file is ``preset_name``, its loss table
     has ``columns``, and ``made_by`` names the command that writes it (for error messages)."""
 
-    def __init__(self, path: str | Path, preset_name: str = "preset.toml", columns: tuple[str, ...] = LOSS_COLUMNS,
-                 made_by: str = "metalens optimize"):
+    def __init__(
+        self,
+        path: str | Path,
+        preset_name: str = "preset.toml",
+        columns: tuple[str, ...] = LOSS_COLUMNS,
+        made_by: str = "metalens optimize",
+    ):
         self.path = Path(path)
         self.preset_name, self.columns, self.made_by = preset_name, columns, made_by
 
@@ -67,7 +85,9 @@ class RunDirectory:
         """Refuse a folder that already holds a run, or any other files it would write over
         (before any work, so nothing is half-made)."""
         if self.holds_run():
-            raise InputError("--output", f"{str(self.path)!r} already holds a run", "another folder, or --resume to continue it")
+            raise InputError(
+                "--output", f"{str(self.path)!r} already holds a run", "another folder, or --resume to continue it"
+            )
         if self.path.is_dir() and any(self.path.iterdir()):
             raise InputError("--output", f"{str(self.path)!r} is not empty", "a new or empty folder for the run")
 
@@ -177,11 +197,17 @@ class Checkpoint:
             try:
                 module.load_state_dict(self.state[key])
                 if isinstance(module, torch.optim.Optimizer) and any(
-                        torch.is_tensor(m) and m.ndim and m.shape != p.shape for p, moments in module.state.items() for m in moments.values()):
+                    torch.is_tensor(m) and m.ndim and m.shape != p.shape
+                    for p, moments in module.state.items()
+                    for m in moments.values()
+                ):
                     raise ValueError("a moment's shape differs from its parameter's")
             except (RuntimeError, ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
-                raise InputError("--resume", f"{self.path} does not fit this run: its {key} state: {' '.join(str(exc).split())}",
-                                 "a checkpoint of this run") from None
+                raise InputError(
+                    "--resume",
+                    f"{self.path} does not fit this run: its {key} state: {' '.join(str(exc).split())}",
+                    "a checkpoint of this run",
+                ) from None
 
 
 def _tensors(value):
@@ -191,4 +217,3 @@ def _tensors(value):
     elif isinstance(value, dict | list | tuple):
         for item in value.values() if isinstance(value, dict) else value:
             yield from _tensors(item)
-

@@ -16,15 +16,14 @@ import numpy as np
 from metalens_cli.imaging.dead_leaves import srgb_decode
 from metalens_cli.imaging.noise import fractal_noise
 
-
-SHAPES_PER_256_SQUARE = 250    # shapes per 256² pixels (density, not count: scenes are alike at every size)
-RADIUS_PX = (2.0, 0.4)          # shape radii: 2 px to 0.4 × the field's longer side
-RADIUS_EXPONENT = 1.3           # p(r) ∝ r^-(1 + this): many small shapes, few large ones
+SHAPES_PER_256_SQUARE = 250  # shapes per 256² pixels (density, not count: scenes are alike at every size)
+RADIUS_PX = (2.0, 0.4)  # shape radii: 2 px to 0.4 × the field's longer side
+RADIUS_EXPONENT = 1.3  # p(r) ∝ r^-(1 + this): many small shapes, few large ones
 SHAPE_KINDS = (0.4, 0.3, 0.2, 0.1)  # ellipses, rectangles, strokes (1-3 px lines), grating patches
-TEXTURE = 1.5                   # largest amplitude of the fine texture inside a shape
-LIGHT_DECADES = 0.55            # illumination varies over ±this many decades (shading, shadows)
-FINE_RADIUS_PX = 16             # shapes smaller than this, and the fine texture, are drawn only near the field
-DETAIL_BAND_PX = 32             # ... the sensor's field grown by this many pixels
+TEXTURE = 1.5  # largest amplitude of the fine texture inside a shape
+LIGHT_DECADES = 0.55  # illumination varies over ±this many decades (shading, shadows)
+FINE_RADIUS_PX = 16  # shapes smaller than this, and the fine texture, are drawn only near the field
+DETAIL_BAND_PX = 32  # ... the sensor's field grown by this many pixels
 
 
 def procedural_scene(shape: tuple[int, int], rng: np.random.Generator, margin: int = 0) -> np.ndarray:
@@ -44,7 +43,7 @@ def procedural_scene(shape: tuple[int, int], rng: np.random.Generator, margin: i
     h, w = shape
     side = max(max(h, w) - 2 * int(margin), 1)  # the field's side: every scale is relative to it, as a photo's framing
     band = max(int(margin) - DETAIL_BAND_PX, 0)
-    top, left, bottom, right = band, band, h - band, w - band          # the detailed region
+    top, left, bottom, right = band, band, h - band, w - band  # the detailed region
     coarse = fractal_noise((h, w), side / rng.uniform(2, 6), 3, rng).astype(np.float32)
     fine = np.zeros((h, w), np.float32)
     fine[top:bottom, left:right] = fractal_noise((bottom - top, right - left), rng.uniform(4, 16), 3, rng)
@@ -52,7 +51,9 @@ def procedural_scene(shape: tuple[int, int], rng: np.random.Generator, margin: i
     y, x = np.arange(h, dtype=np.float32)[:, None], np.arange(w, dtype=np.float32)[None, :]
     r_min, r_max, a = RADIUS_PX[0], RADIUS_PX[1] * side, RADIUS_EXPONENT
     split = min(max(FINE_RADIUS_PX, r_min), r_max)
-    density = SHAPES_PER_256_SQUARE / 256**2 * rng.uniform(0.6, 1.4) / (r_min**-a - r_max**-a)  # shapes per px² per unit CDF
+    density = (
+        SHAPES_PER_256_SQUARE / 256**2 * rng.uniform(0.6, 1.4) / (r_min**-a - r_max**-a)
+    )  # shapes per px² per unit CDF
     shapes = []
     for lo, hi, (y0, x0, y1, x1) in ((r_min, split, (top, left, bottom, right)), (split, r_max, (0, 0, h, w))):
         count = int(density * (lo**-a - hi**-a) * (y1 - y0) * (x1 - x0))
@@ -63,19 +64,24 @@ def procedural_scene(shape: tuple[int, int], rng: np.random.Generator, margin: i
         r, cy, cx = shapes[k]
         kind = int(np.searchsorted(kinds_cdf, rng.random(), side="right"))
         reach = r * (3 if kind == 2 else 1.5)
-        i0, i1, j0, j1 = max(int(cy - reach), 0), min(int(cy + reach) + 1, h), max(int(cx - reach), 0), min(int(cx + reach) + 1, w)
+        i0, i1, j0, j1 = (
+            max(int(cy - reach), 0),
+            min(int(cy + reach) + 1, h),
+            max(int(cx - reach), 0),
+            min(int(cx + reach) + 1, w),
+        )
         if i0 >= i1 or j0 >= j1:
             continue
         angle = rng.uniform(0, np.pi)
         dy, dx = y[i0:i1] - cy, x[:, j0:j1] - cx
         along, across = dx * np.cos(angle) + dy * np.sin(angle), dy * np.cos(angle) - dx * np.sin(angle)
-        if kind == 0:    # ellipse; inside distance ≈ pixels to the edge
+        if kind == 0:  # ellipse; inside distance ≈ pixels to the edge
             inside = r - np.sqrt(along**2 + (across / rng.uniform(0.4, 1.0)) ** 2)
         elif kind == 1:  # rectangle
             inside = np.minimum(r - np.abs(along), rng.uniform(0.3, 1.0) * r - np.abs(across))
         elif kind == 2:  # stroke
             inside = np.minimum(rng.uniform(0.5, 1.5) - np.abs(across), 3 * r - np.abs(along))
-        else:            # grating patch
+        else:  # grating patch
             bars = np.sin(2 * np.pi * along / rng.uniform(2.0, 10.0)) > 0
             inside = np.where(bars, r - np.hypot(along, across), -1.0)
         mask = np.clip(inside + 0.5, 0, 1)  # 1-pixel antialiased edge
@@ -102,7 +108,7 @@ def random_crop(image: np.ndarray, shape: tuple[int, int], rng: np.random.Genera
     _, h0, w0 = image.shape
     side = int(rng.uniform(0.5, 1.0) * min(h0, w0))
     top, left = rng.integers(0, h0 - side + 1), rng.integers(0, w0 - side + 1)
-    crop = np.transpose(image[:, top:top + side, left:left + side], (1, 2, 0))
+    crop = np.transpose(image[:, top : top + side, left : left + side], (1, 2, 0))
     crop = cv2.resize(crop, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
     crop = np.transpose(crop, (2, 0, 1))
     if rng.random() < 0.5:
@@ -110,8 +116,9 @@ def random_crop(image: np.ndarray, shape: tuple[int, int], rng: np.random.Genera
     return np.ascontiguousarray(crop, dtype=np.float32)
 
 
-def training_scene(shape: tuple[int, int], seed: int, step: int, index: int, pool: list[np.ndarray] | None = None,
-                   margin: int = 0) -> np.ndarray:
+def training_scene(
+    shape: tuple[int, int], seed: int, step: int, index: int, pool: list[np.ndarray] | None = None, margin: int = 0
+) -> np.ndarray:
     """The clean scene number ``index`` of step ``step`` on a canvas of ``shape`` with ``margin``
     pixels around the sensor's field: the same (seed, step, index), the same scene."""
     rng = np.random.default_rng([seed, step, index, 11])

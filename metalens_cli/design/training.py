@@ -31,34 +31,42 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from metalens_cli.analysis.bands import preset_incidence_factor
 from metalens_cli.design import distributed
-from metalens_cli.design.filter_learning import (BandSampler, LearnedFilter, band_sampler, filter_columns, filter_row,
-                                                 learned_filter, make_feasible, split_penalty)
+from metalens_cli.design.filter_learning import (
+    BandSampler,
+    LearnedFilter,
+    band_sampler,
+    filter_columns,
+    filter_row,
+    learned_filter,
+    make_feasible,
+    split_penalty,
+)
 from metalens_cli.design.losses import training_loss
 from metalens_cli.design.parameterization import initial_parameterization
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.scenes import training_scene
-from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.errors import InputError, MetalensError, SamplingError, Terminated
+from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.pipeline import crop_window
+from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
+from metalens_cli.io.presets import WAVELENGTH_MODES, to_toml
 from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, channel_psf_stack
-from metalens_cli.io.presets import WAVELENGTH_MODES, to_toml
 from metalens_cli.optics.sampling import check_lens_sampling
 from metalens_cli.optics.sensor import larger_window
-from metalens_cli.analysis.bands import preset_incidence_factor
-from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
 from metalens_cli.optics.spectra import sample_wavelengths
 
 DEFAULT_LAMBDA_D_M = 532e-9
 PLAN_HEADROOM = 1.25
 FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and per-term gradient
 # norms (2 × 2 draws) at θ_init and θ_final, the results' PSF scan: 53 (quick preset) and 66 (tests' tiny) measured
-THETA_GRID_COPIES = 12       # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
-LARGE_GRID_BYTES = 1 << 30   # a 2-D θ grid above this is estimated (and refused) before it is built
-MAX_PLAN_WINDOW = 4097     # planned windows stop growing here (pixels): the step then reports what it kept
+THETA_GRID_COPIES = 12  # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
+LARGE_GRID_BYTES = 1 << 30  # a 2-D θ grid above this is estimated (and refused) before it is built
+MAX_PLAN_WINDOW = 4097  # planned windows stop growing here (pixels): the step then reports what it kept
 
 
 class TrainingInterrupted(MetalensError):
@@ -90,7 +98,7 @@ class StepDraw:
     z_far_m: float
     wavelengths_m: np.ndarray
     weights: np.ndarray | torch.Tensor
-    throughput: torch.Tensor | None = None   # (3,) the filter's share of each channel's light (band draws)
+    throughput: torch.Tensor | None = None  # (3,) the filter's share of each channel's light (band draws)
 
 
 def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
@@ -102,8 +110,11 @@ def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
     z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
     if isinstance(sensitivity, BandSampler):
         return StepDraw(z_near, z_far, *sensitivity.draw(rng))
-    sample = sample_wavelengths(sensitivity, preset.optimize.wavelengths_per_channel,
-                                rng if preset.optimize.spectral_sampling == "stratified" else None)
+    sample = sample_wavelengths(
+        sensitivity,
+        preset.optimize.wavelengths_per_channel,
+        rng if preset.optimize.spectral_sampling == "stratified" else None,
+    )
     return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights)
 
 
@@ -121,9 +132,17 @@ def _lambda_d(preset) -> float:
 
 def build_model(preset):
     o = preset.optimize
-    return initial_parameterization(preset.lens.parameterization, "hyperbolic" if preset.lens.design == "hyperbolic" else o.init,
-                                    _lambda_d(preset), preset.lens.focal_length_m, preset.lens.aperture_m, preset.nanofin.pitch_m,
-                                    o.design_grid, o.seed, o.theta_basis)
+    return initial_parameterization(
+        preset.lens.parameterization,
+        "hyperbolic" if preset.lens.design == "hyperbolic" else o.init,
+        _lambda_d(preset),
+        preset.lens.focal_length_m,
+        preset.lens.aperture_m,
+        preset.nanofin.pitch_m,
+        o.design_grid,
+        o.seed,
+        o.theta_basis,
+    )
 
 
 def _scheduler(optimizer, o):
@@ -171,7 +190,9 @@ class Windows:
 
     def grown(self, outgrown) -> Windows:
         """The capacities of the depths whose light passed them (``outgrown`` (2, 3)) made larger."""
-        near, far = (larger_window(n) if grow else n for n, grow in zip((self.near, self.far), np.any(outgrown, axis=1)))
+        near, far = (
+            larger_window(n) if grow else n for n, grow in zip((self.near, self.far), np.any(outgrown, axis=1))
+        )
         return Windows.fitted(near, far, self.plan)
 
     def following(self, stack: ChannelPsfStack) -> Windows:
@@ -209,11 +230,19 @@ def estimate_training(preset) -> tuple[int, float | None]:
     windows = plan_windows(preset, preset_sensitivity(preset))
     lo, hi = plan_range(preset)[0]
     waves = list(np.linspace(lo, hi, 3 * o.wavelengths_per_channel))
-    psf = estimate_psf(build_model(preset).lens(), waves, [preset.scene.z_near_m[0], preset.scene.z_far_m[0]],
-                       max(windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m)
+    psf = estimate_psf(
+        build_model(preset).lens(),
+        waves,
+        [preset.scene.z_near_m[0], preset.scene.z_far_m[0]],
+        max(windows.near, windows.far),
+        preset.sensor.pixel_pitch_m,
+        preset.lens.focal_length_m,
+    )
     canvas = preset.sensor.pixels + 2 * windows.margin
     captures = o.batch_size * 20 * 3 * canvas**2 * 4
-    per_step = 3 * (psf.seconds - psf.setup_seconds) + o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
+    per_step = (
+        3 * (psf.seconds - psf.setup_seconds) + o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
+    )
     return 2 * psf.memory_bytes + captures, psf.setup_seconds + (o.steps + FINISH_STEPS) * per_step
 
 
@@ -227,18 +256,30 @@ def far_cores(stack: ChannelPsfStack) -> torch.Tensor | None:
     return None if stack.cores is None else stack.cores[1]
 
 
-def step_psfs(lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None,
-              frequency: float | None = None) -> tuple[ChannelPsfStack, Windows]:
+def step_psfs(
+    lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None, frequency: float | None = None
+) -> tuple[ChannelPsfStack, Windows]:
     """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
     (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ, the
     step recomputed in larger capacities while its light outgrows them; and the next step's
     windows (``Windows.following``)."""
     plan_l, plan_z = plan_range(preset)
     while True:
-        stack = channel_psf_stack(lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], draw.weights,
-                                  (windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m,
-                                  plan_pixels=windows.plan, device=device, plan_wavelengths_m=plan_l,
-                                  plan_depths_m=plan_z, plan_frequency=frequency, core_window=core_window(preset))
+        stack = channel_psf_stack(
+            lens,
+            draw.wavelengths_m,
+            [draw.z_near_m, draw.z_far_m],
+            draw.weights,
+            (windows.near, windows.far),
+            preset.sensor.pixel_pitch_m,
+            preset.lens.focal_length_m,
+            plan_pixels=windows.plan,
+            device=device,
+            plan_wavelengths_m=plan_l,
+            plan_depths_m=plan_z,
+            plan_frequency=frequency,
+            core_window=core_window(preset),
+        )
         if timing is not None:
             for stage, seconds in stack.timing_s.items():
                 timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
@@ -260,8 +301,17 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
     kind = {i: kinds[np.random.default_rng([seed, step, i, 13]).integers(len(kinds))] for i in indices}
 
     def obstruction(index, clean=None):
-        return make_obstruction(kind[index], (n, n), z_near_m, preset.lens.focal_length_m, preset.sensor.pixel_pitch_m,
-                                [seed, step, index, 17], preset.obstruction, clean=clean, margin=margin)
+        return make_obstruction(
+            kind[index],
+            (n, n),
+            z_near_m,
+            preset.lens.focal_length_m,
+            preset.sensor.pixel_pitch_m,
+            [seed, step, index, 17],
+            preset.obstruction,
+            clean=clean,
+            margin=margin,
+        )
 
     def scene(index):
         clean = training_scene(canvas, seed, step, index, pool, margin)
@@ -297,8 +347,16 @@ def _features(preset, notes: list[str]):
     return load_feature_extractor(path)
 
 
-def train(preset, run_dir: str | Path, *, steps: int | None = None, seed: int | None = None, device: str | torch.device = "cpu",
-          resume: bool = False, on_step: Callable[[int, int, dict], None] | None = None) -> RunSummary:
+def train(
+    preset,
+    run_dir: str | Path,
+    *,
+    steps: int | None = None,
+    seed: int | None = None,
+    device: str | torch.device = "cpu",
+    resume: bool = False,
+    on_step: Callable[[int, int, dict], None] | None = None,
+) -> RunSummary:
     """Learn θ for ``preset`` into ``run_dir`` (see ``design.rundir`` for its files).
 
     ``steps``/``seed`` override the preset's; ``resume`` continues from the newest checkpoint in
@@ -323,9 +381,9 @@ class _Session:
     frequency: float
     windows: Windows  # follows the light; its plan grows when the light or the lens outgrows it (saved in checkpoints)
     notes: list[str]
-    band_filter: LearnedFilter | None = None   # the filter learned with θ ([filter] learn = true)
-    incidence: float = 1.0                     # its bands' blue shift over the cone (analysis.bands)
-    throughput: torch.Tensor | None = None     # (3,) the preset filter's share of the light, with shot noise
+    band_filter: LearnedFilter | None = None  # the filter learned with θ ([filter] learn = true)
+    incidence: float = 1.0  # its bands' blue shift over the cone (analysis.bands)
+    throughput: torch.Tensor | None = None  # (3,) the preset filter's share of the light, with shot noise
 
 
 def _session(preset, ctx) -> _Session:
@@ -336,13 +394,27 @@ def _session(preset, ctx) -> _Session:
     band_filter = _filter_start(preset, incidence, notes)
     groups = [{"params": list(model.parameters())}]
     if band_filter is not None:
-        groups.append({"params": list(band_filter.parameters()), "lr": preset.filter.learning_rate, "weight_decay": 0.0})
+        groups.append(
+            {"params": list(band_filter.parameters()), "lr": preset.filter.learning_rate, "weight_decay": 0.0}
+        )
     optimizer = torch.optim.AdamW(groups, lr=o.learning_rate, weight_decay=o.weight_decay)
     sensitivity = spectral_source(preset, band_filter)
     windows = plan_windows(preset, sensitivity)
-    return _Session(model, optimizer, _scheduler(optimizer, o), sensitivity, _features(preset, notes),
-                    _image_pool(preset, windows.margin), ctx.shard(o.batch_size), plan_frequency(preset), windows, notes,
-                    band_filter, incidence, _fixed_throughput(preset))
+    return _Session(
+        model,
+        optimizer,
+        _scheduler(optimizer, o),
+        sensitivity,
+        _features(preset, notes),
+        _image_pool(preset, windows.margin),
+        ctx.shard(o.batch_size),
+        plan_frequency(preset),
+        windows,
+        notes,
+        band_filter,
+        incidence,
+        _fixed_throughput(preset),
+    )
 
 
 def _filter_start(preset, incidence: float, notes: list[str]) -> LearnedFilter | None:
@@ -355,9 +427,11 @@ def _filter_start(preset, incidence: float, notes: list[str]) -> LearnedFilter |
     if preset.filter.split_weight > 0:
         start = make_feasible(band_filter, preset, incidence)
         if start["steps"]:
-            notes.append(f"the starting filter failed the split-spectrum conditions (penalty {start['penalty_before_nm2']:.3g} nm²): "
-                         f"moved to {_bands_text(band_filter)} in {start['steps']} penalty-only steps (penalty "
-                         f"{start['penalty_after_nm2']:.3g} nm²) before θ learned")
+            notes.append(
+                f"the starting filter failed the split-spectrum conditions (penalty {start['penalty_before_nm2']:.3g} nm²): "
+                f"moved to {_bands_text(band_filter)} in {start['steps']} penalty-only steps (penalty "
+                f"{start['penalty_after_nm2']:.3g} nm²) before θ learned"
+            )
     return band_filter
 
 
@@ -379,10 +453,16 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> di
             if ctx.device.type == "cuda":
                 torch.cuda.synchronize(ctx.device)
             seconds.append(time.perf_counter() - t0)
-        report = {"steps": steps, "first_step_s": seconds[0], "seconds_per_step": statistics.median(seconds[1:] or seconds),
-                  "seconds_by_stage": timing, "parameters": sum(p.numel() for p in session.model.parameters()),
-                  "windows_px": {"near": row.get("window_near"), "far": row.get("window_far")},
-                  "device": str(ctx.device), "threads": torch.get_num_threads()}
+        report = {
+            "steps": steps,
+            "first_step_s": seconds[0],
+            "seconds_per_step": statistics.median(seconds[1:] or seconds),
+            "seconds_by_stage": timing,
+            "parameters": sum(p.numel() for p in session.model.parameters()),
+            "windows_px": {"near": row.get("window_near"), "far": row.get("window_far")},
+            "device": str(ctx.device),
+            "threads": torch.get_num_threads(),
+        }
         if ctx.device.type == "cuda":
             report["peak_memory_bytes"] = torch.cuda.max_memory_allocated(ctx.device)
         return report
@@ -393,7 +473,9 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     ``Checkpoint.restore``) before preset.toml is rewritten, so a refused one changes no file."""
     if resume:
         if not run.preset_path.is_file():
-            raise InputError("--resume", f"{str(run.path)!r} holds no run to resume", "a run directory written by metalens optimize")
+            raise InputError(
+                "--resume", f"{str(run.path)!r} holds no run to resume", "a run directory written by metalens optimize"
+            )
         preset = run.load_preset()
     overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
     preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **overrides))
@@ -449,14 +531,20 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
         learned, filter_report = preset, None
         if session.band_filter is not None:  # checked (and snapped) before anything is written with it
             learned, filter_report = learned_filter(run, preset, session.band_filter)
-        validation = {"draws": 4, "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
-                      "final": validation_loss(model, learned, 4, ctx.device, session.frequency),
-                      "gradient_norms": {"initial": term_gradient_norms(build_model(preset).to(ctx.device), preset, 2, ctx.device,
-                                                                        session.frequency, session.features),
-                                         "final": term_gradient_norms(model, learned, 2, ctx.device, session.frequency,
-                                                                      session.features)}}
-        summary.report = _finish(run, learned, model, summary, grid, timing, session.notes, ctx, validation, session.windows,
-                                 filter_report)
+        validation = {
+            "draws": 4,
+            "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
+            "final": validation_loss(model, learned, 4, ctx.device, session.frequency),
+            "gradient_norms": {
+                "initial": term_gradient_norms(
+                    build_model(preset).to(ctx.device), preset, 2, ctx.device, session.frequency, session.features
+                ),
+                "final": term_gradient_norms(model, learned, 2, ctx.device, session.frequency, session.features),
+            },
+        }
+        summary.report = _finish(
+            run, learned, model, summary, grid, timing, session.notes, ctx, validation, session.windows, filter_report
+        )
     return summary
 
 
@@ -470,9 +558,12 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     try:
         stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
     except SamplingError as error:  # the initial design passed these checks: the learned θ outgrew them
-        raise InputError("optimize.learning_rate", f"at step {step + 1} the learned lens scatters light beyond what the "
-                         f"propagator can sample ({error.message})",
-                         "a smaller learning rate or a smooth θ (theta_basis = \"spline\")") from error
+        raise InputError(
+            "optimize.learning_rate",
+            f"at step {step + 1} the learned lens scatters light beyond what the "
+            f"propagator can sample ({error.message})",
+            'a smaller learning rate or a smooth θ (theta_basis = "spline")',
+        ) from error
     near, far = stack.psfs
     margin = canvas_margin(near.shape[-1], far.shape[-1])
     t = _lap(timing, "psf", t, ctx.device)
@@ -481,22 +572,39 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     capture = form_image(clean, colour, mask, near, far, margin).obstructed
     if o.photons or o.read_noise:
         light = draw.throughput if draw.throughput is not None else session.throughput
-        capture = add_noise(capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, shard))
+        capture = add_noise(
+            capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, shard)
+        )
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
     sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
     share = len(shard) / o.batch_size
-    loss, parts = training_loss(capture, clean, sensor_psf(far, preset), preset.loss, session.features, image_share=share,
-                                 psf_share=1 / ctx.world, cores_far=far_cores(stack))
+    loss, parts = training_loss(
+        capture,
+        clean,
+        sensor_psf(far, preset),
+        preset.loss,
+        session.features,
+        image_share=share,
+        psf_share=1 / ctx.world,
+        cores_far=far_cores(stack),
+    )
     if session.band_filter is not None:
         # the filter lives on the host; its terms join the loss on the run's device
         parts["split"] = split_penalty(session.band_filter, preset, session.incidence).to(loss.device)
         parts["light"] = session.sensitivity.light_loss(draw.throughput).to(loss.device)
-        loss = loss + (preset.filter.split_weight * parts["split"] + preset.filter.light_weight * parts["light"]).to(loss.dtype) / ctx.world
+        loss = (
+            loss
+            + (preset.filter.split_weight * parts["split"] + preset.filter.light_weight * parts["light"]).to(loss.dtype)
+            / ctx.world
+        )
     t = _lap(timing, "formation_loss", t, ctx.device)
     if not torch.isfinite(loss):
-        raise InputError("optimize.learning_rate", f"training diverged at step {step + 1}: the loss is {float(loss)}",
-                         "a smaller learning rate or loss weights")
+        raise InputError(
+            "optimize.learning_rate",
+            f"training diverged at step {step + 1}: the loss is {float(loss)}",
+            "a smaller learning rate or loss weights",
+        )
     loss.backward()
     t = _lap(timing, "backward", t, ctx.device)
     names = sorted(parts)
@@ -514,15 +622,37 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     _lap(timing, "update", t, ctx.device)
     values = dict(zip(names, reported.tolist()))
     w = preset.loss
-    values["total"] = (w.l1 * values["l1"] + w.ssim * values["ssim"] + w.domain_adaptation * values.get("domain_adaptation", 0.0)
-                       + w.bright * values["bright"] + w.sharp * values["sharp"]
-                       + (preset.filter.split_weight * values["split"] + preset.filter.light_weight * values["light"]
-                          if "split" in values else 0.0))
-    kept = {f"kept_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.kept[i])}
-    held = {f"held_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.held[i])}
-    row = {"step": step + 1, "lr": optimizer.param_groups[0]["lr"], **values, "z_near_m": draw.z_near_m, "z_far_m": draw.z_far_m,
-           "window_near": near.shape[-1], "window_far": far.shape[-1], "plan_window": session.windows.plan, **kept, **held,
-           **(filter_row(session.band_filter) if session.band_filter is not None else {})}
+    values["total"] = (
+        w.l1 * values["l1"]
+        + w.ssim * values["ssim"]
+        + w.domain_adaptation * values.get("domain_adaptation", 0.0)
+        + w.bright * values["bright"]
+        + w.sharp * values["sharp"]
+        + (
+            preset.filter.split_weight * values["split"] + preset.filter.light_weight * values["light"]
+            if "split" in values
+            else 0.0
+        )
+    )
+    kept = {
+        f"kept_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.kept[i])
+    }
+    held = {
+        f"held_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.held[i])
+    }
+    row = {
+        "step": step + 1,
+        "lr": optimizer.param_groups[0]["lr"],
+        **values,
+        "z_near_m": draw.z_near_m,
+        "z_far_m": draw.z_far_m,
+        "window_near": near.shape[-1],
+        "window_far": far.shape[-1],
+        "plan_window": session.windows.plan,
+        **kept,
+        **held,
+        **(filter_row(session.band_filter) if session.band_filter is not None else {}),
+    }
     return row, stack.grid, sample
 
 
@@ -574,17 +704,28 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
         stack, windows = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
         near, far = stack.psfs
         margin = canvas_margin(near.shape[-1], far.shape[-1])
-        clean, colour, mask = step_batch(preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device)
+        clean, colour, mask = step_batch(
+            preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device
+        )
         capture = form_image(clean, colour, mask, near, far, margin).obstructed
         if o.photons or o.read_noise:
             light = draw.throughput if draw.throughput is not None else fixed
-            capture = add_noise(capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, [0]))
-        yield training_loss(capture, sensor_crop(clean, margin), sensor_psf(far, preset), preset.loss, features,
-                            cores_far=far_cores(stack))
+            capture = add_noise(
+                capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, [0])
+            )
+        yield training_loss(
+            capture,
+            sensor_crop(clean, margin),
+            sensor_psf(far, preset),
+            preset.loss,
+            features,
+            cores_far=far_cores(stack),
+        )
 
 
-def term_gradient_norms(model, preset, draws: int = 4, device="cpu", frequency: float | None = None,
-                        features=None) -> dict[str, float]:
+def term_gradient_norms(
+    model, preset, draws: int = 4, device="cpu", frequency: float | None = None, features=None
+) -> dict[str, float]:
     """‖∂(w_t·L_t)/∂c‖₂ for each weighted loss term t, c the optimiser's parameters (design
     samples or spline coefficients), mean over the ``draws`` fixed validation draws (the whole
     batch each): which terms steer the lens, measured rather than inherited (docs/training.md)."""
@@ -594,7 +735,9 @@ def term_gradient_norms(model, preset, draws: int = 4, device="cpu", frequency: 
     for _, parts in _validation_parts(model, preset, draws, device, frequency, features):
         terms = [t for t in GRADIENT_TERMS if t in parts]
         for i, t in enumerate(terms):
-            grads = torch.autograd.grad(getattr(w, t) * parts[t], params, retain_graph=i < len(terms) - 1, allow_unused=True)
+            grads = torch.autograd.grad(
+                getattr(w, t) * parts[t], params, retain_graph=i < len(terms) - 1, allow_unused=True
+            )
             norm = math.sqrt(sum(float(g.double().pow(2).sum()) for g in grads if g is not None))
             sums[t] = sums.get(t, 0.0) + norm / draws
     return sums
@@ -620,9 +763,16 @@ def _lap(timing: dict, name: str, t: float, device: torch.device) -> float:
 
 def _state(session: _Session, history, step) -> dict:
     learned = {"filter": session.band_filter.state_dict()} if session.band_filter is not None else {}
-    return {"step": step, "model": session.model.state_dict(), **learned, "optimizer": session.optimizer.state_dict(),
-            "scheduler": session.scheduler.state_dict(), "windows": [session.windows.near, session.windows.far, session.windows.plan],
-            "history": history, "rng": "stateless: every draw is a function of (seed, step)"}
+    return {
+        "step": step,
+        "model": session.model.state_dict(),
+        **learned,
+        "optimizer": session.optimizer.state_dict(),
+        "scheduler": session.scheduler.state_dict(),
+        "windows": [session.windows.near, session.windows.far, session.windows.plan],
+        "history": history,
+        "rng": "stateless: every draw is a function of (seed, step)",
+    }
 
 
 def _seconds_per_step(rows: list[dict]) -> float | None:
@@ -648,12 +798,37 @@ def _write_sample(run: RunDirectory, sample: torch.Tensor, step: int) -> None:
     write_png(run.path / "samples" / f"step_{step + 1:06d}.png", linear_to_srgb(np.clip(sample.cpu().numpy(), 0, 1)))
 
 
-def _finish(run: RunDirectory, preset, model, summary: RunSummary, grid: dict, timing: dict, notes: list[str], ctx,
-            validation: dict, windows: Windows, filter_report: dict | None) -> dict:
+def _finish(
+    run: RunDirectory,
+    preset,
+    model,
+    summary: RunSummary,
+    grid: dict,
+    timing: dict,
+    notes: list[str],
+    ctx,
+    validation: dict,
+    windows: Windows,
+    filter_report: dict | None,
+) -> dict:
     """theta, psf.exr, loss.csv/png, theta.png, filter.png and run.json."""
     from metalens_cli.design.report import write_results
 
-    return write_results(run, preset, summary, grid, timing, notes, ctx.world, str(ctx.device), torch.get_num_threads(), validation,
-                         {"planned_px": {"near": windows.near, "far": windows.far, "plan": windows.plan}, "headroom": PLAN_HEADROOM,
-                          "rule": f"each step: the window holding {ENCIRCLED_ENERGY} of each channel's power on the sensor plane"},
-                         filter_report)
+    return write_results(
+        run,
+        preset,
+        summary,
+        grid,
+        timing,
+        notes,
+        ctx.world,
+        str(ctx.device),
+        torch.get_num_threads(),
+        validation,
+        {
+            "planned_px": {"near": windows.near, "far": windows.far, "plan": windows.plan},
+            "headroom": PLAN_HEADROOM,
+            "rule": f"each step: the window holding {ENCIRCLED_ENERGY} of each channel's power on the sensor plane",
+        },
+        filter_report,
+    )

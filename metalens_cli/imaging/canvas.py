@@ -34,7 +34,11 @@ def fit_to_canvas(image: np.ndarray, shape: tuple[int, int], margin: int = 0) ->
         resized = resized[:, :, None]
     resized = np.transpose(resized, (2, 0, 1))
     top, left = (nh - h) // 2 - margin, (nw - w) // 2 - margin  # canvas corner in the resized image
-    pad = [(0, 0), (max(-top, 0), max(top + h + 2 * margin - nh, 0)), (max(-left, 0), max(left + w + 2 * margin - nw, 0))]
+    pad = [
+        (0, 0),
+        (max(-top, 0), max(top + h + 2 * margin - nh, 0)),
+        (max(-left, 0), max(left + w + 2 * margin - nw, 0)),
+    ]
     resized = np.pad(resized, pad, mode="symmetric")
     top, left = max(top, 0), max(left, 0)
-    return np.ascontiguousarray(resized[:, top:top + h + 2 * margin, left:left + w + 2 * margin], dtype=np.float32)
+    return np.ascontiguousarray(resized[:, top : top + h + 2 * margin, left : left + w + 2 * margin], dtype=np.float32)

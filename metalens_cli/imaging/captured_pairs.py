@@ -38,9 +38,9 @@ from metalens_cli.imaging.images import luminance, read_linear
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
-BYTES_PER_PIXEL = 500       # peak memory per pixel of the largest image: float64 SSIM/PSNR copies, the warp
+BYTES_PER_PIXEL = 500  # peak memory per pixel of the largest image: float64 SSIM/PSNR copies, the warp
 SECONDS_PER_PIXEL = 2.5e-6  # per pixel of each capture: registration and scoring, 2 cores
-BASE_MEMORY = 300 << 20     # torch, OpenCV and the interpreter
+BASE_MEMORY = 300 << 20  # torch, OpenCV and the interpreter
 ALIGN_MODES = ("unobstructed", "each", "none")
 _FOLDER = re.compile(r"(recon-)?(unobstructed|obstructed(?:-([A-Za-z0-9_]+))?)")
 LAYOUT = "DIR/gt/NAME.png and DIR/DESIGN/{unobstructed,obstructed[-KIND],recon-unobstructed,recon-obstructed[-KIND]}/NAME.png"
@@ -73,7 +73,9 @@ def read_layout(folder: str | Path) -> PairLayout:
     if not gt:
         raise InputError("--pairs", f"no images in {str(folder / 'gt')!r}", LAYOUT)
     designs, kinds, captures = [], None, {}
-    for design_folder in sorted(p for p in folder.iterdir() if p.is_dir() and p.name != "gt" and not p.name.startswith(".")):
+    for design_folder in sorted(
+        p for p in folder.iterdir() if p.is_dir() and p.name != "gt" and not p.name.startswith(".")
+    ):
         found = {}
         for sub in sorted(p for p in design_folder.iterdir() if p.is_dir()):
             m = _FOLDER.fullmatch(sub.name)
@@ -89,11 +91,17 @@ def read_layout(folder: str | Path) -> PairLayout:
             raise InputError("--pairs", f"{design_folder.name}/ lacks unobstructed/ or obstructed/", LAYOUT)
         missing_recon = [c for c in ("unobstructed", *design_kinds) if ("recon", c) not in found]
         if any(capture == "recon" for capture, _ in found) and missing_recon:
-            raise InputError("--pairs", f"{design_folder.name}/ has recon captures but not for {', '.join(missing_recon)}",
-                             "recon-unobstructed/ and recon-obstructed[-KIND]/ together")
+            raise InputError(
+                "--pairs",
+                f"{design_folder.name}/ has recon captures but not for {', '.join(missing_recon)}",
+                "recon-unobstructed/ and recon-obstructed[-KIND]/ together",
+            )
         if kinds is not None and design_kinds != kinds:
-            raise InputError("--pairs", f"{design_folder.name}/ has obstructions {design_kinds}, another design {kinds}",
-                             "the same obstructed folders for every design")
+            raise InputError(
+                "--pairs",
+                f"{design_folder.name}/ has obstructions {design_kinds}, another design {kinds}",
+                "the same obstructed folders for every design",
+            )
         kinds = design_kinds
         designs.append(design_folder.name)
         captures[design_folder.name] = found
@@ -134,13 +142,21 @@ def images_by_stem(folder: Path, field: str) -> dict[str, Path]:
     for path in sorted(folder.iterdir()):
         if path.suffix.lower() in IMAGE_SUFFIXES and path.is_file():
             if path.stem in out:
-                raise InputError(field, f"{out[path.stem].name} and {path.name} in {folder} name one scene", "one image per scene")
+                raise InputError(
+                    field, f"{out[path.stem].name} and {path.name} in {folder} name one scene", "one image per scene"
+                )
             out[path.stem] = path
     return out
 
 
-def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = DEFAULT_MATCH, align: str = "unobstructed",
-                   refine: str = "flow", on_progress: Callable[[int, int], None] | None = None) -> Evaluation:
+def evaluate_pairs(
+    layout: PairLayout,
+    lpips_model=None,
+    match: str = DEFAULT_MATCH,
+    align: str = "unobstructed",
+    refine: str = "flow",
+    on_progress: Callable[[int, int], None] | None = None,
+) -> Evaluation:
     """Score every capture of ``layout`` against its reference (see the module docstring); the
     result is that of simulated evaluation with ``alignments`` (one report per registration)
     and no ``psfs``."""
@@ -162,9 +178,9 @@ def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = DEFAULT_MA
                 grey_names.append(name)
             aligned = _aligned_captures(layout, design, name, clean, align, refine, out)
             box = _common_box([valid for _, valid in aligned.values()])
-            reference = clean[:, box[0]:box[1], box[2]:box[3]]
+            reference = clean[:, box[0] : box[1], box[2] : box[3]]
             for (capture, condition), (image, _) in aligned.items():
-                crop = image[:, box[0]:box[1], box[2]:box[3]]
+                crop = image[:, box[0] : box[1], box[2] : box[3]]
                 if grey:  # a monochrome reference says nothing of colour: compare luminance only
                     crop = np.repeat(luminance(crop)[None], 3, axis=0)
                 scores[capture, d, condition, 0, index] = score(crop, reference, lpips_model, match)
@@ -175,46 +191,67 @@ def evaluate_pairs(layout: PairLayout, lpips_model=None, match: str = DEFAULT_MA
                     out.panels[design].append((f"{prefix}{condition}", crop))
             for capture in ("raw", "recon") if layout.has_recon(design) else ("raw",):
                 for kind in layout.kinds:
-                    out.units.append({"design": design, "capture": capture, "obstruction": kind, "seed": None, "image": name,
-                                      "unobstructed": scores[capture, d, "unobstructed", 0, index],
-                                      "obstructed": scores[capture, d, kind, 0, index]})
+                    out.units.append(
+                        {
+                            "design": design,
+                            "capture": capture,
+                            "obstruction": kind,
+                            "seed": None,
+                            "image": name,
+                            "unobstructed": scores[capture, d, "unobstructed", 0, index],
+                            "obstructed": scores[capture, d, kind, 0, index],
+                        }
+                    )
             if on_progress is not None:
                 on_progress(d * len(layout.names) + index + 1, total)
     if grey_names:
-        out.warnings.append(f"{len(grey_names)} greyscale reference(s) ({', '.join(grey_names[:3])}{', …' if len(grey_names) > 3 else ''}): "
-                            "their captures are compared in luminance (Rec. 709 Y of linear RGB)")
+        out.warnings.append(
+            f"{len(grey_names)} greyscale reference(s) ({', '.join(grey_names[:3])}{', …' if len(grey_names) > 3 else ''}): "
+            "their captures are compared in luminance (Rec. 709 Y of linear RGB)"
+        )
     recon = [layout.has_recon(design) or None for design in layout.designs]
     summarise(out, layout.designs, recon, layout.kinds, [0], len(layout.names), metrics, scores)
     warn_few_units(out, len(layout.names), f"{len(layout.names)} scene(s)", "capture more scenes")
     return out
 
 
-def _aligned_captures(layout: PairLayout, design: str, name: str, clean: np.ndarray, align: str, refine: str,
-                      out: Evaluation) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
+def _aligned_captures(
+    layout: PairLayout, design: str, name: str, clean: np.ndarray, align: str, refine: str, out: Evaluation
+) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
     """(capture, condition) → (aligned (3, H, W) linear capture on the reference grid, valid mask)."""
     from metalens_cli.imaging.registration import register
 
     reference = np.transpose(clean, (1, 2, 0))
     shared, registered = None, None
     aligned = {}
-    for key, paths in sorted(layout.captures[design].items(), key=lambda item: (item[0][0] != "raw", item[0][1] != "unobstructed")):
+    for key, paths in sorted(
+        layout.captures[design].items(), key=lambda item: (item[0][0] != "raw", item[0][1] != "unobstructed")
+    ):
         path = paths[name]
         image = read_linear(path, f"--pairs: {path}")
         if align == "none":
             if image.shape != clean.shape:
-                raise InputError(f"--pairs: {path}", f"is {image.shape[2]} × {image.shape[1]} pixels, "
-                                 f"its gt {clean.shape[2]} × {clean.shape[1]}", "captures of the reference's size with --align none")
+                raise InputError(
+                    f"--pairs: {path}",
+                    f"is {image.shape[2]} × {image.shape[1]} pixels, its gt {clean.shape[2]} × {clean.shape[1]}",
+                    "captures of the reference's size with --align none",
+                )
             aligned[key] = (image, np.ones(clean.shape[1:], bool))
             continue
         if align == "each" or shared is None:
             registration = register(reference, np.transpose(image, (1, 2, 0)), refine=refine, field=f"--pairs: {path}")
-            out.alignments.append({"design": design, "image": name, "capture": key[0], "condition": key[1], **registration.to_report()})
+            out.alignments.append(
+                {"design": design, "image": name, "capture": key[0], "condition": key[1], **registration.to_report()}
+            )
             out.warnings += [f"{design}/{name}: {w}" for w in registration.warnings()]
             shared, registered = registration, path
         elif image.shape[1:] != tuple(shared.target_shape):
-            raise InputError(f"--pairs: {path}", f"is {image.shape[2]} × {image.shape[1]} pixels, the capture whose warp it shares "
-                             f"({registered}) {shared.target_shape[1]} × {shared.target_shape[0]}",
-                             "the captures of one scene and design at one size (one camera), or --align each")
+            raise InputError(
+                f"--pairs: {path}",
+                f"is {image.shape[2]} × {image.shape[1]} pixels, the capture whose warp it shares "
+                f"({registered}) {shared.target_shape[1]} × {shared.target_shape[0]}",
+                "the captures of one scene and design at one size (one camera), or --align each",
+            )
         warped = shared.apply(np.transpose(image, (1, 2, 0)))
         aligned[key] = (np.transpose(warped, (2, 0, 1)), shared.valid_mask())
     return aligned
@@ -227,14 +264,27 @@ def _common_box(masks: list[np.ndarray]) -> tuple[int, int, int, int]:
     top, bottom, left, right = 0, valid.shape[0], 0, valid.shape[1]
     while bottom - top > 16 and right - left > 16:
         box = valid[top:bottom, left:right]
-        counts = [np.count_nonzero(~box[0]), np.count_nonzero(~box[-1]), np.count_nonzero(~box[:, 0]), np.count_nonzero(~box[:, -1])]
+        counts = [
+            np.count_nonzero(~box[0]),
+            np.count_nonzero(~box[-1]),
+            np.count_nonzero(~box[:, 0]),
+            np.count_nonzero(~box[:, -1]),
+        ]
         if max(counts) == 0:
             if box.all():
                 return top, bottom, left, right
-            top, bottom, left, right = top + 1, bottom - 1, left + 1, right - 1  # a hole inside: close in from all sides
+            top, bottom, left, right = (
+                top + 1,
+                bottom - 1,
+                left + 1,
+                right - 1,
+            )  # a hole inside: close in from all sides
             continue
         side = int(np.argmax(counts))
         top, bottom = top + (side == 0), bottom - (side == 1)
         left, right = left + (side == 2), right - (side == 3)
-    raise InputError("--pairs", "the aligned captures share under 16 × 16 pixels with their reference",
-                     "captures that cover their reference")
+    raise InputError(
+        "--pairs",
+        "the aligned captures share under 16 × 16 pixels with their reference",
+        "captures that cover their reference",
+    )

@@ -151,8 +151,14 @@ def _positive_shape(field: str, shape) -> tuple[int, int]:
     return int(shape[0]), int(shape[1])
 
 
-def dead_leaves(shape: tuple[int, int], seed: int, *, sensor_shape: tuple[int, int] | None = None,
-                r_min_px: float = 1.0, r_max_px: float | None = None) -> np.ndarray:
+def dead_leaves(
+    shape: tuple[int, int],
+    seed: int,
+    *,
+    sensor_shape: tuple[int, int] | None = None,
+    r_min_px: float = 1.0,
+    r_max_px: float | None = None,
+) -> np.ndarray:
     """Dead-leaves chart of ``shape`` (H, W): (3, H, W) float32 linear RGB in about 0.02..0.89.
 
     ``seed`` (integer ≥ 0) fixes the chart; radii in pixels, r_max by default a quarter of the
@@ -172,9 +178,13 @@ def dead_leaves(shape: tuple[int, int], seed: int, *, sensor_shape: tuple[int, i
     n = math.ceil(side**2 / (math.pi * mean_r2))  # disks per cell and chunk: mean coverage 1
     ys, xs = np.arange(h) - (h - 1) / 2, np.arange(w) - (w - 1) / 2
     reach = r_max + 0.5
-    cells = np.array([(iy, ix)
-                      for iy in range(math.floor((ys[0] - reach) / side), math.floor((ys[-1] + reach) / side) + 1)
-                      for ix in range(math.floor((xs[0] - reach) / side), math.floor((xs[-1] + reach) / side) + 1)])
+    cells = np.array(
+        [
+            (iy, ix)
+            for iy in range(math.floor((ys[0] - reach) / side), math.floor((ys[-1] + reach) / side) + 1)
+            for ix in range(math.floor((xs[0] - reach) / side), math.floor((xs[-1] + reach) / side) + 1)
+        ]
+    )
     rngs = [np.random.default_rng([int(seed), _zigzag(iy), _zigzag(ix)]) for iy, ix in cells.tolist()]
     transmit, colour = np.ones(h * w), np.zeros((3, h * w))
     for _ in range(MAX_CHUNKS):

@@ -43,7 +43,7 @@ class EvaluationSettings:
     alpha_gain: float | None = None
     photons: float | None = None
     read_noise: float = 0.0
-    photons_before_filter: bool = False   # photons count the light before each design's filter (its throughput passes)
+    photons_before_filter: bool = False  # photons count the light before each design's filter (its throughput passes)
     psf_window: int | None = None
     device: object = "cpu"
 
@@ -86,8 +86,15 @@ def delta(metric: str, unobstructed: float, obstructed: float) -> float:
     return unobstructed - obstructed if metric == "lpips" else obstructed - unobstructed
 
 
-def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSettings, lpips_model=None,
-             on_progress: Callable[[int, int], None] | None = None, reconstructors: list | None = None) -> Evaluation:
+def evaluate(
+    designs,
+    kinds: list[str],
+    seeds: list[int],
+    settings: EvaluationSettings,
+    lpips_model=None,
+    on_progress: Callable[[int, int], None] | None = None,
+    reconstructors: list | None = None,
+) -> Evaluation:
     """Score every design on the same (image, seed) units for every obstruction kind.
 
     ``reconstructors``: one per design, a callable mapping a linear (3, H, W) capture to its
@@ -100,11 +107,26 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
     for d, design in enumerate(designs):
         for seed in seeds:
             z_near, z_far = draw_depths(settings.z_near_interval_m, settings.z_far_interval_m, seed)
-            p = channel_psfs(design, z_near, z_far, settings.wavelengths_m, settings.pixel_pitch_m,
-                             device=settings.device, window=settings.psf_window)
+            p = channel_psfs(
+                design,
+                z_near,
+                z_far,
+                settings.wavelengths_m,
+                settings.pixel_pitch_m,
+                device=settings.device,
+                window=settings.psf_window,
+            )
             psfs[d, seed] = p
-            out.psfs.append({"design": design.spec, "seed": seed, "z_near_m": z_near, "z_far_m": z_far, **p.report(),
-                             "seconds": p.seconds})
+            out.psfs.append(
+                {
+                    "design": design.spec,
+                    "seed": seed,
+                    "z_near_m": z_near,
+                    "z_far_m": z_far,
+                    **p.report(),
+                    "seconds": p.seconds,
+                }
+            )
             out.warnings += [f"{design.spec}, seed {seed}: {w}" for w in p.warnings()]
     photons = [design_photons(design, settings) for design in designs]
     margin = max(p.margin for p in psfs.values())  # one canvas for all: every design sees the same scene
@@ -118,21 +140,44 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
         for seed in seeds:
             obstructions: dict = {}  # generated once, shared by the designs (same seed, depths and canvas)
             for d, design in enumerate(designs):
-                captures = simulate_captures(images, kind, psfs[d, seed], design.focal_length_m, settings.pixel_pitch_m, seed,
-                                             settings.obstruction_params, settings.formation, settings.alpha_gain,
-                                             photons[d], settings.read_noise, obstructions)
+                captures = simulate_captures(
+                    images,
+                    kind,
+                    psfs[d, seed],
+                    design.focal_length_m,
+                    settings.pixel_pitch_m,
+                    seed,
+                    settings.obstruction_params,
+                    settings.formation,
+                    settings.alpha_gain,
+                    photons[d],
+                    settings.read_noise,
+                    obstructions,
+                )
                 for index, c in enumerate(captures):
                     estimates = {"raw": (c.unobstructed, c.obstructed)}
                     if recon[d] is not None:
                         clear_key = ("recon", d, "unobstructed", seed, index)
-                        estimates["recon"] = (None if clear_key in scores else recon[d](c.unobstructed), recon[d](c.obstructed))
+                        estimates["recon"] = (
+                            None if clear_key in scores else recon[d](c.unobstructed),
+                            recon[d](c.obstructed),
+                        )
                     for capture, (clear, obstructed) in estimates.items():
                         key = (capture, d, "unobstructed", seed, index)  # the same for every obstruction kind
                         if key not in scores:
                             scores[key] = score(clear, c.clean, lpips_model, settings.match)
                         scores[capture, d, kind, seed, index] = score(obstructed, c.clean, lpips_model, settings.match)
-                        out.units.append({"design": design.spec, "capture": capture, "obstruction": kind, "seed": seed, "image": c.name,
-                                          "unobstructed": scores[key], "obstructed": scores[capture, d, kind, seed, index]})
+                        out.units.append(
+                            {
+                                "design": design.spec,
+                                "capture": capture,
+                                "obstruction": kind,
+                                "seed": seed,
+                                "image": c.name,
+                                "unobstructed": scores[key],
+                                "obstructed": scores[capture, d, kind, seed, index],
+                            }
+                        )
                         if seed == seeds[0] and index == 0:
                             panels = out.panels[design.spec]
                             if capture == "raw" and not panels:
@@ -142,15 +187,22 @@ def evaluate(designs, kinds: list[str], seeds: list[int], settings: EvaluationSe
                 if on_progress is not None:
                     on_progress(done, total)
     summarise(out, [design.spec for design in designs], recon, kinds, seeds, len(images), metrics, scores)
-    warn_few_units(out, len(images) * len(seeds), f"{len(images)} image(s) × {len(seeds)} seed(s)", "add seeds (--seed 0:4) or images")
+    warn_few_units(
+        out,
+        len(images) * len(seeds),
+        f"{len(images)} image(s) × {len(seeds)} seed(s)",
+        "add seeds (--seed 0:4) or images",
+    )
     return out
 
 
 def warn_few_units(out: Evaluation, units: int, what: str, advice: str) -> None:
     """A warning in ``out`` when a cell has fewer than ``MIN_UNITS`` units."""
     if units < MIN_UNITS:
-        out.warnings.append(f"{units} units per cell ({what}), fewer than {MIN_UNITS}: the confidence intervals are wide "
-                            f"and unreliable; {advice}")
+        out.warnings.append(
+            f"{units} units per cell ({what}), fewer than {MIN_UNITS}: the confidence intervals are wide "
+            f"and unreliable; {advice}"
+        )
 
 
 def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_images: int, metrics, scores) -> None:
@@ -161,22 +213,41 @@ def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_im
 
     exact = sum(1 for value in scores.values() if value["psnr_db"] >= PSNR_CEILING_DB)
     if exact:
-        out.warnings.append(f"{exact} score(s) match their reference exactly; their PSNR is reported as the {PSNR_CEILING_DB:g} dB ceiling")
+        out.warnings.append(
+            f"{exact} score(s) match their reference exactly; their PSNR is reported as the {PSNR_CEILING_DB:g} dB ceiling"
+        )
     units = [(seed, index) for seed in seeds for index in range(n_images)]
-    cells = [(capture, d) for d in range(len(specs)) for capture in ("raw", "recon") if capture == "raw" or recon[d] is not None]
+    cells = [
+        (capture, d)
+        for d in range(len(specs))
+        for capture in ("raw", "recon")
+        if capture == "raw" or recon[d] is not None
+    ]
 
     def values(capture, d, kind, condition, metric):
-        return [scores[(capture, d, "unobstructed" if condition == "unobstructed" else kind, seed, index)][metric]
-                for seed, index in units]
+        return [
+            scores[(capture, d, "unobstructed" if condition == "unobstructed" else kind, seed, index)][metric]
+            for seed, index in units
+        ]
 
     def deltas(capture, d, kind, metric):
-        return [delta(metric, u, o) for u, o in zip(values(capture, d, kind, "unobstructed", metric),
-                                                    values(capture, d, kind, "obstructed", metric))]
+        return [
+            delta(metric, u, o)
+            for u, o in zip(
+                values(capture, d, kind, "unobstructed", metric), values(capture, d, kind, "obstructed", metric)
+            )
+        ]
 
     for kind in kinds:
         for capture, d in cells:
             for condition in CONDITIONS:
-                row = {"design": specs[d], "capture": capture, "obstruction": kind, "condition": condition, "n": len(units)}
+                row = {
+                    "design": specs[d],
+                    "capture": capture,
+                    "obstruction": kind,
+                    "condition": condition,
+                    "n": len(units),
+                }
                 for metric in metrics:
                     stats = mean_ci(values(capture, d, kind, condition, metric), metric=metric)
                     row[metric], row[f"{metric}_ci"] = stats["mean"], stats["ci"]
@@ -187,7 +258,7 @@ def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_im
                 entry[f"delta_{metric}"], entry[f"delta_{metric}_ci"] = stats["mean"], stats["ci"]
             out.deltas.append(entry)
         # design against design on the same kind of capture, and each design's recon against its raw
-        pairs = [(a, b) for i, a in enumerate(cells) for b in cells[i + 1:] if a[0] == b[0] or a[1] == b[1]]
+        pairs = [(a, b) for i, a in enumerate(cells) for b in cells[i + 1 :] if a[0] == b[0] or a[1] == b[1]]
         for (cap_a, a), (cap_b, b) in pairs:
             first_cell, second_cell = ((cap_b, b), (cap_a, a)) if a == b else ((cap_a, a), (cap_b, b))  # recon − raw
             for condition in (*CONDITIONS, "delta"):
@@ -197,7 +268,17 @@ def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_im
                     else:
                         first, second = (values(*cell, kind, condition, metric) for cell in (first_cell, second_cell))
                     stats = paired_difference_ci(first, second, metric=metric)
-                    out.comparisons.append({"design": specs[first_cell[1]], "capture": first_cell[0],
-                                            "versus": specs[second_cell[1]], "versus_capture": second_cell[0],
-                                            "obstruction": kind, "condition": condition, "metric": metric,
-                                            "difference": stats["mean"], "ci": stats["ci"], "n": stats["n"]})
+                    out.comparisons.append(
+                        {
+                            "design": specs[first_cell[1]],
+                            "capture": first_cell[0],
+                            "versus": specs[second_cell[1]],
+                            "versus_capture": second_cell[0],
+                            "obstruction": kind,
+                            "condition": condition,
+                            "metric": metric,
+                            "difference": stats["mean"],
+                            "ci": stats["ci"],
+                            "n": stats["n"],
+                        }
+                    )

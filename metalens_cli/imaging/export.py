@@ -60,7 +60,9 @@ def export_program(reconstructor, path: str | Path, tolerance: float = 1e-5) -> 
         program = torch.export.export(module, (example,), dynamic_shapes={"x": {1: dynamic, 2: dynamic}})
     serialised = io.BytesIO()
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="No complete tensor found")  # channels-last weights: saved whole all the same
+        warnings.filterwarnings(
+            "ignore", message="No complete tensor found"
+        )  # channels-last weights: saved whole all the same
         torch.export.save(program, serialised)
     _write(path, serialised.getbuffer())
     with warnings.catch_warnings():
@@ -73,6 +75,13 @@ def export_program(reconstructor, path: str | Path, tolerance: float = 1e-5) -> 
         with torch.no_grad():
             exported = loaded(torch.from_numpy(capture)).numpy()
         worst = max(worst, float(np.abs(exported - reconstructor(capture)).max()))
-    return {"output": str(path), "bytes": Path(path).stat().st_size, "seconds": time.perf_counter() - start,
-            "checked_sizes": [list(s) for s in CHECK_SIZES], "max_abs_difference": worst, "tolerance": tolerance,
-            "passed": worst <= tolerance, "torch": torch.__version__}
+    return {
+        "output": str(path),
+        "bytes": Path(path).stat().st_size,
+        "seconds": time.perf_counter() - start,
+        "checked_sizes": [list(s) for s in CHECK_SIZES],
+        "max_abs_difference": worst,
+        "tolerance": tolerance,
+        "passed": worst <= tolerance,
+        "torch": torch.__version__,
+    }

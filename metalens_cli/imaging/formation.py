@@ -84,8 +84,11 @@ def _placed(psf: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
 def _transform(psf, sensor_hw) -> PsfTransform:
     if isinstance(psf, PsfTransform):
         if psf.sensor_hw != tuple(sensor_hw):
-            raise InputError("psf", f"transform made for {psf.sensor_hw} images, sensor is {tuple(sensor_hw)}",
-                             "psf_transform(psf, sensor size)")
+            raise InputError(
+                "psf",
+                f"transform made for {psf.sensor_hw} images, sensor is {tuple(sensor_hw)}",
+                "psf_transform(psf, sensor size)",
+            )
         return psf
     return psf_transform(psf, sensor_hw)
 
@@ -93,27 +96,32 @@ def _transform(psf, sensor_hw) -> PsfTransform:
 def _sensor_hw(canvas: torch.Tensor, margin: int) -> tuple[int, int]:
     h, w = (n - 2 * margin for n in canvas.shape[-2:])
     if h < 1 or w < 1:
-        raise InputError("canvas", f"{tuple(canvas.shape[-2:])} pixels with margin {margin}", "a canvas larger than twice its margin")
+        raise InputError(
+            "canvas", f"{tuple(canvas.shape[-2:])} pixels with margin {margin}", "a canvas larger than twice its margin"
+        )
     return h, w
 
 
 def _canvas_spectrum(canvas: torch.Tensor, margin: int, psf: PsfTransform) -> torch.Tensor:
     """rfft2 of ``canvas`` trimmed to the margin ``psf`` needs, on its FFT grid."""
     if margin < psf.margin:
-        raise InputError("canvas margin", f"{margin} pixels, the PSF window needs {psf.margin}",
-                         "a canvas extending past the sensor by N//2 of the PSF window on every side")
+        raise InputError(
+            "canvas margin",
+            f"{margin} pixels, the PSF window needs {psf.margin}",
+            "a canvas extending past the sensor by N//2 of the PSF window on every side",
+        )
     trim = margin - psf.margin
     h, w = psf.sensor_hw
     if trim:
-        canvas = canvas[..., trim:trim + h + 2 * psf.margin, trim:trim + w + 2 * psf.margin]
+        canvas = canvas[..., trim : trim + h + 2 * psf.margin, trim : trim + w + 2 * psf.margin]
     return torch.fft.rfft2(canvas, s=psf.fft_shape)
 
 
 def _kept(product: torch.Tensor, psf: PsfTransform) -> torch.Tensor:
     """Inverse transform of ``product`` restricted to the sensor crop (rows first: only the kept rows)."""
     h, w = psf.sensor_hw
-    rows = torch.fft.ifft(product, dim=-2)[..., psf.margin:psf.margin + h, :]
-    return torch.fft.irfft(rows, n=psf.fft_shape[1], dim=-1)[..., psf.margin:psf.margin + w]
+    rows = torch.fft.ifft(product, dim=-2)[..., psf.margin : psf.margin + h, :]
+    return torch.fft.irfft(rows, n=psf.fft_shape[1], dim=-1)[..., psf.margin : psf.margin + w]
 
 
 def convolve(canvas: torch.Tensor, psf, margin: int) -> torch.Tensor:
@@ -170,7 +178,9 @@ def form_image(
     emitted = obstruction * mask if formation == "physical" else obstruction
     # one batched transform of [I_obs or m ⊙ I_obs, m]; the mask's spectrum meets each channel's PSF
     f = _canvas_spectrum(torch.cat([emitted, mask], dim=-3), margin, near)
-    planes = _kept(torch.cat([f[..., :channels, :, :] * near.spectrum, f[..., channels:, :, :] * near.spectrum], dim=-3), near)
+    planes = _kept(
+        torch.cat([f[..., :channels, :, :] * near.spectrum, f[..., channels:, :, :] * near.spectrum], dim=-3), near
+    )
     near_light, blurred_mask = planes.split(channels, dim=-3)
     alpha = coverage_alpha(blurred_mask, alpha_gain)
     unobstructed = _kept(_canvas_spectrum(clean, margin, far) * far.spectrum, far)

@@ -47,19 +47,72 @@ class Photograph:
 
 
 PHOTOGRAPHS = (
-    Photograph("astronaut", "skimage", "data/astronaut.png", "Eileen Collins, NASA portrait (scikit-image sample data)",
-               "public domain", (512, 512)),
-    Photograph("chelsea", "skimage", "data/chelsea.png", "Stéfan van der Walt, a cat (scikit-image)", "CC0", (300, 451)),
-    Photograph("coffee", "skimage", "data/coffee.png", "Rachel Michetti, a cup of coffee (scikit-image)", "CC0", (400, 600)),
-    Photograph("rocket", "skimage", "data/rocket.jpg", "SpaceX, DSCOVR launch on Falcon 9 (scikit-image)", "public domain",
-               (427, 640)),
-    Photograph("grace_hopper", "matplotlib", "mpl-data/sample_data/grace_hopper.jpg", "US Navy portrait (matplotlib sample data)",
-               "public domain", (600, 512)),
-    Photograph("camera", "skimage", "data/camera.png", "Lav Varshney, a photographer outdoors (scikit-image)", "CC0",
-               (512, 512), colour=False),
-    Photograph("brick", "skimage", "data/brick.png", "CC0Textures Bricks25, a brick wall (scikit-image)", "CC0", (512, 512), colour=False),
-    Photograph("grass", "skimage", "data/grass.png", "linolafett on DeviantArt, grass (scikit-image)", "CC0", (512, 512), colour=False),
-    Photograph("gravel", "skimage", "data/gravel.png", "CC0Textures Gravel04, gravel (scikit-image)", "CC0", (512, 512), colour=False),
+    Photograph(
+        "astronaut",
+        "skimage",
+        "data/astronaut.png",
+        "Eileen Collins, NASA portrait (scikit-image sample data)",
+        "public domain",
+        (512, 512),
+    ),
+    Photograph(
+        "chelsea", "skimage", "data/chelsea.png", "Stéfan van der Walt, a cat (scikit-image)", "CC0", (300, 451)
+    ),
+    Photograph(
+        "coffee", "skimage", "data/coffee.png", "Rachel Michetti, a cup of coffee (scikit-image)", "CC0", (400, 600)
+    ),
+    Photograph(
+        "rocket",
+        "skimage",
+        "data/rocket.jpg",
+        "SpaceX, DSCOVR launch on Falcon 9 (scikit-image)",
+        "public domain",
+        (427, 640),
+    ),
+    Photograph(
+        "grace_hopper",
+        "matplotlib",
+        "mpl-data/sample_data/grace_hopper.jpg",
+        "US Navy portrait (matplotlib sample data)",
+        "public domain",
+        (600, 512),
+    ),
+    Photograph(
+        "camera",
+        "skimage",
+        "data/camera.png",
+        "Lav Varshney, a photographer outdoors (scikit-image)",
+        "CC0",
+        (512, 512),
+        colour=False,
+    ),
+    Photograph(
+        "brick",
+        "skimage",
+        "data/brick.png",
+        "CC0Textures Bricks25, a brick wall (scikit-image)",
+        "CC0",
+        (512, 512),
+        colour=False,
+    ),
+    Photograph(
+        "grass",
+        "skimage",
+        "data/grass.png",
+        "linolafett on DeviantArt, grass (scikit-image)",
+        "CC0",
+        (512, 512),
+        colour=False,
+    ),
+    Photograph(
+        "gravel",
+        "skimage",
+        "data/gravel.png",
+        "CC0Textures Gravel04, gravel (scikit-image)",
+        "CC0",
+        (512, 512),
+        colour=False,
+    ),
 )
 
 
@@ -122,8 +175,11 @@ def photograph_path(photo: Photograph) -> Path:
     spec = importlib.util.find_spec(photo.package)
     path = Path(spec.submodule_search_locations[0]) / photo.path if spec and spec.submodule_search_locations else None
     if path is None or not path.is_file():
-        raise InputError("--images", f"photos: {photo.name} is not in the installed {photo.package}",
-                         f"an installed {photo.package} that ships {photo.path} (pip install metalens's dependencies), or a folder")
+        raise InputError(
+            "--images",
+            f"photos: {photo.name} is not in the installed {photo.package}",
+            f"an installed {photo.package} that ships {photo.path} (pip install metalens's dependencies), or a folder",
+        )
     return path
 
 
@@ -142,7 +198,9 @@ def _load(path: Path, shape, margin: int, name: str | None = None) -> CleanImage
     return CleanImage(name or path.stem, np.asarray(linear, dtype=np.float32), margin)
 
 
-def load_images(source: str | Path, shape: tuple[int, int], limit: int | None = None, margin: int = 0) -> list[CleanImage]:
+def load_images(
+    source: str | Path, shape: tuple[int, int], limit: int | None = None, margin: int = 0
+) -> list[CleanImage]:
     """Clean images for an H × W sensor on a canvas of ``margin`` pixels (``imaging.canvas``):
     a named set (:data:`SETS`), a folder (sorted by name) or one file; at most ``limit``."""
     return [_entry_image(entry, shape, margin) for entry in image_entries(source, limit)]

@@ -29,8 +29,13 @@ MIN_PIXELS = 31  # smallest H, W for which AlexNet's fifth ReLU is at least 1 ×
 
 # (state-dict index, in channels, out channels, kernel, stride, padding) of AlexNet's convolutions;
 # a ReLU follows each, max-pooling (3, stride 2) fills the gaps in the indices (after the first two ReLUs).
-_CONVS = ((0, 3, 64, 11, 4, 2), (3, 64, 192, 5, 1, 2), (6, 192, 384, 3, 1, 1), (8, 384, 256, 3, 1, 1),
-          (10, 256, 256, 3, 1, 1))
+_CONVS = (
+    (0, 3, 64, 11, 4, 2),
+    (3, 64, 192, 5, 1, 2),
+    (6, 192, 384, 3, 1, 1),
+    (8, 384, 256, 3, 1, 1),
+    (10, 256, 256, 3, 1, 1),
+)
 _SHIFT = (-0.030, -0.088, -0.188)  # LPIPS v0.1 scaling layer, on -1..1 inputs
 _SCALE = (0.458, 0.448, 0.450)
 _EPS = 1e-10
@@ -80,8 +85,11 @@ def find_lpips_weights(directory: str | os.PathLike | None = None) -> tuple[Lpip
     if directory is not None:
         found = _complete(Path(directory))
         if found is None:
-            missing = ", ".join(p.name for p in LpipsWeights(Path(directory) / ALEXNET_FILE, Path(directory) / LIN_FILE)
-                                if not p.is_file())
+            missing = ", ".join(
+                p.name
+                for p in LpipsWeights(Path(directory) / ALEXNET_FILE, Path(directory) / LIN_FILE)
+                if not p.is_file()
+            )
             raise InputError("--lpips-weights", f"{directory} lacks {missing}", expected)
         return found, None
     looked = []
@@ -97,10 +105,14 @@ def find_lpips_weights(directory: str | os.PathLike | None = None) -> tuple[Lpip
     package_lin = _lpips_package_lin()
     if hub_alexnet.is_file() and package_lin is not None:
         return LpipsWeights(hub_alexnet, package_lin), None
-    looked.append(f"{hub_alexnet} {'present' if hub_alexnet.is_file() else 'absent'}, "
-                  f"lpips package's weights/v0.1/{LIN_FILE} {'absent' if package_lin is None else 'present'}")
-    return None, (f"LPIPS skipped, no weights found ({'; '.join(looked)}); nothing is downloaded: pass --lpips-weights "
-                  f"or set ${ENV_VAR} to {expected}")
+    looked.append(
+        f"{hub_alexnet} {'present' if hub_alexnet.is_file() else 'absent'}, "
+        f"lpips package's weights/v0.1/{LIN_FILE} {'absent' if package_lin is None else 'present'}"
+    )
+    return None, (
+        f"LPIPS skipped, no weights found ({'; '.join(looked)}); nothing is downloaded: pass --lpips-weights "
+        f"or set ${ENV_VAR} to {expected}"
+    )
 
 
 def _load_state(path: Path, expected: dict, what: str) -> dict:
@@ -148,7 +160,7 @@ class Lpips(nn.Module):
         self.register_buffer("scale", torch.tensor(_SCALE).view(1, 3, 1, 1))
 
     @classmethod
-    def from_files(cls, alexnet_path: str | os.PathLike, lin_path: str | os.PathLike) -> "Lpips":
+    def from_files(cls, alexnet_path: str | os.PathLike, lin_path: str | os.PathLike) -> Lpips:
         """Load torchvision's AlexNet state dict and the lpips v0.1 ``alex.pth`` (CPU, float32).
 
         Raises :class:`InputError` naming the file when a key is missing or has the wrong shape.
@@ -167,7 +179,7 @@ class Lpips(nn.Module):
         return model.eval()
 
     @classmethod
-    def load(cls, directory: str | os.PathLike | None = None) -> "Lpips | None":
+    def load(cls, directory: str | os.PathLike | None = None) -> Lpips | None:
         """:func:`find_lpips_weights` then :meth:`from_files`; None when no weights are found."""
         paths, _ = find_lpips_weights(directory)
         return None if paths is None else cls.from_files(paths.alexnet, paths.lin)
@@ -199,9 +211,13 @@ def lpips_distance(model: Lpips, x: torch.Tensor, y: torch.Tensor) -> torch.Tens
     for evaluation).
     """
     if x.shape != y.shape or x.ndim not in (3, 4) or x.shape[-3] != 3:
-        raise InputError("images", f"shapes {tuple(x.shape)} and {tuple(y.shape)}", "equal (3, H, W) or (B, 3, H, W) shapes")
+        raise InputError(
+            "images", f"shapes {tuple(x.shape)} and {tuple(y.shape)}", "equal (3, H, W) or (B, 3, H, W) shapes"
+        )
     if min(x.shape[-2:]) < MIN_PIXELS:
-        raise InputError("images", f"{tuple(x.shape[-2:])} pixels", f"images at least {MIN_PIXELS} × {MIN_PIXELS} for LPIPS")
+        raise InputError(
+            "images", f"{tuple(x.shape[-2:])} pixels", f"images at least {MIN_PIXELS} × {MIN_PIXELS} for LPIPS"
+        )
     p = model.shift
     single = x.ndim == 3
     x, y = (t.to(dtype=p.dtype, device=p.device).reshape(-1, *t.shape[-3:]) for t in (x, y))

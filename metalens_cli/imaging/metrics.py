@@ -22,7 +22,6 @@ LPIPS (:mod:`metalens_cli.imaging.lpips`) needs network weights that this packag
 
 from __future__ import annotations
 
-
 import torch
 
 from metalens_cli.errors import InputError
@@ -40,7 +39,9 @@ def psnr(estimate: torch.Tensor, reference: torch.Tensor, data_range: float = 1.
     return 10 * torch.log10(data_range**2 / mse)
 
 
-def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=torch.float64, device="cpu") -> torch.Tensor:
+def gaussian_window(
+    size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=torch.float64, device="cpu"
+) -> torch.Tensor:
     """Normalised 1-D Gaussian of ``size`` taps."""
     x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
@@ -54,12 +55,19 @@ def _filter(x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.conv2d(x, g.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
 
 
-def ssim(estimate: torch.Tensor, reference: torch.Tensor, data_range: float = 1.0, window: int = SSIM_WINDOW,
-         sigma: float = SSIM_SIGMA) -> torch.Tensor:
+def ssim(
+    estimate: torch.Tensor,
+    reference: torch.Tensor,
+    data_range: float = 1.0,
+    window: int = SSIM_WINDOW,
+    sigma: float = SSIM_SIGMA,
+) -> torch.Tensor:
     """Mean SSIM (Wang et al. 2004: Gaussian window 11 taps, σ 1.5, K1 0.01, K2 0.03), over
     'valid' window positions (no padding) and channels; one value per leading batch entry."""
     if estimate.shape != reference.shape or estimate.ndim < 3:
-        raise InputError("images", f"shapes {tuple(estimate.shape)} and {tuple(reference.shape)}", "equal (..., C, H, W) shapes")
+        raise InputError(
+            "images", f"shapes {tuple(estimate.shape)} and {tuple(reference.shape)}", "equal (..., C, H, W) shapes"
+        )
     if min(estimate.shape[-2:]) < window:
         raise InputError("images", f"{tuple(estimate.shape[-2:])} pixels", f"images at least {window} × {window}")
     lead = estimate.shape[:-3]
@@ -90,8 +98,11 @@ def photometric_match(estimate: torch.Tensor, reference: torch.Tensor, method: s
     dims = (-3, -2, -1)
     if method == "luminance":
         if estimate.shape[-3] != 3 or reference.shape[-3] != 3:
-            raise InputError("photometric match", f"{estimate.shape[-3]} and {reference.shape[-3]} channels",
-                             "RGB images (3 channels) for the luminance match")
+            raise InputError(
+                "photometric match",
+                f"{estimate.shape[-3]} and {reference.shape[-3]} channels",
+                "RGB images (3 channels) for the luminance match",
+            )
         w = torch.tensor(LUMA_709, dtype=estimate.dtype, device=estimate.device).view(3, 1, 1)
         x, y = (estimate * w).sum(-3, keepdim=True), (reference * w).sum(-3, keepdim=True)
     elif method == "lstsq":

@@ -54,8 +54,13 @@ class NetworkShape:
 
     def __post_init__(self):
         """ValueError for sizes no network has (a foreign or damaged model file's)."""
-        counts = {"width": (self.width, 1), "depth": (self.depth, 0), "frequencies": (self.frequencies, 0),
-                  "reduction": (self.reduction, 1), "spectral_bins": (self.spectral_bins, 0)}
+        counts = {
+            "width": (self.width, 1),
+            "depth": (self.depth, 0),
+            "frequencies": (self.frequencies, 0),
+            "reduction": (self.reduction, 1),
+            "spectral_bins": (self.spectral_bins, 0),
+        }
         for name, (value, least) in counts.items():
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
                 raise ValueError(f"{name} {value!r} is not an integer ≥ {least}")
@@ -68,8 +73,16 @@ class NetworkShape:
         return 3 + 1 + 1 + 4 * self.frequencies
 
 
-def pixel_positions(height: int, width: int, top: int = 0, left: int = 0, full: tuple[int, int] | None = None,
-                    scale: float = 1.0, dtype=torch.float32, device="cpu") -> torch.Tensor:
+def pixel_positions(
+    height: int,
+    width: int,
+    top: int = 0,
+    left: int = 0,
+    full: tuple[int, int] | None = None,
+    scale: float = 1.0,
+    dtype=torch.float32,
+    device="cpu",
+) -> torch.Tensor:
     """(2, height, width) positions (x, y) in units of ``scale`` pixels from the centre of the
     ``full`` (H, W) image (default: this one) for a window whose top-left pixel is (top, left)."""
     full_h, full_w = full or (height, width)
@@ -80,7 +93,7 @@ def pixel_positions(height: int, width: int, top: int = 0, left: int = 0, full: 
 
 def input_planes(x: torch.Tensor, positions: torch.Tensor, frequencies: int) -> torch.Tensor:
     """(B, 5 + 4F, H, W): capture, luminance-gradient magnitude, over-exposure mask, encodings."""
-    luma = sum(w * x[:, c:c + 1] for c, w in enumerate(LUMA_709))
+    luma = sum(w * x[:, c : c + 1] for c, w in enumerate(LUMA_709))
     gx = F.pad(luma[..., :, 1:] - luma[..., :, :-1], (0, 1, 0, 0))
     gy = F.pad(luma[..., 1:, :] - luma[..., :-1, :], (0, 0, 0, 1))
     gradient = torch.sqrt(gx * gx + gy * gy + 1e-12)
@@ -118,7 +131,7 @@ class SpectralFilter(nn.Module):
         g = GAIN_SCALE * self.gain.to(x.dtype)
         response = 1 + g[:, lo] * (1 - frac) + g[:, lo + 1] * frac
         out = torch.fft.irfft2(torch.fft.rfft2(padded) * response, s=(ph, pw))
-        return out[..., p:p + h, p:p + w]
+        return out[..., p : p + h, p : p + w]
 
 
 class Cbam(nn.Module):
@@ -131,7 +144,9 @@ class Cbam(nn.Module):
         self.spatial = nn.Conv2d(2, 1, kernel, padding=kernel // 2)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = x * torch.sigmoid(self.mlp(x.mean(dim=(-2, -1), keepdim=True)) + self.mlp(x.amax(dim=(-2, -1), keepdim=True)))
+        x = x * torch.sigmoid(
+            self.mlp(x.mean(dim=(-2, -1), keepdim=True)) + self.mlp(x.amax(dim=(-2, -1), keepdim=True))
+        )
         pooled = torch.cat([x.mean(dim=1, keepdim=True), x.amax(dim=1, keepdim=True)], dim=1)
         return x * torch.sigmoid(self.spatial(pooled))
 
@@ -161,8 +176,9 @@ class ReconstructionNet(nn.Module):
         w, r = shape.width, shape.reduction
         self.spectral = SpectralFilter(3, shape.spectral_bins) if shape.spectral_bins else None
         channels = [w * 2**k for k in range(shape.depth + 1)]
-        self.encoder = nn.ModuleList([_Level(shape.input_channels, w, r)] +
-                                     [_Level(channels[k], channels[k + 1], r) for k in range(shape.depth)])
+        self.encoder = nn.ModuleList(
+            [_Level(shape.input_channels, w, r)] + [_Level(channels[k], channels[k + 1], r) for k in range(shape.depth)]
+        )
         self.down = nn.ModuleList([nn.Conv2d(c, c, 3, stride=2, padding=1) for c in channels[:-1]])
         self.up = nn.ModuleList([nn.Conv2d(channels[k + 1], channels[k], 1) for k in range(shape.depth)])
         self.decoder = nn.ModuleList([_Level(2 * channels[k], channels[k], r) for k in range(shape.depth)])
@@ -191,6 +207,8 @@ class ReconstructionNet(nn.Module):
         for k in reversed(range(self.shape.depth)):
             # the 1 × 1 convolution before the upsampling: both are linear and bilinear weights sum to
             # one, so the order changes nothing but the cost (a quarter of the pixels, half the channels)
-            features = F.interpolate(self.up[k](features), size=skips[k].shape[-2:], mode="bilinear", align_corners=False)
+            features = F.interpolate(
+                self.up[k](features), size=skips[k].shape[-2:], mode="bilinear", align_corners=False
+            )
             features = self.decoder[k](torch.cat([features, skips[k]], dim=1))
         return base + self.head(features)

@@ -58,6 +58,8 @@ def fractal_noise(shape: tuple[int, int], cell_px: float, octaves: int, rng: np.
         total += 0.5**k * perlin(coarse, cell_px / 2**k / step, rng)
     if step > 1:
         # corner-aligned resize: coarse sample i sits at pixel i·step
-        total = cv2.resize(total, ((coarse[1] - 1) * step + 1, (coarse[0] - 1) * step + 1), interpolation=cv2.INTER_LINEAR)
+        total = cv2.resize(
+            total, ((coarse[1] - 1) * step + 1, (coarse[0] - 1) * step + 1), interpolation=cv2.INTER_LINEAR
+        )
     total = total[:h, :w]
     return total / max(np.abs(total).max(), 1e-12)

@@ -53,7 +53,7 @@ class Obstruction:
         return float(self.sensor_mask.mean())
 
 
-MIN_FEATURE_PX = 0.05       # finer obstruction features than this alias into noise
+MIN_FEATURE_PX = 0.05  # finer obstruction features than this alias into noise
 MAX_FEATURE_CANVASES = 100  # coarser than this many canvas widths: uniform, and costly to draw
 
 
@@ -90,7 +90,9 @@ def dirt(shape, scale_px: float, rng: np.random.Generator, p: ObstructionConfig)
     return brown * shade[None], mask, {"target_coverage": target, "cell_px": scale_px}
 
 
-def fence(shape, pitch_px: float, width_px: float, angle_deg: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, dict]:
+def fence(
+    shape, pitch_px: float, width_px: float, angle_deg: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """Two families of periodic wires at ±angle, random phase; anti-aliased (1-pixel soft) edges."""
     h, w = shape
     y, x = np.mgrid[0:h, 0:w].astype(float)
@@ -102,7 +104,11 @@ def fence(shape, pitch_px: float, width_px: float, angle_deg: float, rng: np.ran
         wire = np.clip(width_px / 2 - distance + 0.5, 0, 1)
         mask = 1 - (1 - mask) * (1 - wire)
     grey = 0.12 + 0.04 * np.cos(np.linspace(0, 2 * math.pi, w))[None, :]  # slight metallic shading
-    return np.broadcast_to(grey, shape)[None].repeat(3, 0), mask, {"pitch_px": pitch_px, "width_px": width_px, "angle_deg": angle_deg}
+    return (
+        np.broadcast_to(grey, shape)[None].repeat(3, 0),
+        mask,
+        {"pitch_px": pitch_px, "width_px": width_px, "angle_deg": angle_deg},
+    )
 
 
 def _disks(shape, radius_px: tuple[float, float], coverage: float, rng: np.random.Generator):
@@ -192,9 +198,12 @@ def make_obstruction(
     def px(size_m):
         size = pixels_from_metres(size_m, focal_length_m, depth_m, pixel_pitch_m)
         if not MIN_FEATURE_PX <= size <= MAX_FEATURE_CANVASES * max(shape):
-            raise InputError("--z-near", f"a {size_m * 1e3:g} mm {spec} feature at {depth_m * 1e3:g} mm spans {size:.3g} pixels "
-                             f"(f {focal_length_m * 1e3:g} mm, pitch {pixel_pitch_m * 1e6:g} µm)",
-                             f"a geometry where obstruction features span {MIN_FEATURE_PX}-{MAX_FEATURE_CANVASES} canvases of pixels")
+            raise InputError(
+                "--z-near",
+                f"a {size_m * 1e3:g} mm {spec} feature at {depth_m * 1e3:g} mm spans {size:.3g} pixels "
+                f"(f {focal_length_m * 1e3:g} mm, pitch {pixel_pitch_m * 1e6:g} µm)",
+                f"a geometry where obstruction features span {MIN_FEATURE_PX}-{MAX_FEATURE_CANVASES} canvases of pixels",
+            )
         return size
 
     if spec == "dirt":
@@ -224,7 +233,9 @@ def parse_obstructions(text: str) -> list[str]:
     for spec in specs:
         if spec.startswith("file:"):
             if not Path(spec[5:]).is_file():
-                raise InputError("--obstruction", f"no such file {spec[5:]!r}", "file:PATH.png with an existing RGBA image")
+                raise InputError(
+                    "--obstruction", f"no such file {spec[5:]!r}", "file:PATH.png with an existing RGBA image"
+                )
         elif spec not in KINDS:
             raise InputError("--obstruction", f"unknown obstruction {spec!r}", FORM)
     return specs

@@ -26,7 +26,7 @@ DEFAULT_WAVELENGTHS = "400:700:5nm"
 
 
 KEPT_WARNING = 0.99  # warn when a PSF window holds less of the light than this
-MAX_WINDOW = 4097    # PSF windows (pixels) stop growing here; the kept fractions then tell what they lose
+MAX_WINDOW = 4097  # PSF windows (pixels) stop growing here; the kept fractions then tell what they lose
 
 
 @dataclass
@@ -51,15 +51,20 @@ class ChannelPsfs:
 
     def report(self) -> dict:
         """JSON-ready windows and kept fractions per depth and channel."""
-        return {"psf_window_px": {"near": self.near.shape[-1], "far": self.far.shape[-1]},
-                "psf_energy": {"near": dict(zip("RGB", self.kept_near)), "far": dict(zip("RGB", self.kept_far))},
-                **({"psf_held": self.held} if self.held else {})}
+        return {
+            "psf_window_px": {"near": self.near.shape[-1], "far": self.far.shape[-1]},
+            "psf_energy": {"near": dict(zip("RGB", self.kept_near)), "far": dict(zip("RGB", self.kept_far))},
+            **({"psf_held": self.held} if self.held else {}),
+        }
 
     def warnings(self) -> list[str]:
         """One line per (depth, channel) whose window kept less than ``KEPT_WARNING`` of the light."""
-        return [f"{depth} PSF window ({psfs.shape[-1]} px) keeps {k:.3f} of the {c} light (< {KEPT_WARNING})"
-                for depth, psfs, kept in (("near", self.near, self.kept_near), ("far", self.far, self.kept_far))
-                for c, k in zip("RGB", kept) if k < KEPT_WARNING]
+        return [
+            f"{depth} PSF window ({psfs.shape[-1]} px) keeps {k:.3f} of the {c} light (< {KEPT_WARNING})"
+            for depth, psfs, kept in (("near", self.near, self.kept_near), ("far", self.far, self.kept_far))
+            for c, k in zip("RGB", kept)
+            if k < KEPT_WARNING
+        ]
 
 
 def draw_depths(z_near_m: tuple[float, float], z_far_m: tuple[float, float], seed: int) -> tuple[float, float]:
@@ -67,7 +72,9 @@ def draw_depths(z_near_m: tuple[float, float], z_far_m: tuple[float, float], see
     rng = np.random.default_rng([seed, 1])
     near, far = float(rng.uniform(*z_near_m)), float(rng.uniform(*z_far_m))
     if not near < far:
-        raise InputError("--z-near", f"obstruction at {near} m is not in front of the scene at {far} m", "z-near below z-far")
+        raise InputError(
+            "--z-near", f"obstruction at {near} m is not in front of the scene at {far} m", "z-near below z-far"
+        )
     return near, far
 
 
@@ -84,8 +91,16 @@ def channel_weights(design, wavelengths_m):
     return quadrature_weights(sensitivity, np.asarray(wavelengths_m, dtype=float))
 
 
-def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_pitch_m: float,
-                 dtype=torch.float32, device="cpu", window: int | None = None) -> ChannelPsfs:
+def channel_psfs(
+    design,
+    z_near_m: float,
+    z_far_m: float,
+    wavelengths_m,
+    pixel_pitch_m: float,
+    dtype=torch.float32,
+    device="cpu",
+    window: int | None = None,
+) -> ChannelPsfs:
     """Monochromatic PSFs at both depths mixed into R, G, B, each depth in the window that holds
     99.9 % of its light on the sensor plane (``optics.channel_psf``), looked for within the
     window its rays need (``optics.blur.psf_window`` over the wavelengths that matter,
@@ -93,35 +108,71 @@ def channel_psfs(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_p
     ``window`` forces one N × N window for both (the kept fractions then tell what it loses)."""
     from metalens_cli.optics.blur import kept_fraction, psf_window
     from metalens_cli.optics.channel_psf import channel_psf_stack
-    from metalens_cli.optics.sensor import larger_window
     from metalens_cli.optics.psf import compute_psf
+    from metalens_cli.optics.sensor import larger_window
     from metalens_cli.optics.spectra import mix_channels, significant
 
     start = time.perf_counter()
     weights = channel_weights(design, wavelengths_m)
     d = design.focal_length_m
     if window:
-        result = compute_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], window, pixel_pitch_m, d, "auto", dtype, device)
+        result = compute_psf(
+            design.lens, list(wavelengths_m), [z_near_m, z_far_m], window, pixel_pitch_m, d, "auto", dtype, device
+        )
         near, far = mix_channels(result.psf, weights.weights)
         kept = [kept_fraction(p).cpu().tolist() for p in (near, far)]
-        return ChannelPsfs(near, far, z_near_m, z_far_m, kept[0], kept[1], [float(c) for c in weights.coverage],
-                           time.perf_counter() - start)
+        return ChannelPsfs(
+            near,
+            far,
+            z_near_m,
+            z_far_m,
+            kept[0],
+            kept[1],
+            [float(c) for c in weights.coverage],
+            time.perf_counter() - start,
+        )
     used = list(np.asarray(wavelengths_m)[significant(weights.weights)])
     capacity = [psf_window(design.lens, used, [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)]
     while True:
-        stack = channel_psf_stack(design.lens, list(wavelengths_m), [z_near_m, z_far_m], weights.weights, capacity,
-                                  pixel_pitch_m, d, dtype=dtype, device=device)
+        stack = channel_psf_stack(
+            design.lens,
+            list(wavelengths_m),
+            [z_near_m, z_far_m],
+            weights.weights,
+            capacity,
+            pixel_pitch_m,
+            d,
+            dtype=dtype,
+            device=device,
+        )
         if not stack.outgrown.any() or max(capacity) >= MAX_WINDOW:
             break
         capacity = [larger_window(n) if grow else n for n, grow in zip(capacity, stack.outgrown.any(axis=1))]
     near, far = stack.psfs
     held = {depth: dict(zip("RGB", stack.held[i].tolist())) for i, depth in enumerate(("near", "far"))}
-    return ChannelPsfs(near, far, z_near_m, z_far_m, stack.kept[0].tolist(), stack.kept[1].tolist(),
-                       [float(c) for c in weights.coverage], time.perf_counter() - start, held)
+    return ChannelPsfs(
+        near,
+        far,
+        z_near_m,
+        z_far_m,
+        stack.kept[0].tolist(),
+        stack.kept[1].tolist(),
+        [float(c) for c in weights.coverage],
+        time.perf_counter() - start,
+        held,
+    )
 
 
-def estimate_captures(design, z_near_m: float, z_far_m: float, wavelengths_m, pixel_pitch_m: float, pixels: int,
-                      images: int, window: int | None = None) -> tuple[int, float, float]:
+def estimate_captures(
+    design,
+    z_near_m: float,
+    z_far_m: float,
+    wavelengths_m,
+    pixel_pitch_m: float,
+    pixels: int,
+    images: int,
+    window: int | None = None,
+) -> tuple[int, float, float]:
     """(peak bytes, seconds of :func:`channel_psfs`, seconds of :func:`simulate_captures`) for
     ``images`` images of ``pixels``² on the sensor, from the PSF plan (``optics.psf.estimate_psf``) and the
     canvas the windows need: each image's canvas holds about a dozen float32 planes of 3 channels
@@ -132,12 +183,18 @@ def estimate_captures(design, z_near_m: float, z_far_m: float, wavelengths_m, pi
     from metalens_cli.optics.psf import FFT_RATE, estimate_psf
 
     d = design.focal_length_m
-    windows = [window or psf_window(design.lens, list(wavelengths_m), [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)]
+    windows = [
+        window or psf_window(design.lens, list(wavelengths_m), [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)
+    ]
     psf = estimate_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, d)
     canvas = pixels + 2 * canvas_margin(*windows)
     planes = 12 * 3 * canvas**2 * 8
     kept = 6 * 3 * pixels**2 * 4 * images
-    return psf.memory_bytes + planes + kept, psf.seconds, images * 2 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
+    return (
+        psf.memory_bytes + planes + kept,
+        psf.seconds,
+        images * 2 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE,
+    )
 
 
 @dataclass
@@ -154,10 +211,20 @@ class SimulatedCapture:
     alpha_coverage: float = field(default=0.0)
 
 
-def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_length_m: float, pixel_pitch_m: float,
-                      seed: int, params: ObstructionConfig | None = None, formation: str = "physical",
-                      alpha_gain: float | None = None, photons=None,
-                      read_noise: float = 0.0, obstructions: dict | None = None) -> list[SimulatedCapture]:
+def simulate_captures(
+    images,
+    obstruction_spec: str,
+    psfs: ChannelPsfs,
+    focal_length_m: float,
+    pixel_pitch_m: float,
+    seed: int,
+    params: ObstructionConfig | None = None,
+    formation: str = "physical",
+    alpha_gain: float | None = None,
+    photons=None,
+    read_noise: float = 0.0,
+    obstructions: dict | None = None,
+) -> list[SimulatedCapture]:
     """For each clean image (on a canvas whose margin covers ``psfs.margin``): an obstruction on
     the same canvas (seed + image index), the unobstructed capture P̂_far ∗ I_clean and the
     obstructed capture (``imaging.formation``); noise (if any) seeded the same way.
@@ -168,31 +235,57 @@ def simulate_captures(images, obstruction_spec: str, psfs: ChannelPsfs, focal_le
     captures = []
     transforms = None
     dev, dt = psfs.near.device, psfs.near.dtype
-    counts = torch.as_tensor(np.asarray(photons, dtype=float), dtype=dt, device=dev).reshape(-1, 1, 1) if np.ndim(photons) else photons
+    counts = (
+        torch.as_tensor(np.asarray(photons, dtype=float), dtype=dt, device=dev).reshape(-1, 1, 1)
+        if np.ndim(photons)
+        else photons
+    )
     for index, image in enumerate(images):
         start = time.perf_counter()
         sensor = image.sensor.shape[-2:]
         key = (obstruction_spec, seed, index, psfs.z_near_m, focal_length_m)
         obstruction = (obstructions or {}).get(key) or make_obstruction(
-            obstruction_spec, sensor, psfs.z_near_m, focal_length_m, pixel_pitch_m, [seed, index], params, clean=image.linear,
-            margin=image.margin)
+            obstruction_spec,
+            sensor,
+            psfs.z_near_m,
+            focal_length_m,
+            pixel_pitch_m,
+            [seed, index],
+            params,
+            clean=image.linear,
+            margin=image.margin,
+        )
         if obstructions is not None:
             obstructions[key] = obstruction
         if transforms is None or transforms[0].sensor_hw != tuple(sensor):
             transforms = (psf_transform(psfs.near, tuple(sensor)), psf_transform(psfs.far, tuple(sensor)))
         with torch.no_grad():
-            capture = form_image(torch.as_tensor(image.linear, dtype=dt, device=dev),
-                                 torch.as_tensor(obstruction.rgb, dtype=dt, device=dev),
-                                 torch.as_tensor(obstruction.mask, dtype=dt, device=dev), *transforms, image.margin,
-                                 formation, alpha_gain)
+            capture = form_image(
+                torch.as_tensor(image.linear, dtype=dt, device=dev),
+                torch.as_tensor(obstruction.rgb, dtype=dt, device=dev),
+                torch.as_tensor(obstruction.mask, dtype=dt, device=dev),
+                *transforms,
+                image.margin,
+                formation,
+                alpha_gain,
+            )
             obstructed, unobstructed = capture.obstructed, capture.unobstructed
             if np.any(photons) or read_noise:
                 obstructed = add_noise(obstructed, counts, read_noise, seed * 1000 + 2 * index)
                 unobstructed = add_noise(unobstructed, counts, read_noise, seed * 1000 + 2 * index + 1)
         alpha = capture.alpha.cpu().numpy().astype(np.float32)
-        captures.append(SimulatedCapture(image.name, image.sensor, obstruction, unobstructed.cpu().numpy().astype(np.float32),
-                                         obstructed.cpu().numpy().astype(np.float32), alpha, time.perf_counter() - start,
-                                         float(alpha.mean())))
+        captures.append(
+            SimulatedCapture(
+                image.name,
+                image.sensor,
+                obstruction,
+                unobstructed.cpu().numpy().astype(np.float32),
+                obstructed.cpu().numpy().astype(np.float32),
+                alpha,
+                time.perf_counter() - start,
+                float(alpha.mean()),
+            )
+        )
     return captures
 
 

@@ -58,9 +58,15 @@ def _channel_weights(design: Design, wavelengths_m, warnings: list[str]):
     coverage = [float(c) for c in weights.coverage]
     for name, value in zip(CHANNELS, coverage):
         if value < COVERAGE_WARNING:
-            warnings.append(f"channel {name}: the scan covers {100 * value:.1f} % of its spectral sensitivity; widen --wavelengths")
-    spectra = {"channels": list(CHANNELS), "camera_response": design.preset.sensor.camera_response,
-               "filter": design.preset.filter is not None, "coverage": coverage}
+            warnings.append(
+                f"channel {name}: the scan covers {100 * value:.1f} % of its spectral sensitivity; widen --wavelengths"
+            )
+    spectra = {
+        "channels": list(CHANNELS),
+        "camera_response": design.preset.sensor.camera_response,
+        "filter": design.preset.filter is not None,
+        "coverage": coverage,
+    }
     return weights.weights, spectra
 
 
@@ -88,8 +94,9 @@ def run_scan(
     groups = [wavelengths_m] if batched else [[w] for w in wavelengths_m]
     parts, result = [], None
     for done, group in enumerate(groups, start=1):
-        result = compute_psf(design.lens, group, depths_m, pixels, pixel_pitch_m, design.focal_length_m,
-                             propagator, dtype, device, force)
+        result = compute_psf(
+            design.lens, group, depths_m, pixels, pixel_pitch_m, design.focal_length_m, propagator, dtype, device, force
+        )
         parts.append(result.psf.detach().to("cpu", torch.float32))
         for stage, seconds in result.timing_s.items():
             timing[stage] = timing.get(stage, 0.0) + seconds
@@ -102,14 +109,30 @@ def run_scan(
         for i, z in enumerate(depths_m)
         for j, w in enumerate(wavelengths_m)
     ]
-    channel_metrics = [] if rgb is None else [
-        {"depth_m": z, "channel": name, **summarize(rgb[i, c], pixel_pitch_m)}
-        for i, z in enumerate(depths_m)
-        for c, name in enumerate(spectra["channels"])
-    ]
+    channel_metrics = (
+        []
+        if rgb is None
+        else [
+            {"depth_m": z, "channel": name, **summarize(rgb[i, c], pixel_pitch_m)}
+            for i, z in enumerate(depths_m)
+            for c, name in enumerate(spectra["channels"])
+        ]
+    )
     timing["total"] = time.perf_counter() - start
-    scan = ScanResult(psf, rgb, list(wavelengths_m), list(depths_m), pixel_pitch_m, result.propagator,
-                      result.grid, timing, metrics, channel_metrics, spectra, warnings=warnings)
+    scan = ScanResult(
+        psf,
+        rgb,
+        list(wavelengths_m),
+        list(depths_m),
+        pixel_pitch_m,
+        result.propagator,
+        result.grid,
+        timing,
+        metrics,
+        channel_metrics,
+        spectra,
+        warnings=warnings,
+    )
     if check_accuracy:
         scan.accuracy = accuracy_report(design, scan, dtype, device, force)
     return scan
@@ -126,16 +149,28 @@ def accuracy_report(design: Design, scan: ScanResult, dtype, device, force: bool
     reference = scan.psf[i, j]
     report = {"depth_m": z, "wavelength_m": w}
     start = time.perf_counter()
-    doubled = compute_psf(design.lens, [w], [z], n, scan.pixel_pitch_m, design.focal_length_m, scan.propagator,
-                          dtype, device, force, oversample=2.0)
+    doubled = compute_psf(
+        design.lens,
+        [w],
+        [z],
+        n,
+        scan.pixel_pitch_m,
+        design.focal_length_m,
+        scan.propagator,
+        dtype,
+        device,
+        force,
+        oversample=2.0,
+    )
     report["doubled_sampling_rel_l2"] = relative_l2(reference, doubled.psf[0, 0].detach().cpu().numpy())
     report["doubled_sampling_seconds"] = time.perf_counter() - start
     if design.lens.radial and scan.propagator != "rs":
         m = min(rs_window, n if n % 2 else n - 1)  # odd: its axis pixel m//2 lines up with n//2
         c, h = n // 2, m // 2
         start = time.perf_counter()
-        exact = compute_psf(design.lens, [w], [z], m, scan.pixel_pitch_m, design.focal_length_m, "rs",
-                            torch.float64, device, force)
+        exact = compute_psf(
+            design.lens, [w], [z], m, scan.pixel_pitch_m, design.focal_length_m, "rs", torch.float64, device, force
+        )
         crop = reference[c - h : c + h + 1, c - h : c + h + 1]
         report["rs_rel_l2"] = relative_l2(crop, exact.psf[0, 0].detach().cpu().numpy())
         report["rs_window_pixels"] = m

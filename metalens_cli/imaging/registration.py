@@ -35,29 +35,29 @@ from metalens_cli.errors import InputError, ResultFailed
 from metalens_cli.imaging.images import LUMA_709
 from metalens_cli.io.warp_files import MAX_SIDE, REFINES, node_positions, read_warp_file, write_warp_file
 
-FEATURE_SIDE = 1024         # features on images downscaled to at most this many pixels a side
-MAX_FEATURES = 4000         # strongest SIFT keypoints kept per image
-RATIO = 0.75                # Lowe's ratio test
-RANSAC_PX = 3.0             # MAGSAC++ threshold, pixels at the target's feature scale
-MIN_MATCHES = 12            # fewer tentative matches, or inliers, fail
+FEATURE_SIDE = 1024  # features on images downscaled to at most this many pixels a side
+MAX_FEATURES = 4000  # strongest SIFT keypoints kept per image
+RATIO = 0.75  # Lowe's ratio test
+RANSAC_PX = 3.0  # MAGSAC++ threshold, pixels at the target's feature scale
+MIN_MATCHES = 12  # fewer tentative matches, or inliers, fail
 MIN_INLIER_FRACTION = 0.15  # fewer inliers per tentative match fail
 WARN_INLIER_FRACTION = 0.4
-WARN_RESIDUAL_PX = 1.0      # RMS inlier residual, pixels at the target's feature scale
-MAX_SCALE = 8.0             # largest linear scale change reference → target (either way)
-MAX_ANISOTROPY = 4.0        # largest ratio of the homography's local stretches
-MIN_OVERLAP = 0.1           # least fraction of the reference the target must cover
+WARN_RESIDUAL_PX = 1.0  # RMS inlier residual, pixels at the target's feature scale
+MAX_SCALE = 8.0  # largest linear scale change reference → target (either way)
+MAX_ANISOTROPY = 4.0  # largest ratio of the homography's local stretches
+MIN_OVERLAP = 0.1  # least fraction of the reference the target must cover
 WARN_OVERLAP = 0.5
-MIN_SPREAD = 0.02           # least fraction of the reference the inliers' convex hull must cover
-FLOW_SIDE = 1024            # flow computed at most at this many pixels a side
-FLOW_SMOOTH_PX = 2.0        # Gaussian σ smoothing the flow, pixels at the flow scale
-NORMALISE_PX = 12.0         # Gaussian σ of the local contrast normalisation, pixels at the flow scale
-FLOW_STEP = 4               # flow node spacing, reference pixels
-TPS_STEP = 16               # thin-plate spline node spacing, reference pixels
-TPS_BINS = 24               # matches binned on a TPS_BINS² grid (median per bin) for the spline
-TPS_REACH = 4.0             # matches within this × the RANSAC threshold of H feed the spline
-TPS_SMOOTHING = 1e-3        # spline regularisation (coordinates in units of the longer side)
+MIN_SPREAD = 0.02  # least fraction of the reference the inliers' convex hull must cover
+FLOW_SIDE = 1024  # flow computed at most at this many pixels a side
+FLOW_SMOOTH_PX = 2.0  # Gaussian σ smoothing the flow, pixels at the flow scale
+NORMALISE_PX = 12.0  # Gaussian σ of the local contrast normalisation, pixels at the flow scale
+FLOW_STEP = 4  # flow node spacing, reference pixels
+TPS_STEP = 16  # thin-plate spline node spacing, reference pixels
+TPS_BINS = 24  # matches binned on a TPS_BINS² grid (median per bin) for the spline
+TPS_REACH = 4.0  # matches within this × the RANSAC threshold of H feed the spline
+TPS_SMOOTHING = 1e-3  # spline regularisation (coordinates in units of the longer side)
 MIN_SIDE = 32
-MAX_BLUR_PX = 8.0           # largest σ used to match sharpness
+MAX_BLUR_PX = 8.0  # largest σ used to match sharpness
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,7 +82,9 @@ class Registration:
     def _map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Target x and y (float32) of every reference pixel, and whether it lies inside the target."""
         rows, columns = self.reference_shape
-        x, y = _project(self.homography, np.arange(columns, dtype=np.float64)[None, :], np.arange(rows, dtype=np.float64)[:, None])
+        x, y = _project(
+            self.homography, np.arange(columns, dtype=np.float64)[None, :], np.arange(rows, dtype=np.float64)[:, None]
+        )
         x, y = x.astype(np.float32), y.astype(np.float32)
         if self.flow is not None:
             x += self.flow[:, :, 0]
@@ -97,16 +99,24 @@ class Registration:
         (no overshoot below its minimum); pixels outside :meth:`valid_mask` are 0."""
         image = np.asarray(image)
         if image.ndim not in (2, 3) or image.shape[:2] != tuple(self.target_shape) or image.dtype.kind not in "fiu":
-            raise InputError("image", f"array of shape {image.shape} and dtype {image.dtype}",
-                             f"a real image of {self.target_shape[0]} × {self.target_shape[1]} pixels, the target's")
+            raise InputError(
+                "image",
+                f"array of shape {image.shape} and dtype {image.dtype}",
+                f"a real image of {self.target_shape[0]} × {self.target_shape[1]} pixels, the target's",
+            )
         x, y, inside = self._map
         source = np.ascontiguousarray(image, dtype=np.float32)
         channels = source.shape[2:]
         if source.ndim == 2 or source.shape[2] <= 4:  # OpenCV remaps up to 4 channels at once
             out = _remap(source, x, y, cv2.INTER_CUBIC).reshape(*x.shape, *channels)
         else:
-            out = np.concatenate([_remap(source[:, :, k:k + 4], x, y, cv2.INTER_CUBIC).reshape(*x.shape, -1)
-                                  for k in range(0, source.shape[2], 4)], axis=2)
+            out = np.concatenate(
+                [
+                    _remap(source[:, :, k : k + 4], x, y, cv2.INTER_CUBIC).reshape(*x.shape, -1)
+                    for k in range(0, source.shape[2], 4)
+                ],
+                axis=2,
+            )
         np.maximum(out, source.min(), out=out)
         np.minimum(out, source.max(), out=out)
         out[~inside] = 0
@@ -121,13 +131,18 @@ class Registration:
         said = []
         fraction = self.inliers / self.matches if self.matches else 0.0
         if fraction < WARN_INLIER_FRACTION:
-            said.append(f"only {100 * fraction:.0f} % of {self.matches} feature matches agree on the homography; check the alignment")
+            said.append(
+                f"only {100 * fraction:.0f} % of {self.matches} feature matches agree on the homography; check the alignment"
+            )
         feature_scale = min(1.0, FEATURE_SIDE / max(self.target_shape))
         final = self.residual_px if self.refined_residual_px is None else self.refined_residual_px
         if final * feature_scale > WARN_RESIDUAL_PX:
-            said.append(f"the homography leaves {final:.2f} px RMS at its inliers: the images differ by more than a homography "
-                        "(--refine flow corrects smooth differences)" if self.refine == "none" else
-                        f"the {self.refine} refinement leaves {final:.2f} px RMS at the consistent feature matches; check the alignment")
+            said.append(
+                f"the homography leaves {final:.2f} px RMS at its inliers: the images differ by more than a homography "
+                "(--refine flow corrects smooth differences)"
+                if self.refine == "none"
+                else f"the {self.refine} refinement leaves {final:.2f} px RMS at the consistent feature matches; check the alignment"
+            )
         overlap = float(self._map[2].mean())
         if overlap < WARN_OVERLAP:
             said.append(f"the target covers only {100 * overlap:.0f} % of the reference; the rest is 0")
@@ -144,7 +159,9 @@ class Registration:
             "residual_px": float(self.residual_px),
             "refined_residual_px": None if self.refined_residual_px is None else float(self.refined_residual_px),
             "refine": self.refine,
-            "flow_rms_px": None if magnitude is None else float(np.sqrt(np.mean(np.square(magnitude, dtype=np.float64)))),
+            "flow_rms_px": None
+            if magnitude is None
+            else float(np.sqrt(np.mean(np.square(magnitude, dtype=np.float64)))),
             "flow_max_px": None if magnitude is None else float(magnitude.max()),
             "valid_fraction": float(self._map[2].mean()),
             "reference_shape": list(self.reference_shape),
@@ -154,8 +171,14 @@ class Registration:
         }
 
 
-def register(reference: np.ndarray, target: np.ndarray, *, refine: str = "flow", field: str = "TARGET",
-             reference_field: str = "REFERENCE") -> Registration:
+def register(
+    reference: np.ndarray,
+    target: np.ndarray,
+    *,
+    refine: str = "flow",
+    field: str = "TARGET",
+    reference_field: str = "REFERENCE",
+) -> Registration:
     """Register ``target`` onto ``reference`` ((H, W[, C]) real arrays, values about 0..1;
     luminance from R, G, B when C ≥ 3, else the channel mean). ``refine``: "flow", "tps" or
     "none". Raises :class:`ResultFailed` (naming ``field``) when the registration cannot be
@@ -171,17 +194,23 @@ def register(reference: np.ndarray, target: np.ndarray, *, refine: str = "flow",
     reference_small, target_small = _match_sharpness(reference_small, target_small)
     p, q = _matches(_sift(reference_small, reference_scale), _sift(target_small, target_scale))
     if len(p) < MIN_MATCHES:
-        raise ResultFailed(f"{field}: only {len(p)} feature matches with REFERENCE (need ≥ {MIN_MATCHES}); "
-                           "the images may not show the same scene")
+        raise ResultFailed(
+            f"{field}: only {len(p)} feature matches with REFERENCE (need ≥ {MIN_MATCHES}); "
+            "the images may not show the same scene"
+        )
     threshold = RANSAC_PX / min(target_scale)
     homography, mask = cv2.findHomography(p, q, cv2.USAC_MAGSAC, threshold, maxIters=10_000, confidence=0.9999)
     inliers = 0 if homography is None else int(mask.sum())
     if inliers < MIN_MATCHES:
-        raise ResultFailed(f"{field}: only {inliers} consistent feature matches with REFERENCE (need ≥ {MIN_MATCHES}); "
-                           "the images may not show the same scene")
+        raise ResultFailed(
+            f"{field}: only {inliers} consistent feature matches with REFERENCE (need ≥ {MIN_MATCHES}); "
+            "the images may not show the same scene"
+        )
     if inliers < MIN_INLIER_FRACTION * len(p):
-        raise ResultFailed(f"{field}: only {inliers} of {len(p)} feature matches with REFERENCE are consistent "
-                           f"(need ≥ {100 * MIN_INLIER_FRACTION:.0f} %); the images may not show the same scene")
+        raise ResultFailed(
+            f"{field}: only {inliers} of {len(p)} feature matches with REFERENCE are consistent "
+            f"(need ≥ {100 * MIN_INLIER_FRACTION:.0f} %); the images may not show the same scene"
+        )
     homography = homography / homography[2, 2]
     keep = mask.ravel().astype(bool)
     _check_homography(homography, p[keep], reference_y.shape, target_y.shape, field)
@@ -196,10 +225,17 @@ def register(reference: np.ndarray, target: np.ndarray, *, refine: str = "flow",
     flow = None
     if nodes is not None:
         flow = expand_flow(nodes, step, reference_y.shape)
-        at = cv2.remap(flow, pi[None, :, 0].astype(np.float32), pi[None, :, 1].astype(np.float32), cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_REPLICATE)[0]
+        at = cv2.remap(
+            flow,
+            pi[None, :, 0].astype(np.float32),
+            pi[None, :, 1].astype(np.float32),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )[0]
         refined = float(np.sqrt(np.mean(np.sum((error + at) ** 2, axis=1))))
-    return Registration(homography, flow, reference_y.shape, target_y.shape, len(p), inliers, residual, refine, step, refined)
+    return Registration(
+        homography, flow, reference_y.shape, target_y.shape, len(p), inliers, residual, refine, step, refined
+    )
 
 
 def expand_flow(nodes: np.ndarray, step: int, shape: tuple[int, int]) -> np.ndarray:
@@ -216,8 +252,19 @@ def save_warp(path: str | os.PathLike[str], registration: Registration) -> None:
     if r.flow is not None:
         rows, columns = r.reference_shape
         nodes = r.flow[node_positions(rows, r.flow_step)][:, node_positions(columns, r.flow_step)]
-    write_warp_file(path, r.homography, r.reference_shape, r.target_shape, r.flow_step, nodes, r.matches, r.inliers,
-                    r.residual_px, r.refined_residual_px, r.refine)
+    write_warp_file(
+        path,
+        r.homography,
+        r.reference_shape,
+        r.target_shape,
+        r.flow_step,
+        nodes,
+        r.matches,
+        r.inliers,
+        r.residual_px,
+        r.refined_residual_px,
+        r.refine,
+    )
 
 
 def load_warp(path: str | os.PathLike[str], field: str = "--warp") -> Registration:
@@ -226,12 +273,26 @@ def load_warp(path: str | os.PathLike[str], field: str = "--warp") -> Registrati
     w = read_warp_file(path, field)
     why = _degenerate(w["homography"], w["reference_shape"], w["target_shape"])
     if why is None and w["flow_nodes"] is not None and np.abs(w["flow_nodes"]).max() > max(w["target_shape"]):
-        why = f"its refinement moves pixels by up to {np.abs(w['flow_nodes']).max():.3g} pixels, beyond the target's size"
+        why = (
+            f"its refinement moves pixels by up to {np.abs(w['flow_nodes']).max():.3g} pixels, beyond the target's size"
+        )
     if why is not None:
-        raise InputError(field, f"the warp in {os.fspath(path)!r} is degenerate ({why})", "a warp saved by metalens align --warp-out")
+        raise InputError(
+            field, f"the warp in {os.fspath(path)!r} is degenerate ({why})", "a warp saved by metalens align --warp-out"
+        )
     flow = None if w["flow_nodes"] is None else expand_flow(w["flow_nodes"], w["flow_step"], w["reference_shape"])
-    return Registration(w["homography"], flow, w["reference_shape"], w["target_shape"], w["matches"], w["inliers"],
-                        w["residual_px"], w["refine"], max(w["flow_step"], 1), w["refined_residual_px"])
+    return Registration(
+        w["homography"],
+        flow,
+        w["reference_shape"],
+        w["target_shape"],
+        w["matches"],
+        w["inliers"],
+        w["residual_px"],
+        w["refine"],
+        max(w["flow_step"], 1),
+        w["refined_residual_px"],
+    )
 
 
 def _along(values: np.ndarray, positions: np.ndarray, size: int, axis: int) -> np.ndarray:
@@ -268,8 +329,17 @@ def _remap(image: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation: int =
 def _luminance(image: np.ndarray, field: str) -> np.ndarray:
     """(H, W) float32 luminance of an (H, W[, C]) real image (Rec. 709 from the first three
     channels when C ≥ 3, else their mean), checked for size and finite values."""
-    if not isinstance(image, np.ndarray) or image.ndim not in (2, 3) or image.dtype.kind not in "fiu" or 0 in image.shape:
-        raise InputError(field, f"not an image array ({getattr(image, 'shape', type(image).__name__)})", "an (H, W) or (H, W, C) real array")
+    if (
+        not isinstance(image, np.ndarray)
+        or image.ndim not in (2, 3)
+        or image.dtype.kind not in "fiu"
+        or 0 in image.shape
+    ):
+        raise InputError(
+            field,
+            f"not an image array ({getattr(image, 'shape', type(image).__name__)})",
+            "an (H, W) or (H, W, C) real array",
+        )
     rows, columns = image.shape[:2]
     if min(rows, columns) < MIN_SIDE or max(rows, columns) > MAX_SIDE:
         raise InputError(field, f"{columns} × {rows} pixels", f"images of {MIN_SIDE}-{MAX_SIDE} pixels a side")
@@ -352,7 +422,11 @@ def _matches(reference, target) -> tuple[np.ndarray, np.ndarray]:
     if len(p) < 2 or len(q) < 2:
         return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
     pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(dp, dq, k=2)
-    good = [(m.queryIdx, m.trainIdx) for m, n in (pair for pair in pairs if len(pair) == 2) if m.distance < RATIO * n.distance]
+    good = [
+        (m.queryIdx, m.trainIdx)
+        for m, n in (pair for pair in pairs if len(pair) == 2)
+        if m.distance < RATIO * n.distance
+    ]
     if not good:
         return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
     index = np.array(good)
@@ -364,11 +438,15 @@ def _check_homography(h: np.ndarray, inlier_points: np.ndarray, reference_shape,
     rows, columns = reference_shape
     why = _degenerate(h, reference_shape, target_shape)
     if why:
-        raise ResultFailed(f"{field}: the homography onto REFERENCE is degenerate ({why}); the images may not show the same scene")
+        raise ResultFailed(
+            f"{field}: the homography onto REFERENCE is degenerate ({why}); the images may not show the same scene"
+        )
     hull = cv2.contourArea(cv2.convexHull(inlier_points.astype(np.float32)))
     if hull < MIN_SPREAD * rows * columns:
-        raise ResultFailed(f"{field}: the consistent feature matches cover only {100 * hull / (rows * columns):.1f} % of REFERENCE "
-                           f"(need ≥ {100 * MIN_SPREAD:g} %); the homography cannot be trusted")
+        raise ResultFailed(
+            f"{field}: the consistent feature matches cover only {100 * hull / (rows * columns):.1f} % of REFERENCE "
+            f"(need ≥ {100 * MIN_SPREAD:g} %); the homography cannot be trusted"
+        )
 
 
 def _degenerate(h: np.ndarray, reference_shape, target_shape) -> str | None:
@@ -409,17 +487,24 @@ def _flow_nodes(reference_y: np.ndarray, target_y: np.ndarray, homography: np.nd
     reference_small, (sx, sy) = _downscale(reference_y, FLOW_SIDE)
     rows, columns = reference_small.shape
     # the target downscaled as much as the homography's mean scale asks (no aliasing when warped)
-    stretch = math.sqrt(abs(np.linalg.det(_jacobian(homography, (reference_y.shape[1] - 1) / 2, (reference_y.shape[0] - 1) / 2)[1])))
+    stretch = math.sqrt(
+        abs(np.linalg.det(_jacobian(homography, (reference_y.shape[1] - 1) / 2, (reference_y.shape[0] - 1) / 2)[1]))
+    )
     target_small, (tx, ty) = _downscale(target_y, round(max(target_y.shape) * min(1.0, max(sx, sy) * stretch)))
     small_to_full = np.array([[1 / sx, 0, 0.5 / sx - 0.5], [0, 1 / sy, 0.5 / sy - 0.5], [0, 0, 1]])
     full_to_target_small = np.array([[tx, 0, 0.5 * tx - 0.5], [0, ty, 0.5 * ty - 0.5], [0, 0, 1]])
     h_small = full_to_target_small @ homography @ small_to_full
-    mx, my = _project(h_small, np.arange(columns, dtype=np.float64)[None, :], np.arange(rows, dtype=np.float64)[:, None])
+    mx, my = _project(
+        h_small, np.arange(columns, dtype=np.float64)[None, :], np.arange(rows, dtype=np.float64)[:, None]
+    )
     mx, my = mx.astype(np.float32), my.astype(np.float32)
     inside = (mx >= 0) & (mx <= target_small.shape[1] - 1) & (my >= 0) & (my <= target_small.shape[0] - 1)
     warped = np.where(inside, _remap(target_small, mx, my), reference_small)
     reference_small, warped = _match_sharpness(reference_small, warped, inside)
-    encode = [np.clip(128 + 40 * _normalise_locally(image, NORMALISE_PX), 0, 255).astype(np.uint8) for image in (reference_small, warped)]
+    encode = [
+        np.clip(128 + 40 * _normalise_locally(image, NORMALISE_PX), 0, 255).astype(np.uint8)
+        for image in (reference_small, warped)
+    ]
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     dis.setFinestScale(0)
     flow = dis.calc(encode[0], encode[1], None)
@@ -434,7 +519,9 @@ def _flow_nodes(reference_y: np.ndarray, target_y: np.ndarray, homography: np.nd
     return np.stack([shifted[0] - direct[0], shifted[1] - direct[1]], axis=2).astype(np.float32)
 
 
-def _tps_nodes(p: np.ndarray, q: np.ndarray, homography: np.ndarray, shape: tuple[int, int], reach: float) -> np.ndarray:
+def _tps_nodes(
+    p: np.ndarray, q: np.ndarray, homography: np.ndarray, shape: tuple[int, int], reach: float
+) -> np.ndarray:
     """Flow nodes (every ``TPS_STEP`` reference pixels) of a smoothing thin-plate spline through
     the residuals q − H(p) of the matches within ``reach`` target pixels, binned on a
     ``TPS_BINS``² grid (median per bin)."""
@@ -443,7 +530,10 @@ def _tps_nodes(p: np.ndarray, q: np.ndarray, homography: np.ndarray, shape: tupl
     residual = q - np.stack([hx, hy], axis=1)
     near = np.hypot(residual[:, 0], residual[:, 1]) < reach
     p, residual = p[near].astype(np.float64), residual[near]
-    bins = (np.clip(p[:, 1] * TPS_BINS // rows, 0, TPS_BINS - 1) * TPS_BINS + np.clip(p[:, 0] * TPS_BINS // columns, 0, TPS_BINS - 1)).astype(np.int64)
+    bins = (
+        np.clip(p[:, 1] * TPS_BINS // rows, 0, TPS_BINS - 1) * TPS_BINS
+        + np.clip(p[:, 0] * TPS_BINS // columns, 0, TPS_BINS - 1)
+    ).astype(np.int64)
     order = np.argsort(bins, kind="stable")
     groups = np.split(order, np.flatnonzero(np.diff(bins[order])) + 1)
     centres = np.array([p[g].mean(axis=0) for g in groups]) / max(rows, columns)
@@ -456,7 +546,9 @@ def _tps_nodes(p: np.ndarray, q: np.ndarray, homography: np.ndarray, shape: tupl
     ny, nx = node_positions(rows, TPS_STEP), node_positions(columns, TPS_STEP)
     gx, gy = np.meshgrid(nx, ny)
     nodes = np.stack([gx.ravel(), gy.ravel()], axis=1) / max(rows, columns)
-    fitted = _tps_kernel(nodes, centres) @ coefficients[:n] + np.hstack([np.ones((len(nodes), 1)), nodes]) @ coefficients[n:]
+    fitted = (
+        _tps_kernel(nodes, centres) @ coefficients[:n] + np.hstack([np.ones((len(nodes), 1)), nodes]) @ coefficients[n:]
+    )
     return fitted.reshape(ny.size, nx.size, 2).astype(np.float32)
 
 

@@ -35,7 +35,11 @@ def design_fingerprint(design) -> str:
     the same lens gives the same fingerprint whatever spec names it."""
     theta = np.ascontiguousarray(design.lens.theta.detach().cpu().numpy(), dtype=np.float64)
     digest = hashlib.sha256(theta.tobytes())
-    digest.update(np.array([theta.ndim, design.lens.pitch_m, design.lens.aperture_m, design.focal_length_m], dtype=np.float64).tobytes())
+    digest.update(
+        np.array(
+            [theta.ndim, design.lens.pitch_m, design.lens.aperture_m, design.focal_length_m], dtype=np.float64
+        ).tobytes()
+    )
     return digest.hexdigest()[:16]
 
 
@@ -70,8 +74,11 @@ class Reconstructor:
         side = int(math.sqrt(self.memory_bytes / inference_bytes(self.shape, 1))) // step * step
         if side <= 2 * self.overlap:
             least = inference_bytes(self.shape, ((2 * self.overlap // step + 1) * step) ** 2)
-            raise InputError("--memory-mib", f"{self.memory_bytes / 2**20:g} MiB allow tiles of only {side} px",
-                             f"at least {math.ceil(least / 2**20)} MiB: tiles larger than twice the {self.overlap} px overlap")
+            raise InputError(
+                "--memory-mib",
+                f"{self.memory_bytes / 2**20:g} MiB allow tiles of only {side} px",
+                f"at least {math.ceil(least / 2**20)} MiB: tiles larger than twice the {self.overlap} px overlap",
+            )
         return side
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
@@ -92,10 +99,10 @@ class Reconstructor:
             for left in _starts(w, side, self.overlap):
                 th, tw = min(side, h - top), min(side, w - left)
                 positions = pixel_positions(th, tw, top, left, (h, w), scale, device=x.device)
-                tile = self.net(_fast(x[None, :, top:top + th, left:left + tw]), positions[None])[0]
+                tile = self.net(_fast(x[None, :, top : top + th, left : left + tw]), positions[None])[0]
                 ramp = _ramp(th, top, h, self.overlap, x)[:, None] * _ramp(tw, left, w, self.overlap, x)[None, :]
-                total[:, top:top + th, left:left + tw] += tile * ramp
-                weight[:, top:top + th, left:left + tw] += ramp
+                total[:, top : top + th, left : left + tw] += tile * ramp
+                weight[:, top : top + th, left : left + tw] += ramp
         return total / weight
 
 
@@ -122,7 +129,7 @@ def _ramp(n: int, start: int, length: int, overlap: int, like: torch.Tensor) -> 
     if start > 0:
         ramp[:k] = torch.minimum(ramp[:k], edge[:k])
     if start + n < length:
-        ramp[n - k:] = torch.minimum(ramp[n - k:], edge[:k].flip(0))
+        ramp[n - k :] = torch.minimum(ramp[n - k :], edge[:k].flip(0))
     return ramp
 
 
@@ -136,12 +143,20 @@ def save_model(path: str | Path, net: ReconstructionNet, design: dict, extra: di
     """Write the network shape, weights and design identity atomically."""
     from metalens_cli.io.atomic import atomic_write
 
-    state = {"format": MODEL_FORMAT, "shape": net.shape.to_dict(), "state_dict": net.state_dict(), "design": design, **(extra or {})}
+    state = {
+        "format": MODEL_FORMAT,
+        "shape": net.shape.to_dict(),
+        "state_dict": net.state_dict(),
+        "design": design,
+        **(extra or {}),
+    }
     with atomic_write(path) as temporary:
         torch.save(state, temporary)
 
 
-def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAULT_MEMORY_BYTES, field_name: str = "RUN") -> Reconstructor:
+def load_reconstructor(
+    run: str | Path, device="cpu", memory_bytes: int = DEFAULT_MEMORY_BYTES, field_name: str = "RUN"
+) -> Reconstructor:
     """The network of a reconstruction run directory (or its model.pt) on ``device``. A file that
     is not a readable ``MODEL_FORMAT`` dict whose shape, finite weights, positive finite position
     scale and design dict make one network is an InputError on ``field_name`` naming it."""
@@ -154,8 +169,14 @@ def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAUL
     try:
         state = load_tensors(path)
     except Exception:  # torch raises many types for foreign or damaged files
-        raise InputError(field_name, f"cannot read {str(path)!r}: it is truncated, damaged or not a torch file", expected) from None
-    if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT or not isinstance(state.get("design", {}), dict):
+        raise InputError(
+            field_name, f"cannot read {str(path)!r}: it is truncated, damaged or not a torch file", expected
+        ) from None
+    if (
+        not isinstance(state, dict)
+        or state.get("format") != MODEL_FORMAT
+        or not isinstance(state.get("design", {}), dict)
+    ):
         raise InputError(field_name, f"{str(path)!r} is not a metalens reconstruction model", expected)
     problem = _metadata_problem(state)
     if problem:
@@ -168,7 +189,9 @@ def load_reconstructor(run: str | Path, device="cpu", memory_bytes: int = DEFAUL
         net = ReconstructionNet(shape)
         net.load_state_dict(state["state_dict"])
     except (TypeError, KeyError, RuntimeError, ValueError) as exc:
-        raise InputError(field_name, f"{str(path)!r} does not match the network: {' '.join(str(exc).split())}", expected) from None
+        raise InputError(
+            field_name, f"{str(path)!r} does not match the network: {' '.join(str(exc).split())}", expected
+        ) from None
     if not (0 < scale < math.inf and all(value.isfinite().all() for value in net.state_dict().values())):
         raise InputError(field_name, f"{str(path)!r} holds NaN or infinite weights or position scale", expected)
     net.eval().to(device)

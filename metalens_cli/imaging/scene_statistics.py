@@ -20,9 +20,9 @@ import numpy as np
 from metalens_cli.imaging.images import linear_to_srgb, luminance
 
 STATISTICS = ("spectrum_slope", "luminance_median", "log_luminance_std", "saturation", "edge_density")
-DARK = 1e-3                    # linear luminance floor of the log statistics
-EDGE_STEP = 0.04               # sRGB levels (0..1) per pixel: ≈ 10 of 255
-SLOPE_BAND = (4, 64)           # cycles per image width over which the power law is fitted
+DARK = 1e-3  # linear luminance floor of the log statistics
+EDGE_STEP = 0.04  # sRGB levels (0..1) per pixel: ≈ 10 of 255
+SLOPE_BAND = (4, 64)  # cycles per image width over which the power law is fitted
 
 
 def spectrum_slope(image: np.ndarray) -> float:
@@ -33,7 +33,7 @@ def spectrum_slope(image: np.ndarray) -> float:
     if n < 2 * SLOPE_BAND[1]:
         raise ValueError(f"spectrum_slope needs at least {2 * SLOPE_BAND[1]} pixels per side, got {n}")
     top, left = (y.shape[0] - n) // 2, (y.shape[1] - n) // 2
-    y = y[top:top + n, left:left + n]
+    y = y[top : top + n, left : left + n]
     window = np.outer(np.hanning(n), np.hanning(n))
     power = np.abs(np.fft.fftshift(np.fft.fft2((y - y.mean()) * window))) ** 2
     k = np.arange(n) - n // 2
@@ -54,9 +54,13 @@ def scene_statistics(image: np.ndarray) -> dict[str, float]:
     saturation = np.where(top > 0, (top - bottom) / np.maximum(top, 1e-6), 0.0)
     y_srgb = linear_to_srgb(y)
     gx, gy = cv2.Sobel(y_srgb, cv2.CV_32F, 1, 0) / 8, cv2.Sobel(y_srgb, cv2.CV_32F, 0, 1) / 8
-    return {"spectrum_slope": spectrum_slope(image), "luminance_median": float(np.median(y)),
-            "log_luminance_std": float(np.log10(np.maximum(y, DARK)).std()), "saturation": float(saturation.mean()),
-            "edge_density": float((np.hypot(gx, gy) > EDGE_STEP).mean())}
+    return {
+        "spectrum_slope": spectrum_slope(image),
+        "luminance_median": float(np.median(y)),
+        "log_luminance_std": float(np.log10(np.maximum(y, DARK)).std()),
+        "saturation": float(saturation.mean()),
+        "edge_density": float((np.hypot(gx, gy) > EDGE_STEP).mean()),
+    }
 
 
 def summarise(images) -> dict[str, dict[str, float]]:
@@ -65,5 +69,7 @@ def summarise(images) -> dict[str, dict[str, float]]:
     for image in images:
         for name, value in scene_statistics(image).items():
             values[name].append(value)
-    return {name: {"mean": float(np.mean(v)), "std": float(np.std(v)), "min": float(np.min(v)), "max": float(np.max(v))}
-            for name, v in values.items()}
+    return {
+        name: {"mean": float(np.mean(v)), "std": float(np.std(v)), "min": float(np.min(v)), "max": float(np.max(v))}
+        for name, v in values.items()
+    }

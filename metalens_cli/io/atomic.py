@@ -17,7 +17,7 @@ import secrets
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
-from contextlib import contextmanager, ExitStack, suppress
+from contextlib import ExitStack, contextmanager, suppress
 from pathlib import Path
 
 from metalens_cli.errors import InputError
@@ -111,9 +111,18 @@ def atomic_folder(target: str | os.PathLike[str], field: str = "--output") -> It
 def _check_replaceable(path: Path, field: str) -> None:
     """Refuse to publish a file over anything but a regular file (never through a link)."""
     if path.is_symlink() or (path.exists() and not path.is_file()):
-        what = "a symbolic link" if path.is_symlink() else "a folder" if path.is_dir() else "not a regular file (a FIFO, device or socket)"
-        raise InputError(field, f"{str(path)!r}, where this run writes a file, is {what}",
-                         "an output folder whose same-named entries are regular files, or another folder")
+        what = (
+            "a symbolic link"
+            if path.is_symlink()
+            else "a folder"
+            if path.is_dir()
+            else "not a regular file (a FIFO, device or socket)"
+        )
+        raise InputError(
+            field,
+            f"{str(path)!r}, where this run writes a file, is {what}",
+            "an output folder whose same-named entries are regular files, or another folder",
+        )
 
 
 def _umask() -> int:
@@ -138,7 +147,11 @@ def check_output_file(path: str | os.PathLike[str], field: str, *, suffixes: Ite
     if suffixes is not None:
         allowed = tuple(suffixes)
         if target.suffix.lower() not in allowed:
-            raise InputError(field, f"{target.name!r} does not end in {_either(allowed)}", f"a file name ending in {_either(allowed)}")
+            raise InputError(
+                field,
+                f"{target.name!r} does not end in {_either(allowed)}",
+                f"a file name ending in {_either(allowed)}",
+            )
     if not target.parent.is_dir():
         raise InputError(field, f"folder {str(target.parent)!r} does not exist", "a file in an existing folder")
     if target.is_symlink():  # replacing it would cut the link; writing through it, surprise its target
@@ -146,7 +159,11 @@ def check_output_file(path: str | os.PathLike[str], field: str, *, suffixes: Ite
     if target.is_dir():
         raise InputError(field, f"{str(target)!r} is a folder", "a file path")
     if target.exists() and not target.is_file():
-        raise InputError(field, f"{str(target)!r} exists and is not a regular file (a device, FIFO or socket)", "a new or regular file")
+        raise InputError(
+            field,
+            f"{str(target)!r} exists and is not a regular file (a device, FIFO or socket)",
+            "a new or regular file",
+        )
     _probe_writable(target.parent, field)
     return target
 
@@ -176,8 +193,11 @@ def check_folder_unused(path: str | os.PathLike[str], field: str) -> None:
     held = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
     if held:
         more = f" (and {len(held) - 1} more)" if len(held) > 1 else ""
-        raise InputError(field, f"folder {str(folder)!r} already holds {held[0]!r}{more}",
-                         "a new or empty folder, or --overwrite to write into it and replace same-named files")
+        raise InputError(
+            field,
+            f"folder {str(folder)!r} already holds {held[0]!r}{more}",
+            "a new or empty folder, or --overwrite to write into it and replace same-named files",
+        )
 
 
 def ensure_folder(path: str | os.PathLike[str], field: str) -> Path:
@@ -209,8 +229,11 @@ def _check_name_lengths(path: Path, field: str) -> None:
     for part in path.parts:
         size = len(os.fsencode(part))
         if size > limit:
-            raise InputError(field, f"the name {part[:24]!r}… is {size} bytes; this file system allows {limit}",
-                             f"names of at most {limit} bytes")
+            raise InputError(
+                field,
+                f"the name {part[:24]!r}… is {size} bytes; this file system allows {limit}",
+                f"names of at most {limit} bytes",
+            )
 
 
 def _probe_writable(folder: Path, field: str) -> None:
@@ -219,7 +242,9 @@ def _probe_writable(folder: Path, field: str) -> None:
     try:
         os.unlink(_create_temporary(folder / "probe"))
     except OSError as exc:
-        raise InputError(field, f"cannot write in folder {str(folder)!r}: {exc.strerror}", "a writable folder") from None
+        raise InputError(
+            field, f"cannot write in folder {str(folder)!r}: {exc.strerror}", "a writable folder"
+        ) from None
 
 
 def _create_temporary(target: Path) -> Path:

@@ -125,8 +125,14 @@ def load(kind: str, key: str, validate: Validator = lambda arrays: None) -> Arra
     return found if isinstance(found, dict) else None
 
 
-def check_array(arrays: Arrays, name: str, shape: tuple[int | None, ...] | None = None, low: float = -np.inf,
-                high: float = np.inf, where: np.ndarray | bool = True) -> str | None:
+def check_array(
+    arrays: Arrays,
+    name: str,
+    shape: tuple[int | None, ...] | None = None,
+    low: float = -np.inf,
+    high: float = np.inf,
+    where: np.ndarray | bool = True,
+) -> str | None:
     """None when ``arrays[name]`` is a real number array of ``shape`` (None: any; a None in it:
     any length) whose values are finite and within [low, high] where ``where`` is True; else
     why not, starting with ``name``."""
@@ -261,5 +267,9 @@ def _warn_unusable(exc: OSError) -> None:
     if folder in _UNUSABLE_WARNED:
         return
     _UNUSABLE_WARNED.add(folder)
-    warnings.warn(f"cache folder {folder!r} cannot be used ({exc.strerror or exc}): results are computed on every run, not "
-                  "stored (set METALENS_CACHE to a writable folder)", CacheWarning, stacklevel=4)
+    warnings.warn(
+        f"cache folder {folder!r} cannot be used ({exc.strerror or exc}): results are computed on every run, not "
+        "stored (set METALENS_CACHE to a writable folder)",
+        CacheWarning,
+        stacklevel=4,
+    )

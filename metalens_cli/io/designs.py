@@ -19,10 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.input_files import read_npy
-from metalens_cli.io.tables import check_wavelengths
 from metalens_cli.io import units
+from metalens_cli.io.input_files import read_npy
 from metalens_cli.io.presets import Preset, load_preset
+from metalens_cli.io.tables import check_wavelengths
 
 PAPER_PITCH_M = 395e-9
 SPEC_FORM = "hyperbolic:WAVELENGTH (e.g. hyperbolic:532nm), a θ .npy file, a preset .toml or a run directory"
@@ -80,11 +80,17 @@ def _load_theta(path: Path):
     return theta
 
 
-def _hyperbolic_preset_design(spec: str, kind: str, preset: Preset, explicit: Preset | None, f_m, aperture_m, pitch_m, radial):
+def _hyperbolic_preset_design(
+    spec: str, kind: str, preset: Preset, explicit: Preset | None, f_m, aperture_m, pitch_m, radial
+):
     from metalens_cli.optics.lens import hyperbolic
 
     if preset.lens.design != "hyperbolic":
-        raise InputError("--design", f"preset {preset.name} describes a learned lens with no θ", "its run directory from metalens optimize, or a θ .npy")
+        raise InputError(
+            "--design",
+            f"preset {preset.name} describes a learned lens with no θ",
+            "its run directory from metalens optimize, or a θ .npy",
+        )
     in_force = explicit or preset
     f, aperture, pitch = _geometry(in_force, f_m, aperture_m, pitch_m)
     lam = preset.lens.design_wavelength_m
@@ -116,7 +122,9 @@ def resolve_design(
     if path.is_dir():
         run_preset, theta_path = path / "preset.toml", path / "theta.npy"
         if not (run_preset.is_file() and theta_path.is_file()):
-            raise InputError("--design", f"{text!r} is not a run directory (needs preset.toml and theta.npy)", SPEC_FORM)
+            raise InputError(
+                "--design", f"{text!r} is not a run directory (needs preset.toml and theta.npy)", SPEC_FORM
+            )
         carried = load_preset(run_preset)
         in_force = preset or carried
         return _array_design(text, "run", theta_path, in_force, f_m, aperture_m, pitch_m)

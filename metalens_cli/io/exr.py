@@ -95,7 +95,9 @@ def write_psf_cube(
     metadata = {
         "format": FORMAT,
         "wavelengths_m": [float(value) for value in np.asarray(wavelengths_m, dtype=float).ravel()],
-        "depths_m": [None if value == math.inf else float(value) for value in np.asarray(depths_m, dtype=float).ravel()],
+        "depths_m": [
+            None if value == math.inf else float(value) for value in np.asarray(depths_m, dtype=float).ravel()
+        ],
         "pixel_pitch_m": float(pixel_pitch_m),
         "normalization": normalization,
         "design": design,
@@ -105,7 +107,9 @@ def write_psf_cube(
     psf = np.asarray(psf, dtype=np.float32)
     counts = (len(metadata["depths_m"]), len(metadata["wavelengths_m"]))
     if psf.ndim != 4 or psf.shape[:2] != counts:
-        raise InputError(field, f"psf of shape {psf.shape} for {counts[0]} depths × {counts[1]} wavelengths", "psf (D, W, N, N)")
+        raise InputError(
+            field, f"psf of shape {psf.shape} for {counts[0]} depths × {counts[1]} wavelengths", "psf (D, W, N, N)"
+        )
     channels = _channels(psf, None if rgb is None else np.asarray(rgb, dtype=np.float32))
     _check_cube(field, metadata, channels)
     try:
@@ -121,7 +125,9 @@ def _channels(psf: np.ndarray, rgb: np.ndarray | None) -> dict[str, np.ndarray]:
     if rgb is not None:
         if rgb.shape[:2] != (psf.shape[0], 3):
             raise InputError("rgb", f"shape {rgb.shape} beside psf {psf.shape}", "rgb (D, 3, N, N)")
-        channels.update({rgb_channel_name(i, c): rgb[i, k] for i in range(rgb.shape[0]) for k, c in enumerate(RGB_CHANNELS)})
+        channels.update(
+            {rgb_channel_name(i, c): rgb[i, k] for i in range(rgb.shape[0]) for k, c in enumerate(RGB_CHANNELS)}
+        )
     return {name: np.ascontiguousarray(plane) for name, plane in channels.items()}
 
 
@@ -141,7 +147,9 @@ def read_psf_cube(path: str | os.PathLike[str]) -> PsfCube:
     header = exr.header()
     compression = getattr(header.get("compression"), "name", str(header.get("compression")))
     if compression not in LOSSLESS_COMPRESSIONS:
-        raise InputError(field, f"compression {compression} is lossy or not supported", ", ".join(LOSSLESS_COMPRESSIONS))
+        raise InputError(
+            field, f"compression {compression} is lossy or not supported", ", ".join(LOSSLESS_COMPRESSIONS)
+        )
     metadata = _parse_header(field, header.get(HEADER_ATTRIBUTE))
     channels = {name: channel.pixels for name, channel in exr.channels().items()}
     _check_cube(field, metadata, channels)
@@ -153,11 +161,15 @@ def _parse_header(field: str, text: Any) -> dict[str, Any]:
     if text is None:
         raise InputError(field, f"no '{HEADER_ATTRIBUTE}' header attribute (not a metalens PSF cube)", _EXPECTED)
     if not isinstance(text, str):
-        raise InputError(field, f"header attribute '{HEADER_ATTRIBUTE}' is not a string", "a string attribute holding JSON")
+        raise InputError(
+            field, f"header attribute '{HEADER_ATTRIBUTE}' is not a string", "a string attribute holding JSON"
+        )
     try:
         metadata = json.loads(text)
     except json.JSONDecodeError as error:
-        raise InputError(field, f"header '{HEADER_ATTRIBUTE}' is not valid JSON ({error.msg})", "a JSON object") from None
+        raise InputError(
+            field, f"header '{HEADER_ATTRIBUTE}' is not valid JSON ({error.msg})", "a JSON object"
+        ) from None
     except RecursionError:
         raise InputError(field, f"header '{HEADER_ATTRIBUTE}' nests too deeply", "a flat JSON object") from None
     if not isinstance(metadata, dict):
@@ -180,7 +192,9 @@ def _check_cube(field: str, metadata: dict[str, Any], channels: dict[str, np.nda
     _check_pixels(field, channels)
 
 
-def _positive_list(field: str, metadata: dict[str, Any], key: str, *, allow_null: bool, limit: int) -> list[float | None]:
+def _positive_list(
+    field: str, metadata: dict[str, Any], key: str, *, allow_null: bool, limit: int
+) -> list[float | None]:
     """A non-empty JSON list of positive finite numbers (and nulls where allowed)."""
     values = metadata[key]
     if not isinstance(values, list) or not 1 <= len(values) <= limit:
@@ -189,7 +203,9 @@ def _positive_list(field: str, metadata: dict[str, Any], key: str, *, allow_null
         if value is None and allow_null:
             continue
         if not _is_number(value) or not 0 < value < math.inf:
-            raise InputError(field, f"{key} holds {value!r}", "positive finite metres" + (" or null" if allow_null else ""))
+            raise InputError(
+                field, f"{key} holds {value!r}", "positive finite metres" + (" or null" if allow_null else "")
+            )
     repeated = next((value for k, value in enumerate(values) if value in values[:k]), False)
     if repeated is not False:
         raise InputError(field, f"{key} holds {'null' if repeated is None else repeated!r} twice", "distinct values")

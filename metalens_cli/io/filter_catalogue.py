@@ -17,7 +17,9 @@ from metalens_cli.errors import InputError
 from metalens_cli.io.input_files import read_text
 
 COLUMNS = ("name", "center_nm", "fwhm_nm", "edge_nm", "peak")
-FORM = "a CSV with the header name,center_nm,fwhm_nm,edge_nm,peak: one row per pass band, a filter's bands under one name"
+FORM = (
+    "a CSV with the header name,center_nm,fwhm_nm,edge_nm,peak: one row per pass band, a filter's bands under one name"
+)
 
 
 @dataclass(frozen=True)
@@ -44,10 +46,14 @@ def read_catalogue(path: str | Path, field: str = "filter.catalogue") -> list[Ca
         try:
             centre, fwhm, edge, peak = (float(v) for v in row[1:])
         except ValueError:
-            raise InputError(field, f"{Path(path).name} row {number} holds a value that is not a number", FORM) from None
+            raise InputError(
+                field, f"{Path(path).name} row {number} holds a value that is not a number", FORM
+            ) from None
         peak = peak / 100 if peak > 1.5 else peak
         if not (all(math.isfinite(v) and v > 0 for v in (centre, fwhm, edge)) and 0 < peak <= 1):
-            raise InputError(field, f"{Path(path).name} row {number}: {row}", "positive centre, FWHM and edge (nm), peak in (0, 1]")
+            raise InputError(
+                field, f"{Path(path).name} row {number}: {row}", "positive centre, FWHM and edge (nm), peak in (0, 1]"
+            )
         bands.setdefault(row[0].strip(), []).append((centre * 1e-9, fwhm * 1e-9, edge * 1e-9, peak))
     if not bands:
         raise InputError(field, f"{Path(path).name} lists no filter", FORM)
@@ -55,6 +61,12 @@ def read_catalogue(path: str | Path, field: str = "filter.catalogue") -> list[Ca
     for name, entries in bands.items():
         entries.sort()
         if len({(e[2], e[3]) for e in entries}) != 1:
-            raise InputError(field, f"filter {name!r} has bands with different edges or peaks", "one edge_nm and peak per filter")
-        out.append(CatalogueFilter(name, tuple(e[0] for e in entries), tuple(e[1] for e in entries), entries[0][2], entries[0][3]))
+            raise InputError(
+                field, f"filter {name!r} has bands with different edges or peaks", "one edge_nm and peak per filter"
+            )
+        out.append(
+            CatalogueFilter(
+                name, tuple(e[0] for e in entries), tuple(e[1] for e in entries), entries[0][2], entries[0][3]
+            )
+        )
     return out

@@ -89,10 +89,16 @@ def boundary_words(layer: int, datatype: int) -> np.ndarray:
 
 def sref_dtype(name_bytes: int) -> np.dtype:
     """One SREF element without transformation: SREF, SNAME (``name_bytes``, even), XY (1 point), ENDEL."""
-    return np.dtype([
-        ("sref", ">u4"), ("sname_h", ">u4"), ("sname", f"S{name_bytes}"), ("xy_h", ">u4"), ("xy", ">i4", (2,)),
-        ("endel", ">u4"),
-    ])
+    return np.dtype(
+        [
+            ("sref", ">u4"),
+            ("sname_h", ">u4"),
+            ("sname", f"S{name_bytes}"),
+            ("xy_h", ">u4"),
+            ("xy", ">i4", (2,)),
+            ("endel", ">u4"),
+        ]
+    )
 
 
 def _word(header: int, data_bytes: int) -> int:
@@ -116,12 +122,17 @@ class GdsStream:
         self.bytes_written += memoryview(data).nbytes
         self.file.write(data)
 
-    def begin_library(self, name: str, dbu_m: float, user_unit_m: float = 1e-6,
-                      now: _dt.datetime | None = None) -> None:
+    def begin_library(
+        self, name: str, dbu_m: float, user_unit_m: float = 1e-6, now: _dt.datetime | None = None
+    ) -> None:
         """HEADER, BGNLIB, LIBNAME and UNITS: ``dbu_m`` metres per database unit, user unit in metres."""
         stamp = _timestamp(now or _dt.datetime.now())
-        self._write(record(HEADER, struct.pack(">h", GDS_VERSION)) + record(BGNLIB, stamp)
-                    + record(LIBNAME, ascii_data(name)) + record(UNITS, real8(dbu_m / user_unit_m) + real8(dbu_m)))
+        self._write(
+            record(HEADER, struct.pack(">h", GDS_VERSION))
+            + record(BGNLIB, stamp)
+            + record(LIBNAME, ascii_data(name))
+            + record(UNITS, real8(dbu_m / user_unit_m) + real8(dbu_m))
+        )
 
     def begin_structure(self, name: str, now: _dt.datetime | None = None) -> None:
         """BGNSTR and STRNAME."""
@@ -129,8 +140,14 @@ class GdsStream:
 
     def text(self, layer: int, texttype: int, x: int, y: int, string: str) -> None:
         """A TEXT element anchored at (x, y) (database units)."""
-        self._write(record(TEXT) + record(LAYER, struct.pack(">h", layer)) + record(TEXTTYPE, struct.pack(">h", texttype))
-                    + record(XY, struct.pack(">ii", x, y)) + record(STRING, ascii_data(string)) + record(ENDEL))
+        self._write(
+            record(TEXT)
+            + record(LAYER, struct.pack(">h", layer))
+            + record(TEXTTYPE, struct.pack(">h", texttype))
+            + record(XY, struct.pack(">ii", x, y))
+            + record(STRING, ascii_data(string))
+            + record(ENDEL)
+        )
 
     def boundaries(self, vertices: np.ndarray, layer: int, datatype: int) -> None:
         """One BOUNDARY per quadrilateral: ``vertices`` is (n, 4, 2) integers in database units.

@@ -61,7 +61,9 @@ def read_image_codes(path: Path, field: str) -> tuple[np.ndarray, list[str], flo
     if path.suffix.lower() == ".exr":
         pixels, names = _exr_pixels(path, field)
         if not np.all(np.isfinite(pixels)) or pixels.min() < 0:
-            raise InputError(field, f"{path.name} holds NaN, infinite or negative pixels", "finite, non-negative pixel values")
+            raise InputError(
+                field, f"{path.name} holds NaN, infinite or negative pixels", "finite, non-negative pixel values"
+            )
         return pixels, names, None
     import cv2
 
@@ -72,15 +74,24 @@ def read_image_codes(path: Path, field: str) -> tuple[np.ndarray, list[str], flo
             raw, said.text = None, str(exc)
     if raw is None:
         reason = next((line.strip() for line in reversed(said.text.splitlines()) if line.strip()), "")
-        raise InputError(field, f"{path.name} is not a readable image" + (f" ({reason[:120]})" if reason else ""),
-                         "a PNG, JPEG, TIFF or EXR image")
+        raise InputError(
+            field,
+            f"{path.name} is not a readable image" + (f" ({reason[:120]})" if reason else ""),
+            "a PNG, JPEG, TIFF or EXR image",
+        )
     scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(raw.dtype)
     if scale is None:
-        raise InputError(field, f"{path.name} has {raw.dtype} pixels", "8- or 16-bit integer pixels (or an EXR for floats)")
+        raise InputError(
+            field, f"{path.name} has {raw.dtype} pixels", "8- or 16-bit integer pixels (or an EXR for floats)"
+        )
     if raw.ndim == 2:
         return raw[:, :, None].astype(np.float32), ["Y"], scale
     if raw.ndim != 3 or raw.shape[2] not in (3, 4):
-        raise InputError(field, f"{path.name} has {raw.shape[2] if raw.ndim == 3 else raw.ndim} channels", "1 or 3 channels (or 4 with alpha)")
+        raise InputError(
+            field,
+            f"{path.name} has {raw.shape[2] if raw.ndim == 3 else raw.ndim} channels",
+            "1 or 3 channels (or 4 with alpha)",
+        )
     order = [2, 1, 0, 3][: raw.shape[2]]  # OpenCV's BGR(A) → RGB(A)
     return raw[:, :, order].astype(np.float32), ["R", "G", "B", "A"][: raw.shape[2]], scale
 
@@ -90,7 +101,9 @@ def _exr_pixels(path: Path, field: str) -> tuple[np.ndarray, list[str]]:
     names = ["R", "G", "B"] + (["A"] if "A" in channels else [])
     if not all(c in channels for c in "RGB"):
         if len(channels) != 1:
-            raise InputError(field, f"{path.name} has channels {sorted(channels)[:6]}", "R, G, B channels or a single channel")
+            raise InputError(
+                field, f"{path.name} has channels {sorted(channels)[:6]}", "R, G, B channels or a single channel"
+            )
         names = ["Y"]
         channels = {"Y": next(iter(channels.values()))}
     return np.stack([channels[name] for name in names], axis=-1).astype(np.float32), names

@@ -20,9 +20,9 @@ from pathlib import Path
 from metalens_cli.errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")  # image files the tool reads
-MAX_TEXT_BYTES = 4 << 20         # presets, CSV tables, JSON run files
-MAX_ARRAY_BYTES = 4 << 30        # a .npy θ map (the paper's lens in float64: 0.3 GB)
-MAX_IMAGE_PIXELS = 150_000_000   # one image, all channels aside (a 12 000² frame; below 2 × Pillow's bomb limit)
+MAX_TEXT_BYTES = 4 << 20  # presets, CSV tables, JSON run files
+MAX_ARRAY_BYTES = 4 << 30  # a .npy θ map (the paper's lens in float64: 0.3 GB)
+MAX_IMAGE_PIXELS = 150_000_000  # one image, all channels aside (a 12 000² frame; below 2 × Pillow's bomb limit)
 
 
 def regular_file(path: str | os.PathLike[str], field: str, expected: str) -> Path:
@@ -71,12 +71,16 @@ def read_npy(path: str | os.PathLike[str], field: str, expected: str, limit: int
             shape, _, dtype = read_header(handle, max_header_size=10_000)
             offset = handle.tell()
     except (OSError, ValueError, SyntaxError, TypeError, UnicodeDecodeError) as exc:
-        raise InputError(field, f"{path.name} is not a readable .npy file: {str(exc).splitlines()[0] if str(exc) else exc}", expected) from None
+        raise InputError(
+            field, f"{path.name} is not a readable .npy file: {str(exc).splitlines()[0] if str(exc) else exc}", expected
+        ) from None
     if dtype.kind not in "fiu" or dtype.hasobject:
         raise InputError(field, f"{path.name} holds {dtype}, not real numbers", expected)
     size = int(np.prod(shape, dtype=object)) * dtype.itemsize
     if size > limit:
-        raise InputError(field, f"{path.name} claims {size / 2**30:.3g} GiB of data; the limit is {limit / 2**30:g} GiB", expected)
+        raise InputError(
+            field, f"{path.name} claims {size / 2**30:.3g} GiB of data; the limit is {limit / 2**30:g} GiB", expected
+        )
     if size > path.stat().st_size - offset:
         raise InputError(field, f"{path.name} is truncated: its header claims {size} bytes of data", expected)
     return np.load(path, allow_pickle=False)
@@ -100,12 +104,20 @@ def check_image_size(path: Path, field: str, limit: int = MAX_IMAGE_PIXELS) -> t
                 with Image.open(path) as image:
                     width, height = image.size
         except Image.DecompressionBombError:  # over 2 × Pillow's limit, which is above ours
-            raise InputError(field, f"{path.name} is over {2 * Image.MAX_IMAGE_PIXELS / 1e6:.0f} megapixels; the limit is "
-                             f"{limit / 1e6:g} megapixels", "a smaller image") from None
+            raise InputError(
+                field,
+                f"{path.name} is over {2 * Image.MAX_IMAGE_PIXELS / 1e6:.0f} megapixels; the limit is "
+                f"{limit / 1e6:g} megapixels",
+                "a smaller image",
+            ) from None
         except Exception:  # Pillow cannot parse it: leave the verdict to the decoder
             return 0, 0
     if height * width > limit:
-        raise InputError(field, f"{path.name} is {width} × {height} pixels; the limit is {limit / 1e6:g} megapixels", "a smaller image")
+        raise InputError(
+            field,
+            f"{path.name} is {width} × {height} pixels; the limit is {limit / 1e6:g} megapixels",
+            "a smaller image",
+        )
     return height, width
 
 
@@ -121,7 +133,11 @@ def open_exr(path: Path, field: str, expected: str, header_only: bool = False):
         (x0, y0), (x1, y1) = header["dataWindow"]
         size = (int(x1) - int(x0) + 1) * (int(y1) - int(y0) + 1) * len(header.get("channels", ())) * 4
         if size > MAX_ARRAY_BYTES:
-            raise InputError(field, f"{path.name} claims {size / 2**30:.3g} GiB of pixels; the limit is {MAX_ARRAY_BYTES / 2**30:g} GiB", expected)
+            raise InputError(
+                field,
+                f"{path.name} claims {size / 2**30:.3g} GiB of pixels; the limit is {MAX_ARRAY_BYTES / 2**30:g} GiB",
+                expected,
+            )
     with library_output() as said:
         try:
             exr = OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
@@ -130,7 +146,11 @@ def open_exr(path: Path, field: str, expected: str, header_only: bool = False):
             exr, parts = None, 0
     if parts != 1:
         reason = next((line.strip() for line in said.text.splitlines() if line.strip()), "")
-        detail = "corrupt or truncated" + (f": {reason[:160]}" if reason else "") if parts == 0 else f"{parts} parts, not one"
+        detail = (
+            "corrupt or truncated" + (f": {reason[:160]}" if reason else "")
+            if parts == 0
+            else f"{parts} parts, not one"
+        )
         who = "" if field == str(path) else f"{path.name}: "
         raise InputError(field, f"{who}not a readable OpenEXR file ({detail})", expected)
     return exr

@@ -68,8 +68,13 @@ class FinGeometry:
 
     def describe(self) -> dict:
         """JSON-ready summary for file headers and reports."""
-        return {"pitch_m": self.pitch_m, "width_m": self.width_m, "length_m": self.length_m, "dbu_m": self.dbu_m,
-                "layer": f"{self.layer}/{self.datatype}"}
+        return {
+            "pitch_m": self.pitch_m,
+            "width_m": self.width_m,
+            "length_m": self.length_m,
+            "dbu_m": self.dbu_m,
+            "layer": f"{self.layer}/{self.datatype}",
+        }
 
 
 @dataclass(frozen=True)
@@ -86,8 +91,14 @@ class ExportReport:
 
     def to_dict(self) -> dict:
         """The ``--json`` report keys."""
-        return {"atoms": self.atoms, "file": self.file, "bytes": self.bytes, "format": self.format,
-                "max_phase_error_rad": self.max_phase_error_rad, "seconds": self.seconds}
+        return {
+            "atoms": self.atoms,
+            "file": self.file,
+            "bytes": self.bytes,
+            "format": self.format,
+            "max_phase_error_rad": self.max_phase_error_rad,
+            "seconds": self.seconds,
+        }
 
 
 # --- sites -------------------------------------------------------------------------------------------------
@@ -121,7 +132,9 @@ def _expand(j: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return i, j[row]
 
 
-def site_chunks(rows: tuple[np.ndarray, np.ndarray], max_sites: int = CHUNK_SITES) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+def site_chunks(
+    rows: tuple[np.ndarray, np.ndarray], max_sites: int = CHUNK_SITES
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Yield (i, j) int64 arrays of whole rows, about ``max_sites`` sites (at least one row) at a time."""
     j, h = rows
     bounds = np.concatenate([[0], np.cumsum(2 * h + 1)])
@@ -154,10 +167,13 @@ def check_theta_extent(lens) -> None:
     reach = n - 1 if lens.radial else n // 2
     if reach > rho + MARGIN_SITES + SITE_TOLERANCE:
         what = f"radial θ of {n} samples" if lens.radial else f"θ map of {n} × {n} sites"
-        raise InputError("--design", f"{what} reaches {reach * lens.pitch_m * 1e3:.4g} mm from the axis at pitch "
-                         f"{lens.pitch_m * 1e9:.4g} nm, beyond the {lens.aperture_m * 1e3:.4g} mm aperture: "
-                         "the map's pitch or aperture contradicts the options",
-                         f"the map's own --pitch and --aperture (at most {MARGIN_SITES} sites beyond D/2)")
+        raise InputError(
+            "--design",
+            f"{what} reaches {reach * lens.pitch_m * 1e3:.4g} mm from the axis at pitch "
+            f"{lens.pitch_m * 1e9:.4g} nm, beyond the {lens.aperture_m * 1e3:.4g} mm aperture: "
+            "the map's pitch or aperture contradicts the options",
+            f"the map's own --pitch and --aperture (at most {MARGIN_SITES} sites beyond D/2)",
+        )
 
 
 def site_theta(lens, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -234,11 +250,18 @@ def check_geometry(geometry: FinGeometry, aperture_m: float, angles: int | None)
     """Refuse fins that could overlap or collapse, coordinates beyond 32 bits, or a bad level count."""
     g = geometry
     if math.hypot(g.width_m, g.length_m) > g.pitch_m:
-        raise InputError("--width", f"a {g.width_m * 1e9:.4g} × {g.length_m * 1e9:.4g} nm fin can overlap its "
-                         f"neighbours at pitch {g.pitch_m * 1e9:.4g} nm", "a diagonal √(w² + l²) ≤ pitch")
+        raise InputError(
+            "--width",
+            f"a {g.width_m * 1e9:.4g} × {g.length_m * 1e9:.4g} nm fin can overlap its "
+            f"neighbours at pitch {g.pitch_m * 1e9:.4g} nm",
+            "a diagonal √(w² + l²) ≤ pitch",
+        )
     if min(g.width_m, g.length_m) < 2 * g.dbu_m:
-        raise InputError("--dbu", f"{g.dbu_m:g} m is too coarse for a {g.length_m * 1e9:.4g} nm fin",
-                         "a database unit at most half the fin's smaller side")
+        raise InputError(
+            "--dbu",
+            f"{g.dbu_m:g} m is too coarse for a {g.length_m * 1e9:.4g} nm fin",
+            "a database unit at most half the fin's smaller side",
+        )
     if (aperture_m / 2 + g.pitch_m) / g.dbu_m >= MAX_COORDINATE:
         raise InputError("--dbu", f"{g.dbu_m:g} m makes coordinates exceed 32 bits", "a coarser database unit")
     for name, value in (("layer", g.layer), ("datatype", g.datatype)):
@@ -265,15 +288,19 @@ def level_cell_names(top: str, levels: int) -> np.ndarray:
 
 def metadata_text(design, geometry: FinGeometry, angles: int | None, atoms: int) -> str:
     """The ASCII JSON recorded in the top cell as a TEXT element: tool, design, geometry, conventions."""
-    return json.dumps({
-        "tool": f"metalens {__version__}",
-        "design": Path(str(design.spec).rstrip("/")).name or design.spec,
-        "aperture_m": design.lens.aperture_m,
-        **geometry.describe(),
-        "angles": "exact" if angles is None else angles,
-        "atoms": atoms,
-        "convention": "fin centred on site (i*pitch, j*pitch), width side at theta CCW from +x, phase 2*theta",
-    }, separators=(",", ":"), ensure_ascii=True)
+    return json.dumps(
+        {
+            "tool": f"metalens {__version__}",
+            "design": Path(str(design.spec).rstrip("/")).name or design.spec,
+            "aperture_m": design.lens.aperture_m,
+            **geometry.describe(),
+            "angles": "exact" if angles is None else angles,
+            "atoms": atoms,
+            "convention": "fin centred on site (i*pitch, j*pitch), width side at theta CCW from +x, phase 2*theta",
+        },
+        separators=(",", ":"),
+        ensure_ascii=True,
+    )
 
 
 # --- writing -----------------------------------------------------------------------------------------------
@@ -290,8 +317,9 @@ def _write_level_cells(stream: GdsStream, names: np.ndarray, used: np.ndarray, g
         stream.end_structure()
 
 
-def write_gds(file, design, geometry: FinGeometry, angles: int | None,
-              progress: Callable[[int, int], None] | None = None) -> tuple[int, float, str]:
+def write_gds(
+    file, design, geometry: FinGeometry, angles: int | None, progress: Callable[[int, int], None] | None = None
+) -> tuple[int, float, str]:
     """Stream the lens as GDSII into the open binary ``file``; return (atoms, max phase error (rad), top cell)."""
     lens = design.lens
     rows = site_rows(lens.radius_m, lens.pitch_m)
@@ -354,8 +382,13 @@ def _open_fifo_writer(fifo: str, reader: subprocess.Popen) -> BinaryIO:
     return os.fdopen(descriptor, "wb")
 
 
-def write_oasis(path: str | os.PathLike, design, geometry: FinGeometry, angles: int | None,
-                progress: Callable[[int, int], None] | None = None) -> tuple[int, float, str]:
+def write_oasis(
+    path: str | os.PathLike,
+    design,
+    geometry: FinGeometry,
+    angles: int | None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[int, float, str]:
     """Write the lens as OASIS to ``path``: the GDSII stream goes through a FIFO into a KLayout process
     (:func:`gds_to_oasis`), so that writing and reading overlap on two cores and no intermediate file
     touches the disk."""
@@ -387,8 +420,9 @@ def require_klayout():
     try:
         import klayout.db as db
     except ImportError:
-        raise InputError("klayout", "the klayout package is not installed (needed for OASIS and --verify)",
-                         "pip install klayout") from None
+        raise InputError(
+            "klayout", "the klayout package is not installed (needed for OASIS and --verify)", "pip install klayout"
+        ) from None
     return db
 
 
@@ -399,18 +433,27 @@ def format_of(path: str | os.PathLike, fmt: str | None) -> str:
     aliases = {"gds": "gds", "gdsii": "gds", "gds2": "gds", "oas": "oas", "oasis": "oas"}
     if fmt is not None:
         if aliases.get(suffix, fmt) != fmt:
-            raise InputError("--format", f"{fmt} into {Path(path).name!r}, whose extension says {aliases[suffix]}",
-                             "a format matching the extension")
+            raise InputError(
+                "--format",
+                f"{fmt} into {Path(path).name!r}, whose extension says {aliases[suffix]}",
+                "a format matching the extension",
+            )
         return fmt
     if suffix not in aliases:
-        raise InputError("--output", f"cannot tell the format of {str(path)!r} from its extension", ".gds or .oas, or --format")
+        raise InputError(
+            "--output", f"cannot tell the format of {str(path)!r} from its extension", ".gds or .oas, or --format"
+        )
     return aliases[suffix]
 
 
 # Per fin: bytes in the file, fins written per second, bytes held in memory (OASIS is built in
 # KLayout's memory); measured by benchmarks/bench_gds.py on the paper's lens (docs/benchmarks.md).
-FIN_COSTS = {("gds", "exact"): (64, 2.3e6, 0), ("gds", "quantised"): (40, 3.9e6, 0), ("oas", "exact"): (2.4, 5.6e5, 36),
-             ("oas", "quantised"): (2.4, 5.6e5, 36)}
+FIN_COSTS = {
+    ("gds", "exact"): (64, 2.3e6, 0),
+    ("gds", "quantised"): (40, 3.9e6, 0),
+    ("oas", "exact"): (2.4, 5.6e5, 36),
+    ("oas", "quantised"): (2.4, 5.6e5, 36),
+}
 STREAMING_BYTES = 1 << 29  # the chunked writer's working set (CHUNK_SITES sites of temporaries, 0.41 GiB measured)
 
 
@@ -422,8 +465,14 @@ def estimate_layout(aperture_m: float, pitch_m: float, fmt: str, angles: int | N
     return fins, int(fins * size), int(STREAMING_BYTES + fins * held), fins / rate
 
 
-def export_layout(design, geometry: FinGeometry, path: str | os.PathLike, fmt: str = "gds", angles: int | None = None,
-                  progress: Callable[[int, int], None] | None = None) -> ExportReport:
+def export_layout(
+    design,
+    geometry: FinGeometry,
+    path: str | os.PathLike,
+    fmt: str = "gds",
+    angles: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> ExportReport:
     """Write the lens layout of ``design`` (a :class:`metalens_cli.io.designs.Design`) to ``path``.
 
     ``angles`` None writes every fin as its own polygon at its exact θ; K quantises θ into K
@@ -432,8 +481,11 @@ def export_layout(design, geometry: FinGeometry, path: str | os.PathLike, fmt: s
     start = time.perf_counter()
     lens = design.lens
     if not math.isclose(geometry.pitch_m, lens.pitch_m, rel_tol=1e-9):
-        raise InputError("--pitch", f"fin pitch {geometry.pitch_m:g} m differs from the design's {lens.pitch_m:g} m",
-                         "one pitch for the θ map and the layout")
+        raise InputError(
+            "--pitch",
+            f"fin pitch {geometry.pitch_m:g} m differs from the design's {lens.pitch_m:g} m",
+            "one pitch for the θ map and the layout",
+        )
     check_theta_extent(lens)
     check_geometry(geometry, lens.aperture_m, angles)
     if fmt not in FORMATS:

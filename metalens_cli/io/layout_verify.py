@@ -40,8 +40,15 @@ class VerifyReport:
 
     def to_dict(self) -> dict:
         """JSON-ready report."""
-        return {"ok": self.ok, "expected_atoms": self.expected_atoms, "found_atoms": self.found_atoms,
-                "samples": self.samples, "worst": self.worst, "tolerance": self.tolerance, "failures": self.failures}
+        return {
+            "ok": self.ok,
+            "expected_atoms": self.expected_atoms,
+            "found_atoms": self.found_atoms,
+            "samples": self.samples,
+            "worst": self.worst,
+            "tolerance": self.tolerance,
+            "failures": self.failures,
+        }
 
 
 def wrap(angle: np.ndarray, period: float) -> np.ndarray:
@@ -65,12 +72,16 @@ def measure_fin(points: np.ndarray, width_dbu: float) -> tuple[np.ndarray, np.nd
 def tolerances(geometry: FinGeometry) -> dict:
     """Rounding allowances (m, rad) of the centre, the sides and the rotation (see module docstring)."""
     d = geometry.dbu_m
-    return {"centre_m": d / 2, "side_m": math.sqrt(2) * d,
-            "rotation_rad": math.atan(math.sqrt(2) * d / (geometry.width_m - math.sqrt(2) * d))}
+    return {
+        "centre_m": d / 2,
+        "side_m": math.sqrt(2) * d,
+        "rotation_rad": math.atan(math.sqrt(2) * d / (geometry.width_m - math.sqrt(2) * d)),
+    }
 
 
 def _count_fins(layout, top, layer: int) -> int:
     """Polygons and boxes on ``layer`` in the flattened top cell (texts excluded)."""
+
     def own(cell) -> int:
         shapes = cell.shapes(layer)
         texts = sum(1 for _ in shapes.each(type(shapes).STexts))
@@ -96,8 +107,9 @@ def _fins_at(db, top, layer: int, x: int, y: int) -> list[np.ndarray]:
     return found
 
 
-def verify_layout(path: str, design, geometry: FinGeometry, angles: int | None,
-                  samples: int = DEFAULT_SAMPLES, seed: int = 0) -> VerifyReport:
+def verify_layout(
+    path: str, design, geometry: FinGeometry, angles: int | None, samples: int = DEFAULT_SAMPLES, seed: int = 0
+) -> VerifyReport:
     """Read ``path`` (GDSII or OASIS) with KLayout and check it against ``design`` (see module docstring)."""
     db = require_klayout()
     lens = design.lens
@@ -137,7 +149,18 @@ def verify_layout(path: str, design, geometry: FinGeometry, angles: int | None,
         errors["width_m"] = max(errors["width_m"], abs(float(sides[0]) * d - geometry.width_m))
         errors["length_m"] = max(errors["length_m"], abs(float(sides[1]) * d - geometry.length_m))
         errors["rotation_rad"] = max(errors["rotation_rad"], abs(float(wrap(angle - written[k], math.pi))))
-        errors["phase_vs_design_rad"] = max(errors["phase_vs_design_rad"], abs(float(wrap(2 * (angle - theta[k]), 2 * math.pi))))
-    limits = {"centre_m": tol["centre_m"], "width_m": tol["side_m"], "length_m": tol["side_m"], "rotation_rad": tol["rotation_rad"]}
-    failures += [f"worst {key} {errors[key]:.3g} exceeds {limit:.3g}" for key, limit in limits.items() if errors[key] > limit * (1 + 1e-9)]
+        errors["phase_vs_design_rad"] = max(
+            errors["phase_vs_design_rad"], abs(float(wrap(2 * (angle - theta[k]), 2 * math.pi)))
+        )
+    limits = {
+        "centre_m": tol["centre_m"],
+        "width_m": tol["side_m"],
+        "length_m": tol["side_m"],
+        "rotation_rad": tol["rotation_rad"],
+    }
+    failures += [
+        f"worst {key} {errors[key]:.3g} exceeds {limit:.3g}"
+        for key, limit in limits.items()
+        if errors[key] > limit * (1 + 1e-9)
+    ]
     return VerifyReport(not failures, expected, found, int(index.size), errors, tol, failures[:10])

@@ -33,19 +33,22 @@ import re
 from pathlib import Path
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.tables import Column, read_table_csv, WAVELENGTH
+from metalens_cli.io.tables import WAVELENGTH, Column, read_table_csv
 from metalens_cli.optics.materials import BUILTIN, Cauchy, Constant, Material, Tabulated
 
-MATERIAL_FORM = ("a built-in (sinx, fused-silica, tio2, a-si, air), a number such as 2.0 or 2.0+0.01j, "
-                 "cauchy:A,B[,C] with λ in µm, or a CSV file wavelength_nm,n[,k]")
+MATERIAL_FORM = (
+    "a built-in (sinx, fused-silica, tio2, a-si, air), a number such as 2.0 or 2.0+0.01j, "
+    "cauchy:A,B[,C] with λ in µm, or a CSV file wavelength_nm,n[,k]"
+)
 MATERIAL_TABLE = (WAVELENGTH, Column("n", ("n",)), Column("k", ("k",), optional=True))
 
 _REAL = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
 _NONFINITE = r"[+-]?(?:nan|inf(?:inity)?)"
 _PART = rf"(?:{_REAL}|{_NONFINITE})"
 # A real number or n±kj (Python's complex literal; "nan" and "inf" are caught to be refused).
-_NUMBER_RE = re.compile(rf"{_PART}(?:[+-](?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+|nan|inf(?:inity)?)(?:[eE][+-]?[0-9]+)?[jJ])?",
-                        re.IGNORECASE)
+_NUMBER_RE = re.compile(
+    rf"{_PART}(?:[+-](?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+|nan|inf(?:inity)?)(?:[eE][+-]?[0-9]+)?[jJ])?", re.IGNORECASE
+)
 _REAL_RE = re.compile(_REAL)
 
 
@@ -92,12 +95,19 @@ def _constant(compact: str, raw: str, field: str) -> Constant:
     except ValueError:
         raise InputError(field, f"{_quote(raw)} is not a number", MATERIAL_FORM) from None
     if not (math.isfinite(value.real) and math.isfinite(value.imag)):
-        raise InputError(field, f"{_quote(raw)} is not a finite index", "a finite index n or n+kj, e.g. 2.0 or 2.0+0.01j")
+        raise InputError(
+            field, f"{_quote(raw)} is not a finite index", "a finite index n or n+kj, e.g. 2.0 or 2.0+0.01j"
+        )
     if not value.real > 0:
-        raise InputError(field, f"{_quote(raw)}: the index must have n > 0", "a constant index n > 0, e.g. 2.0 or 2.0+0.01j")
+        raise InputError(
+            field, f"{_quote(raw)}: the index must have n > 0", "a constant index n > 0, e.g. 2.0 or 2.0+0.01j"
+        )
     if value.imag < 0:
-        raise InputError(field, f"{_quote(raw)} has k < 0, which is gain",
-                         "n+kj with k >= 0 (absorbing in the exp(-iωt) convention), e.g. 2.0+0.01j")
+        raise InputError(
+            field,
+            f"{_quote(raw)} has k < 0, which is gain",
+            "n+kj with k >= 0 (absorbing in the exp(-iωt) convention), e.g. 2.0+0.01j",
+        )
     try:
         return Constant(value, name=compact, source="user")
     except InputError as exc:
@@ -124,7 +134,12 @@ def _cauchy(s: str, field: str) -> Cauchy:
 def _looks_like_path(s: str) -> bool:
     """Whether ``s`` is meant as a file: it exists, holds a folder separator, or has a suffix
     such as ``.csv`` (not ``.01j``)."""
-    return os.path.lexists(s) or "/" in s or os.sep in s or re.fullmatch(r"\.[A-Za-z][A-Za-z0-9]*", Path(s).suffix) is not None
+    return (
+        os.path.lexists(s)
+        or "/" in s
+        or os.sep in s
+        or re.fullmatch(r"\.[A-Za-z][A-Za-z0-9]*", Path(s).suffix) is not None
+    )
 
 
 def _table(path: Path, field: str) -> Tabulated:
@@ -134,10 +149,18 @@ def _table(path: Path, field: str) -> Tabulated:
         if not row[1] > 0:
             raise InputError(field, f"{path.name}: n = {row[1]:g} at {row[0]:g} nm", "n > 0")
         if has_k and row[2] < 0:
-            raise InputError(field, f"{path.name}: k = {row[2]:g} at {row[0]:g} nm (gain)",
-                             "k >= 0 (absorbing in the exp(-iωt) convention)")
+            raise InputError(
+                field,
+                f"{path.name}: k = {row[2]:g} at {row[0]:g} nm (gain)",
+                "k >= 0 (absorbing in the exp(-iωt) convention)",
+            )
     try:
-        return Tabulated([row[0] / 1e9 for row in rows], [row[1] for row in rows],
-                         [row[2] for row in rows] if has_k else None, name=path.name, source=str(path))
+        return Tabulated(
+            [row[0] / 1e9 for row in rows],
+            [row[1] for row in rows],
+            [row[2] for row in rows] if has_k else None,
+            name=path.name,
+            source=str(path),
+        )
     except InputError as exc:
         raise _relabel(exc, field, f"{path.name}: ") from None

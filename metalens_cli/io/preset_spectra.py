@@ -26,8 +26,14 @@ import numpy as np
 
 from metalens_cli.io import cache
 from metalens_cli.io.spectra_files import camera_from_csv, efficiency_from_csv, filter_from_csv
-from metalens_cli.optics.spectra import (bandpass_transmission, camera_response, efficiency_from_table, spectral_sensitivity,
-                                         SpectralSensitivity, wavelength_grid)
+from metalens_cli.optics.spectra import (
+    SpectralSensitivity,
+    bandpass_transmission,
+    camera_response,
+    efficiency_from_table,
+    spectral_sensitivity,
+    wavelength_grid,
+)
 
 RCWA_STEP_M = 10e-9  # first sampling of η(λ); refined where η is not predictable from its samples
 RCWA_TOLERANCE = 1e-3  # refine an interval whose midpoint η differs from the interpolation by more
@@ -62,8 +68,9 @@ def _interpolate(known_m: np.ndarray, values: np.ndarray, wavelengths_m: np.ndar
     return np.clip(PchipInterpolator(known_m, values)(inside), 0.0, 1.0)
 
 
-def adaptive_samples(compute: Callable[[np.ndarray], np.ndarray],
-                     wavelength_range_m: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def adaptive_samples(
+    compute: Callable[[np.ndarray], np.ndarray], wavelength_range_m: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Wavelengths, ``compute(wavelengths)`` there, and the centres of features too narrow to
     resolve. Sampled every ``RCWA_STEP_M`` across the range (at least 4 samples), then refined:
     each round computes the midpoint of every interval still in question (all, at first), keeps
@@ -93,19 +100,23 @@ def adaptive_samples(compute: Callable[[np.ndarray], np.ndarray],
         open_ = questioned[:-1] | questioned[1:]
 
 
-def preset_efficiency(nanofin, wavelength_range_m: tuple[float, float],
-                      on_progress: Callable[[int, int], None] | None = None) -> FinEfficiency:
+def preset_efficiency(
+    nanofin, wavelength_range_m: tuple[float, float], on_progress: Callable[[int, int], None] | None = None
+) -> FinEfficiency:
     """η(λ) of a preset's ``[nanofin]`` (a :class:`~metalens_cli.io.presets.NanofinConfig`),
     RCWA over ``wavelength_range_m`` (the sensor's) when it says ``efficiency = "rcwa"``;
     ``on_progress(done, total)`` is called after each batch of wavelengths while RCWA runs (not
     on a cache hit), ``total`` one ahead of ``done``: the refinement decides how many there are."""
     if nanofin.efficiency_csv is not None:
         grid = wavelength_grid()
-        return FinEfficiency(grid, efficiency_from_csv(nanofin.efficiency_csv, grid),
-                             {"source": "csv", "file": nanofin.efficiency_csv})
+        return FinEfficiency(
+            grid, efficiency_from_csv(nanofin.efficiency_csv, grid), {"source": "csv", "file": nanofin.efficiency_csv}
+        )
     if nanofin.efficiency != "rcwa":
         table = np.array(nanofin.efficiency_wavelengths_m), np.array(nanofin.efficiency, dtype=float)
-        return FinEfficiency(*table, {"source": "table", "wavelengths_m": table[0].tolist(), "values": table[1].tolist()})
+        return FinEfficiency(
+            *table, {"source": "table", "wavelengths_m": table[0].tolist(), "values": table[1].tolist()}
+        )
     return _rcwa_efficiency(nanofin, wavelength_range_m, on_progress)
 
 
@@ -117,14 +128,25 @@ def _rcwa_efficiency(nanofin, wavelength_range_m: tuple[float, float], on_progre
     fin_material = parse_material(nanofin.material, "nanofin.material")
     substrate = parse_material(nanofin.substrate, "nanofin.substrate")
     probe = np.linspace(*wavelength_range_m, 64)  # the key: the indices over the range, whatever the sampling
-    inputs = {"fin_m": [fin.period_m, fin.height_m, fin.width_m, fin.length_m], "range_m": list(wavelength_range_m),
-              "fin_index": fin_material.index(probe, "nanofin.material"), "substrate_index": substrate.index(probe, "nanofin.substrate"),
-              "harmonics": nanofin.harmonics, "solver": rcwa.SOLVER, "sampling": [RCWA_STEP_M, RCWA_TOLERANCE, RCWA_MIN_STEP_M]}
+    inputs = {
+        "fin_m": [fin.period_m, fin.height_m, fin.width_m, fin.length_m],
+        "range_m": list(wavelength_range_m),
+        "fin_index": fin_material.index(probe, "nanofin.material"),
+        "substrate_index": substrate.index(probe, "nanofin.substrate"),
+        "harmonics": nanofin.harmonics,
+        "solver": rcwa.SOLVER,
+        "sampling": [RCWA_STEP_M, RCWA_TOLERANCE, RCWA_MIN_STEP_M],
+    }
     done = [0]
 
     def compute(w: np.ndarray) -> np.ndarray:
-        response = rcwa.fin_response(fin, fin_material.index(w, "nanofin.material"), substrate.index(w, "nanofin.substrate"),
-                                     w, nanofin.harmonics)
+        response = rcwa.fin_response(
+            fin,
+            fin_material.index(w, "nanofin.material"),
+            substrate.index(w, "nanofin.substrate"),
+            w,
+            nanofin.harmonics,
+        )
         done[0] += w.size
         if on_progress is not None:
             on_progress(done[0], done[0] + 1)  # the total is unknown until the refinement stops
@@ -133,18 +155,32 @@ def _rcwa_efficiency(nanofin, wavelength_range_m: tuple[float, float], on_progre
     def sample() -> dict[str, np.ndarray]:
         start = time.perf_counter()
         wavelengths_m, values, unresolved = adaptive_samples(compute, wavelength_range_m)
-        return {"wavelengths_m": wavelengths_m, "conversion": values, "unresolved_m": unresolved,
-                "seconds": np.array(time.perf_counter() - start)}
+        return {
+            "wavelengths_m": wavelengths_m,
+            "conversion": values,
+            "unresolved_m": unresolved,
+            "seconds": np.array(time.perf_counter() - start),
+        }
 
-    entry = cache.cached(CACHE_KIND, cache.input_key(inputs), sample, lambda arrays: _efficiency_problem(arrays, wavelength_range_m))
+    entry = cache.cached(
+        CACHE_KIND, cache.input_key(inputs), sample, lambda arrays: _efficiency_problem(arrays, wavelength_range_m)
+    )
     stored = entry.arrays
     wavelengths_m = stored["wavelengths_m"]
-    report = {"source": "rcwa", "fin": {"period_m": fin.period_m, "height_m": fin.height_m, "width_m": fin.width_m,
-                                        "length_m": fin.length_m},
-              "material": nanofin.material, "substrate": nanofin.substrate, "harmonics": nanofin.harmonics, "solver": rcwa.SOLVER,
-              "samples": int(wavelengths_m.size), "range_m": [float(wavelengths_m[0]), float(wavelengths_m[-1])],
-              "unresolved_m": stored["unresolved_m"].tolist(),
-              "seconds": float(stored["seconds"]), "cached": entry.hit, "cache_entry": None if entry.path is None else str(entry.path)}
+    report = {
+        "source": "rcwa",
+        "fin": {"period_m": fin.period_m, "height_m": fin.height_m, "width_m": fin.width_m, "length_m": fin.length_m},
+        "material": nanofin.material,
+        "substrate": nanofin.substrate,
+        "harmonics": nanofin.harmonics,
+        "solver": rcwa.SOLVER,
+        "samples": int(wavelengths_m.size),
+        "range_m": [float(wavelengths_m[0]), float(wavelengths_m[-1])],
+        "unresolved_m": stored["unresolved_m"].tolist(),
+        "seconds": float(stored["seconds"]),
+        "cached": entry.hit,
+        "cache_entry": None if entry.path is None else str(entry.path),
+    }
     return FinEfficiency(wavelengths_m, np.asarray(stored["conversion"], dtype=float), report, pchip=True)
 
 
@@ -154,21 +190,31 @@ def _efficiency_problem(stored: dict[str, np.ndarray], wavelength_range_m: tuple
     0..1 at each, unresolved features inside the range, seconds ≥ 0."""
     lo, hi = wavelength_range_m
     span = lo * (1 - 1e-9), hi * (1 + 1e-9)
-    reason = (cache.check_array(stored, "wavelengths_m", (None,), *span)
-              or cache.check_array(stored, "conversion", stored["wavelengths_m"].shape, 0, 1)
-              or cache.check_array(stored, "unresolved_m", (None,), *span) or cache.check_array(stored, "seconds", (), 0))
-    if reason is None and not (stored["wavelengths_m"].size >= 4 and np.all(np.diff(stored["wavelengths_m"]) > 0)
-                               and np.allclose(stored["wavelengths_m"][[0, -1]], wavelength_range_m, rtol=1e-9, atol=0)):
+    reason = (
+        cache.check_array(stored, "wavelengths_m", (None,), *span)
+        or cache.check_array(stored, "conversion", stored["wavelengths_m"].shape, 0, 1)
+        or cache.check_array(stored, "unresolved_m", (None,), *span)
+        or cache.check_array(stored, "seconds", (), 0)
+    )
+    if reason is None and not (
+        stored["wavelengths_m"].size >= 4
+        and np.all(np.diff(stored["wavelengths_m"]) > 0)
+        and np.allclose(stored["wavelengths_m"][[0, -1]], wavelength_range_m, rtol=1e-9, atol=0)
+    ):
         return f"wavelengths_m: not at least 4 increasing wavelengths from {lo:g} to {hi:g} m"
     return reason
 
 
-def efficiency_report(preset, bands_m: list[tuple[float, float]] | None = None, efficiency: FinEfficiency | None = None) -> dict:
+def efficiency_report(
+    preset, bands_m: list[tuple[float, float]] | None = None, efficiency: FinEfficiency | None = None
+) -> dict:
     """The JSON that says which η a result of ``preset`` used (``efficiency``, or the preset's),
     with η at the filter's band centres (or at 457, 530, 628 nm without a filter) and, given
     ``bands_m`` ([lo, hi] pairs), η's mean over each band (``band_mean``)."""
     efficiency = efficiency or preset_efficiency(preset.nanofin, preset.sensor.wavelength_range_m)
-    centres = preset.filter.centers_m if preset.filter is not None and preset.filter.centers_m else (457e-9, 530e-9, 628e-9)
+    centres = (
+        preset.filter.centers_m if preset.filter is not None and preset.filter.centers_m else (457e-9, 530e-9, 628e-9)
+    )
     report = {**efficiency.report, "at_m": list(centres), "conversion": [float(v) for v in efficiency.at(centres)]}
     if bands_m is not None:
         report["band_mean"] = [float(efficiency.at(np.linspace(lo, hi, 65)).mean()) for lo, hi in bands_m]
@@ -198,7 +244,11 @@ def preset_sensitivity(preset, wavelengths_m: np.ndarray | None = None) -> Spect
         transmission = filter_from_csv(band_filter.csv, grid)
     elif band_filter is not None:
         transmission = bandpass_transmission(
-            grid, band_filter.centers_m, band_filter.widths_m, edge_width_m=band_filter.edge_width_m, peak=band_filter.peak_transmission
+            grid,
+            band_filter.centers_m,
+            band_filter.widths_m,
+            edge_width_m=band_filter.edge_width_m,
+            peak=band_filter.peak_transmission,
         )
     efficiency = preset_efficiency(preset.nanofin, preset.sensor.wavelength_range_m).at(grid)
     camera = preset.sensor.camera_response

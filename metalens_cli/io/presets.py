@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.input_files import read_text
 from metalens_cli.io import units
+from metalens_cli.io.input_files import read_text
 from metalens_cli.optics.nanofin import DEFAULT_HARMONICS
 
 WAVELENGTH_MODES = ("log_wavelength", "harmonic_wavelength")  # loss.sharp_mode on each wavelength's own core
@@ -137,11 +137,19 @@ class OptimizeConfig:
     wavelengths_per_channel: int = toml_key("wavelengths_per_channel", "int", lo=1, hi=1024, default=3)
     seed: int = toml_key("seed", "int", lo=0, hi=2**63 - 1, default=0)
     init: str = toml_key("init", "choice", choices=("hyperbolic", "random"), default="hyperbolic")
-    design_grid: int = toml_key("design_grid", "int", lo=0, hi=100_000, default=0)  # radial samples / 2-D side; 0 = per meta-atom
-    theta_basis: str = toml_key("theta_basis", "choice", choices=("samples", "spline"), default="samples")  # see design.parameterization
-    spectral_sampling: str = toml_key("spectral_sampling", "choice", choices=("stratified", "midpoint", "bands"), default="stratified")
+    design_grid: int = toml_key(
+        "design_grid", "int", lo=0, hi=100_000, default=0
+    )  # radial samples / 2-D side; 0 = per meta-atom
+    theta_basis: str = toml_key(
+        "theta_basis", "choice", choices=("samples", "spline"), default="samples"
+    )  # see design.parameterization
+    spectral_sampling: str = toml_key(
+        "spectral_sampling", "choice", choices=("stratified", "midpoint", "bands"), default="stratified"
+    )
     obstructions: tuple[str, ...] = toml_key("obstructions", "string_list", default=("dirt",))
-    photons: float = toml_key("photons", "float", lo=0.0, hi=1e15, default=0.0)  # full-well e⁻ before the filter; 0: no shot noise
+    photons: float = toml_key(
+        "photons", "float", lo=0.0, hi=1e15, default=0.0
+    )  # full-well e⁻ before the filter; 0: no shot noise
     read_noise: float = toml_key("read_noise", "float", lo=0.0, hi=1.0, default=0.0)  # σ, fraction of full scale
     images: str | None = toml_key("images", "folder", default=None)  # training images; none: procedural scenes
     checkpoint_every: int = toml_key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
@@ -159,7 +167,9 @@ class LossConfig:
     sharp: float = toml_key("sharp", "float", lo=0.0, hi=1e3, default=1.0)
     sharp_window: int = toml_key("sharp_window", "int", lo=1, hi=101, default=5)
     sharp_mode: str = toml_key("sharp_mode", "choice", choices=SHARP_MODES, default="total")  # see design.losses
-    domain_adaptation_weights: str | None = toml_key("domain_adaptation_weights", "path", default=None)  # DeepLabv3+ checkpoint
+    domain_adaptation_weights: str | None = toml_key(
+        "domain_adaptation_weights", "path", default=None
+    )  # DeepLabv3+ checkpoint
 
 
 @dataclass(frozen=True)
@@ -219,7 +229,11 @@ NAME_PATTERN = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 def check_name(name: str) -> None:
     """A preset's ``name`` names ``runs/NAME``: a plain file name, never a path."""
     if not NAME_PATTERN.fullmatch(name):
-        raise InputError("name", f"{name!r} is not a plain name", "letters, digits, '.', '_' or '-', not starting with '.' (it names runs/NAME)")
+        raise InputError(
+            "name",
+            f"{name!r} is not a plain name",
+            "letters, digits, '.', '_' or '-', not starting with '.' (it names runs/NAME)",
+        )
 
 
 def as_str(value: Any, path: str, form: str) -> str:
@@ -261,7 +275,9 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
         if value == "rcwa":
             return value
         if not isinstance(value, list):
-            raise InputError(path, f"expected \"rcwa\" or an array of fractions, got {value!r}", '"rcwa" or [0.784, 0.729, 0.669]')
+            raise InputError(
+                path, f'expected "rcwa" or an array of fractions, got {value!r}', '"rcwa" or [0.784, 0.729, 0.669]'
+            )
         return _convert(value, {"kind": "fraction_list"}, path)
     if kind == "odd_int":
         number = _convert(value, {**meta, "kind": "int"}, path)
@@ -281,7 +297,11 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
             raise InputError(path, f"expected an integer, got {value!r}", "an integer")
         return int(_number(value, path, lo=meta.get("lo"), hi=meta.get("hi"), form="an integer"))
     if kind in ("string", "path", "folder"):
-        forms = {"string": "a string", "path": "a file path (relative to the preset)", "folder": "a folder (relative to the preset)"}
+        forms = {
+            "string": "a string",
+            "path": "a file path (relative to the preset)",
+            "folder": "a folder (relative to the preset)",
+        }
         return as_str(value, path, forms[kind])
     if kind == "string_list":
         if not isinstance(value, list) or not value:
@@ -350,29 +370,49 @@ def _check_consistency(p: Preset) -> None:
     from metalens_cli.io.tables import check_wavelengths
     from metalens_cli.optics.band_rules import CAMERA_NAMES, check_bands
 
-
     check_name(p.name)
-    for key, values in (("sensor.wavelength_range", p.sensor.wavelength_range_m),
-                        ("nanofin.efficiency_wavelengths", p.nanofin.efficiency_wavelengths_m),
-                        ("lens.design_wavelength", [p.lens.design_wavelength_m] if p.lens.design_wavelength_m else []),
-                        ("filter.centers", p.filter.centers_m if p.filter else [])):
+    for key, values in (
+        ("sensor.wavelength_range", p.sensor.wavelength_range_m),
+        ("nanofin.efficiency_wavelengths", p.nanofin.efficiency_wavelengths_m),
+        ("lens.design_wavelength", [p.lens.design_wavelength_m] if p.lens.design_wavelength_m else []),
+        ("filter.centers", p.filter.centers_m if p.filter else []),
+    ):
         check_wavelengths(values, key)
     if p.sensor.wavelength_range_m[0] >= p.sensor.wavelength_range_m[1]:
         raise InputError("sensor.wavelength_range", "is empty", "LO:HI with LO < HI, e.g. 400nm:700nm")
     o = p.obstruction
-    for key, value in (("dirt_scale", o.dirt_scale_m), ("fence_pitch", o.fence_pitch_m), ("fence_width", o.fence_width_m),
-                       ("drop_radius", o.drop_radius_m[1]), ("rain_radius", o.rain_radius_m[1])):
+    for key, value in (
+        ("dirt_scale", o.dirt_scale_m),
+        ("fence_pitch", o.fence_pitch_m),
+        ("fence_width", o.fence_width_m),
+        ("drop_radius", o.drop_radius_m[1]),
+        ("rain_radius", o.rain_radius_m[1]),
+    ):
         if not value <= MAX_OBSTRUCTION_M:
-            raise InputError(f"obstruction.{key}", f"{value:g} m is not a feature on a cover glass", f"at most {MAX_OBSTRUCTION_M * 1e3:g} mm")
+            raise InputError(
+                f"obstruction.{key}",
+                f"{value:g} m is not a feature on a cover glass",
+                f"at most {MAX_OBSTRUCTION_M * 1e3:g} mm",
+            )
     camera = p.sensor.camera_response
     if camera not in CAMERA_NAMES and not camera.lower().endswith(".csv"):
-        raise InputError("sensor.camera_response", f"unknown camera {camera!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV path")
+        raise InputError(
+            "sensor.camera_response", f"unknown camera {camera!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV path"
+        )
     if p.lens.design == "hyperbolic" and p.lens.design_wavelength_m is None:
-        raise InputError("lens.design_wavelength", "missing (required when lens.design = 'hyperbolic')", units.LENGTH_FORM)
+        raise InputError(
+            "lens.design_wavelength", "missing (required when lens.design = 'hyperbolic')", units.LENGTH_FORM
+        )
     if p.nanofin.efficiency == "rcwa" and p.nanofin.efficiency_wavelengths_m:
-        raise InputError("nanofin.efficiency_wavelengths", 'given with efficiency = "rcwa"', "either a table (efficiency = [...]) or rcwa")
+        raise InputError(
+            "nanofin.efficiency_wavelengths",
+            'given with efficiency = "rcwa"',
+            "either a table (efficiency = [...]) or rcwa",
+        )
     if p.nanofin.efficiency != "rcwa" and len(p.nanofin.efficiency) != len(p.nanofin.efficiency_wavelengths_m):
-        raise InputError("nanofin.efficiency", "needs one value per nanofin.efficiency_wavelengths entry", "equal lengths")
+        raise InputError(
+            "nanofin.efficiency", "needs one value per nanofin.efficiency_wavelengths entry", "equal lengths"
+        )
     for key in ("width", "length"):
         if getattr(p.nanofin, f"{key}_m") > p.nanofin.pitch_m:
             raise InputError(f"nanofin.{key}", "is larger than nanofin.pitch", "a fin inside its cell")
@@ -389,40 +429,60 @@ def _check_consistency(p: Preset) -> None:
             raise InputError("filter.centers", "must increase", "band centres in ascending order")
         if p.filter.centers_m:
             try:
-                check_bands(list(p.filter.centers_m), list(p.filter.widths_m), p.filter.edge_width_m, p.filter.peak_transmission)
+                check_bands(
+                    list(p.filter.centers_m), list(p.filter.widths_m), p.filter.edge_width_m, p.filter.peak_transmission
+                )
             except InputError as exc:
                 raise InputError("filter.widths", exc.message, exc.expected) from None
         _check_learned_filter(p)
     if p.optimize.spectral_sampling == "bands" and (p.filter is None or not p.filter.centers_m):
-        raise InputError("optimize.spectral_sampling", '"bands" without filter bands', "a [filter] with centers and widths")
+        raise InputError(
+            "optimize.spectral_sampling", '"bands" without filter bands', "a [filter] with centers and widths"
+        )
     if math.isinf(p.scene.z_near_m[1]):
         raise InputError("scene.z_near", "must be finite", units.INTERVAL_FORM)
     if not p.scene.z_near_m[1] < p.scene.z_far_m[0]:
         raise InputError("scene.z_far", "must lie beyond scene.z_near", "z_far's lower end above z_near's upper end")
     for kind in p.optimize.obstructions:
         if kind not in ("dirt", "fence", "drops", "rain") and not kind.startswith("file:"):
-            raise InputError("optimize.obstructions", f"unknown obstruction {kind!r}", "dirt, fence, drops, rain or file:PATH.png")
+            raise InputError(
+                "optimize.obstructions", f"unknown obstruction {kind!r}", "dirt, fence, drops, rain or file:PATH.png"
+            )
     if p.loss.sharp_mode in WAVELENGTH_MODES and p.loss.sharp_window % 2 == 0:
-        raise InputError("loss.sharp_window", f"{p.loss.sharp_window} with sharp_mode = \"{p.loss.sharp_mode}\"",
-                         "an odd window (each wavelength's core is centred on the axis pixel)")
+        raise InputError(
+            "loss.sharp_window",
+            f'{p.loss.sharp_window} with sharp_mode = "{p.loss.sharp_mode}"',
+            "an odd window (each wavelength's core is centred on the axis pixel)",
+        )
 
 
 def _check_learned_filter(p: Preset) -> None:
     """A filter to learn: bands (not a CSV), limits that admit a filter, the band quadrature."""
     f = p.filter
     if f.catalogue is not None and not f.learn:
-        raise InputError("filter.catalogue", "given without filter.learn = true", "learn = true to snap a learned filter to it")
+        raise InputError(
+            "filter.catalogue", "given without filter.learn = true", "learn = true to snap a learned filter to it"
+        )
     if not f.learn:
         return
     if f.csv is not None:
-        raise InputError("filter.learn", "a measured filter (filter.csv) cannot be learned", "filter.centers and filter.widths to start from")
+        raise InputError(
+            "filter.learn",
+            "a measured filter (filter.csv) cannot be learned",
+            "filter.centers and filter.widths to start from",
+        )
     if not 0 < f.min_width_m < f.max_width_m:
-        raise InputError("filter.max_width", f"{f.max_width_m:g} m with min_width {f.min_width_m:g} m", "0 < min_width < max_width")
+        raise InputError(
+            "filter.max_width", f"{f.max_width_m:g} m with min_width {f.min_width_m:g} m", "0 < min_width < max_width"
+        )
     if f.min_width_m < 0.81 * f.min_edge_width_m:
         raise InputError("filter.min_width", "is narrower than its edges allow", "min_width >= 0.81 × min_edge_width")
     if p.optimize.spectral_sampling != "bands":
-        raise InputError("optimize.spectral_sampling", f"{p.optimize.spectral_sampling!r} with filter.learn = true",
-                         '"bands": wavelengths that follow the learned bands')
+        raise InputError(
+            "optimize.spectral_sampling",
+            f"{p.optimize.spectral_sampling!r} with filter.learn = true",
+            '"bands": wavelengths that follow the learned bands',
+        )
 
 
 def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | None = None) -> Preset:
@@ -474,6 +534,7 @@ def load_preset(path: str | Path) -> Preset:
 
 def _resolve_paths(preset: Preset, folder: Path) -> Preset:
     """File paths in a preset are relative to the preset's folder; refuse missing files."""
+
     def resolved(value: str | None, key: str) -> str | None:
         if value is None:
             return None
@@ -482,22 +543,29 @@ def _resolve_paths(preset: Preset, folder: Path) -> Preset:
             raise InputError(key, f"no such file {str(full)!r}", "a CSV path relative to the preset")
         return str(full)
 
-    nanofin = dataclasses.replace(preset.nanofin, efficiency_csv=resolved(preset.nanofin.efficiency_csv, "nanofin.efficiency_csv"),
-                                  material=_resolved_material(preset.nanofin.material, folder, "nanofin.material"),
-                                  substrate=_resolved_material(preset.nanofin.substrate, folder, "nanofin.substrate"))
+    nanofin = dataclasses.replace(
+        preset.nanofin,
+        efficiency_csv=resolved(preset.nanofin.efficiency_csv, "nanofin.efficiency_csv"),
+        material=_resolved_material(preset.nanofin.material, folder, "nanofin.material"),
+        substrate=_resolved_material(preset.nanofin.substrate, folder, "nanofin.substrate"),
+    )
     band_filter = preset.filter
     if band_filter is not None:
         band_filter = dataclasses.replace(band_filter, csv=resolved(band_filter.csv, "filter.csv"))
     sensor = preset.sensor
     if sensor.camera_response.lower().endswith(".csv"):
         sensor = dataclasses.replace(sensor, camera_response=resolved(sensor.camera_response, "sensor.camera_response"))
-    loss = dataclasses.replace(preset.loss, domain_adaptation_weights=resolved(preset.loss.domain_adaptation_weights,
-                                                                               "loss.domain_adaptation_weights"))
+    loss = dataclasses.replace(
+        preset.loss,
+        domain_adaptation_weights=resolved(preset.loss.domain_adaptation_weights, "loss.domain_adaptation_weights"),
+    )
     optimize = preset.optimize
     if optimize.images is not None:
         folder_path = (folder / optimize.images).resolve()
         if not folder_path.is_dir():
-            raise InputError("optimize.images", f"no such folder {str(folder_path)!r}", "a folder of images relative to the preset")
+            raise InputError(
+                "optimize.images", f"no such folder {str(folder_path)!r}", "a folder of images relative to the preset"
+            )
         optimize = dataclasses.replace(optimize, images=str(folder_path))
     return dataclasses.replace(preset, nanofin=nanofin, filter=band_filter, sensor=sensor, loss=loss, optimize=optimize)
 
@@ -553,7 +621,13 @@ def toml_value(value: Any) -> str:
         return repr(value)
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    return '"' + "".join(_TOML_ESCAPES.get(c) or (f"\\u{ord(c):04x}" if ord(c) < 0x20 or ord(c) == 0x7F else c) for c in str(value)) + '"'
+    return (
+        '"'
+        + "".join(
+            _TOML_ESCAPES.get(c) or (f"\\u{ord(c):04x}" if ord(c) < 0x20 or ord(c) == 0x7F else c) for c in str(value)
+        )
+        + '"'
+    )
 
 
 _TOML_ESCAPES = {"\\": "\\\\", '"': '\\"', "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}

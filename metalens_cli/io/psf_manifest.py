@@ -42,11 +42,13 @@ FRAME_SUFFIXES = (".png", ".tif", ".tiff", ".exr", ".npy")
 MAX_FRAMES = 10_000
 EXPOSURE_RANGE_S = (1e-9, 1e6)
 MAGNIFICATION_RANGE = (1e-4, 1e4)  # the --magnification option's
-SATURATION_MAX = 1e30              # the --saturation option's
+SATURATION_MAX = 1e30  # the --saturation option's
 _SECONDS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 _EXPOSURE = re.compile(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*(s|ms|us|µs|ns)?\s*")
 _PLACEHOLDER = re.compile(r"\{(wavelength|depth|exposure)(?::([a-zµ]+))?\}")
-MANIFEST_FORM = "a CSV with columns file,wavelength,depth[,exposure], a TOML with [[frame]] tables, or a folder with --pattern"
+MANIFEST_FORM = (
+    "a CSV with columns file,wavelength,depth[,exposure], a TOML with [[frame]] tables, or a folder with --pattern"
+)
 
 
 @dataclass(frozen=True)
@@ -99,8 +101,11 @@ def read_manifest(path: str | Path, pattern: str | None = None) -> Manifest:
     path = Path(path)
     if path.is_dir():
         if pattern is None:
-            raise InputError("MANIFEST", f"{str(path)!r} is a folder and no --pattern was given",
-                             "--pattern NAME such as psf_{wavelength}_{depth}.png for a folder of frames")
+            raise InputError(
+                "MANIFEST",
+                f"{str(path)!r} is a folder and no --pattern was given",
+                "--pattern NAME such as psf_{wavelength}_{depth}.png for a folder of frames",
+            )
         frames, settings = _from_pattern(path, pattern), {}
     elif pattern is not None:
         raise InputError("--pattern", "only applies to a folder of frames", "MANIFEST a folder, or no --pattern")
@@ -130,10 +135,16 @@ def _from_csv(path: Path) -> list[FrameEntry]:
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     unknown = [c for c in header if c not in COLUMNS]
     if missing or unknown or len(set(header)) != len(header):
-        what = f"lacks the column(s) {', '.join(missing)}" if missing else (
-            f"has unknown column(s) {', '.join(unknown)}" if unknown else "repeats a column")
-        raise InputError(f"{path.name} line {rows[0][0]}", f"header {','.join(header)!r} {what}",
-                         "a header naming file, wavelength, depth and optionally exposure")
+        what = (
+            f"lacks the column(s) {', '.join(missing)}"
+            if missing
+            else (f"has unknown column(s) {', '.join(unknown)}" if unknown else "repeats a column")
+        )
+        raise InputError(
+            f"{path.name} line {rows[0][0]}",
+            f"header {','.join(header)!r} {what}",
+            "a header naming file, wavelength, depth and optionally exposure",
+        )
     frames = []
     for number, row in rows[1:]:
         where = f"{path.name} line {number}"
@@ -151,7 +162,9 @@ def _from_toml(path: Path) -> tuple[list[FrameEntry], dict]:
         raise InputError(str(path), f"is not valid TOML ({exc})", MANIFEST_FORM) from None
     unknown = sorted(set(data) - {"frame", *TOML_SETTINGS})
     if unknown:
-        raise InputError(path.name, f"unknown key(s) {', '.join(unknown)}", f"frame tables and {', '.join(TOML_SETTINGS)}")
+        raise InputError(
+            path.name, f"unknown key(s) {', '.join(unknown)}", f"frame tables and {', '.join(TOML_SETTINGS)}"
+        )
     tables = data.get("frame", [])
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise InputError(f"{path.name}: frame", "is not an array of tables", "[[frame]] tables")
@@ -188,11 +201,15 @@ def _from_pattern(folder: Path, pattern: str) -> list[FrameEntry]:
     """Frames of ``folder`` whose names match ``pattern`` (its placeholders as values)."""
     keys = [m.group(1) for m in _PLACEHOLDER.finditer(pattern)]
     if sorted(set(keys)) != sorted(keys) or not {"wavelength", "depth"} <= set(keys) or "/" in pattern:
-        raise InputError("--pattern", repr(pattern), "a file name with {wavelength} and {depth} once each, e.g. psf_{wavelength}_{depth}.png")
+        raise InputError(
+            "--pattern",
+            repr(pattern),
+            "a file name with {wavelength} and {depth} once each, e.g. psf_{wavelength}_{depth}.png",
+        )
     units = {m.group(1): m.group(2) or "" for m in _PLACEHOLDER.finditer(pattern)}
     regex, last = "", 0
     for m in _PLACEHOLDER.finditer(pattern):
-        regex += re.escape(pattern[last:m.start()]) + f"(?P<{m.group(1)}>.+?)"
+        regex += re.escape(pattern[last : m.start()]) + f"(?P<{m.group(1)}>.+?)"
         last = m.end()
     regex = re.compile(regex + re.escape(pattern[last:]))
     frames = []
@@ -203,7 +220,9 @@ def _from_pattern(folder: Path, pattern: str) -> list[FrameEntry]:
         values = {key: text + ("" if text.lower() == "inf" else units[key]) for key, text in match.groupdict().items()}
         frames.append(_entry(folder, {"file": path.name, **values}, path.name))
     if not frames:
-        raise InputError("--pattern", f"no file in {str(folder)!r} matches {pattern!r}", "a pattern matching the frames' names")
+        raise InputError(
+            "--pattern", f"no file in {str(folder)!r} matches {pattern!r}", "a pattern matching the frames' names"
+        )
     return frames
 
 
@@ -218,7 +237,11 @@ def _entry(folder: Path, values: dict[str, str], where: str) -> FrameEntry:
         name, index = stack.group(1), int(stack.group(2))
     path = folder / name
     if path.suffix.lower() not in FRAME_SUFFIXES:
-        raise InputError(where, f"file {name!r} is not a frame format", f"a {', '.join(FRAME_SUFFIXES)} file (stack.npy#K for a stack frame)")
+        raise InputError(
+            where,
+            f"file {name!r} is not a frame format",
+            f"a {', '.join(FRAME_SUFFIXES)} file (stack.npy#K for a stack frame)",
+        )
     if not path.is_file():
         raise InputError(where, f"no such file {str(path)!r}", "frame paths relative to the manifest's folder")
     for key in REQUIRED_COLUMNS[1:]:
@@ -236,7 +259,11 @@ def _exposure(text: str, where: str) -> float:
     m = _EXPOSURE.fullmatch(text)
     value = float(m.group(1)) * _SECONDS[m.group(2) or "s"] if m else 0.0
     if not EXPOSURE_RANGE_S[0] <= value <= EXPOSURE_RANGE_S[1]:
-        raise InputError(f"{where}: exposure", repr(text), "a time from 1ns to 1e6s such as 10ms, 0.5s, 200us (bare numbers are seconds)")
+        raise InputError(
+            f"{where}: exposure",
+            repr(text),
+            "a time from 1ns to 1e6s such as 10ms, 0.5s, 200us (bare numbers are seconds)",
+        )
     return value
 
 
@@ -245,20 +272,32 @@ def _check_grid(manifest: Manifest) -> None:
     every frame or for none (repeats are weighted by them)."""
     from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS
 
-    for what, values, limit in (("wavelengths", manifest.wavelengths_m, MAX_WAVELENGTHS), ("depths", manifest.depths_m, MAX_DEPTHS)):
+    for what, values, limit in (
+        ("wavelengths", manifest.wavelengths_m, MAX_WAVELENGTHS),
+        ("depths", manifest.depths_m, MAX_DEPTHS),
+    ):
         if len(values) > limit:
-            raise InputError(manifest.source, f"names {len(values)} {what}; a PSF cube holds at most {limit}", f"at most {limit} {what}")
+            raise InputError(
+                manifest.source,
+                f"names {len(values)} {what}; a PSF cube holds at most {limit}",
+                f"at most {limit} {what}",
+            )
     given = [f.exposure_s is not None for f in manifest.frames]
     if any(given) and not all(given):
         missing = next(f for f in manifest.frames if f.exposure_s is None)
-        raise InputError(missing.where, "has no exposure while other frames have one", "an exposure for every frame, or for none")
+        raise InputError(
+            missing.where, "has no exposure while other frames have one", "an exposure for every frame, or for none"
+        )
     present = {(f.depth_m, f.wavelength_m) for f in manifest.frames}
     missing = [(d, w) for d in manifest.depths_m for w in manifest.wavelengths_m if (d, w) not in present]
     if missing:
         d, w = missing[0]
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
-        raise InputError(manifest.source, f"has no frame at {w * 1e9:g} nm, depth {'inf' if d == math.inf else f'{d * 1e3:g} mm'}{more}",
-                         "a frame for every wavelength at every depth (the cube is a full grid)")
+        raise InputError(
+            manifest.source,
+            f"has no frame at {w * 1e9:g} nm, depth {'inf' if d == math.inf else f'{d * 1e3:g} mm'}{more}",
+            "a frame for every wavelength at every depth (the cube is a full grid)",
+        )
 
 
 def read_frame(entry: FrameEntry) -> tuple[np.ndarray, float | None]:
@@ -267,7 +306,9 @@ def read_frame(entry: FrameEntry) -> tuple[np.ndarray, float | None]:
     return read_frame_file(entry.path, entry.index, entry.where, stack_mean=False)
 
 
-def read_frame_file(path: Path, index: int | None, field: str, stack_mean: bool = True) -> tuple[np.ndarray, float | None]:
+def read_frame_file(
+    path: Path, index: int | None, field: str, stack_mean: bool = True
+) -> tuple[np.ndarray, float | None]:
     """A frame file (image or .npy, a stack's frame ``index``) as in :func:`read_frame`; a .npy
     stack without an index is averaged over its frames when ``stack_mean`` (a stack of dark
     frames), else refused."""
@@ -282,18 +323,28 @@ def read_frame_file(path: Path, index: int | None, field: str, stack_mean: bool 
     full_scale = float(np.iinfo(array.dtype).max) if array.dtype.kind in "iu" else None
     if array.ndim == 3:
         if index is None and not stack_mean:
-            raise InputError(field, f"{path.name} is a stack of {array.shape[0]} frames", f"{path.name}#K for its frame K")
+            raise InputError(
+                field, f"{path.name} is a stack of {array.shape[0]} frames", f"{path.name}#K for its frame K"
+            )
         if index is None:
             array = array.mean(axis=0)
         elif index >= array.shape[0]:
-            raise InputError(field, f"{path.name}#{index}: the stack has {array.shape[0]} frames", f"an index from 0 to {array.shape[0] - 1}")
+            raise InputError(
+                field,
+                f"{path.name}#{index}: the stack has {array.shape[0]} frames",
+                f"an index from 0 to {array.shape[0] - 1}",
+            )
         else:
             array = array[index]
     elif index is not None:
-        raise InputError(field, f"{path.name}#{index}: {path.name} is a single (H, W) frame", "name#K only for a (F, H, W) stack")
+        raise InputError(
+            field, f"{path.name}#{index}: {path.name} is a single (H, W) frame", "name#K only for a (F, H, W) stack"
+        )
     values = array.astype(np.float32)
     if not np.all(np.isfinite(values)) or values.min() < 0:
-        raise InputError(field, f"{path.name} holds NaN, infinite or negative values", "finite, non-negative frame values")
+        raise InputError(
+            field, f"{path.name} holds NaN, infinite or negative values", "finite, non-negative frame values"
+        )
     return values[:, :, None], full_scale
 
 

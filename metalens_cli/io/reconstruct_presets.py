@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from metalens_cli.errors import InputError
+from metalens_cli.io.presets import as_str, build_section, check_name, read_toml, toml_field, toml_key
 from metalens_cli.io.tables import check_wavelengths
-from metalens_cli.io.presets import as_str, check_name, build_section, read_toml, toml_field, toml_key
 
 OBSTRUCTION_KINDS = ("dirt", "fence", "drops", "rain")
 SCENES = ("mixed", "procedural", "dead-leaves")
@@ -82,7 +82,9 @@ class DataConfig:
     clear_fraction: float = toml_key("clear_fraction", "float", lo=0.0, hi=1.0, default=0.2)
     near_depths: int = toml_key("near_depths", "int", lo=1, hi=64, default=4)
     far_depths: int = toml_key("far_depths", "int", lo=1, hi=64, default=2)
-    wavelengths_m: tuple[float, ...] = toml_key("wavelengths", "length_list", default=tuple(k * 1e-9 for k in range(400, 701, 10)))
+    wavelengths_m: tuple[float, ...] = toml_key(
+        "wavelengths", "length_list", default=tuple(k * 1e-9 for k in range(400, 701, 10))
+    )
     photons: float = toml_key("photons", "float", lo=0.0, default=0.0)
     read_noise: float = toml_key("read_noise", "float", lo=0.0, hi=1.0, default=0.0)
     noise_sigma: float = toml_key("noise_sigma", "float", lo=0.0, hi=1.0, default=5e-3)
@@ -113,17 +115,26 @@ def reconstruct_preset_from_dict(data: dict, name: str = "reconstruct", source: 
     if "train" not in data:
         raise InputError("train", "missing section", "a [train] table with at least steps")
     sections = {key: build_section(cls, data.get(key, {}), key) for key, cls in SECTIONS.items()}
-    preset = ReconstructPreset(as_str(data.get("name", name), "name", "a string"), description=as_str(data.get("description", ""),
-                               "description", "a string"), source=source, **sections)
+    preset = ReconstructPreset(
+        as_str(data.get("name", name), "name", "a string"),
+        description=as_str(data.get("description", ""), "description", "a string"),
+        source=source,
+        **sections,
+    )
     check_name(preset.name)  # the camera presets' rule
     for kind in preset.data.obstructions:
         if kind not in OBSTRUCTION_KINDS:
             raise InputError("data.obstructions", f"unknown obstruction {kind!r}", ", ".join(OBSTRUCTION_KINDS))
     if preset.train.crop > preset.data.pool_pixels:
-        raise InputError("train.crop", f"{preset.train.crop} px exceeds data.pool_pixels {preset.data.pool_pixels}",
-                         "a crop no larger than the simulated captures")
+        raise InputError(
+            "train.crop",
+            f"{preset.train.crop} px exceeds data.pool_pixels {preset.data.pool_pixels}",
+            "a crop no larger than the simulated captures",
+        )
     if len(preset.data.wavelengths_m) < 2 or list(preset.data.wavelengths_m) != sorted(set(preset.data.wavelengths_m)):
-        raise InputError("data.wavelengths", "needs at least two increasing wavelengths", "a range such as 400:700:10nm")
+        raise InputError(
+            "data.wavelengths", "needs at least two increasing wavelengths", "a range such as 400:700:10nm"
+        )
     check_wavelengths(preset.data.wavelengths_m, "data.wavelengths")
     return preset
 
@@ -139,7 +150,11 @@ def load_reconstruct_preset(path: str | Path) -> ReconstructPreset:
     if preset.data.images is not None:
         folder = (path.parent / preset.data.images).resolve()
         if not folder.is_dir():
-            raise InputError(f"{path.name}: data.images", f"no such folder {str(folder)!r}", "a folder of images relative to the preset")
+            raise InputError(
+                f"{path.name}: data.images",
+                f"no such folder {str(folder)!r}",
+                "a folder of images relative to the preset",
+            )
         preset = dataclasses.replace(preset, data=dataclasses.replace(preset.data, images=str(folder)))
     return preset
 
@@ -153,6 +168,9 @@ def reconstruct_to_toml(preset: ReconstructPreset, **overrides: dict) -> str:
     for section in SECTIONS:
         config = dataclasses.replace(getattr(preset, section), **overrides.get(section, {}))
         lines += ["", f"[{section}]"]
-        lines += [f"{f.metadata['key']} = {toml_field(getattr(config, f.name), f.metadata['kind'])}"
-                  for f in dataclasses.fields(config) if getattr(config, f.name) is not None]
+        lines += [
+            f"{f.metadata['key']} = {toml_field(getattr(config, f.name), f.metadata['kind'])}"
+            for f in dataclasses.fields(config)
+            if getattr(config, f.name) is not None
+        ]
     return "\n".join(lines) + "\n"

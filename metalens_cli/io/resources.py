@@ -18,8 +18,8 @@ from pathlib import Path
 from metalens_cli.errors import InputError
 
 LONG_JOB_SECONDS = 60.0  # jobs estimated above this announce their estimate on stderr
-MEMORY_SHARE = 0.9       # of the available memory a job may plan to use
-MAX_SECONDS = 86400.0    # default --max-time: jobs whose longest estimate exceeds a day are refused
+MEMORY_SHARE = 0.9  # of the available memory a job may plan to use
+MAX_SECONDS = 86400.0  # default --max-time: jobs whose longest estimate exceeds a day are refused
 
 
 @dataclass(frozen=True)
@@ -68,8 +68,12 @@ def available_memory() -> int | None:
     return min(values) if values else None
 
 
-def check(estimate: Estimate, max_memory: int | None = None, output: str | os.PathLike[str] | None = None,
-          max_seconds: float = MAX_SECONDS) -> None:
+def check(
+    estimate: Estimate,
+    max_memory: int | None = None,
+    output: str | os.PathLike[str] | None = None,
+    max_seconds: float = MAX_SECONDS,
+) -> None:
     """Refuse ``estimate`` (an :class:`InputError` naming its option, with the estimate) when its
     memory exceeds ``max_memory`` or 90 % of the available memory, its disk bytes exceed the
     free space of ``output``'s folder, or its longest run time exceeds ``max_seconds`` (inf: no
@@ -80,18 +84,27 @@ def check(estimate: Estimate, max_memory: int | None = None, output: str | os.Pa
         limits.append((int(available * MEMORY_SHARE), "the memory available on this machine"))
     for limit, name in limits:
         if estimate.memory_bytes > limit:
-            raise InputError(estimate.option, f"{estimate.describe()}, over {name} ({_size(limit)})",
-                             f"a smaller {estimate.option}, or --max-memory if the estimate is too cautious")
+            raise InputError(
+                estimate.option,
+                f"{estimate.describe()}, over {name} ({_size(limit)})",
+                f"a smaller {estimate.option}, or --max-memory if the estimate is too cautious",
+            )
     if output is not None and estimate.disk_bytes:
         folder = Path(output).parent if not Path(output).is_dir() else Path(output)
         free = shutil.disk_usage(folder).free
         if estimate.disk_bytes > free:
-            raise InputError(estimate.option, f"{estimate.describe()}, over the {_size(free)} free in {str(folder)!r}",
-                             f"a smaller {estimate.option} or another disk")
+            raise InputError(
+                estimate.option,
+                f"{estimate.describe()}, over the {_size(free)} free in {str(folder)!r}",
+                f"a smaller {estimate.option} or another disk",
+            )
     longest = longest_seconds(estimate)
     if longest is not None and longest > max_seconds:
-        raise InputError(estimate.option, f"{estimate.describe()}, over the --max-time limit ({_duration(max_seconds)})",
-                         f"a smaller {estimate.option}, or a longer --max-time (inf for none)")
+        raise InputError(
+            estimate.option,
+            f"{estimate.describe()}, over the --max-time limit ({_duration(max_seconds)})",
+            f"a smaller {estimate.option}, or a longer --max-time (inf for none)",
+        )
 
 
 def longest_seconds(estimate: Estimate) -> float | None:

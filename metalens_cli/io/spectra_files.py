@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from metalens_cli.io.tables import as_fractions, Column, read_table_csv, TRANSMISSION_TABLE, WAVELENGTH
+from metalens_cli.io.tables import TRANSMISSION_TABLE, WAVELENGTH, Column, as_fractions, read_table_csv
 from metalens_cli.optics.spectra import efficiency_from_table, tabulated_response
 
 _NM = 1e-9

@@ -37,7 +37,9 @@ WAVELENGTH = Column("wavelength_nm", ("wavelength_nm", "wavelength", "lambda_nm"
 TRANSMISSION_TABLE = (WAVELENGTH, Column("transmission"))  # a filter: wavelength and one value, named any way
 
 
-def read_table_csv(path: str | Path, columns: tuple[Column, ...], field: str) -> tuple[list[list[float]], tuple[str, ...]]:
+def read_table_csv(
+    path: str | Path, columns: tuple[Column, ...], field: str
+) -> tuple[list[list[float]], tuple[str, ...]]:
     """Rows of numbers, reordered as ``columns`` (wavelength in nm first), and the names of the
     columns present. A header line is read by its names (any case and order, quotes stripped);
     a name no column takes, a name twice, or a required column missing is refused listing the
@@ -57,14 +59,17 @@ def read_table_csv(path: str | Path, columns: tuple[Column, ...], field: str) ->
             values = [float(cell) for cell in cells]
         except ValueError:
             if order is not None:
-                raise InputError(field, f"{path.name}:{number}: not a number in {text!r}",
-                                 f"numeric columns {', '.join(names)}") from None
+                raise InputError(
+                    field, f"{path.name}:{number}: not a number in {text!r}", f"numeric columns {', '.join(names)}"
+                ) from None
             order, names = _header(cells, columns, path, field)
             continue
         if order is None:
             order, names = _unnamed(len(cells), columns, path, number, field)
         if len(values) != len(order):
-            raise InputError(field, f"{path.name}:{number}: {len(values)} columns", f"{len(order)} columns: {', '.join(names)}")
+            raise InputError(
+                field, f"{path.name}:{number}: {len(values)} columns", f"{len(order)} columns: {', '.join(names)}"
+            )
         rows.append([values[i] for i in order])
     _check(rows, path, field)
     return rows, names
@@ -75,13 +80,19 @@ def _header(cells: list[str], columns: tuple[Column, ...], path: Path, field: st
     labels = [_label(cell) for cell in cells]
     found: dict[str, int] = {}
     for i, label in enumerate(labels):
-        named = [c for c in columns if label in c.aliases] or [c for c in columns if not c.aliases and c.name not in found]
+        named = [c for c in columns if label in c.aliases] or [
+            c for c in columns if not c.aliases and c.name not in found
+        ]
         if not named or named[0].name in found:
-            raise InputError(field, f"{path.name}: header {','.join(cells)!r} does not name its columns", _header_form(columns))
+            raise InputError(
+                field, f"{path.name}: header {','.join(cells)!r} does not name its columns", _header_form(columns)
+            )
         found[named[0].name] = i
     missing = [c.name for c in columns if not c.optional and c.name not in found]
     if missing:
-        raise InputError(field, f"{path.name}: header {','.join(cells)!r} lacks {', '.join(missing)}", _header_form(columns))
+        raise InputError(
+            field, f"{path.name}: header {','.join(cells)!r} lacks {', '.join(missing)}", _header_form(columns)
+        )
     present = tuple(c.name for c in columns if c.name in found)
     return [found[name] for name in present], present
 
@@ -93,20 +104,27 @@ def _label(cell: str) -> str:
     return re.sub(r"\s+", "_", text.strip()).strip("_")
 
 
-def _unnamed(count: int, columns: tuple[Column, ...], path: Path, number: int, field: str) -> tuple[list[int], tuple[str, ...]]:
+def _unnamed(
+    count: int, columns: tuple[Column, ...], path: Path, number: int, field: str
+) -> tuple[list[int], tuple[str, ...]]:
     """The columns of a table without a header: the first ``count`` of ``columns``."""
     required = sum(not c.optional for c in columns)
     if not required <= count <= len(columns):
         accepted = " or ".join(str(n) for n in range(required, len(columns) + 1))
-        raise InputError(field, f"{path.name}:{number}: {count} columns and no header",
-                         f"{accepted} columns {','.join(c.name for c in columns)}, or {_header_form(columns)}")
+        raise InputError(
+            field,
+            f"{path.name}:{number}: {count} columns and no header",
+            f"{accepted} columns {','.join(c.name for c in columns)}, or {_header_form(columns)}",
+        )
     return list(range(count)), tuple(c.name for c in columns[:count])
 
 
 def _header_form(columns: tuple[Column, ...]) -> str:
     """The accepted header names, for an error's 'expected' part."""
-    parts = [f"{c.name}{' (optional)' if c.optional else ''}: "
-             f"{' or '.join(c.aliases) if c.aliases else 'any other name'}" for c in columns]
+    parts = [
+        f"{c.name}{' (optional)' if c.optional else ''}: {' or '.join(c.aliases) if c.aliases else 'any other name'}"
+        for c in columns
+    ]
     return "a header naming its columns, in any order (" + "; ".join(parts) + ")"
 
 
@@ -117,9 +135,13 @@ def _check(rows: list[list[float]], path: Path, field: str) -> None:
         raise InputError(field, f"{path.name}: non-finite values", "finite numbers")
     wavelengths = [row[0] for row in rows]
     if any(b <= a for a, b in zip(wavelengths, wavelengths[1:])):
-        raise InputError(field, f"{path.name}: wavelengths not strictly increasing", "one row per wavelength, ascending")
+        raise InputError(
+            field, f"{path.name}: wavelengths not strictly increasing", "one row per wavelength, ascending"
+        )
     if wavelengths[0] < OPTICAL_RANGE_NM[0] or wavelengths[-1] > OPTICAL_RANGE_NM[1]:
-        raise InputError(field, f"{path.name}: wavelengths {wavelengths[0]:g}-{wavelengths[-1]:g} do not look like nm", "nanometres")
+        raise InputError(
+            field, f"{path.name}: wavelengths {wavelengths[0]:g}-{wavelengths[-1]:g} do not look like nm", "nanometres"
+        )
 
 
 def check_wavelengths(values_m, field: str) -> None:
@@ -128,7 +150,11 @@ def check_wavelengths(values_m, field: str) -> None:
     lo, hi = (v * 1e-9 for v in OPTICAL_RANGE_NM)
     for value in values_m:
         if not lo <= value <= hi:
-            raise InputError(field, f"{value * 1e9:g} nm is not an optical wavelength", f"wavelengths within {OPTICAL_RANGE_NM[0]:g}-{OPTICAL_RANGE_NM[1]:g} nm")
+            raise InputError(
+                field,
+                f"{value * 1e9:g} nm is not an optical wavelength",
+                f"wavelengths within {OPTICAL_RANGE_NM[0]:g}-{OPTICAL_RANGE_NM[1]:g} nm",
+            )
 
 
 def as_fractions(values: list[float], field: str, path: str | Path) -> list[float]:

@@ -98,7 +98,9 @@ def _length(number: str, unit: str, text, field: str, allow_inf: bool) -> tuple[
         raise InputError(field, f"{_quote(text)} must be positive and non-zero", _expected(allow_inf))
     value = float(f"{digits}e{exponent}")  # correctly rounded, whatever the number of digits
     if math.isinf(value):
-        raise InputError(field, f"{_quote(text)} overflows (more than {1.7976931348623157e308:.4g} m)", _expected(allow_inf))
+        raise InputError(
+            field, f"{_quote(text)} overflows (more than {1.7976931348623157e308:.4g} m)", _expected(allow_inf)
+        )
     if value == 0.0:
         raise InputError(field, f"{_quote(text)} is too small (it rounds to zero)", _expected(allow_inf))
     return value, digits, exponent
@@ -149,7 +151,11 @@ def _expand_range(text: str, field: str, limit: int) -> list[float]:
         parsed = _parse_length(number + (own_unit or unit), field, False)
         assert parsed is not None  # allow_inf=False
         if len(parsed[1]) > MAX_RANGE_DIGITS:
-            raise InputError(field, f"range {_quote(text)} has a part with more than {MAX_RANGE_DIGITS} significant digits", LIST_FORM)
+            raise InputError(
+                field,
+                f"range {_quote(text)} has a part with more than {MAX_RANGE_DIGITS} significant digits",
+                LIST_FORM,
+            )
         parts.append(parsed)
     # Exact integer arithmetic on a common decimal exponent: START = a·10**e, STEP = d·10**e.
     e = min(exponent for _, _, exponent in parts)
@@ -167,7 +173,9 @@ def _expand_range(text: str, field: str, limit: int) -> list[float]:
         values = [(a + i * d) / scale for i in range(count)]  # int / int is correctly rounded
     for prev, value in zip(values, values[1:]):
         if value <= prev:
-            raise InputError(field, f"range {_quote(text)} has a step too small to tell its values apart as floats", LIST_FORM)
+            raise InputError(
+                field, f"range {_quote(text)} has a step too small to tell its values apart as floats", LIST_FORM
+            )
     return values
 
 

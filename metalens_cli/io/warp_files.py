@@ -45,9 +45,19 @@ def node_positions(size: int, step: int) -> np.ndarray:
     return positions if positions[-1] == size - 1 else np.append(positions, size - 1)
 
 
-def write_warp_file(path: str | os.PathLike[str], homography: np.ndarray, reference_shape: tuple[int, int],
-                    target_shape: tuple[int, int], flow_step: int, flow_nodes: np.ndarray | None,
-                    matches: int, inliers: int, residual_px: float, refined_residual_px: float | None, refine: str) -> None:
+def write_warp_file(
+    path: str | os.PathLike[str],
+    homography: np.ndarray,
+    reference_shape: tuple[int, int],
+    target_shape: tuple[int, int],
+    flow_step: int,
+    flow_nodes: np.ndarray | None,
+    matches: int,
+    inliers: int,
+    residual_px: float,
+    refined_residual_px: float | None,
+    refine: str,
+) -> None:
     """Write a warp file atomically (fields as in the module docstring)."""
     nodes = np.zeros((0, 0, 2), np.float32) if flow_nodes is None else np.asarray(flow_nodes, np.float32)
     arrays = {
@@ -86,8 +96,12 @@ def read_warp_file(path: str | os.PathLike[str], field: str) -> dict:
 def _members(archive: zipfile.ZipFile, name: str, field: str) -> dict[str, np.ndarray]:
     """Each expected member after its header passes: small scalars and strings, a (3, 3) float
     homography, (2,) integer shapes, (ny, nx, 2) float nodes within the image pixel limit."""
-    limits = {"homography": ((3, 3), "f"), "reference_shape": ((2,), "iu"), "target_shape": ((2,), "iu"),
-              **{key: ((), kinds) for key, kinds in _SCALARS.items()}}
+    limits = {
+        "homography": ((3, 3), "f"),
+        "reference_shape": ((2,), "iu"),
+        "target_shape": ((2,), "iu"),
+        **{key: ((), kinds) for key, kinds in _SCALARS.items()},
+    }
     raw = {}
     for key in ("format", "refine", *limits, "flow_nodes"):
         try:
@@ -97,14 +111,23 @@ def _members(archive: zipfile.ZipFile, name: str, field: str) -> dict[str, np.nd
         with handle:
             try:
                 version = npy_format.read_magic(handle)
-                read_header = npy_format.read_array_header_1_0 if version == (1, 0) else npy_format.read_array_header_2_0
+                read_header = (
+                    npy_format.read_array_header_1_0 if version == (1, 0) else npy_format.read_array_header_2_0
+                )
                 shape, fortran, dtype = read_header(handle, max_header_size=10_000)
             except (ValueError, SyntaxError, TypeError, UnicodeDecodeError) as exc:
-                raise InputError(field, f"{name}: {key!r} is not a .npy array ({str(exc).splitlines()[0][:80]})", _EXPECTED) from None
+                raise InputError(
+                    field, f"{name}: {key!r} is not a .npy array ({str(exc).splitlines()[0][:80]})", _EXPECTED
+                ) from None
             if key in ("format", "refine"):
                 good = dtype.kind == "U" and shape == () and dtype.itemsize <= 4 * 64
             elif key == "flow_nodes":
-                good = dtype == np.float32 and len(shape) == 3 and shape[2] == 2 and shape[0] * shape[1] <= MAX_IMAGE_PIXELS
+                good = (
+                    dtype == np.float32
+                    and len(shape) == 3
+                    and shape[2] == 2
+                    and shape[0] * shape[1] <= MAX_IMAGE_PIXELS
+                )
             else:
                 want_shape, kinds = limits[key]
                 good = shape == want_shape and dtype.kind in kinds and not dtype.hasobject
@@ -141,7 +164,12 @@ def _validated(raw: dict[str, np.ndarray], path: Path, field: str) -> dict:
         raise bad("the homography is not finite and invertible")
     matches, inliers, step = int(raw["matches"]), int(raw["inliers"]), int(raw["flow_step"])
     residual, refined = float(raw["residual_px"]), float(raw["refined_residual_px"])
-    if not (0 <= inliers <= matches) or not (np.isfinite(residual) and residual >= 0) or refined < 0 or np.isinf(refined):
+    if (
+        not (0 <= inliers <= matches)
+        or not (np.isfinite(residual) and residual >= 0)
+        or refined < 0
+        or np.isinf(refined)
+    ):
         raise bad(f"inconsistent report (matches {matches}, inliers {inliers}, residuals {residual}, {refined})")
     nodes = np.array(raw["flow_nodes"], dtype=np.float32)
     rows, columns = shapes["reference_shape"]
@@ -157,6 +185,14 @@ def _validated(raw: dict[str, np.ndarray], path: Path, field: str) -> dict:
             raise bad(f"flow nodes of shape {nodes.shape} do not match a {rows} × {columns} reference at step {step}")
         if not np.all(np.isfinite(nodes)):
             raise bad("the flow holds NaN or infinite values")
-    return {"homography": homography, **shapes, "flow_step": step, "flow_nodes": nodes, "matches": matches,
-            "inliers": inliers, "residual_px": residual, "refined_residual_px": None if np.isnan(refined) else refined,
-            "refine": refine}
+    return {
+        "homography": homography,
+        **shapes,
+        "flow_step": step,
+        "flow_nodes": nodes,
+        "matches": matches,
+        "inliers": inliers,
+        "residual_px": residual,
+        "refined_residual_px": None if np.isnan(refined) else refined,
+        "refine": refine,
+    }

@@ -7,7 +7,10 @@ import math
 
 from metalens_cli.errors import InputError
 
-CAMERA_NAMES = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")  # colour-science's MSDS_CAMERA_SENSITIVITIES used by optics.spectra
+CAMERA_NAMES = (
+    "Nikon 5100 (NPL)",
+    "Sigma SDMerill (NPL)",
+)  # colour-science's MSDS_CAMERA_SENSITIVITIES used by optics.spectra
 
 
 def check_bands(centres_m: list[float], widths_m: list[float], edge_width_m: float, peak: float) -> None:

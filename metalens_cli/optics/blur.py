@@ -22,8 +22,8 @@ import torch
 
 from metalens_cli.optics.lens import Metalens
 
-DIFFRACTION_MARGIN = 20.0   # × λ/NA: twice the Airy pattern's 99 % encircled-energy radius
-BLOCK_ROWS = 256            # rows of a 2-D map traced at a time
+DIFFRACTION_MARGIN = 20.0  # × λ/NA: twice the Airy pattern's 99 % encircled-energy radius
+BLOCK_ROWS = 256  # rows of a 2-D map traced at a time
 
 
 def _landing(x, y, gx, gy, wavelength_m: float, distance_m: float) -> np.ndarray:
@@ -59,7 +59,7 @@ def geometric_blur_radius(lens: Metalens, wavelength_m: float, depth_m: float, d
     worst = 0.0
     for start in range(1, m - 1, BLOCK_ROWS):
         rows = slice(start, min(start + BLOCK_ROWS, m - 1))
-        block = theta[rows.start - 1:rows.stop + 1]
+        block = theta[rows.start - 1 : rows.stop + 1]
         # central differences of φ = 2θ, steps wrapped to (−π, π] (a map may be given modulo π)
         gy = _wrap(2 * (block[2:, 1:-1] - block[:-2, 1:-1])) / (2 * p)
         gx = _wrap(2 * (block[1:-1, 2:] - block[1:-1, :-2])) / (2 * p)
@@ -87,7 +87,9 @@ def window_radius_m(lens: Metalens, wavelengths_m, depths_m, distance_m: float) 
     monotone in that sine, so its distance from the axis is largest at an end of each range."""
     na = numerical_aperture(lens, distance_m)
     lams, zs = {min(wavelengths_m), max(wavelengths_m)}, {min(depths_m), max(depths_m)}
-    return max(geometric_blur_radius(lens, lam, z, distance_m) + DIFFRACTION_MARGIN * lam / na for lam in lams for z in zs)
+    return max(
+        geometric_blur_radius(lens, lam, z, distance_m) + DIFFRACTION_MARGIN * lam / na for lam in lams for z in zs
+    )
 
 
 def window_pixels(radius_m: float, pixel_pitch_m: float) -> int:
@@ -95,8 +97,9 @@ def window_pixels(radius_m: float, pixel_pitch_m: float) -> int:
     return 2 * math.ceil(radius_m / pixel_pitch_m - 0.5) + 1
 
 
-def psf_window(lens: Metalens, wavelengths_m, depths_m, distance_m: float, pixel_pitch_m: float,
-               headroom: float = 1.0) -> int:
+def psf_window(
+    lens: Metalens, wavelengths_m, depths_m, distance_m: float, pixel_pitch_m: float, headroom: float = 1.0
+) -> int:
     """Window side N (pixels, odd) for the PSFs of ``lens`` at every wavelength and depth given:
     ``window_radius_m`` × ``headroom`` (> 1 for a lens that will change, as in training)."""
     return window_pixels(headroom * window_radius_m(lens, wavelengths_m, depths_m, distance_m), pixel_pitch_m)

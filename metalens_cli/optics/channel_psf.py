@@ -72,11 +72,24 @@ class ChannelPsfStack:
         return self.kept / np.maximum(self.on_sensor, 1e-30)
 
 
-def channel_psf_stack(lens: Metalens, wavelengths_m, depths_m, weights, capacity, pixel_pitch_m: float,
-                      distance_m: float | None = None, *, energy: float = ENCIRCLED_ENERGY,
-                      plan_pixels: int | None = None, dtype: torch.dtype = torch.float32,
-                      device: str | torch.device = "cpu", plan_wavelengths_m=None, plan_depths_m=None,
-                      plan_frequency: float | None = None, core_window: int | None = None) -> ChannelPsfStack:
+def channel_psf_stack(
+    lens: Metalens,
+    wavelengths_m,
+    depths_m,
+    weights,
+    capacity,
+    pixel_pitch_m: float,
+    distance_m: float | None = None,
+    *,
+    energy: float = ENCIRCLED_ENERGY,
+    plan_pixels: int | None = None,
+    dtype: torch.dtype = torch.float32,
+    device: str | torch.device = "cpu",
+    plan_wavelengths_m=None,
+    plan_depths_m=None,
+    plan_frequency: float | None = None,
+    core_window: int | None = None,
+) -> ChannelPsfStack:
     """Channel PSFs at every depth, each in the window its light needs (module docstring).
 
     ``weights`` (3, W) mix the W wavelengths into R, G, B (``optics.spectra``); ``capacity``: the
@@ -101,19 +114,52 @@ def channel_psf_stack(lens: Metalens, wavelengths_m, depths_m, weights, capacity
     if min(caps) < 1 or plan_px < max(caps):
         raise InputError("capacity", f"windows {caps} with a plan for {plan_px} pixels", "odd windows ≤ the plan's")
     if core_window is not None and not (core_window % 2 == 1 and 1 <= core_window <= min(caps)):
-        raise InputError("core_window", f"{core_window!r} for capacities {caps}", "an odd window no larger than every capacity")
+        raise InputError(
+            "core_window", f"{core_window!r} for capacities {caps}", "an odd window no larger than every capacity"
+        )
     validate_psf_arguments(lams, zs, plan_px, pixel_pitch_m, d, "auto", dtype, 1.0)
     if lens.radial:
-        stack = _radial_stack(lens, lams, zs, mix, caps, plan_px, pixel_pitch_m, d, energy, dtype, torch.device(device),
-                              plan_wavelengths_m, plan_depths_m, plan_frequency, core_window)
+        stack = _radial_stack(
+            lens,
+            lams,
+            zs,
+            mix,
+            caps,
+            plan_px,
+            pixel_pitch_m,
+            d,
+            energy,
+            dtype,
+            torch.device(device),
+            plan_wavelengths_m,
+            plan_depths_m,
+            plan_frequency,
+            core_window,
+        )
     else:
-        stack = _grid_stack(lens, lams, zs, mix, caps, pixel_pitch_m, d, energy, dtype, device,
-                            plan_wavelengths_m, plan_depths_m, plan_frequency, core_window)
+        stack = _grid_stack(
+            lens,
+            lams,
+            zs,
+            mix,
+            caps,
+            pixel_pitch_m,
+            d,
+            energy,
+            dtype,
+            device,
+            plan_wavelengths_m,
+            plan_depths_m,
+            plan_frequency,
+            core_window,
+        )
     stack.timing_s["total"] = time.perf_counter() - start
     return stack
 
 
-def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window):
+def _radial_stack(
+    lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window
+):
     clock = time.perf_counter()
     plan_lams = lams + [float(x) for x in np.ravel(plan_l if plan_l is not None else [])]
     plan_zs = zs + [float(x) for x in np.ravel(plan_z if plan_z is not None else [])]
@@ -139,21 +185,21 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
     clock = time.perf_counter()
     w = len(lams)
     mix_d = mix.to(device, dtype)
-    mix_n = mix_d.detach()   # the window rule's sums
+    mix_n = mix_d.detach()  # the window rule's sums
     core_op = None if core_window is None else radial_sensor(plan.step_m, core_window, pitch)
     # The rule needs I(ρ) out to each capacity's inscribed disc (a window ≤ cap holds its light
     # there or nowhere); each PSF then needs it out to its own window's corner, often further.
     # Every depth's columns go through one product per range of rows (one pass over the matrix).
     inner = [min(rows, math.floor((cap // 2 + 0.5) * pitch / plan.step_m) + 1) for cap, rows in zip(caps, n_rows)]
-    mono = prop.real_matmul(out_matrix[:max(inner), :n_freq], spec).abs() ** 2 / power             # W/m² per W
+    mono = prop.real_matmul(out_matrix[: max(inner), :n_freq], spec).abs() ** 2 / power  # W/m² per W
     windows, on_sensor, outgrown, ops = [], [], [], []
     for i, cap in enumerate(caps):
         cols = slice(i * w, (i + 1) * w)
-        target = (mix_n.double() @ on_plane[cols].double()).cpu().numpy()           # (3,) on the sensor plane
+        target = (mix_n.double() @ on_plane[cols].double()).cpu().numpy()  # (3,) on the sensor plane
         rho = np.arange(inner[i]) * plan.step_m
         ring = 2 * math.pi * rho * plan.step_m
         ring[0] = math.pi * (plan.step_m / 2) ** 2
-        enclosed = np.cumsum((mono[:inner[i], cols].detach() @ mix_n.T).double().cpu().numpy() * ring[:, None], axis=0)
+        enclosed = np.cumsum((mono[: inner[i], cols].detach() @ mix_n.T).double().cpu().numpy() * ring[:, None], axis=0)
         chosen, lost = [], []
         for c in range(3):
             reach = np.nonzero(enclosed[:, c] >= energy * target[c])[0]
@@ -166,33 +212,60 @@ def _radial_stack(lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, d
         outgrown.append(lost)
     need = max([op.n_radii for op in ops] + ([core_op.n_radii] if core_op is not None else []))
     if need > mono.shape[0]:
-        extra = prop.real_matmul(out_matrix[mono.shape[0]:need, :n_freq], spec).abs() ** 2 / power
+        extra = prop.real_matmul(out_matrix[mono.shape[0] : need, :n_freq], spec).abs() ** 2 / power
         mono = torch.cat([mono, extra])
     psfs, kept, cores = [], [], []
     for i, op in enumerate(ops):
         cols = slice(i * w, (i + 1) * w)
         if core_op is not None:
-            cores.append(core_op.apply(mono[:core_op.n_radii, cols]).sum(dim=(-2, -1)))
-        psf = op.apply(mono[:op.n_radii, cols] @ mix_d.T)                          # channels mixed first
+            cores.append(core_op.apply(mono[: core_op.n_radii, cols]).sum(dim=(-2, -1)))
+        psf = op.apply(mono[: op.n_radii, cols] @ mix_d.T)  # channels mixed first
         psfs.append(psf)
         kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
     timing["propagate"] = time.perf_counter() - clock
-    grid = {"kind": "radial", "support_radius_m": plan.radius_m, "hankel_samples": plan.n_freq,
-            "hankel_samples_used": n_freq, "pupil_nodes": plan.n_nodes, "output_step_m": plan.step_m,
-            "plan_pixels": plan_px}
-    return ChannelPsfStack(tuple(psfs), tuple(windows), np.array(kept), np.array(on_sensor), np.array(outgrown, bool),
-                           tuple(caps), grid, timing, tuple(cores) if core_op is not None else None)
+    grid = {
+        "kind": "radial",
+        "support_radius_m": plan.radius_m,
+        "hankel_samples": plan.n_freq,
+        "hankel_samples_used": n_freq,
+        "pupil_nodes": plan.n_nodes,
+        "output_step_m": plan.step_m,
+        "plan_pixels": plan_px,
+    }
+    return ChannelPsfStack(
+        tuple(psfs),
+        tuple(windows),
+        np.array(kept),
+        np.array(on_sensor),
+        np.array(outgrown, bool),
+        tuple(caps),
+        grid,
+        timing,
+        tuple(cores) if core_op is not None else None,
+    )
 
 
 def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window):
     """Any propagator: the PSFs in the largest capacity, mixed, each depth cropped by its light."""
-    result = compute_psf(lens, lams, zs, max(caps), pitch, d, "auto", dtype, device,
-                         plan_wavelengths_m=plan_l, plan_depths_m=plan_z, plan_frequency=plan_f)
+    result = compute_psf(
+        lens,
+        lams,
+        zs,
+        max(caps),
+        pitch,
+        d,
+        "auto",
+        dtype,
+        device,
+        plan_wavelengths_m=plan_l,
+        plan_depths_m=plan_z,
+        plan_frequency=plan_f,
+    )
     rgb = torch.einsum("zwij,cw->zcij", result.psf, mix.to(result.psf.device, result.psf.dtype))
     psfs, windows, kept, on_sensor, outgrown = [], [], [], [], []
     for i, cap in enumerate(caps):
         psf = crop_window(rgb[i], cap)
-        squares = _square_energy(psf.detach().double().cpu().numpy())   # (3, cap//2 + 1)
+        squares = _square_energy(psf.detach().double().cpu().numpy())  # (3, cap//2 + 1)
         total = squares[:, -1]
         chosen = [2 * int(np.argmax(squares[c] >= energy * total[c])) + 1 for c in range(3)]
         psf = crop_window(psf, max(chosen))
@@ -201,17 +274,29 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
         kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
         on_sensor.append(total)
         outgrown.append([False] * 3)
-    cores = None if core_window is None else tuple(crop_window(result.psf[i], core_window).sum(dim=(-2, -1))
-                                                   for i in range(len(caps)))
-    return ChannelPsfStack(tuple(psfs), tuple(windows), np.array(kept), np.array(on_sensor), np.array(outgrown, bool),
-                           tuple(caps), result.grid, dict(result.timing_s), cores)
+    cores = (
+        None
+        if core_window is None
+        else tuple(crop_window(result.psf[i], core_window).sum(dim=(-2, -1)) for i in range(len(caps)))
+    )
+    return ChannelPsfStack(
+        tuple(psfs),
+        tuple(windows),
+        np.array(kept),
+        np.array(on_sensor),
+        np.array(outgrown, bool),
+        tuple(caps),
+        result.grid,
+        dict(result.timing_s),
+        cores,
+    )
 
 
 def crop_window(psf: torch.Tensor, n: int) -> torch.Tensor:
     """The n × n pixels (n ≤ N) of (..., N, N) PSFs around the axis pixel N//2, which becomes
     pixel n//2 (the window convention of ``optics.sensor``)."""
     lo = psf.shape[-1] // 2 - n // 2
-    return psf[..., lo:lo + n, lo:lo + n]
+    return psf[..., lo : lo + n, lo : lo + n]
 
 
 def _square_energy(psf: np.ndarray) -> np.ndarray:

@@ -146,8 +146,12 @@ def _q_matrix(f: _Fields, kx: torch.Tensor, ky: torch.Tensor, eps_x: torch.Tenso
     """Q with dH/dz = iQ·E (rows H_x, H_y; columns E_x, E_y); ``eps_x`` maps E_x to D_x (into
     H_y's basis), ``eps_y`` E_y to D_y (into H_x's)."""
     hx, hy = f.ey, f.ex
-    return _blocks([[_diagonal(hx, f.ex, -kx * ky), _diagonal(hx, f.ey, kx**2) - eps_y],
-                    [eps_x - _diagonal(hy, f.ex, ky**2), _diagonal(hy, f.ey, kx * ky)]])
+    return _blocks(
+        [
+            [_diagonal(hx, f.ex, -kx * ky), _diagonal(hx, f.ey, kx**2) - eps_y],
+            [eps_x - _diagonal(hy, f.ex, ky**2), _diagonal(hy, f.ey, kx * ky)],
+        ]
+    )
 
 
 def _p_matrix(f: _Fields, kx: torch.Tensor, ky: torch.Tensor, ez_inverse: torch.Tensor) -> torch.Tensor:
@@ -156,8 +160,12 @@ def _p_matrix(f: _Fields, kx: torch.Tensor, ky: torch.Tensor, ez_inverse: torch.
     ones, zeros = torch.ones_like(kx), torch.zeros_like(kx)
     ez_from_h = ez_inverse @ torch.cat([_diagonal(f.ez, hx, ky), -_diagonal(f.ez, hy, kx)], dim=-1)
     e_from_ez = torch.cat([_diagonal(f.ex, f.ez, kx), _diagonal(f.ey, f.ez, ky)], dim=-2)
-    turn = _blocks([[_diagonal(f.ex, hx, zeros), _diagonal(f.ex, hy, ones)],
-                    [-_diagonal(f.ey, hx, ones), _diagonal(f.ey, hy, zeros)]])
+    turn = _blocks(
+        [
+            [_diagonal(f.ex, hx, zeros), _diagonal(f.ex, hy, ones)],
+            [-_diagonal(f.ey, hx, ones), _diagonal(f.ey, hy, zeros)],
+        ]
+    )
     return turn + e_from_ez @ ez_from_h
 
 
@@ -204,7 +212,7 @@ def _flux(f: _Fields, e: torch.Tensor, h: torch.Tensor, propagating: torch.Tenso
     (B, unknowns, r) in the reduced bases."""
     nx = f.ex.size
     ex, ey = f.ex.extend() @ e[:, :nx], f.ey.extend() @ e[:, nx:]
-    hx, hy = f.ey.extend() @ h[:, :f.ey.size], f.ex.extend() @ h[:, f.ey.size:]
+    hx, hy = f.ey.extend() @ h[:, : f.ey.size], f.ex.extend() @ h[:, f.ey.size :]
     density = (ex * hy.conj() - ey * hx.conj()).real
     return (density * propagating.flatten(-2)[..., None]).sum(dim=-2)
 
@@ -232,7 +240,9 @@ def _solve(f: _Fields, harmonics: int, period_wl, thickness_k0, width, length, e
     t = (w * x) @ up + w @ down
     r = w @ up + (w * x) @ down - inc
     zeroth = (harmonics * harmonics - 1) // 2
-    t0 = torch.stack([(f.ex.extend() @ t[:, :f.ex.size])[:, zeroth], (f.ey.extend() @ t[:, f.ex.size:])[:, zeroth]], dim=-1)
+    t0 = torch.stack(
+        [(f.ex.extend() @ t[:, : f.ex.size])[:, zeroth], (f.ey.extend() @ t[:, f.ex.size :])[:, zeroth]], dim=-1
+    )
     power = _flux(f, inc, v_sub @ inc, up_sub)
     return t0, _flux(f, t, v_air @ t, up_air) / power, _flux(f, r, v_sub @ r, up_sub) / power
 
@@ -254,8 +264,15 @@ def _sides(fin: Fin, turned: bool) -> tuple[float, float]:
     return sides[::-1] if turned else sides
 
 
-def fin_responses_symmetric(fins: Sequence[Fin], fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m,
-                            harmonics: int, device=None, symmetric: bool = True) -> list[FinResponse]:
+def fin_responses_symmetric(
+    fins: Sequence[Fin],
+    fin_index: np.ndarray,
+    substrate_index: np.ndarray,
+    wavelengths_m,
+    harmonics: int,
+    device=None,
+    symmetric: bool = True,
+) -> list[FinResponse]:
     """:func:`fin_response_symmetric` for several fins at once (all wavelengths and fins in one
     batch); ``seconds`` is the whole wall time over fins × wavelengths."""
     start = time.perf_counter()
@@ -266,14 +283,20 @@ def fin_responses_symmetric(fins: Sequence[Fin], fin_index: np.ndarray, substrat
     n_fin = np.broadcast_to(np.asarray(fin_index, dtype=complex), wavelengths.shape)
     n_sub = np.broadcast_to(np.asarray(substrate_index, dtype=complex).real, wavelengths.shape)
     turns = (False, True) if symmetric else (False,)  # y-polarised = x-polarised on the fin turned
-    rows = [(fin.period_m / lam, 2 * np.pi * fin.height_m / lam, *_sides(fin, turned), n_fin[k] ** 2, n_sub[k] ** 2)
-            for fin in fins for turned in turns for k, lam in enumerate(wavelengths)]
+    rows = [
+        (fin.period_m / lam, 2 * np.pi * fin.height_m / lam, *_sides(fin, turned), n_fin[k] ** 2, n_sub[k] ** 2)
+        for fin in fins
+        for turned in turns
+        for k, lam in enumerate(wavelengths)
+    ]
     f = _fields(harmonics, symmetric, device)
     incident = _incident(f, harmonics, "x" if symmetric else "xy", device)
     columns = [torch.tensor(np.array(column), device=device) for column in zip(*rows)]
     chunk = max(1, CHUNK_ELEMENTS // (f.ex.size + f.ey.size) ** 2)
-    parts = [_solve(f, harmonics, *(c[first:first + chunk] for c in columns), incident=incident)
-             for first in range(0, len(rows), chunk)]
+    parts = [
+        _solve(f, harmonics, *(c[first : first + chunk] for c in columns), incident=incident)
+        for first in range(0, len(rows), chunk)
+    ]
     shape = (len(fins), len(turns), len(wavelengths), incident.shape[-1])
     t0, trans, refl = (torch.cat(part).cpu().numpy().reshape(*shape, -1) for part in zip(*parts))
     if symmetric:  # x incidence on the fin, then on the turned fin (y incidence)
@@ -284,13 +307,31 @@ def fin_responses_symmetric(fins: Sequence[Fin], fin_index: np.ndarray, substrat
     scale = np.sqrt(1.0 / n_sub)  # √(n_out/n_in): field ratio → power amplitude
     t_xx, t_yy = t_xx * scale, t_yy * scale
     seconds = np.full(wavelengths.shape, (time.perf_counter() - start) / (len(fins) * len(wavelengths)))
-    return [FinResponse(wavelengths, t_xx[i], t_yy[i], np.abs(t_xx[i] - t_yy[i]) ** 2 / 4,
-                        np.abs(t_xx[i] + t_yy[i]) ** 2 / 4, trans[i], refl[i], harmonics, seconds)
-            for i in range(len(fins))]
+    return [
+        FinResponse(
+            wavelengths,
+            t_xx[i],
+            t_yy[i],
+            np.abs(t_xx[i] - t_yy[i]) ** 2 / 4,
+            np.abs(t_xx[i] + t_yy[i]) ** 2 / 4,
+            trans[i],
+            refl[i],
+            harmonics,
+            seconds,
+        )
+        for i in range(len(fins))
+    ]
 
 
-def fin_response_symmetric(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, harmonics: int,
-                           device=None, symmetric: bool = True) -> FinResponse:
+def fin_response_symmetric(
+    fin: Fin,
+    fin_index: np.ndarray,
+    substrate_index: np.ndarray,
+    wavelengths_m,
+    harmonics: int,
+    device=None,
+    symmetric: bool = True,
+) -> FinResponse:
     """The Jones coefficients and efficiencies of ``fin`` at each wavelength (metres), with complex
     indices ``fin_index`` and ``substrate_index`` (one per wavelength, n + ik, k ≥ 0 for loss;
     the substrate's real part is used) and N = ``harmonics`` Fourier orders per axis: the meaning

@@ -72,8 +72,9 @@ class Metalens:
         t = pos - k0
         return 2 * (theta[k0] * (1 - t) + theta[k0 + 1] * t)
 
-    def grid_phase(self, dtype: torch.dtype = torch.float64,
-                   quadrant: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    def grid_phase(
+        self, dtype: torch.dtype = torch.float64, quadrant: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """φ (rad) and the radius r (m) of every site of the M × M meta-atom grid, axis at site
         (M//2, M//2); the pupil is r ≤ D/2. A radial lens is sampled at each site's radius;
         ``quadrant`` (radial lens only) returns the sites at offsets i, j ≥ 0 only."""
@@ -95,11 +96,12 @@ def hyperbolic_phase(r: np.ndarray | torch.Tensor, lambda_d_m: float, focal_leng
 
 
 MAX_RADIAL_SITES = 2e7  # meta-atoms across a radial lens (a 7.9 m lens at the paper's 395 nm pitch)
-MAX_GRID_SIDE = 32768   # sites per side of a 2-D map (8.6 GB of float64 θ)
+MAX_GRID_SIDE = 32768  # sites per side of a 2-D map (8.6 GB of float64 θ)
 
 
-def hyperbolic(lambda_d_m: float, focal_length_m: float, aperture_m: float, pitch_m: float,
-               radial: bool = True) -> Metalens:
+def hyperbolic(
+    lambda_d_m: float, focal_length_m: float, aperture_m: float, pitch_m: float, radial: bool = True
+) -> Metalens:
     """Hyperbolic lens focusing a plane wave of wavelength λd at distance f (all in m).
 
     θ = φ/2, radial profile sampled at k·pitch up to the pupil edge, or the 2-D map on the
@@ -109,8 +111,11 @@ def hyperbolic(lambda_d_m: float, focal_length_m: float, aperture_m: float, pitc
     sites = aperture_m / pitch_m
     if sites > (MAX_RADIAL_SITES if radial else MAX_GRID_SIDE):
         limit = MAX_RADIAL_SITES if radial else MAX_GRID_SIDE
-        raise InputError("aperture", f"{aperture_m:g} m holds {sites:.3g} meta-atoms of pitch {pitch_m:g} m across",
-                         f"at most {limit:g} across ({'radial' if radial else '2-D'} lens)")
+        raise InputError(
+            "aperture",
+            f"{aperture_m:g} m holds {sites:.3g} meta-atoms of pitch {pitch_m:g} m across",
+            f"at most {limit:g} across ({'radial' if radial else '2-D'} lens)",
+        )
     if radial:
         k = math.ceil(aperture_m / 2 / pitch_m - 1e-9) + 1
         r = np.arange(k + 1) * pitch_m
@@ -122,8 +127,7 @@ def hyperbolic(lambda_d_m: float, focal_length_m: float, aperture_m: float, pitc
     return Metalens(torch.from_numpy(theta), pitch_m, aperture_m, focal_length_m)
 
 
-def from_array(theta: np.ndarray, pitch_m: float, aperture_m: float,
-               focal_length_m: float | None = None) -> Metalens:
+def from_array(theta: np.ndarray, pitch_m: float, aperture_m: float, focal_length_m: float | None = None) -> Metalens:
     """Lens from a θ array (rad): 1-D radial samples at k·pitch, or a square 2-D map.
 
     The 1-D profile must reach the pupil edge (K·pitch ≥ D/2); the 2-D map must hold every site
@@ -137,17 +141,23 @@ def from_array(theta: np.ndarray, pitch_m: float, aperture_m: float,
     if theta.ndim == 1:
         need = math.ceil(aperture_m / 2 / pitch_m - 1e-9) + 1
         if theta.shape[0] < max(need, 2):
-            raise InputError("design", f"radial θ has {theta.shape[0]} samples but pitch "
-                             f"{pitch_m:g} m and aperture {aperture_m:g} m need {max(need, 2)}",
-                             "samples at r = k·pitch, k = 0..K with K·pitch ≥ D/2")
+            raise InputError(
+                "design",
+                f"radial θ has {theta.shape[0]} samples but pitch "
+                f"{pitch_m:g} m and aperture {aperture_m:g} m need {max(need, 2)}",
+                "samples at r = k·pitch, k = 0..K with K·pitch ≥ D/2",
+            )
     elif theta.ndim == 2:
         m = theta.shape[0]
         if theta.shape[1] != m:
             raise InputError("design", f"2-D θ must be square, got shape {theta.shape}", "M × M")
         if m - 1 - m // 2 < half:
-            raise InputError("design", f"2-D θ of size {m} cannot hold the pupil: pitch {pitch_m:g} m "
-                             f"and aperture {aperture_m:g} m need at least {2 * half + 1} sites",
-                             "an M × M map with the axis at site (M//2, M//2)")
+            raise InputError(
+                "design",
+                f"2-D θ of size {m} cannot hold the pupil: pitch {pitch_m:g} m "
+                f"and aperture {aperture_m:g} m need at least {2 * half + 1} sites",
+                "an M × M map with the axis at site (M//2, M//2)",
+            )
     else:
         raise InputError("design", f"θ must be 1-D or 2-D, got {theta.ndim}-D", "a radial or 2-D map")
     return Metalens(torch.from_numpy(theta), float(pitch_m), float(aperture_m), focal_length_m)

@@ -109,15 +109,21 @@ class Material(ABC):
             outside = (flat < lo * (1 - RANGE_SLACK)) | (flat > hi * (1 + RANGE_SLACK))
             if outside.any():
                 value = flat[np.argmax(outside)]
-                raise InputError(field, f"{_nm(value)} nm is outside the range of {self.name} ({self._cited()})",
-                                 f"wavelengths within {_nm(lo)}-{_nm(hi)} nm")
+                raise InputError(
+                    field,
+                    f"{_nm(value)} nm is outside the range of {self.name} ({self._cited()})",
+                    f"wavelengths within {_nm(lo)}-{_nm(hi)} nm",
+                )
         out = np.asarray(self._index(flat), dtype=np.complex128)
         wrong = ~(np.isfinite(out) & ((out.real >= 1) if self.transparent else (out.real > 0)))
         if wrong.any():
             i = int(np.argmax(wrong))
             what = " of a transparent dielectric" if self.transparent else ""
-            raise InputError(field, f"{self.name} gives n = {out[i]:.4g} at {_nm(flat[i])} nm, not a refractive index{what}",
-                             f"wavelengths where the model gives n {'≥ 1' if self.transparent else '> 0'}")
+            raise InputError(
+                field,
+                f"{self.name} gives n = {out[i]:.4g} at {_nm(flat[i])} nm, not a refractive index{what}",
+                f"wavelengths where the model gives n {'≥ 1' if self.transparent else '> 0'}",
+            )
         return out.reshape(lam.shape)
 
     def permittivity(self, wavelengths_m, field: str = "wavelength") -> np.ndarray:
@@ -128,8 +134,13 @@ class Material(ABC):
         """JSON-able summary: kind, name, parameters, source and valid range in metres (null:
         every wavelength)."""
         valid = self.valid_m
-        return {"kind": self.kind, "name": self.name, "parameters": self._parameters(), "source": self.source,
-                "valid_m": None if valid is None else [valid[0], valid[1]]}
+        return {
+            "kind": self.kind,
+            "name": self.name,
+            "parameters": self._parameters(),
+            "source": self.source,
+            "valid_m": None if valid is None else [valid[0], valid[1]],
+        }
 
     def _cited(self) -> str:
         return self.source if len(self.source) <= 60 else self.source[:57] + "…"
@@ -182,9 +193,13 @@ class Cauchy(Material):
     transparent: ClassVar[bool] = True
 
     def __post_init__(self):
-        a, b, c = (_finite(v, f"Cauchy coefficient {label}") for v, label in ((self.a, "A"), (self.b, "B"), (self.c, "C")))
+        a, b, c = (
+            _finite(v, f"Cauchy coefficient {label}") for v, label in ((self.a, "A"), (self.b, "B"), (self.c, "C"))
+        )
         if not a > 0:
-            raise InputError(_FIELD, f"Cauchy coefficient A = {a:g} is not positive", "A > 0 (the index at long wavelengths)")
+            raise InputError(
+                _FIELD, f"Cauchy coefficient A = {a:g} is not positive", "A > 0 (the index at long wavelengths)"
+            )
         object.__setattr__(self, "a", a)
         object.__setattr__(self, "b", b)
         object.__setattr__(self, "c", c)
@@ -218,15 +233,21 @@ class Sellmeier(Material):
         b = tuple(_finite(v, "Sellmeier coefficient B") for v in self.b)
         c = tuple(_finite(v, "Sellmeier coefficient C") for v in self.c)
         if not b or len(b) != len(c):
-            raise InputError(_FIELD, f"{len(b)} B and {len(c)} C coefficients", "as many B as C coefficients, at least one")
+            raise InputError(
+                _FIELD, f"{len(b)} B and {len(c)} C coefficients", "as many B as C coefficients, at least one"
+            )
         if any(v < 0 for v in c):
-            raise InputError(_FIELD, "a Sellmeier C coefficient is negative", "C_i >= 0 (µm², the square of a resonance wavelength)")
+            raise InputError(
+                _FIELD, "a Sellmeier C coefficient is negative", "C_i >= 0 (µm², the square of a resonance wavelength)"
+            )
         valid = _check_range(self.valid_m)
         if valid is None:
             raise InputError(_FIELD, "a Sellmeier model needs its valid range", "(lo, hi) in metres")
         for v in c:
             if valid[0] <= math.sqrt(v) * _UM <= valid[1]:
-                raise InputError(_FIELD, f"the pole at {math.sqrt(v) * 1e3:.6g} nm lies in the valid range", "a range free of poles")
+                raise InputError(
+                    _FIELD, f"the pole at {math.sqrt(v) * 1e3:.6g} nm lies in the valid range", "a range free of poles"
+                )
         object.__setattr__(self, "b", b)
         object.__setattr__(self, "c", c)
         object.__setattr__(self, "valid_m", valid)
@@ -260,8 +281,11 @@ class Tabulated(Material):
 
     def __post_init__(self):
         columns = []
-        for label, values in (("wavelengths", self.wavelengths_m), ("n", self.n),
-                              ("k", np.zeros(np.shape(self.n)) if self.k is None else self.k)):
+        for label, values in (
+            ("wavelengths", self.wavelengths_m),
+            ("n", self.n),
+            ("k", np.zeros(np.shape(self.n)) if self.k is None else self.k),
+        ):
             try:
                 array = np.array(values, dtype=np.float64)
             except (TypeError, ValueError):
@@ -274,7 +298,9 @@ class Tabulated(Material):
             columns.append(array)
         lam, n, k = columns
         if not (len(lam) == len(n) == len(k)):
-            raise InputError(_FIELD, f"{len(lam)} wavelengths, {len(n)} n and {len(k)} k values", "one n and k per wavelength")
+            raise InputError(
+                _FIELD, f"{len(lam)} wavelengths, {len(n)} n and {len(k)} k values", "one n and k per wavelength"
+            )
         if len(lam) < 2:
             raise InputError(_FIELD, f"{len(lam)} table rows", "at least 2 rows")
         if not lam[0] > 0:
@@ -282,14 +308,19 @@ class Tabulated(Material):
         steps = np.diff(lam) <= 0
         if steps.any():
             i = int(np.argmax(steps)) + 1
-            raise InputError(_FIELD, f"table wavelengths not strictly increasing at {_nm(lam[i])} nm",
-                             "one row per wavelength, ascending")
+            raise InputError(
+                _FIELD,
+                f"table wavelengths not strictly increasing at {_nm(lam[i])} nm",
+                "one row per wavelength, ascending",
+            )
         if not (n > 0).all():
             i = int(np.argmax(~(n > 0)))
             raise InputError(_FIELD, f"n = {n[i]:g} at {_nm(lam[i])} nm", "n > 0")
         if not (k >= 0).all():
             i = int(np.argmax(~(k >= 0)))
-            raise InputError(_FIELD, f"k = {k[i]:g} at {_nm(lam[i])} nm (gain)", "k >= 0 (absorbing, exp(-iωt) convention)")
+            raise InputError(
+                _FIELD, f"k = {k[i]:g} at {_nm(lam[i])} nm (gain)", "k >= 0 (absorbing, exp(-iωt) convention)"
+            )
         object.__setattr__(self, "wavelengths_m", lam)
         object.__setattr__(self, "n", n)
         object.__setattr__(self, "k", k)
@@ -361,12 +392,28 @@ class TaucLorentz(Material):
         zeta4 = (e2 - gamma2) ** 2 + alpha * alpha * c * c / 4.0  # = (E² − E₀²)² + C²E²
         a_ln = (eg * eg - e0 * e0) * e2 + eg * eg * c * c - e0 * e0 * (e0 * e0 + 3.0 * eg * eg)
         a_atan = (e2 - e0 * e0) * (e0 * e0 + eg * eg) + eg * eg * c * c
-        term_ln = (a * c * a_ln / (2.0 * math.pi * zeta4 * alpha * e0)
-                   * math.log((e0 * e0 + eg * eg + alpha * eg) / (e0 * e0 + eg * eg - alpha * eg)))
-        term_atan = (-a * a_atan / (math.pi * zeta4 * e0)
-                     * (math.pi - math.atan((2.0 * eg + alpha) / c) + math.atan((alpha - 2.0 * eg) / c)))
-        term_gamma = (2.0 * a * e0 * eg * (e2 - gamma2) / (math.pi * zeta4 * alpha)
-                      * (math.pi + 2.0 * math.atan(2.0 * (gamma2 - eg * eg) / (alpha * c))))
+        term_ln = (
+            a
+            * c
+            * a_ln
+            / (2.0 * math.pi * zeta4 * alpha * e0)
+            * math.log((e0 * e0 + eg * eg + alpha * eg) / (e0 * e0 + eg * eg - alpha * eg))
+        )
+        term_atan = (
+            -a
+            * a_atan
+            / (math.pi * zeta4 * e0)
+            * (math.pi - math.atan((2.0 * eg + alpha) / c) + math.atan((alpha - 2.0 * eg) / c))
+        )
+        term_gamma = (
+            2.0
+            * a
+            * e0
+            * eg
+            * (e2 - gamma2)
+            / (math.pi * zeta4 * alpha)
+            * (math.pi + 2.0 * math.atan(2.0 * (gamma2 - eg * eg) / (alpha * c)))
+        )
         # The last two terms of the paper, −(E² + E_g²)/E·ln(|E − E_g|/(E + E_g)) +
         # 2E_g·ln(|E − E_g|(E + E_g)/√((E₀² − E_g²)² + E_g²C²)), regrouped (identically) so that
         # the (E − E_g)²·ln|E − E_g| factor is finite, 0, at E = E_g.
@@ -386,13 +433,21 @@ class TaucLorentz(Material):
 
 
 FUSED_SILICA = Sellmeier(
-    (0.6961663, 0.4079426, 0.8974794), (0.0684043**2, 0.1162414**2, 9.896161**2), (0.21 * _UM, 3.71 * _UM),
-    name="fused-silica", source="I. H. Malitson, J. Opt. Soc. Am. 55, 1205 (1965)")
+    (0.6961663, 0.4079426, 0.8974794),
+    (0.0684043**2, 0.1162414**2, 9.896161**2),
+    (0.21 * _UM, 3.71 * _UM),
+    name="fused-silica",
+    source="I. H. Malitson, J. Opt. Soc. Am. 55, 1205 (1965)",
+)
 """Fused silica at 20 °C: Malitson's three-term Sellmeier fit, 0.21-3.71 µm (n_d = 1.45846)."""
 
 SINX = Sellmeier(
-    (3.0249, 40314.0), (0.1353406**2, 1239.842**2), (0.31 * _UM, 5.504 * _UM),
-    name="sinx", source="K. Luke et al., Opt. Lett. 40, 4823 (2015)")
+    (3.0249, 40314.0),
+    (0.1353406**2, 1239.842**2),
+    (0.31 * _UM, 5.504 * _UM),
+    name="sinx",
+    source="K. Luke et al., Opt. Lett. 40, 4823 (2015)",
+)
 """Stoichiometric Si3N4 (LPCVD films): the Sellmeier fit of Luke et al., 0.31-5.504 µm
 (n ≈ 1.996 at 1550 nm, 2.056 at 532 nm). PECVD SiNx, as a foundry deposits it for nanofins, has
 a composition-dependent index that differs from this by several per cent (usually lower and
@@ -400,8 +455,12 @@ with some absorption in the blue): for a real process pass the measured table (C
 fit instead."""
 
 TIO2 = Sellmeier(
-    (4.913 - 0.2441 / 0.0803, 0.2441 / 0.0803), (0.0, 0.0803), (0.43 * _UM, 1.53 * _UM),
-    name="tio2", source="J. R. DeVore, J. Opt. Soc. Am. 41, 416 (1951) (rutile, ordinary ray)")
+    (4.913 - 0.2441 / 0.0803, 0.2441 / 0.0803),
+    (0.0, 0.0803),
+    (0.43 * _UM, 1.53 * _UM),
+    name="tio2",
+    source="J. R. DeVore, J. Opt. Soc. Am. 41, 416 (1951) (rutile, ordinary ray)",
+)
 """Crystalline rutile TiO2, ordinary ray: DeVore's n_o² = 5.913 + 0.2441/(λ² − 0.0803) (λ in µm),
 0.43-1.53 µm (n_o ≈ 2.61 at 589 nm), written as a Sellmeier sum: 5.913 + 0.2441/(λ² − C) =
 1 + B₀λ²/(λ² − 0) + B₁λ²/(λ² − C) with B₀ = 4.913 − 0.2441/C and B₁ = 0.2441/C, identical for
@@ -410,8 +469,15 @@ amorphous TiO2 has n ≈ 2.4 at 530 nm, clearly lower; use a measured table or a
 the film for design work."""
 
 A_SI = TaucLorentz(
-    122.0, 3.45, 2.54, 1.20, 1.15, (0.2 * _UM, 2.0 * _UM),
-    name="a-si", source="G. E. Jellison Jr. and F. A. Modine, Appl. Phys. Lett. 69, 371 (1996), a-Si Tauc-Lorentz fit")
+    122.0,
+    3.45,
+    2.54,
+    1.20,
+    1.15,
+    (0.2 * _UM, 2.0 * _UM),
+    name="a-si",
+    source="G. E. Jellison Jr. and F. A. Modine, Appl. Phys. Lett. 69, 371 (1996), a-Si Tauc-Lorentz fit",
+)
 """Amorphous silicon: the Tauc–Lorentz parameters Jellison and Modine fitted to a-Si (A = 122 eV,
 E₀ = 3.45 eV, C = 2.54 eV, E_g = 1.20 eV, ε₁(∞) = 1.15). Absorbing in the visible (k ≈ 0.5 at
 600 nm); k = 0 beyond the Tauc gap (λ > 1033 nm), where real films keep a weak Urbach tail.

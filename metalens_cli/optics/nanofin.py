@@ -80,8 +80,11 @@ class Fin:
                 raise InputError(name.removesuffix("_m"), f"{value!r} m", "a positive length")
         for name in ("width_m", "length_m"):
             if getattr(self, name) > self.period_m:
-                raise InputError(name.removesuffix("_m"), f"{getattr(self, name) * NM:g} nm is larger than the "
-                                 f"{self.period_m * NM:g} nm period", "a fin inside its cell")
+                raise InputError(
+                    name.removesuffix("_m"),
+                    f"{getattr(self, name) * NM:g} nm is larger than the {self.period_m * NM:g} nm period",
+                    "a fin inside its cell",
+                )
 
 
 @dataclass(frozen=True)
@@ -130,8 +133,16 @@ def check_harmonics(harmonics: int) -> None:
         raise InputError("harmonics", str(harmonics), "an odd number of Fourier harmonics per axis, e.g. 15")
 
 
-def fin_response(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, harmonics: int,
-                 on_progress=None, device=None, solver: str = "modes") -> FinResponse:
+def fin_response(
+    fin: Fin,
+    fin_index: np.ndarray,
+    substrate_index: np.ndarray,
+    wavelengths_m,
+    harmonics: int,
+    on_progress=None,
+    device=None,
+    solver: str = "modes",
+) -> FinResponse:
     """The Jones coefficients and efficiencies of ``fin`` at each wavelength (metres), with
     complex indices ``fin_index`` and ``substrate_index`` (one per wavelength, n + ik, k ≥ 0 for
     loss) and N = ``harmonics`` Fourier orders per axis (see the module docstring), by
@@ -142,7 +153,9 @@ def fin_response(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, w
     from metalens_cli.optics.fin_modes import fin_response_symmetric
 
     wavelengths = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
-    n_fin, n_sub = (np.broadcast_to(np.asarray(v, dtype=complex), wavelengths.shape) for v in (fin_index, substrate_index))
+    n_fin, n_sub = (
+        np.broadcast_to(np.asarray(v, dtype=complex), wavelengths.shape) for v in (fin_index, substrate_index)
+    )
     step = PROGRESS_CHUNK if on_progress is not None else max(1, wavelengths.size)
     parts = []
     for first in range(0, wavelengths.size, step):
@@ -152,13 +165,25 @@ def fin_response(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, w
             on_progress(min(first + step, wavelengths.size), wavelengths.size)
     if len(parts) == 1:
         return parts[0]
-    joined = {key: np.concatenate([getattr(r, key) for r in parts]) for key in
-              ("wavelengths_m", "t_xx", "t_yy", "conversion", "co_polarized", "transmittance", "reflectance", "seconds")}
+    joined = {
+        key: np.concatenate([getattr(r, key) for r in parts])
+        for key in (
+            "wavelengths_m",
+            "t_xx",
+            "t_yy",
+            "conversion",
+            "co_polarized",
+            "transmittance",
+            "reflectance",
+            "seconds",
+        )
+    }
     return FinResponse(harmonics=harmonics, **joined)
 
 
-def fin_response_meent(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, harmonics: int,
-                       on_progress=None) -> FinResponse:
+def fin_response_meent(
+    fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, harmonics: int, on_progress=None
+) -> FinResponse:
     """:func:`fin_response` by meent: one wavelength at a time, on the CPU."""
     import meent
 
@@ -171,9 +196,25 @@ def fin_response_meent(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndar
     for k, wavelength in enumerate(wavelengths):
         start = time.perf_counter()
         n_fin, n_sub = complex(fin_index[k]), complex(substrate_index[k])
-        cell = [[1.0, [["rectangle", p / 2, p / 2, float(fin.width_m * NM), float(fin.length_m * NM), n_fin.conjugate(), 0]]]]
-        solver = meent.call_mee(backend=0, pol=0, n_top=n_sub.real, n_bot=1.0, theta=0, phi=0, fto=[order, order],
-                                wavelength=wavelength * NM, period=[p, p], ucell=cell, thickness=[fin.height_m * NM])
+        cell = [
+            [
+                1.0,
+                [["rectangle", p / 2, p / 2, float(fin.width_m * NM), float(fin.length_m * NM), n_fin.conjugate(), 0]],
+            ]
+        ]
+        solver = meent.call_mee(
+            backend=0,
+            pol=0,
+            n_top=n_sub.real,
+            n_bot=1.0,
+            theta=0,
+            phi=0,
+            fto=[order, order],
+            wavelength=wavelength * NM,
+            period=[p, p],
+            ucell=cell,
+            thickness=[fin.height_m * NM],
+        )
         result = solver.conv_solve()
         te, tm = result.res_te_inc, result.res_tm_inc
         scale = math.sqrt(1.0 / n_sub.real)  # √(n_out/n_in): field ratio → power amplitude
@@ -185,13 +226,31 @@ def fin_response_meent(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndar
         if on_progress is not None:
             on_progress(k + 1, wavelengths.size)
     t_xx, t_yy = np.array(out["t_xx"]), np.array(out["t_yy"])
-    return FinResponse(wavelengths, t_xx, t_yy, np.abs(t_xx - t_yy) ** 2 / 4, np.abs(t_xx + t_yy) ** 2 / 4,
-                       np.array(out["transmittance"]), np.array(out["reflectance"]), harmonics, np.array(out["seconds"]))
+    return FinResponse(
+        wavelengths,
+        t_xx,
+        t_yy,
+        np.abs(t_xx - t_yy) ** 2 / 4,
+        np.abs(t_xx + t_yy) ** 2 / 4,
+        np.array(out["transmittance"]),
+        np.array(out["reflectance"]),
+        harmonics,
+        np.array(out["seconds"]),
+    )
 
 
-def converge(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavelengths_m, start: int = FIRST_HARMONICS, stop: int = 41,
-             tolerance: float = 1e-3, device=None, solver: str = "modes",
-             on_progress=None) -> tuple[int | None, list[dict], FinResponse]:
+def converge(
+    fin: Fin,
+    fin_index: np.ndarray,
+    substrate_index: np.ndarray,
+    wavelengths_m,
+    start: int = FIRST_HARMONICS,
+    stop: int = 41,
+    tolerance: float = 1e-3,
+    device=None,
+    solver: str = "modes",
+    on_progress=None,
+) -> tuple[int | None, list[dict], FinResponse]:
     """η at every wavelength for N = start, start + 2, … ≤ stop, until η moves less than
     ``tolerance`` at every wavelength from both N − 2 and N − 4 to N. Returns that N (None when
     none does up to ``stop``), the table (``harmonics``; ``max_change``, the largest change of η
@@ -202,14 +261,24 @@ def converge(fin: Fin, fin_index: np.ndarray, substrate_index: np.ndarray, wavel
     ``on_progress(n, stop)`` is called after each N; ``stop`` must be at least ``start`` + 4 (three
     N to compare)."""
     if stop < start + 4:
-        raise InputError("max-harmonics", str(stop), f"at least {start + 4}: η at N is compared with N − 2 and N − 4 from N = {start}")
+        raise InputError(
+            "max-harmonics",
+            str(stop),
+            f"at least {start + 4}: η at N is compared with N − 2 and N − 4 from N = {start}",
+        )
     table, chosen, responses = [], None, []
     middle = np.atleast_1d(wavelengths_m).size // 2
     for n in range(start, stop + 1, 2):
         r = fin_response(fin, fin_index, substrate_index, wavelengths_m, n, device=device, solver=solver)
         changes = [float(np.abs(r.conversion - earlier.conversion).max()) for earlier in responses[-2:]]
-        table.append({"harmonics": n, "max_change": changes[-1] if changes else None, "conversion": float(r.conversion[middle]),
-                      "seconds": float(r.seconds.sum())})
+        table.append(
+            {
+                "harmonics": n,
+                "max_change": changes[-1] if changes else None,
+                "conversion": float(r.conversion[middle]),
+                "seconds": float(r.seconds.sum()),
+            }
+        )
         responses.append(r)
         if on_progress is not None:
             on_progress(n, stop)

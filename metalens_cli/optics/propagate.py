@@ -96,8 +96,13 @@ def _band_halfwidth(size: int, pitch_m: float, u_lim: float) -> int:
     return min(math.floor(u_lim * size * pitch_m), (size - 1) // 2)
 
 
-def asm_transfer(grid: AsmGrid, wavelength_m: float, distance_m: float,
-                 dtype: torch.dtype = torch.complex64, device: str | torch.device = "cpu"):
+def asm_transfer(
+    grid: AsmGrid,
+    wavelength_m: float,
+    distance_m: float,
+    dtype: torch.dtype = torch.complex64,
+    device: str | torch.device = "cpu",
+):
     """Band-limited transfer function on the kept band and the band's half-width K.
 
     Returns (H, K): H[a, b] = exp(i·2π·d·√(1/λ² − v_a² − u_b²)) with u_b = (b − K)/(size·pitch)
@@ -135,7 +140,7 @@ class TransferCache:
             self.store.move_to_end(key)
             return self.store[key]
         while len(self.store) >= self.capacity:
-            self.store.popitem(last=False)   # free the oldest before building the next
+            self.store.popitem(last=False)  # free the oldest before building the next
         self.store[key] = asm_transfer(grid, wavelength_m, distance_m, dtype, device)
         return self.store[key]
 
@@ -156,8 +161,8 @@ def _band_fft(x: torch.Tensor, size: int, k_max: int) -> torch.Tensor:
     out = x.new_empty(*x.shape[:-2], 2 * k_max + 1, x.shape[-2])
     for rows in _blocks(x.shape[-2], size, x.element_size()):
         spec = torch.fft.fft(x[..., rows, :], n=size, dim=-1)
-        out[..., :k_max, rows] = spec[..., size - k_max:].transpose(-1, -2)
-        out[..., k_max:, rows] = spec[..., :k_max + 1].transpose(-1, -2)
+        out[..., :k_max, rows] = spec[..., size - k_max :].transpose(-1, -2)
+        out[..., k_max:, rows] = spec[..., : k_max + 1].transpose(-1, -2)
     return out
 
 
@@ -168,8 +173,8 @@ def _band_fft_adjoint(y: torch.Tensor, size: int, k_max: int, n: int) -> torch.T
     yt = y.transpose(-1, -2)
     for rows in _blocks(rows_total, size, y.element_size()):
         full = y.new_zeros(*y.shape[:-2], rows.stop - rows.start, size)
-        full[..., :k_max + 1] = yt[..., rows, k_max:]
-        full[..., size - k_max:] = yt[..., rows, :k_max]
+        full[..., : k_max + 1] = yt[..., rows, k_max:]
+        full[..., size - k_max :] = yt[..., rows, :k_max]
         out[..., rows, :] = torch.fft.ifft(full, dim=-1, norm="forward")[..., :n]
     return out
 
@@ -201,12 +206,12 @@ def _window_ifft_adjoint(window: torch.Tensor, size: int, k_max: int, start: int
     b_k = (1/size)·Σ_x w_x·exp(−i·2π·k·(start + x)/size) for k = −K..K."""
     count, rows_total = window.shape[-2:]
     dev, real = window.device, window.real.dtype
-    pre = _turns(torch.arange(count, device=dev), k_max, size, 1.0, real)          # exp(+i2πKx/size)
+    pre = _turns(torch.arange(count, device=dev), k_max, size, 1.0, real)  # exp(+i2πKx/size)
     post = _turns(torch.arange(-k_max, k_max + 1, device=dev), start, size, -1.0, real) / size
     g = window.transpose(-1, -2)
     out = window.new_empty(*window.shape[:-2], rows_total, 2 * k_max + 1)
     for rows in _blocks(rows_total, size, window.element_size()):
-        out[..., rows, :] = torch.fft.fft(g[..., rows, :] * pre, n=size, dim=-1)[..., :2 * k_max + 1] * post
+        out[..., rows, :] = torch.fft.fft(g[..., rows, :] * pre, n=size, dim=-1)[..., : 2 * k_max + 1] * post
     return out
 
 
@@ -221,7 +226,9 @@ def _asm_adjoint(window: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_max: in
     n_up, start = grid.upsampled_size, grid.window_start
     spec = _window_ifft_adjoint(_window_ifft_adjoint(window, n_up, k_max, start), n_up, k_max, start)
     spec = spec.mul_(h.conj())
-    field = _band_fft_adjoint(_band_fft_adjoint(spec, grid.size, k_max, grid.input_size), grid.size, k_max, grid.input_size)
+    field = _band_fft_adjoint(
+        _band_fft_adjoint(spec, grid.size, k_max, grid.input_size), grid.size, k_max, grid.input_size
+    )
     return field.mul_(grid.upsample**2)
 
 
@@ -259,8 +266,9 @@ def asm_propagate_adjoint(window: torch.Tensor, grid: AsmGrid, transfer: Callabl
     return _asm_adjoint(window, grid, *transfer())
 
 
-def asm_propagate_plain(field: torch.Tensor, pitch_m: float, wavelength_m: float,
-                        distance_m: float, band_limit: bool = True) -> torch.Tensor:
+def asm_propagate_plain(
+    field: torch.Tensor, pitch_m: float, wavelength_m: float, distance_m: float, band_limit: bool = True
+) -> torch.Tensor:
     """Reference ASM on the field's own (already padded) periodic grid, same size out.
 
     ``band_limit=False`` is the plain angular spectrum method, prone to wrap-around aliasing.
@@ -320,7 +328,7 @@ class HankelKernel:
 
 HANKEL_CACHE_ENTRIES = 8
 HANKEL_CACHE_BYTES = 2 << 30  # beyond this the oldest entries go (the newest two, a plan's kernel and rows, stay)
-ROW_GROWTH = 1.25   # output rows are extended at least this much at a time
+ROW_GROWTH = 1.25  # output rows are extended at least this much at a time
 _HANKEL_CACHE: OrderedDict = OrderedDict()
 
 
@@ -336,15 +344,22 @@ def _cached(key, build):
         _HANKEL_CACHE.move_to_end(key)
     else:
         _HANKEL_CACHE[key] = build()
-        while len(_HANKEL_CACHE) > 2 and (len(_HANKEL_CACHE) > HANKEL_CACHE_ENTRIES
-                                          or sum(map(_entry_bytes, _HANKEL_CACHE.values())) > HANKEL_CACHE_BYTES):
+        while len(_HANKEL_CACHE) > 2 and (
+            len(_HANKEL_CACHE) > HANKEL_CACHE_ENTRIES
+            or sum(map(_entry_bytes, _HANKEL_CACHE.values())) > HANKEL_CACHE_BYTES
+        ):
             _HANKEL_CACHE.popitem(last=False)
     return _HANKEL_CACHE[key]
 
 
-def hankel_kernel(n: int, radius_m: float, aperture_radius_m: float, n_nodes: int,
-                  dtype: torch.dtype = torch.float64,
-                  device: str | torch.device = "cpu") -> HankelKernel:
+def hankel_kernel(
+    n: int,
+    radius_m: float,
+    aperture_radius_m: float,
+    n_nodes: int,
+    dtype: torch.dtype = torch.float64,
+    device: str | torch.device = "cpu",
+) -> HankelKernel:
     """The cached kernel for (n frequencies, R, a, n_nodes, dtype, device)."""
     key = ("kernel", n, float(radius_m), float(aperture_radius_m), n_nodes, dtype, str(device))
 
@@ -368,8 +383,13 @@ def hankel_kernel(n: int, radius_m: float, aperture_radius_m: float, n_nodes: in
 
 def hankel_output_matrix(kernel: HankelKernel, radii_m: torch.Tensor) -> torch.Tensor:
     """The (len(radii) × n) matrix J0(2πν_m ρ)·c_m: the inverse transform at ``radii_m`` (m)."""
-    return _bessel_rows(radii_m.double().cpu(), 2 * math.pi * kernel.nu.cpu(), kernel.coef_out.double().cpu(),
-                        kernel.r.dtype, kernel.r.device)
+    return _bessel_rows(
+        radii_m.double().cpu(),
+        2 * math.pi * kernel.nu.cpu(),
+        kernel.coef_out.double().cpu(),
+        kernel.r.dtype,
+        kernel.r.device,
+    )
 
 
 BESSEL_BLOCK = 1 << 22  # elements per block of J0 evaluations (32 MiB of float64 arguments)
@@ -381,8 +401,8 @@ def _bessel_rows(rows: torch.Tensor, cols: torch.Tensor, scale: torch.Tensor | N
     out = torch.empty(len(rows), len(cols), dtype=dtype, device=device)
     block = max(1, BESSEL_BLOCK // max(len(cols), 1))
     for i in range(0, len(rows), block):
-        values = torch.special.bessel_j0(rows[i:i + block, None] * cols[None, :])
-        out[i:i + block] = (values if scale is None else values * scale).to(device, dtype)
+        values = torch.special.bessel_j0(rows[i : i + block, None] * cols[None, :])
+        out[i : i + block] = (values if scale is None else values * scale).to(device, dtype)
     return out
 
 
@@ -416,8 +436,9 @@ def real_matmul(mat: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
     return torch.view_as_complex((mat @ zr).reshape(mat.shape[0], -1, 2).contiguous())
 
 
-def radial_transfer(kernel: HankelKernel, wavelengths_m: torch.Tensor, distance_m: float,
-                    sin_limit: float | torch.Tensor) -> torch.Tensor:
+def radial_transfer(
+    kernel: HankelKernel, wavelengths_m: torch.Tensor, distance_m: float, sin_limit: float | torch.Tensor
+) -> torch.Tensor:
     """H(ν_m, λ) = exp(i·2π·d·√(1/λ² − ν_m²)) for ν_m ≤ sin_limit/λ, else 0; shape (n, len(λ)).
     ``sin_limit``: one value or one per wavelength.
 
@@ -433,8 +454,9 @@ def radial_transfer(kernel: HankelKernel, wavelengths_m: torch.Tensor, distance_
     return torch.polar(amp, phase.to(kernel.r.dtype))
 
 
-def radial_propagate(field_r: torch.Tensor, kernel: HankelKernel, transfer: torch.Tensor,
-                     out_matrix: torch.Tensor) -> torch.Tensor:
+def radial_propagate(
+    field_r: torch.Tensor, kernel: HankelKernel, transfer: torch.Tensor, out_matrix: torch.Tensor
+) -> torch.Tensor:
     """Propagate radial fields (Q, B) sampled at the nodes ``kernel.r`` with ``transfer`` (n, B)
     from ``radial_transfer``; returns the fields at the radii of ``out_matrix`` (rows), (J, B).
     All columns (wavelengths × depths) go through one matrix product per stage."""
@@ -445,8 +467,14 @@ def radial_propagate(field_r: torch.Tensor, kernel: HankelKernel, transfer: torc
 # ------------------------------------------------------------------------- Rayleigh-Sommerfeld
 
 
-def rayleigh_sommerfeld(points_xy: torch.Tensor, values: torch.Tensor, wavelength_m: float,
-                        distance_m: float, out_xy: torch.Tensor, chunk: int = 1 << 22) -> torch.Tensor:
+def rayleigh_sommerfeld(
+    points_xy: torch.Tensor,
+    values: torch.Tensor,
+    wavelength_m: float,
+    distance_m: float,
+    out_xy: torch.Tensor,
+    chunk: int = 1 << 22,
+) -> torch.Tensor:
     """First Rayleigh-Sommerfeld solution by direct summation (exact kernel).
 
     U(P) = Σ_q values_q · (1/2π)·(d/r)·(1/r − ik)·exp(ikr)/r, r = |P − Q_q| with P at height d.
@@ -457,7 +485,7 @@ def rayleigh_sommerfeld(points_xy: torch.Tensor, values: torch.Tensor, wavelengt
     out = []
     step = max(1, chunk // max(points_xy.shape[0], 1))
     for start in range(0, out_xy.shape[0], step):
-        p = out_xy[start:start + step]
+        p = out_xy[start : start + step]
         dx = p[:, None, 0] - points_xy[None, :, 0]
         dy = p[:, None, 1] - points_xy[None, :, 1]
         r = torch.sqrt(dx**2 + dy**2 + distance_m**2)

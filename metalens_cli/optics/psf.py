@@ -51,11 +51,22 @@ class _Clock:
         self._t = now
 
 
-def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitch_m: float,
-                distance_m: float | None = None, propagator: str = "auto",
-                dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu",
-                force: bool = False, oversample: float = 1.0,
-                plan_wavelengths_m=None, plan_depths_m=None, plan_frequency: float | None = None) -> PsfResult:
+def compute_psf(
+    lens: Metalens,
+    wavelengths_m,
+    depths_m,
+    pixels: int,
+    pixel_pitch_m: float,
+    distance_m: float | None = None,
+    propagator: str = "auto",
+    dtype: torch.dtype = torch.float32,
+    device: str | torch.device = "cpu",
+    force: bool = False,
+    oversample: float = 1.0,
+    plan_wavelengths_m=None,
+    plan_depths_m=None,
+    plan_frequency: float | None = None,
+) -> PsfResult:
     """Sensor PSFs for every (depth, wavelength); see the module docstring for the layout.
 
     distance_m: lens-to-sensor distance (m), defaults to ``lens.focal_length_m``.
@@ -76,14 +87,16 @@ def compute_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitc
     if propagator == "auto":
         propagator = "radial" if lens.radial else "asm"
     if propagator == "radial" and not lens.radial:
-        raise InputError("propagator", "the radial propagator needs a radially symmetric design",
-                         "asm or rs for a 2-D rotation map")
+        raise InputError(
+            "propagator", "the radial propagator needs a radially symmetric design", "asm or rs for a 2-D rotation map"
+        )
     plan_lams = lams + [float(x) for x in np.ravel(plan_wavelengths_m if plan_wavelengths_m is not None else [])]
     plan_zs = zs + [float(x) for x in np.ravel(plan_depths_m if plan_depths_m is not None else [])]
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, force), plan_frequency or 0.0)
     run = {"radial": _radial_psf, "asm": _asm_psf, "rs": _rs_psf}[propagator]
-    psf, grid = run(lens, lams, zs, d, pixels, pixel_pitch_m, f_max, dtype, torch.device(device),
-                    oversample, clock, plan_lams)
+    psf, grid = run(
+        lens, lams, zs, d, pixels, pixel_pitch_m, f_max, dtype, torch.device(device), oversample, clock, plan_lams
+    )
     clock.lap("sensor")
     return PsfResult(psf, tuple(lams), tuple(zs), pixel_pitch_m, d, propagator, grid, clock.times)
 
@@ -104,22 +117,35 @@ class PsfCost:
     setup_seconds: float = 0.0  # of ``seconds``: kernels and sensor operators, cached across calls
 
 
-MATMUL_RATE = 2e10     # real multiply-adds per second (float32 matrix products, 2 cores)
-FFT_RATE = 2e8         # complex points per second through one 2-D FFT pass (×log2 size)
-RS_RATE = 1e7          # Rayleigh-Sommerfeld kernel evaluations per second (float64)
-SENSOR_RATE = 1e6      # (pixel, radial interval) overlap areas per second, radial sensor build (1.7e6-3.7e6 measured, 2 cores)
-RS_PAIR_BYTES = 800    # working set per (node, output point) pair of one Rayleigh-Sommerfeld chunk
-RADIAL_SLACK = 1.3     # the radial path's measured peak varies ±20 % from run to run (threaded builds, allocator)
+MATMUL_RATE = 2e10  # real multiply-adds per second (float32 matrix products, 2 cores)
+FFT_RATE = 2e8  # complex points per second through one 2-D FFT pass (×log2 size)
+RS_RATE = 1e7  # Rayleigh-Sommerfeld kernel evaluations per second (float64)
+SENSOR_RATE = (
+    1e6  # (pixel, radial interval) overlap areas per second, radial sensor build (1.7e6-3.7e6 measured, 2 cores)
+)
+RS_PAIR_BYTES = 800  # working set per (node, output point) pair of one Rayleigh-Sommerfeld chunk
+RADIAL_SLACK = 1.3  # the radial path's measured peak varies ±20 % from run to run (threaded builds, allocator)
 
 
-def estimate_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pitch_m: float,
-                 distance_m: float | None = None, propagator: str = "auto", dtype: torch.dtype = torch.float32,
-                 force: bool = False, oversample: float = 1.0) -> PsfCost:
+def estimate_psf(
+    lens: Metalens,
+    wavelengths_m,
+    depths_m,
+    pixels: int,
+    pixel_pitch_m: float,
+    distance_m: float | None = None,
+    propagator: str = "auto",
+    dtype: torch.dtype = torch.float32,
+    force: bool = False,
+    oversample: float = 1.0,
+) -> PsfCost:
     """What :func:`compute_psf` with these arguments will cost, computed from the same plan
     (a :class:`SamplingError` here is the one it would raise) before any large array exists."""
     lams, zs = [float(x) for x in np.ravel(wavelengths_m)], [float(x) for x in np.ravel(depths_m)]
     d = distance_m if distance_m is not None else lens.focal_length_m
-    validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, propagator if propagator in PROPAGATORS else "?", dtype, oversample)
+    validate_psf_arguments(
+        lams, zs, pixels, pixel_pitch_m, d, propagator if propagator in PROPAGATORS else "?", dtype, oversample
+    )
     propagator = ("radial" if lens.radial else "asm") if propagator == "auto" else propagator
     f_max = sampling.check_lens_sampling(lens, lams, zs, force)
     count, real = len(lams) * len(zs), 4 if dtype == torch.float32 else 8
@@ -152,15 +178,20 @@ def estimate_psf(lens: Metalens, wavelengths_m, depths_m, pixels: int, pixel_pit
     else:
         nodes = math.ceil(math.pi * lens.radius_m**2 / lens.pitch_m**2)
         outputs = (2 * math.ceil((pixels // 2 + 0.5) * pixel_pitch_m * 4 * nu * oversample) + 7) ** 2
-    return PsfCost(int(out_bytes + RS_PAIR_BYTES * max(nodes, 1 << 22) + 100 * nodes), count * nodes * outputs / RS_RATE)
+    return PsfCost(
+        int(out_bytes + RS_PAIR_BYTES * max(nodes, 1 << 22) + 100 * nodes), count * nodes * outputs / RS_RATE
+    )
 
 
 def validate_psf_arguments(lams, zs, pixels, pitch, d, propagator, dtype, oversample) -> None:
     if propagator not in PROPAGATORS:
         raise InputError("propagator", f"unknown propagator {propagator!r}", "|".join(PROPAGATORS))
     if d is None or not (math.isfinite(d) and d > 0):
-        raise InputError("distance", f"lens-to-sensor distance must be positive, got {d!r}",
-                         "a distance in m (or a lens with a focal length)")
+        raise InputError(
+            "distance",
+            f"lens-to-sensor distance must be positive, got {d!r}",
+            "a distance in m (or a lens with a focal length)",
+        )
     if not lams or any(not (math.isfinite(x) and x > 0) for x in lams):
         raise InputError("wavelengths", "wavelengths must be positive and finite", "metres")
     if not zs or any(not z > 0 for z in zs):
@@ -179,8 +210,7 @@ def _complex(dtype: torch.dtype) -> torch.dtype:
     return torch.complex64 if dtype == torch.float32 else torch.complex128
 
 
-def pupil_field(phase_lens: torch.Tensor, r: torch.Tensor, lam: float, z: float,
-                 dtype: torch.dtype) -> torch.Tensor:
+def pupil_field(phase_lens: torch.Tensor, r: torch.Tensor, lam: float, z: float, dtype: torch.dtype) -> torch.Tensor:
     """amplitude·exp(i(φ_lens + φ_source)), phases summed and reduced mod 2π in the dtype of
     ``phase_lens`` and ``r``, then cast to ``dtype``."""
     if math.isinf(z):
@@ -192,8 +222,7 @@ def pupil_field(phase_lens: torch.Tensor, r: torch.Tensor, lam: float, z: float,
 
 def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, plan_lams):
     plan = sampling.plan_radial(lens, plan_lams, zs, d, pixels, pitch, f_max, oversample)
-    kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes,
-                                dtype, device)
+    kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
     out_matrix = prop.hankel_output_rows(kernel, plan.step_m, plan.n_radii)
     sensor = radial_sensor(plan.step_m, pixels, pitch)
     clock.lap("kernels")
@@ -202,15 +231,20 @@ def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversamp
     fields = torch.stack([pupil_field(phase_lens, r, lam, z, dtype) for z in zs for lam in lams], 1)
     power = (kernel.weight[:, None] * fields.abs() ** 2).sum(0)
     sins = torch.tensor([sampling.sin_limit(f_max, [lam], 2 * oversample) for lam in lams])
-    transfer = prop.radial_transfer(kernel, torch.tensor(lams, dtype=torch.float64), d,
-                                    sins).repeat(1, len(zs))
+    transfer = prop.radial_transfer(kernel, torch.tensor(lams, dtype=torch.float64), d, sins).repeat(1, len(zs))
     clock.lap("source")
     out = prop.radial_propagate(fields, kernel, transfer, out_matrix)
     clock.lap("propagate")
     psf = sensor.apply(out.abs() ** 2) / power[:, None, None]
-    grid = {"kind": "radial", "support_radius_m": plan.radius_m, "hankel_samples": plan.n_freq,
-            "pupil_nodes": plan.n_nodes, "sin_limit": plan.sin_limit,
-            "output_step_m": plan.step_m, "output_radii": plan.n_radii}
+    grid = {
+        "kind": "radial",
+        "support_radius_m": plan.radius_m,
+        "hankel_samples": plan.n_freq,
+        "pupil_nodes": plan.n_nodes,
+        "sin_limit": plan.sin_limit,
+        "output_step_m": plan.step_m,
+        "output_radii": plan.n_radii,
+    }
     return psf.reshape(len(zs), len(lams), pixels, pixels), grid
 
 
@@ -229,7 +263,7 @@ def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample,
     phase_lens, r = lens.grid_phase(dtype, quadrant=lens.radial)
     phase_lens, r = phase_lens.to(device), r.to(device)
     mask = r <= lens.radius_m
-    grid = grids[lams[0]]   # the output window (pitch/upsample, half-width) is the same for every λ
+    grid = grids[lams[0]]  # the output window (pitch/upsample, half-width) is the same for every λ
     mat = torch.from_numpy(grid_pixel_matrix(grid.window_coords().numpy(), pixels, pitch)).to(device, dtype)
     clock.lap("kernels")
     checkpointed = torch.is_grad_enabled() and phase_lens.requires_grad
@@ -237,13 +271,21 @@ def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample,
     for j, lam in enumerate(lams):
         transfer = functools.partial(cache.get, grids[lam], lam, d, _complex(dtype), device)
         for i, z in enumerate(zs):
-            field, power = _call(checkpointed, _masked_field, phase_lens, r, mask, lam, z, dtype, lens.radial, lens.pitch_m)
+            field, power = _call(
+                checkpointed, _masked_field, phase_lens, r, mask, lam, z, dtype, lens.radial, lens.pitch_m
+            )
             window = prop.asm_propagate(field, grids[lam], transfer)
             out[i, j] = _call(checkpointed, _pixel_psf, window, mat, power)
             clock.lap("propagate")
-    info = {"kind": "asm", "fft_size": max(g.size for g in grids.values()), "pitch_m": grid.pitch_m,
-            "input_size": grid.input_size, "window_samples": grid.window_samples,
-            "window_step_m": grid.pitch_m / grid.upsample, "checkpointed": checkpointed}
+    info = {
+        "kind": "asm",
+        "fft_size": max(g.size for g in grids.values()),
+        "pitch_m": grid.pitch_m,
+        "input_size": grid.input_size,
+        "window_samples": grid.window_samples,
+        "window_step_m": grid.pitch_m / grid.upsample,
+        "checkpointed": checkpointed,
+    }
     psf = torch.stack([out[i, j] for i in range(len(zs)) for j in range(len(lams))])
     return psf.reshape(len(zs), len(lams), pixels, pixels), info
 
@@ -280,7 +322,7 @@ def _rs_radial(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, cloc
     n_r, n_phi = sampling.plan_rs(lens, lams, d, float(radii[-1]), f_max, oversample)
     r, dr = prop.gauss_legendre_panels(lens.radius_m, n_r)
     phi = np.linspace(0.0, math.pi, n_phi + 1)
-    w_phi = np.full(n_phi + 1, 2 * math.pi / n_phi)      # both half-planes (mirror symmetry)
+    w_phi = np.full(n_phi + 1, 2 * math.pi / n_phi)  # both half-planes (mirror symmetry)
     w_phi[[0, -1]] /= 2
     rr = torch.from_numpy(np.repeat(r, n_phi + 1)).to(device)
     pp = torch.from_numpy(np.tile(phi, n_r)).to(device)
@@ -299,8 +341,13 @@ def _rs_radial(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, cloc
             intensities.append(prop.rayleigh_sommerfeld(nodes, values, lam, d, out_xy).abs() ** 2)
             clock.lap("propagate")
     psf = sensor.apply(torch.stack(intensities, 1)) / torch.stack(powers)[:, None, None]
-    grid = {"kind": "rs-polar", "radial_nodes": n_r, "azimuth_nodes": n_phi + 1,
-            "output_step_m": step, "output_radii": sensor.n_radii}
+    grid = {
+        "kind": "rs-polar",
+        "radial_nodes": n_r,
+        "azimuth_nodes": n_phi + 1,
+        "output_step_m": step,
+        "output_radii": sensor.n_radii,
+    }
     return psf.reshape(len(zs), len(lams), pixels, pixels), grid
 
 
@@ -330,6 +377,5 @@ def _rs_grid(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, clock)
             field_out = prop.rayleigh_sommerfeld(nodes, values, lam, d, out_xy)
             out.append(mat @ field_out.abs().pow(2).reshape(g.numel(), g.numel()) @ mat.T / power)
             clock.lap("propagate")
-    grid = {"kind": "rs-grid", "sites": nodes.shape[0], "output_step_m": h,
-            "window_samples": g.numel()}
+    grid = {"kind": "rs-grid", "sites": nodes.shape[0], "output_step_m": h, "window_samples": g.numel()}
     return torch.stack(out).reshape(len(zs), len(lams), pixels, pixels), grid

@@ -23,7 +23,7 @@ from metalens_cli.optics.source import source_frequency
 
 MAX_FFT_SIZE = 32768
 MAX_HANKEL_SIZE = 40000
-ANGLE_MARGIN = 0.1   # sin-angle kept beyond the field's steepest ray (edge diffraction), × oversample
+ANGLE_MARGIN = 0.1  # sin-angle kept beyond the field's steepest ray (edge diffraction), × oversample
 
 
 def window_radius(n_pixels: int, pixel_pitch_m: float) -> float:
@@ -83,7 +83,9 @@ def check_lens_sampling(lens: Metalens, wavelengths_m, depths_m, force: bool) ->
             f"adds the rest) but the meta-atom pitch {lens.pitch_m:g} m resolves only "
             f"{nyquist * 1e-3:.4g} cycles/mm",
             f"a pitch ≤ {1 / (2 * f_max):.4g} m, a shallower lens phase (a smaller aperture or longer f) or a more "
-            "distant source", forceable=True)
+            "distant source",
+            forceable=True,
+        )
     return 2.0 ** (math.ceil(16 * math.log2(max(f_max, 1.0))) / 16)
 
 
@@ -111,8 +113,16 @@ def frequency_limit(f_max: float, wavelengths_m, oversample: float) -> float:
     return max(sin_limit(f_max, [lam], oversample) / lam for lam in wavelengths_m)
 
 
-def plan_radial(lens: Metalens, wavelengths_m, depths_m, distance_m: float, n_pixels: int,
-                pixel_pitch_m: float, f_max: float, oversample: float = 1.0) -> RadialPlan:
+def plan_radial(
+    lens: Metalens,
+    wavelengths_m,
+    depths_m,
+    distance_m: float,
+    n_pixels: int,
+    pixel_pitch_m: float,
+    f_max: float,
+    oversample: float = 1.0,
+) -> RadialPlan:
     """Sampling for ``radial_propagate`` from the geometry (see the module docstring).
 
     The angle margin is doubled here (the radial path is cheap). R = (a + ρ_w + d·tan θ_lim)/2 keeps waves up to θ_lim from reflecting at R into the window of
@@ -128,17 +138,26 @@ def plan_radial(lens: Metalens, wavelengths_m, depths_m, distance_m: float, n_pi
     n_freq = math.ceil(2 * radius * nu_max * 1.05 * math.sqrt(oversample))
     n_nodes = 16 * math.ceil(3 * (f_max + nu_max) * a * oversample / 16)
     step = 1 / (8 * nu_max * oversample)
-    plan = RadialPlan(radius, n_freq, n_nodes, sin_lim, step,
-                      radial_sensor_radii(step, n_pixels, pixel_pitch_m))
+    plan = RadialPlan(radius, n_freq, n_nodes, sin_lim, step, radial_sensor_radii(step, n_pixels, pixel_pitch_m))
     if n_freq > MAX_HANKEL_SIZE:
-        raise SamplingError("aperture", f"the radial propagator would need {n_freq} Hankel samples over "
-                            f"R = {radius:g} m (limit {MAX_HANKEL_SIZE})", "a smaller aperture, sensor window or distance")
+        raise SamplingError(
+            "aperture",
+            f"the radial propagator would need {n_freq} Hankel samples over R = {radius:g} m (limit {MAX_HANKEL_SIZE})",
+            "a smaller aperture, sensor window or distance",
+        )
     return plan
 
 
-def plan_asm(lens: Metalens, wavelengths_m, distance_m: float, n_pixels: int,
-             pixel_pitch_m: float, f_max: float, oversample: float = 1.0,
-             upsample: int = 2) -> AsmGrid:
+def plan_asm(
+    lens: Metalens,
+    wavelengths_m,
+    distance_m: float,
+    n_pixels: int,
+    pixel_pitch_m: float,
+    f_max: float,
+    oversample: float = 1.0,
+    upsample: int = 2,
+) -> AsmGrid:
     """Padded grid for ``asm_propagate`` on the meta-atom grid (pitch p).
 
     Side S ≥ 2a + W keeps the Matsushima limit (lateral travel ≤ S/2) from wrapping light from
@@ -152,16 +171,19 @@ def plan_asm(lens: Metalens, wavelengths_m, distance_m: float, n_pixels: int,
     need = max(2 * a + width, 2 * distance_m * sin_lim / math.sqrt(1 - sin_lim**2), m * p)
     size = fft_size(math.ceil(need / p))
     if size > MAX_FFT_SIZE:
-        raise SamplingError("aperture", f"the angular spectrum needs a {size}² grid at pitch {p:g} m "
-                            f"(side {need:g} m; limit {MAX_FFT_SIZE}²)",
-                            "the radial propagator for a radially symmetric design, or a smaller aperture, window or distance")
+        raise SamplingError(
+            "aperture",
+            f"the angular spectrum needs a {size}² grid at pitch {p:g} m (side {need:g} m; limit {MAX_FFT_SIZE}²)",
+            "the radial propagator for a radially symmetric design, or a smaller aperture, window or distance",
+        )
     h = p / upsample
     half = math.ceil((width / 2) / h) + 3
     return AsmGrid(size=size, pitch_m=p, input_size=m, window_half=half, upsample=upsample)
 
 
-def plan_rs(lens: Metalens, wavelengths_m, distance_m: float, rho_max_m: float, f_max: float,
-            oversample: float = 1.0) -> tuple[int, int]:
+def plan_rs(
+    lens: Metalens, wavelengths_m, distance_m: float, rho_max_m: float, f_max: float, oversample: float = 1.0
+) -> tuple[int, int]:
     """Quadrature of the direct Rayleigh-Sommerfeld integral over the pupil of a radial lens:
     (Gauss-Legendre nodes in r on [0, a], trapezoid nodes in the azimuth over [0, π]).
 

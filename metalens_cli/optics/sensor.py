@@ -72,8 +72,12 @@ def _quadrant_area(x: np.ndarray, y: np.ndarray, rho: np.ndarray) -> np.ndarray:
 
 def pixel_disc_area(x0, x1, y0, y1, rho):
     """Area (m²) of the rectangle [x0, x1] × [y0, y1] inside the disc of radius ρ > 0 (centre 0)."""
-    return (_quadrant_area(x1, y1, rho) - _quadrant_area(x0, y1, rho)
-            - _quadrant_area(x1, y0, rho) + _quadrant_area(x0, y0, rho))
+    return (
+        _quadrant_area(x1, y1, rho)
+        - _quadrant_area(x0, y1, rho)
+        - _quadrant_area(x1, y0, rho)
+        + _quadrant_area(x0, y0, rho)
+    )
 
 
 @dataclass(frozen=True)
@@ -115,7 +119,9 @@ class RadialSensor:
             raise ValueError(f"window of {n_pixels} pixels from a {self.n_pixels}-pixel operator")
         m = n_pixels // 2
         rows, n_radii = (m + 1) * (m + 2) // 2, radial_sensor_radii(self.step_m, n_pixels, self.pixel_pitch_m)
-        return RadialSensor(self.step_m, n_radii, n_pixels, self.pixel_pitch_m, rows, _octant_index(n_pixels), self.matrix)
+        return RadialSensor(
+            self.step_m, n_radii, n_pixels, self.pixel_pitch_m, rows, _octant_index(n_pixels), self.matrix
+        )
 
 
 class SparseRows:
@@ -135,13 +141,16 @@ class SparseRows:
 
 
 def _torch_csr(matrix, dtype: torch.dtype, device) -> torch.Tensor:
-    return _csr(*(torch.from_numpy(a).to(device) for a in (matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32))),
-                torch.from_numpy(matrix.data).to(device, dtype), matrix.shape)
+    return _csr(
+        *(torch.from_numpy(a).to(device) for a in (matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32))),
+        torch.from_numpy(matrix.data).to(device, dtype),
+        matrix.shape,
+    )
 
 
 def _csr_prefix(matrix: torch.Tensor, rows: int, cols: int, end: int) -> torch.Tensor:
     """The first ``rows`` rows of a CSR matrix (their ``end`` entries) as a (rows × cols) view (its columns < cols)."""
-    return _csr(matrix.crow_indices()[:rows + 1], matrix.col_indices()[:end], matrix.values()[:end], (rows, cols))
+    return _csr(matrix.crow_indices()[: rows + 1], matrix.col_indices()[:end], matrix.values()[:end], (rows, cols))
 
 
 def _csr(crow, cols, values, shape) -> torch.Tensor:
@@ -164,8 +173,8 @@ class _OctantRows(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         full = grad.new_zeros(ctx.transposed.shape[1], grad.shape[1])
-        full[:grad.shape[0]] = grad
-        return (ctx.transposed @ full)[:ctx.n_radii], None, None
+        full[: grad.shape[0]] = grad
+        return (ctx.transposed @ full)[: ctx.n_radii], None, None
 
 
 def larger_window(n: int, factor: float = 1.25) -> int:
@@ -215,15 +224,16 @@ def _octant_areas(x0, x1, y0, y1, rho, chunks: int = 8) -> np.ndarray:
         return np.concatenate(list(pool.map(rows, range(chunks))))
 
 
-def build_radial_sensor(step_m: float, n_pixels: int, pixel_pitch_m: float, n_nodes: int = 4,
-                        start: RadialSensor | None = None) -> RadialSensor:
+def build_radial_sensor(
+    step_m: float, n_pixels: int, pixel_pitch_m: float, n_nodes: int = 4, start: RadialSensor | None = None
+) -> RadialSensor:
     """Build the pixel operator for radial samples every ``step_m`` (m); with ``start`` (one of
     the same step and pitch for a smaller window), only the rows of the pixels it lacks are
     computed and appended to its rows (the octant lists pixels by their larger offset first)."""
     m = n_pixels // 2
     n_radii = radial_sensor_radii(step_m, n_pixels, pixel_pitch_m)
-    first = 0 if start is None else start.n_pixels // 2 + 1   # the first pixel offset to compute
-    ii, jj = np.tril_indices(m + 1)          # octant: 0 ≤ j ≤ i ≤ m (pixel offsets)
+    first = 0 if start is None else start.n_pixels // 2 + 1  # the first pixel offset to compute
+    ii, jj = np.tril_indices(m + 1)  # octant: 0 ≤ j ≤ i ≤ m (pixel offsets)
     ii, jj = ii[ii >= first], jj[ii >= first]
     x0, x1 = (ii - 0.5) * pixel_pitch_m, (ii + 0.5) * pixel_pitch_m
     y0, y1 = (jj - 0.5) * pixel_pitch_m, (jj + 0.5) * pixel_pitch_m
@@ -232,31 +242,41 @@ def build_radial_sensor(step_m: float, n_pixels: int, pixel_pitch_m: float, n_no
     j_lo = np.floor(rmin / step_m).astype(int) - 1
     j_hi = np.ceil(rmax / step_m).astype(int) + 1
     n_int = int((j_hi - j_lo).max()) + 4
-    k = (j_lo - 2)[:, None] + np.arange(n_int)[None, :]            # interval k: [kδ, (k+1)δ]
+    k = (j_lo - 2)[:, None] + np.arange(n_int)[None, :]  # interval k: [kδ, (k+1)δ]
     t, wq = np.polynomial.legendre.leggauss(n_nodes)
     t, wq = (t + 1) / 2, wq / 2
-    rho = (k[:, :, None] + t) * step_m                              # (P, n_int, Q)
+    rho = (k[:, :, None] + t) * step_m  # (P, n_int, Q)
     valid = k[:, :, None] >= 0
     area = _octant_areas(x0, x1, y0, y1, np.where(valid, rho, step_m))
     area = np.where(valid, area, 0.0)
     # sample j = k + shift (shift = −1..2) gets −∫ K'(t − shift)·A dt from interval k: a (Q × 4) table
     table = -wq[:, None] * _cr_kernel_deriv(t[:, None] - np.arange(-1, 3)[None, :])
-    contrib = area @ table                                          # (P, n_int, 4)
-    local = np.zeros((len(ii), n_int + 3))                          # column l: j = k0 − 1 + l
+    contrib = area @ table  # (P, n_int, 4)
+    local = np.zeros((len(ii), n_int + 3))  # column l: j = k0 − 1 + l
     for s in range(4):
-        local[:, s:s + n_int] += contrib[:, :, s]
+        local[:, s : s + n_int] += contrib[:, :, s]
     j = (k[:, :1] - 1) + np.arange(n_int + 3)[None, :]
-    axis_rows = np.nonzero(j[:, 0] <= -1)[0]                        # fold I(−δ) = I(δ)
+    axis_rows = np.nonzero(j[:, 0] <= -1)[0]  # fold I(−δ) = I(δ)
     local[axis_rows, 2 - k[axis_rows, 0]] += local[axis_rows, -k[axis_rows, 0]]
-    keep = (j >= np.maximum(j_lo, 0)[:, None]) & (j <= j_hi[:, None])   # each row's columns, ascending
+    keep = (j >= np.maximum(j_lo, 0)[:, None]) & (j <= j_hi[:, None])  # each row's columns, ascending
     indptr, indices, data = np.concatenate([[0], np.cumsum(keep.sum(axis=1))]), j[keep], local[keep]
     if start is not None:
         old = start.matrix.csr
-        indptr, indices, data = (np.concatenate([old.indptr, old.nnz + indptr[1:]]), np.concatenate([old.indices, indices]),
-                                 np.concatenate([old.data, data]))
+        indptr, indices, data = (
+            np.concatenate([old.indptr, old.nnz + indptr[1:]]),
+            np.concatenate([old.indices, indices]),
+            np.concatenate([old.data, data]),
+        )
     rows = (m + 1) * (m + 2) // 2
-    return RadialSensor(step_m, n_radii, n_pixels, pixel_pitch_m, rows, _octant_index(n_pixels),
-                        SparseRows(indptr, indices, data, (rows, n_radii)))
+    return RadialSensor(
+        step_m,
+        n_radii,
+        n_pixels,
+        pixel_pitch_m,
+        rows,
+        _octant_index(n_pixels),
+        SparseRows(indptr, indices, data, (rows, n_radii)),
+    )
 
 
 def _octant_index(n_pixels: int) -> torch.Tensor:

@@ -194,7 +194,9 @@ def efficiency_from_table(
     table_wl = np.atleast_1d(np.asarray(table_wavelengths_m, dtype=float))
     table_eta = np.atleast_1d(np.asarray(table_efficiencies, dtype=float))
     if table_wl.shape != table_eta.shape or table_wl.ndim != 1 or table_wl.size == 0:
-        raise InputError("efficiency", "wavelength and efficiency lists differ in length", "one efficiency per wavelength")
+        raise InputError(
+            "efficiency", "wavelength and efficiency lists differ in length", "one efficiency per wavelength"
+        )
     if not (np.all(np.isfinite(table_wl)) and np.all(np.diff(table_wl) > 0)):
         raise InputError("efficiency", "table wavelengths are not strictly increasing", "increasing metres")
     if not (np.all(table_eta >= 0) and np.all(table_eta <= 1)):
@@ -228,7 +230,9 @@ def spectral_sensitivity(
     for name, row in zip(CHANNELS, values):
         if not _trapezoid(row, grid) > 0:
             raise InputError(
-                "spectra", f"channel {name} has no sensitivity on the grid", "a filter band inside the camera's response"
+                "spectra",
+                f"channel {name} has no sensitivity on the grid",
+                "a filter band inside the camera's response",
             )
     return SpectralSensitivity(grid, values)
 
@@ -260,7 +264,9 @@ def quadrature_weights(sensitivity: SpectralSensitivity, nodes_m: np.ndarray) ->
     nodes = np.atleast_1d(np.asarray(nodes_m, dtype=float))
     if nodes.ndim != 1 or nodes.size < 2 or not np.all(np.diff(nodes) > 0):
         raise InputError(
-            "wavelengths", "channel quadrature needs at least 2 strictly increasing wavelengths", "a scan like 430:645:5nm"
+            "wavelengths",
+            "channel quadrature needs at least 2 strictly increasing wavelengths",
+            "a scan like 430:645:5nm",
         )
     grid = sensitivity.wavelengths_m
     fine = np.union1d(grid[(grid > nodes[0]) & (grid < nodes[-1])], nodes)
@@ -272,7 +278,9 @@ def quadrature_weights(sensitivity: SpectralSensitivity, nodes_m: np.ndarray) ->
     for name, mass in zip(CHANNELS, kept):
         if not mass > 0:
             span = f"{nodes[0] / _NM:.1f}-{nodes[-1] / _NM:.1f} nm"
-            raise InputError("wavelengths", f"channel {name} has no sensitivity in {span}", "a scan covering every channel's band")
+            raise InputError(
+                "wavelengths", f"channel {name} has no sensitivity in {span}", "a scan covering every channel's band"
+            )
     return ChannelWeights(nodes, raw / kept[:, None], kept / totals)
 
 

@@ -28,13 +28,21 @@ def plot_bands(path: str | Path, report: BandsReport) -> Path:
         ax.fill_between(shifted, z_lo, z_hi if z_hi > z_lo else z_lo * 1.04, color=colour, alpha=0.8, zorder=3)
     ax.axhspan(z_lo, z_hi if z_hi > z_lo else z_lo, color="k", alpha=0.1)
     ax.axhline(z_lo, color="k", lw=0.8)
-    ax.axhline(z_hi, color="k", lw=0.8, label=f"z_near {z_lo * 1e3:g}-{z_hi * 1e3:g} mm" if z_hi > z_lo else f"z_near {z_lo * 1e3:g} mm")
+    ax.axhline(
+        z_hi,
+        color="k",
+        lw=0.8,
+        label=f"z_near {z_lo * 1e3:g}-{z_hi * 1e3:g} mm" if z_hi > z_lo else f"z_near {z_lo * 1e3:g} mm",
+    )
     ax.set_xlim(lo * 1e9 - 10, hi * 1e9 + 10)
     ax.set_ylim(depths[0], depths[-1])
     ax.set_yscale("log")
     ax.set_xlabel("wavelength (nm)")
     ax.set_ylabel("source depth z (m)")
     verdict = "all conditions hold" if report.ok else "conditions FAIL"
-    ax.set_title(f"Split-spectrum bands, f = {f * 1e3:g} mm: {verdict}\n(curves: band edges λe(1 + f/z); bars: shifted pass bands at z_near)", fontsize=9)
+    ax.set_title(
+        f"Split-spectrum bands, f = {f * 1e3:g} mm: {verdict}\n(curves: band edges λe(1 + f/z); bars: shifted pass bands at z_near)",
+        fontsize=9,
+    )
     ax.legend(fontsize=7, loc="upper right", ncol=2)
     return save_figure(fig, path)

@@ -12,8 +12,12 @@ from metalens_cli.plotting.common import new_figure, save_figure
 def _show(ax, image, title):
     from metalens_cli.imaging.images import linear_to_srgb
 
-    ax.imshow(np.transpose(linear_to_srgb(image), (1, 2, 0)) if image.shape[0] == 3 else np.clip(image[0], 0, 1),
-              cmap=None if image.shape[0] == 3 else "gray", vmin=0, vmax=1)
+    ax.imshow(
+        np.transpose(linear_to_srgb(image), (1, 2, 0)) if image.shape[0] == 3 else np.clip(image[0], 0, 1),
+        cmap=None if image.shape[0] == 3 else "gray",
+        vmin=0,
+        vmax=1,
+    )
     ax.set_title(title, fontsize=8)
     ax.set_axis_off()
 

@@ -61,7 +61,9 @@ def _wavelength_curves(ax, result: CubeMtf) -> None:
             fine = np.linspace(0, cutoff_lpmm, 200)
             ax.plot(fine, diffraction_mtf(fine * 1e3, result.na, result.wavelengths_m[j]), color=colour, ls=":", lw=1)
     _references(ax, result)
-    styles = f"solid {depth_label(result.depths_m[far])}" + (f", dashed {depth_label(result.depths_m[near])}" if near != far else "")
+    styles = f"solid {depth_label(result.depths_m[far])}" + (
+        f", dashed {depth_label(result.depths_m[near])}" if near != far else ""
+    )
     extra = f"\ndotted: diffraction limit, NA {result.na:.3g}" if result.na is not None else ""
     ax.set_title(f"MTF per wavelength ({styles}){extra}", fontsize=8)
     ax.legend(fontsize=7, loc="upper right")

@@ -15,8 +15,12 @@ def plot_efficiency(path: str | Path, response, convergence: list[dict]) -> Path
     fig, axes = new_figure(1, 2 if convergence else 1, figsize=(10 if convergence else 5.5, 3.8), squeeze=False)
     ax = axes[0, 0]
     wl = response.wavelengths_m * 1e9
-    for values, label in ((response.conversion, "η conversion"), (response.co_polarized, "co-polarised"),
-                          (response.transmittance, "T"), (response.reflectance, "R")):
+    for values, label in (
+        (response.conversion, "η conversion"),
+        (response.co_polarized, "co-polarised"),
+        (response.transmittance, "T"),
+        (response.reflectance, "R"),
+    ):
         ax.plot(wl, values, marker=".", label=label)
     ax.set_xlabel("wavelength (nm)")
     ax.set_ylabel("power fraction")
@@ -49,7 +53,9 @@ def plot_fin_map(path: str | Path, fin_map, choice: dict) -> Path:
     w, length = fin_map.widths_m * 1e9, fin_map.lengths_m * 1e9
     extent = (w[0], w[-1], length[0], length[-1]) if w.size > 1 and length.size > 1 else None
     for ax, (title, values) in zip(axes[0], panels):
-        image = ax.imshow(np.ma.masked_invalid(values), origin="lower", aspect="auto", extent=extent, vmin=0, vmax=1, cmap="viridis")
+        image = ax.imshow(
+            np.ma.masked_invalid(values), origin="lower", aspect="auto", extent=extent, vmin=0, vmax=1, cmap="viridis"
+        )
         ax.plot(choice["width_m"] * 1e9, choice["length_m"] * 1e9, "r+", markersize=12)
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("width (nm)")

@@ -25,14 +25,20 @@ def loss_figure(path: str | Path, history: list[dict], parts: tuple[str, ...] = 
         values = np.array([row.get(name, np.nan) for row in history], dtype=float)
         ax.plot(steps, values, lw=0.5, alpha=0.5, color="C0")
         if len(values) >= k:
-            ax.plot(steps[k - 1:], np.convolve(values, np.ones(k) / k, mode="valid"), lw=1.5, color="k", label=f"{k}-step mean")
+            ax.plot(
+                steps[k - 1 :],
+                np.convolve(values, np.ones(k) / k, mode="valid"),
+                lw=1.5,
+                color="k",
+                label=f"{k}-step mean",
+            )
             ax.legend(fontsize=6)
         if np.nanmin(values) > 0:
             ax.set_yscale("log")
         ax.set_title(name, fontsize=9)
         ax.set_xlabel("step")
         ax.grid(alpha=0.3, which="both")
-    for ax in axes.ravel()[len(present):]:
+    for ax in axes.ravel()[len(present) :]:
         ax.set_visible(False)
     fig.tight_layout()
     return save_figure(fig, path)
@@ -57,7 +63,12 @@ def theta_figure(path: str | Path, theta: np.ndarray, pitch_m: float, initial: n
         fig, ax = new_figure(figsize=(5, 4.5))
         step = max(theta.shape[0] // 1024, 1)
         half = theta.shape[0] // 2 * pitch_m * 1e3
-        im = ax.imshow(np.mod(2 * theta[::step, ::step], 2 * np.pi), cmap="twilight", extent=(-half, half, -half, half), origin="lower")
+        im = ax.imshow(
+            np.mod(2 * theta[::step, ::step], 2 * np.pi),
+            cmap="twilight",
+            extent=(-half, half, -half, half),
+            origin="lower",
+        )
         fig.colorbar(im, ax=ax, label="φ mod 2π (rad)")
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")

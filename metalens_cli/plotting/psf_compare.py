@@ -25,16 +25,32 @@ def plot_psf_comparison(path: str | Path, result, half_width_px: int = 40) -> Pa
         images = {kind: scan[kind][:, c - h : c + h + 1] for kind in ("measured", "simulated")}
         norm = PowerNorm(0.35, vmin=0, vmax=max(float(image.max()) for image in images.values()) or 1.0)
         wl_nm = np.asarray(scan["wavelengths_m"]) * 1e9
-        extent = (x_um[0], x_um[-1], wl_nm[0] - 0.5, wl_nm[-1] + 0.5) if wl_nm.size == 1 else (x_um[0], x_um[-1], wl_nm[0], wl_nm[-1])
+        extent = (
+            (x_um[0], x_um[-1], wl_nm[0] - 0.5, wl_nm[-1] + 0.5)
+            if wl_nm.size == 1
+            else (x_um[0], x_um[-1], wl_nm[0], wl_nm[-1])
+        )
         for col, (kind, image) in enumerate(images.items()):
             ax = axes[row, col]
-            ax.imshow(np.clip(image, 0, None), aspect="auto", origin="lower", cmap="inferno", norm=norm, interpolation="nearest", extent=extent)
+            ax.imshow(
+                np.clip(image, 0, None),
+                aspect="auto",
+                origin="lower",
+                cmap="inferno",
+                norm=norm,
+                interpolation="nearest",
+                extent=extent,
+            )
             ax.set_title(f"{kind}, {depth_label(scan['depth_m'])}", fontsize=9)
             ax.set_xlabel("x (µm)")
             ax.set_ylabel("wavelength (nm)")
     ratio_ax, error_ax = axes[-1]
     for scan in scans:
-        pairs = [p for p in result.pairs if (p["depth_m"] is None and np.isinf(scan["depth_m"])) or p["depth_m"] == scan["depth_m"]]
+        pairs = [
+            p
+            for p in result.pairs
+            if (p["depth_m"] is None and np.isinf(scan["depth_m"])) or p["depth_m"] == scan["depth_m"]
+        ]
         wl = [p["wavelength_m"] * 1e9 for p in pairs]
         ratio_ax.plot(wl, [p["peak_ratio"] for p in pairs], marker=".", label=depth_label(scan["depth_m"]))
         error_ax.plot(wl, [p["relative_l2"] for p in pairs], marker=".", label=depth_label(scan["depth_m"]))

@@ -9,8 +9,15 @@ import numpy as np
 from metalens_cli.plotting.common import depth_label, new_figure, save_figure
 
 
-def plot_psf_scan(path: str | Path, psf: np.ndarray, wavelengths_m, depths_m, pixel_pitch_m: float,
-                  pass_bands_m: list[tuple[float, float]] | None = None, half_width_px: int = 40) -> Path:
+def plot_psf_scan(
+    path: str | Path,
+    psf: np.ndarray,
+    wavelengths_m,
+    depths_m,
+    pixel_pitch_m: float,
+    pass_bands_m: list[tuple[float, float]] | None = None,
+    half_width_px: int = 40,
+) -> Path:
     """Top: the central row of each PSF (x in µm) against wavelength, one panel per depth, each
     PSF normalised to its total power. Bottom: the central-pixel power fraction against λ."""
     n_depths = psf.shape[0]
@@ -28,8 +35,15 @@ def plot_psf_scan(path: str | Path, psf: np.ndarray, wavelengths_m, depths_m, pi
     norm = PowerNorm(0.35, vmin=0, vmax=float(rows.max()) or 1.0)  # shared scale; γ shows the blur
     for i, z in enumerate(depths_m):
         ax = axes[0, i]
-        ax.imshow(rows[i], aspect="auto", origin="lower", cmap="inferno", norm=norm, interpolation="nearest",
-                  extent=(x_um[0], x_um[-1], *_row_edges(wl_nm)))
+        ax.imshow(
+            rows[i],
+            aspect="auto",
+            origin="lower",
+            cmap="inferno",
+            norm=norm,
+            interpolation="nearest",
+            extent=(x_um[0], x_um[-1], *_row_edges(wl_nm)),
+        )
         ax.set_title(f"x-λ scan, {depth_label(z)} (γ = 0.35)", fontsize=9)
         ax.set_xlabel("x (µm)")
         ax.set_ylabel("wavelength (nm)")
@@ -56,4 +70,3 @@ def _row_edges(wl_nm: np.ndarray) -> tuple[float, float]:
     (1 nm for a single wavelength, whose row would otherwise have no height)."""
     step = (wl_nm[-1] - wl_nm[0]) / (wl_nm.size - 1) if wl_nm.size > 1 else 1.0
     return float(wl_nm[0] - step / 2), float(wl_nm[-1] + step / 2)
-

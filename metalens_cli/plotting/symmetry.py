@@ -23,7 +23,9 @@ def plot_symmetry(
     real = [(r.wavelength_m * 1e9, r.depth_m) for r in rows if r.kind == "real"]
     fig, ax = new_figure(figsize=(6, 4))
     if real:
-        ax.plot([w for w, _ in real], [z for _, z in real], color="C0", label=r"$z = \lambda_d f / (\lambda - \lambda_d)$")
+        ax.plot(
+            [w for w, _ in real], [z for _, z in real], color="C0", label=r"$z = \lambda_d f / (\lambda - \lambda_d)$"
+        )
     ax.axvline(lambda_d_m * 1e9, color="C3", ls="--", lw=1, label=rf"asymptote $\lambda_d$ = {lambda_d_m * 1e9:.1f} nm")
     if z_near_m is not None:
         ax.axhline(z_near_m, color="0.3", ls=":", lw=1, label=f"z_near = {z_near_m * 1e3:g} mm")

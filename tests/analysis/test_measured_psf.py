@@ -7,13 +7,13 @@ import re
 import cv2
 import numpy as np
 import pytest
+from synthetic import bench_frame, gaussian_spot
 
-from metalens_cli.analysis.measured_psf import dark_frame, ImportSettings, import_psfs
+from metalens_cli.analysis.measured_psf import ImportSettings, dark_frame, import_psfs
 from metalens_cli.analysis.mtf import cube_mtf
 from metalens_cli.errors import InputError
 from metalens_cli.io.exr import PsfCube
 from metalens_cli.io.psf_manifest import read_frame_file, read_manifest
-from synthetic import bench_frame, gaussian_spot
 
 PITCH = 1.85e-6
 SHAPE = (160, 170)
@@ -39,7 +39,10 @@ def test_gaussian_spot_gives_its_mtf50_within_3_percent(tmp_path, sigma):
     """A Gaussian of σ pixels has MTF exp(−2π²σ²f²) once the pixel aperture is divided out:
     MTF50 = √(ln 2 / 2π²σ²) cycles/pixel, from noisy 16-bit frames with a dark frame."""
     rng = np.random.default_rng(3)
-    spots = [(530, "inf", gaussian_spot(*SHAPE, (80.3, 84.6), sigma)), (630, "inf", gaussian_spot(*SHAPE, (77.8, 90.2), sigma))]
+    spots = [
+        (530, "inf", gaussian_spot(*SHAPE, (80.3, 84.6), sigma)),
+        (630, "inf", gaussian_spot(*SHAPE, (77.8, 90.2), sigma)),
+    ]
     manifest = read_manifest(write_bench(tmp_path, spots, rng, photons=6e5))
     dark = bench_frame(np.zeros(SHAPE), rng, background=0.0)
     cube = import_psfs(manifest, ImportSettings(PITCH), dark_frame(dark[:, :, None].astype(np.float32), 6.0))
@@ -60,7 +63,6 @@ def test_a_spot_at_a_known_subpixel_offset_is_centred_within_005_px(tmp_path, of
     assert np.allclose(centroid(cube.psf[0, 0].astype(float)), (n // 2, n // 2), atol=0.05)
 
 
-
 @pytest.mark.parametrize("frame", ["float", "16-bit on an offset"])
 def test_a_noiseless_simulated_spot_is_the_spot_centred(tmp_path, frame):
     """No noise at all (border σ = 0, a constant border): the PSF is the same spot integrated
@@ -79,12 +81,19 @@ def test_a_noiseless_simulated_spot_is_the_spot_centred(tmp_path, frame):
     assert np.allclose(cube.frames[0]["centre_px"], (80.3, 77.6), atol=0.01) and cube.warnings == []
 
 
-@pytest.mark.parametrize(("values", "settings", "message"), [
-    (np.full(SHAPE, 1000, np.uint16), {}, "psf.csv line 3: blank.png has no light above the background noise"),
-    (np.full(SHAPE, 65535, np.uint16), {"allow_saturated": True},
-     f"blank.png has no light above the background noise ({SHAPE[0] * SHAPE[1]} of its {SHAPE[0] * SHAPE[1]} pixels saturated)"),
-    (np.full(SHAPE, 0.25, np.float32), {}, "psf.csv line 3: blank.npy has no light above the background noise"),
-], ids=["flat", "all saturated", "flat float"])
+@pytest.mark.parametrize(
+    ("values", "settings", "message"),
+    [
+        (np.full(SHAPE, 1000, np.uint16), {}, "psf.csv line 3: blank.png has no light above the background noise"),
+        (
+            np.full(SHAPE, 65535, np.uint16),
+            {"allow_saturated": True},
+            f"blank.png has no light above the background noise ({SHAPE[0] * SHAPE[1]} of its {SHAPE[0] * SHAPE[1]} pixels saturated)",
+        ),
+        (np.full(SHAPE, 0.25, np.float32), {}, "psf.csv line 3: blank.npy has no light above the background noise"),
+    ],
+    ids=["flat", "all saturated", "flat float"],
+)
 def test_a_frame_without_a_spot_is_refused_naming_its_line(tmp_path, values, settings, message):
     cv2.imwrite(str(tmp_path / "spot.png"), bench_frame(gaussian_spot(*SHAPE, (80, 80), 2.0), np.random.default_rng(8)))
     name = "blank.npy" if values.dtype == np.float32 else "blank.png"
@@ -101,9 +110,13 @@ def test_a_dark_frame_brighter_than_the_frames_is_warned_about_once(tmp_path):
     spots = [(w, "inf", gaussian_spot(*SHAPE, (80, 80), 2.0)) for w in (530, 630)]
     manifest = read_manifest(write_bench(tmp_path, spots, rng))
     matched, bright = (bench_frame(np.zeros(SHAPE), rng, dark_level=level, background=0.0) for level in (600.0, 3000.0))
-    assert import_psfs(manifest, ImportSettings(PITCH), dark_frame(matched[:, :, None].astype(np.float32), 6.0)).warnings == []
+    assert (
+        import_psfs(manifest, ImportSettings(PITCH), dark_frame(matched[:, :, None].astype(np.float32), 6.0)).warnings
+        == []
+    )
     said = import_psfs(manifest, ImportSettings(PITCH), dark_frame(bright[:, :, None].astype(np.float32), 6.0)).warnings
     assert len(said) == 1 and "the dark frame is brighter than the background of 2 of 2 frame(s)" in said[0]
+
 
 def test_peak_centring_puts_the_maximum_on_the_axis_where_the_centroid_does_not(tmp_path):
     """A spot with a faint side lobe: its centroid sits off the peak."""
@@ -116,7 +129,9 @@ def test_peak_centring_puts_the_maximum_on_the_axis_where_the_centroid_does_not(
 
 
 def test_normalisations_and_the_pitch_through_the_relay(tmp_path):
-    manifest = read_manifest(write_bench(tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 80), 2.0))], np.random.default_rng(2)))
+    manifest = read_manifest(
+        write_bench(tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 80), 2.0))], np.random.default_rng(2))
+    )
     summed = import_psfs(manifest, ImportSettings(5.5e-6, magnification=2.0))
     peaked = import_psfs(manifest, ImportSettings(5.5e-6, normalization="peak-one"))
     assert summed.psf.sum() == pytest.approx(1.0, abs=1e-5) and peaked.psf.max() == pytest.approx(1.0, abs=1e-6)
@@ -133,8 +148,10 @@ def test_saturated_frames_are_refused_or_imported_and_reported(tmp_path):
     cube = import_psfs(read_manifest(path), ImportSettings(PITCH, allow_saturated=True))
     assert cube.frames[0]["saturated_pixels"] > 0 and "saturated" in cube.warnings[0]
     with pytest.raises(InputError, match="saturated"):  # a 12-bit camera's level, given explicitly
-        import_psfs(read_manifest(write_bench(tmp_path, [(530, "inf", spot)], np.random.default_rng(4), photons=2e5)),
-                    ImportSettings(PITCH, saturation=4095))
+        import_psfs(
+            read_manifest(write_bench(tmp_path, [(530, "inf", spot)], np.random.default_rng(4), photons=2e5)),
+            ImportSettings(PITCH, saturation=4095),
+        )
 
 
 def test_hot_pixels_are_replaced_and_a_sharp_core_is_kept(tmp_path):
@@ -154,9 +171,13 @@ def test_hot_pixels_are_replaced_and_a_sharp_core_is_kept(tmp_path):
     cube = import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH, pixels=41))
     assert cube.hot_pixels == len(hot)
     sharp = cube.psf[0, 1]
-    assert np.unravel_index(np.argmax(sharp), sharp.shape) == (20, 20) and sharp.max() > 0.4  # the core kept (a σ = 0.5 px spot puts 0.47 in its pixel)
+    assert (
+        np.unravel_index(np.argmax(sharp), sharp.shape) == (20, 20) and sharp.max() > 0.4
+    )  # the core kept (a σ = 0.5 px spot puts 0.47 in its pixel)
     kept = import_psfs(read_manifest(tmp_path / "psf.csv"), ImportSettings(PITCH, pixels=41, hot_pixel_sigma=0))
-    assert kept.hot_pixels == 0 and kept.psf[0, 0].max() > 5 * cube.psf[0, 0].max()  # the hot pixel in the window dominates
+    assert (
+        kept.hot_pixels == 0 and kept.psf[0, 0].max() > 5 * cube.psf[0, 0].max()
+    )  # the hot pixel in the window dominates
 
 
 def test_photon_noise_in_bright_light_is_not_taken_for_hot_pixels(tmp_path):
@@ -172,7 +193,9 @@ def test_photon_noise_in_bright_light_is_not_taken_for_hot_pixels(tmp_path):
     rows = ["file,wavelength,depth"]
     for k, w in enumerate((450, 500, 550, 600, 650)):
         sharp = w == 550
-        frame = bench_frame(gaussian_spot(*SHAPE, (80.0, 85.0), 0.8 if sharp else 12.0), rng, photons=2e4 if sharp else 4.5e7)
+        frame = bench_frame(
+            gaussian_spot(*SHAPE, (80.0, 85.0), 0.8 if sharp else 12.0), rng, photons=2e4 if sharp else 4.5e7
+        )
         if sharp:
             frame[speckles] += np.uint16(300)
         for y, x in hot:
@@ -194,21 +217,27 @@ def test_repeats_are_averaged_after_scaling_by_exposure(tmp_path):
     assert cube.frames[0]["noise"] > cube.frames[1]["noise"]  # per second: the shorter exposure is noisier
 
 
-@pytest.mark.parametrize(("text", "message"), [
-    ("file,wavelength\nf.png,530nm\n", "lacks the column(s) depth"),
-    ("file,wavelength,depth,gain\n", "unknown column(s) gain"),
-    ("file,wavelength,depth\nf.png,530,inf\n", "has no unit"),
-    ("file,wavelength,depth\nf.png,20um,inf\n", "20000 nm is not an optical wavelength"),
-    ("file,wavelength,depth\nmissing.png,530nm,inf\n", "no such file"),
-    ("file,wavelength,depth\nf.png,530nm,inf,extra\n", "4 values for 3 columns"),
-    ("file,wavelength,depth,exposure\nf.png,530nm,inf,-1ms\n", "exposure: '-1ms'"),
-    ("file,wavelength,depth\nf.png,530nm,inf\nf.png,630nm,45mm\n", "has no frame at 530 nm, depth 45 mm"),
-    ("file,wavelength,depth\nf.txt,530nm,inf\n", "is not a frame format"),
-    ("file,wavelength,depth\n", "lists no frames"),
-    ("file,wavelength,depth,exposure\nf.png,530nm,inf,1e-300\n", "exposure: '1e-300'"),
-    ("file,wavelength,depth,exposure\nf.png,530nm,inf,\nf.png,530nm,inf,10ms\n", "line 2: has no exposure while other frames have one"),
-    ("file,wavelength,depth\nf.png,,inf\n", "wavelength is missing"),
-])
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("file,wavelength\nf.png,530nm\n", "lacks the column(s) depth"),
+        ("file,wavelength,depth,gain\n", "unknown column(s) gain"),
+        ("file,wavelength,depth\nf.png,530,inf\n", "has no unit"),
+        ("file,wavelength,depth\nf.png,20um,inf\n", "20000 nm is not an optical wavelength"),
+        ("file,wavelength,depth\nmissing.png,530nm,inf\n", "no such file"),
+        ("file,wavelength,depth\nf.png,530nm,inf,extra\n", "4 values for 3 columns"),
+        ("file,wavelength,depth,exposure\nf.png,530nm,inf,-1ms\n", "exposure: '-1ms'"),
+        ("file,wavelength,depth\nf.png,530nm,inf\nf.png,630nm,45mm\n", "has no frame at 530 nm, depth 45 mm"),
+        ("file,wavelength,depth\nf.txt,530nm,inf\n", "is not a frame format"),
+        ("file,wavelength,depth\n", "lists no frames"),
+        ("file,wavelength,depth,exposure\nf.png,530nm,inf,1e-300\n", "exposure: '1e-300'"),
+        (
+            "file,wavelength,depth,exposure\nf.png,530nm,inf,\nf.png,530nm,inf,10ms\n",
+            "line 2: has no exposure while other frames have one",
+        ),
+        ("file,wavelength,depth\nf.png,,inf\n", "wavelength is missing"),
+    ],
+)
 def test_bad_manifests_are_one_line_errors(tmp_path, text, message):
     cv2.imwrite(str(tmp_path / "f.png"), np.zeros((20, 20), np.uint16))
     (tmp_path / "f.txt").write_text("x")
@@ -224,7 +253,9 @@ def test_a_byte_order_mark_and_a_stack_without_index(tmp_path):
     assert len(read_manifest(tmp_path / "psf.csv").frames) == 1  # Excel's "CSV UTF-8" starts with a byte-order mark
     np.save(tmp_path / "s.npy", np.zeros((3, 20, 20), np.uint16))
     (tmp_path / "s.csv").write_text("file,wavelength,depth\ns.npy,530nm,inf\n")
-    with pytest.raises(InputError, match="s.npy is a stack of 3 frames"):  # a dark stack is averaged; a frame must be named
+    with pytest.raises(
+        InputError, match="s.npy is a stack of 3 frames"
+    ):  # a dark stack is averaged; a frame must be named
         import_psfs(read_manifest(tmp_path / "s.csv"), ImportSettings(PITCH))
 
 
@@ -254,12 +285,19 @@ def test_a_tilted_background_does_not_pull_the_centroid(tmp_path):
 
 
 def test_light_in_the_border_and_a_window_too_small_or_too_large_are_said(tmp_path):
-    manifest = read_manifest(write_bench(tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 85), 30.0))], np.random.default_rng(13),
-                                         photons=5e7))
+    manifest = read_manifest(
+        write_bench(
+            tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 85), 30.0))], np.random.default_rng(13), photons=5e7
+        )
+    )
     wide = import_psfs(manifest, ImportSettings(PITCH))
     assert any("border strip bulges" in w for w in wide.warnings)
-    narrow = import_psfs(read_manifest(write_bench(tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 85), 2.0))],
-                                                   np.random.default_rng(14))), ImportSettings(PITCH, pixels=3))
+    narrow = import_psfs(
+        read_manifest(
+            write_bench(tmp_path, [(530, "inf", gaussian_spot(*SHAPE, (80, 85), 2.0))], np.random.default_rng(14))
+        ),
+        ImportSettings(PITCH, pixels=3),
+    )
     assert any("window keeps" in w for w in narrow.warnings)
     with pytest.raises(InputError, match="larger than the 170 × 160 frames"):
         import_psfs(manifest, ImportSettings(PITCH, pixels=161))
@@ -269,12 +307,16 @@ def test_toml_and_pattern_manifests_name_the_same_frames(tmp_path):
     rng = np.random.default_rng(8)
     for name in ("psf_530nm_inf.png", "psf_630nm_inf.png"):
         cv2.imwrite(str(tmp_path / name), bench_frame(gaussian_spot(40, 40, (20, 20), 2.0), rng))
-    (tmp_path / "m.toml").write_text('pixel_pitch = "3.45um"\nmagnification = 2\n'
-                                     '[[frame]]\nfile = "psf_530nm_inf.png"\nwavelength = "530nm"\ndepth = "inf"\n'
-                                     '[[frame]]\nfile = "psf_630nm_inf.png"\nwavelength = "630nm"\ndepth = "inf"\n')
+    (tmp_path / "m.toml").write_text(
+        'pixel_pitch = "3.45um"\nmagnification = 2\n'
+        '[[frame]]\nfile = "psf_530nm_inf.png"\nwavelength = "530nm"\ndepth = "inf"\n'
+        '[[frame]]\nfile = "psf_630nm_inf.png"\nwavelength = "630nm"\ndepth = "inf"\n'
+    )
     toml = read_manifest(tmp_path / "m.toml")
     pattern = read_manifest(tmp_path, "psf_{wavelength}_{depth}.png")
-    assert [(f.path, f.wavelength_m, f.depth_m) for f in toml.frames] == [(f.path, f.wavelength_m, f.depth_m) for f in pattern.frames]
+    assert [(f.path, f.wavelength_m, f.depth_m) for f in toml.frames] == [
+        (f.path, f.wavelength_m, f.depth_m) for f in pattern.frames
+    ]
     assert toml.settings == {"pixel_pitch_m": 3.45e-6, "magnification": 2.0}
     assert toml.wavelengths_m == [530e-9, 630e-9] and toml.depths_m == [math.inf]
 
@@ -287,9 +329,6 @@ def test_a_frame_of_a_npy_stack(tmp_path):
     assert read_frame_file(tmp_path / "s.npy", None, "dark")[0].max() == 1  # a stack without index: its mean
     with pytest.raises(InputError, match="the stack has 3 frames"):
         read_frame_file(tmp_path / "s.npy", 3, "f")
-
-
-
 
 
 def _airy_spot(shape, centre, first_zero_px):
@@ -319,12 +358,18 @@ def test_a_second_spot_is_warned_about_but_rings_around_one_are_not(tmp_path):
     rng = np.random.default_rng(21)
     ghost = 0.77 * gaussian_spot(*SHAPE, (80, 50), 2.0) + 0.23 * gaussian_spot(*SHAPE, (80, 120), 2.0)
     rim = 0.5 * gaussian_spot(*SHAPE, (80, 85), 2.0) + 0.5 * _ring(SHAPE, (80, 85), 30.0, 2.0)
-    frames = [(530, "inf", ghost), (630, "inf", _airy_spot(SHAPE, (80.2, 84.7), 14.0)), (450, "inf", rim),
-              (500, "inf", gaussian_spot(*SHAPE, (80, 85), 2.0))]
+    frames = [
+        (530, "inf", ghost),
+        (630, "inf", _airy_spot(SHAPE, (80.2, 84.7), 14.0)),
+        (450, "inf", rim),
+        (500, "inf", gaussian_spot(*SHAPE, (80, 85), 2.0)),
+    ]
     cube = import_psfs(read_manifest(write_bench(tmp_path, frames, rng)), ImportSettings(PITCH, pixels=41))
     spots = {f["file"]: f["other_spots"] for f in cube.frames}
     assert len(spots["frame00.png"]) == 1 and np.allclose(spots["frame00.png"][0]["at_px"], (80, 120), atol=0.5)
     assert spots["frame00.png"][0]["share"] == pytest.approx(0.23 / 0.77, rel=0.1)  # light above the detection level
     assert spots["frame01.png"] == spots["frame02.png"] == spots["frame03.png"] == []
     said = [w for w in cube.warnings if "separate spots" in w]
-    assert len(said) == 1 and said[0].startswith("psf.csv line 2: 2 separate spots of light (one at row 80, column 120 with ")
+    assert len(said) == 1 and said[0].startswith(
+        "psf.csv line 2: 2 separate spots of light (one at row 80, column 120 with "
+    )

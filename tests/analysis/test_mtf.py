@@ -108,8 +108,8 @@ def test_simulated_airy_psf_against_diffraction_limit():
     # 2ε/(1 − ε) (0.012 for 129 px). Plus 1e-3 for the ring averaging and the simulator's own
     # accuracy (~1e-3). The pixel aperture changes the curve by 0.037, well beyond that.
     torch = pytest.importorskip("torch")
-    from metalens_cli.io.designs import resolve_design
     from metalens_cli.imaging.psf_scan import run_scan
+    from metalens_cli.io.designs import resolve_design
 
     n, lam, f, na = 129, 532e-9, 4e-3, 0.07
     aperture = 2 * f * na / math.sqrt(1 - na**2)
@@ -128,8 +128,13 @@ def test_simulated_airy_psf_against_diffraction_limit():
 def test_cube_mtf_shapes_references_and_records():
     sigmas = np.array([[1.0, 1.5, 2.0], [2.5, 3.0, 3.5]])
     psf = np.stack([np.stack([gaussian(64, s) for s in row]) for row in sigmas])
-    cube = PsfCube(psf, psf[:, :3], np.array([450e-9, 530e-9, 630e-9]), np.array([0.045, math.inf]),
-                   {"pixel_pitch_m": PITCH, "na": 0.3})
+    cube = PsfCube(
+        psf,
+        psf[:, :3],
+        np.array([450e-9, 530e-9, 630e-9]),
+        np.array([0.045, math.inf]),
+        {"pixel_pitch_m": PITCH, "na": 0.3},
+    )
     result = cube_mtf(cube, at_lpmm=[50.0, 100.0])
     assert result.mtf.shape == (2, 3, 33) and result.rgb_mtf.shape == (2, 3, 33)
     assert result.diffraction.shape == (3, 33) and result.na == 0.3
@@ -148,4 +153,7 @@ def test_cube_without_na_has_no_reference_and_empty_psf_is_refused():
     cube = PsfCube(psf, None, np.array([500e-9, 600e-9]), np.array([1.0]), {"pixel_pitch_m": PITCH})
     with pytest.raises(InputError, match=r"index \(0, 1\) has no power"):
         cube_mtf(cube)
-    assert cube_mtf(PsfCube(psf[:, :1], None, np.array([500e-9]), np.array([1.0]), {"pixel_pitch_m": PITCH})).diffraction is None
+    assert (
+        cube_mtf(PsfCube(psf[:, :1], None, np.array([500e-9]), np.array([1.0]), {"pixel_pitch_m": PITCH})).diffraction
+        is None
+    )

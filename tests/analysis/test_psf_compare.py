@@ -6,11 +6,11 @@ import re
 
 import numpy as np
 import pytest
+from synthetic import gaussian_spot
 
 from metalens_cli.analysis.psf_compare import compare_cubes
 from metalens_cli.errors import InputError
 from metalens_cli.io.exr import PsfCube
-from synthetic import gaussian_spot
 
 PITCH = 2e-6
 
@@ -88,16 +88,30 @@ def test_each_psfs_own_figures_do_not_depend_on_the_other():
     assert centred["fwhm_m"]["measured"] == pytest.approx(2.3548 * math.sqrt(2.0**2 + 1 / 12) * PITCH, rel=0.004)
 
 
-@pytest.mark.parametrize(("measured_pitch", "simulated_pitch", "words"), [
-    (1e-12, 1.85e-6, "MEASURED: its 31 pixels of 0.001 nm span 0.031 nm, less than half its shortest wavelength (530 nm)"),
-    (2e-6, 1e-12, "SIMULATED: its 31 pixels of 0.001 nm span 0.031 nm, less than half its shortest wavelength (530 nm)"),
-    (0.1e-6, 1.85e-6, "MEASURED: its window (31 pixels of 100 nm) spans under 3 simulated pixels of 1.85 µm"),
-], ids=["1 pm measured", "1 pm simulated", "a window within one simulated pixel"])
+@pytest.mark.parametrize(
+    ("measured_pitch", "simulated_pitch", "words"),
+    [
+        (
+            1e-12,
+            1.85e-6,
+            "MEASURED: its 31 pixels of 0.001 nm span 0.031 nm, less than half its shortest wavelength (530 nm)",
+        ),
+        (
+            2e-6,
+            1e-12,
+            "SIMULATED: its 31 pixels of 0.001 nm span 0.031 nm, less than half its shortest wavelength (530 nm)",
+        ),
+        (0.1e-6, 1.85e-6, "MEASURED: its window (31 pixels of 100 nm) spans under 3 simulated pixels of 1.85 µm"),
+    ],
+    ids=["1 pm measured", "1 pm simulated", "a window within one simulated pixel"],
+)
 def test_pitches_no_psf_can_have_are_refused(measured_pitch, simulated_pitch, words):
     """A 1 pm pitch (the MTF50 would read 1e8 lp/mm) and a measured window inside 1.1 simulated
     pixels: nothing to compare, whatever the resampling would make of it."""
     with pytest.raises(InputError, match=re.escape(words)):
-        compare_cubes(cube([spot(31, 2.0)], [530], pitch=measured_pitch), cube([spot(31, 2.0)], [530], pitch=simulated_pitch))
+        compare_cubes(
+            cube([spot(31, 2.0)], [530], pitch=measured_pitch), cube([spot(31, 2.0)], [530], pitch=simulated_pitch)
+        )
 
 
 def test_a_simulation_much_coarser_than_the_measurement_is_warned_about():
@@ -109,16 +123,29 @@ def test_a_simulation_much_coarser_than_the_measurement_is_warned_about():
     assert compare_cubes(measured, cube([spot(31, 2.0)], [530], pitch=2e-6)).warnings == []
 
 
-@pytest.mark.parametrize(("measured", "simulated", "words"), [
-    (cube([spot(41, 2.0)], [530]), cube([spot(41, 2.0)[19:22, 19:22]], [530]),
-     "SIMULATED: its window (3 × 3 pixels of 2 µm, 6 µm across) covers 3 × 3 measured pixels of 2 µm: too small to compare PSFs "
-     "(expected a simulated window at least 8 measured pixels (16 µm) wide"),
-    (cube([spot(41, 2.0)], [530]), cube([spot(161, 50.0)], [530], pitch=PITCH / 50),
-     "SIMULATED: its window (161 × 161 pixels of 40 nm, 6.44 µm across) covers 3 × 3 measured pixels"),
-    (cube([spot(5, 0.7)], [530]), cube([spot(41, 2.0)], [530]),
-     "MEASURED: the common window is 5 × 5 pixels of 2 µm, its own window: too small to compare PSFs "
-     "(expected a measured window of at least 8 × 8 pixels)"),
-], ids=["3x3 crop", "1/50 pitch", "5x5 measured"])
+@pytest.mark.parametrize(
+    ("measured", "simulated", "words"),
+    [
+        (
+            cube([spot(41, 2.0)], [530]),
+            cube([spot(41, 2.0)[19:22, 19:22]], [530]),
+            "SIMULATED: its window (3 × 3 pixels of 2 µm, 6 µm across) covers 3 × 3 measured pixels of 2 µm: too small to compare PSFs "
+            "(expected a simulated window at least 8 measured pixels (16 µm) wide",
+        ),
+        (
+            cube([spot(41, 2.0)], [530]),
+            cube([spot(161, 50.0)], [530], pitch=PITCH / 50),
+            "SIMULATED: its window (161 × 161 pixels of 40 nm, 6.44 µm across) covers 3 × 3 measured pixels",
+        ),
+        (
+            cube([spot(5, 0.7)], [530]),
+            cube([spot(41, 2.0)], [530]),
+            "MEASURED: the common window is 5 × 5 pixels of 2 µm, its own window: too small to compare PSFs "
+            "(expected a measured window of at least 8 × 8 pixels)",
+        ),
+    ],
+    ids=["3x3 crop", "1/50 pitch", "5x5 measured"],
+)
 def test_a_common_window_too_small_to_compare_psfs_is_refused(measured, simulated, words):
     """A 3 × 3 common window gave peak ratios of 1.0 and encircled energies of 1.000 for any PSFs."""
     with pytest.raises(InputError, match=re.escape(words)):
@@ -136,5 +163,7 @@ def test_encircled_energy_beyond_the_window_is_not_reported_and_light_outside_it
     assert ee["measured"][1:] == [None, None] and ee["simulated"][1:] == [None, None] and 0.5 < ee["measured"][0] <= 1
     assert [round(r["wavelength_m"] * 1e9) for r in result.refused] == [630]
     assert "the compared window (9 × 9 pixels of 2 µm) holds" in result.refused[0]["reason"]
-    assert any("encircled energy at 10 µm and 20 µm is not reported" in w and "18 µm across" in w for w in result.warnings)
+    assert any(
+        "encircled energy at 10 µm and 20 µm is not reported" in w and "18 µm across" in w for w in result.warnings
+    )
     assert all(r is not None for r in compare_cubes(measured, measured).pairs[0]["encircled_energy"]["measured"])

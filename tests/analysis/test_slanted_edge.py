@@ -7,11 +7,12 @@ import numpy as np
 import OpenEXR
 import pytest
 from numpy.testing import assert_allclose
+from synthetic import render_edge
 
 from metalens_cli.analysis.mtf import mtf50
 from metalens_cli.analysis.slanted_edge import read_edge_image, slanted_edge_sfr
 from metalens_cli.errors import InputError
-from synthetic import render_edge
+
 
 def expected_sfr(frequencies: np.ndarray, tilt_deg: float, sigma_px: float) -> np.ndarray:
     """Gaussian blur × square pixel seen along the edge normal (a box of width cos θ convolved
@@ -79,7 +80,9 @@ def test_frequencies_in_lpmm_with_a_pitch():
     assert_allclose(sfr.frequencies_lpmm(1.85e-6), sfr.frequencies_cy_per_px * 1e3 / 1.85, rtol=1e-12)
 
 
-@pytest.mark.parametrize(("tilt", "message"), [(0.5, "from the pixel grid"), (44.6, "within 1° of 45°"), (89.5, "from the pixel grid")])
+@pytest.mark.parametrize(
+    ("tilt", "message"), [(0.5, "from the pixel grid"), (44.6, "within 1° of 45°"), (89.5, "from the pixel grid")]
+)
 def test_edges_near_0_45_90_degrees_refused(tilt, message):
     with pytest.raises(InputError, match=message):
         slanted_edge_sfr(render_edge(128, 128, tilt, 1.0), ["Y"])
@@ -98,7 +101,9 @@ def test_reading_png_tiff_exr(tmp_path):
     rgb = np.dstack([edge, 0.5 * np.ones_like(edge), 1 - edge])
     cv2.imwrite(str(tmp_path / "e.png"), np.round(rgb[..., ::-1] * 255).astype(np.uint8))  # OpenCV writes BGR
     cv2.imwrite(str(tmp_path / "e.tif"), np.round(edge * 65535).astype(np.uint16))
-    OpenEXR.File({"type": OpenEXR.scanlineimage}, {name: rgb[..., k].astype(np.float32) for k, name in enumerate("RGB")}).write(str(tmp_path / "e.exr"))
+    OpenEXR.File(
+        {"type": OpenEXR.scanlineimage}, {name: rgb[..., k].astype(np.float32) for k, name in enumerate("RGB")}
+    ).write(str(tmp_path / "e.exr"))
     png, names = read_edge_image(tmp_path / "e.png")
     assert names == ["R", "G", "B"]
     assert_allclose(png, rgb, atol=0.5 / 255)  # 8-bit rounding, channels back in RGB order

@@ -23,8 +23,9 @@ def test_half_width_matches_normal_theory():
 
 def test_coverage_of_the_true_mean():
     rng = np.random.default_rng(1)
-    hits = sum(lo <= 0 <= hi for lo, hi in
-               (mean_ci(rng.normal(0, 1, 30), n_resamples=500, seed=k)["ci"] for k in range(200)))
+    hits = sum(
+        lo <= 0 <= hi for lo, hi in (mean_ci(rng.normal(0, 1, 30), n_resamples=500, seed=k)["ci"] for k in range(200))
+    )
     # nominal 95 %, but the percentile bootstrap under-covers at n = 30 (plug-in σ, normal rather
     # than t quantiles): 92 % measured over 1500 datasets, binomial sd ~4 hits in 200. Seeds are
     # fixed (184 hits); the bounds catch gross errors: a 68 % interval (~136 hits) or one as wide

@@ -15,7 +15,19 @@ from metalens_cli.cli.main import run
 from metalens_cli.io import cache
 
 ROOT = Path(__file__).parents[2]
-SWEEP = ["nanofin", "sweep", "--harmonics", "3", "--max-harmonics", "9", "--band", "530nm:20nm", "--samples-per-band", "2", "--json"]
+SWEEP = [
+    "nanofin",
+    "sweep",
+    "--harmonics",
+    "3",
+    "--max-harmonics",
+    "9",
+    "--band",
+    "530nm:20nm",
+    "--samples-per-band",
+    "2",
+    "--json",
+]
 GRID = ["--width", "250nm,300nm", "--length", "100nm,150nm"]
 
 
@@ -50,25 +62,52 @@ def test_a_lying_sweep_is_recomputed_not_recommended(capsys, folder, tmp_path):
     chosen = first["recommended"]
     eta[[1, 0][first["lengths_m"].index(chosen["length_m"])], [1, 0][first["widths_m"].index(chosen["width_m"])]] = 5.0
     cache._store(map_entry, "nanofin-sweep", map_entry.stem, {"eta": eta, "seconds": np.array(1.0)})
-    cache._store(fine_entry, "nanofin-refine", fine_entry.stem,
-                 {"report": np.array(json.dumps({**chosen["converged"], "eta_per_band": [5.0]}))})
+    cache._store(
+        fine_entry,
+        "nanofin-refine",
+        fine_entry.stem,
+        {"report": np.array(json.dumps({**chosen["converged"], "eta_per_band": [5.0]}))},
+    )
     with pytest.warns(cache.CacheWarning) as caught:
         again = sweep(capsys, tmp_path / "again")
-    assert sorted(str(w.message).split(":")[0] for w in caught) == [f"cache entry {str(fine_entry)!r}", f"cache entry {str(map_entry)!r}"]
+    assert sorted(str(w.message).split(":")[0] for w in caught) == [
+        f"cache entry {str(fine_entry)!r}",
+        f"cache entry {str(map_entry)!r}",
+    ]
     assert "eta: 1 value(s) outside 0..1 (such as 5)" in str(caught[0].message) + str(caught[1].message)
     assert not again["cached"] and not again["converged_cached"] and timeless(again["recommended"]) == timeless(chosen)
-    assert map_entry.with_name(map_entry.name + ".bad").exists() and fine_entry.with_name(fine_entry.name + ".bad").exists()
+    assert (
+        map_entry.with_name(map_entry.name + ".bad").exists()
+        and fine_entry.with_name(fine_entry.name + ".bad").exists()
+    )
 
 
 def test_an_unusable_cache_folder_is_one_warning_line(tmp_path):
     """The map and the refinement both fail to be cached: one line says so, naming the folder."""
-    done = subprocess.run([sys.executable, "-m", "metalens_cli", *SWEEP, "--width", "250nm", "--length", "100nm", "-o",
-                           str(tmp_path / "sweep")], capture_output=True,
-                          text=True, timeout=300, env={**os.environ, "METALENS_CACHE": os.devnull})
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "metalens_cli",
+            *SWEEP,
+            "--width",
+            "250nm",
+            "--length",
+            "100nm",
+            "-o",
+            str(tmp_path / "sweep"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "METALENS_CACHE": os.devnull},
+    )
     assert done.returncode == 0, done.stderr
     lines = [line for line in done.stderr.splitlines() if "cache" in line]
-    assert lines == ["metalens: warning: CacheWarning: cache folder '/dev/null' cannot be used (Not a directory): results are "
-                     "computed on every run, not stored (set METALENS_CACHE to a writable folder)"], done.stderr
+    assert lines == [
+        "metalens: warning: CacheWarning: cache folder '/dev/null' cannot be used (Not a directory): results are "
+        "computed on every run, not stored (set METALENS_CACHE to a writable folder)"
+    ], done.stderr
     assert "Traceback" not in done.stderr and json.loads(done.stdout)["recommended"]["converged"]["harmonics"] >= 5
 
 
@@ -78,13 +117,25 @@ def test_eight_bands_checks_on_an_empty_cache_compute_eta_once(tmp_path):
     cache: all succeed with the same η, one computed it (the others waited and read its entry),
     and the cache holds that one entry and nothing else."""
     env = {**os.environ, "METALENS_CACHE": str(tmp_path / "cache")}
-    command = [sys.executable, "-m", "metalens_cli", "bands", "check", "--preset", str(ROOT / "presets" / "split-spectrum-rcwa.toml"),
-               "--json"]
-    processes = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for _ in range(8)]
+    command = [
+        sys.executable,
+        "-m",
+        "metalens_cli",
+        "bands",
+        "check",
+        "--preset",
+        str(ROOT / "presets" / "split-spectrum-rcwa.toml"),
+        "--json",
+    ]
+    processes = [
+        subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for _ in range(8)
+    ]
     results = [process.communicate(timeout=600) for process in processes]
     assert [p.returncode for p in processes] == [0] * 8, [err for _, err in results]
     reports = [json.loads(out)["efficiency"] for out, _ in results]
     assert sorted(r["cached"] for r in reports) == [False] + [True] * 7
     assert all({**r, "cached": None} == {**reports[0], "cached": None} for r in reports)
-    assert sorted(str(p.relative_to(tmp_path / "cache")) for p in (tmp_path / "cache").rglob("*")) == \
-        ["nanofin", str(Path(reports[0]["cache_entry"]).relative_to(tmp_path / "cache"))]
+    assert sorted(str(p.relative_to(tmp_path / "cache")) for p in (tmp_path / "cache").rglob("*")) == [
+        "nanofin",
+        str(Path(reports[0]["cache_entry"]).relative_to(tmp_path / "cache")),
+    ]

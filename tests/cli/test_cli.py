@@ -22,8 +22,23 @@ def invoke(capsys, *args):
 
 
 def test_symmetry_json_keys(capsys):
-    code, out, err = invoke(capsys, "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--wavelength", "440nm,450nm,530nm",
-                            "--depth", "45mm,inf", "--delta-z", "5mm", "--at-depth", "45mm", "--json")
+    code, out, err = invoke(
+        capsys,
+        "symmetry",
+        "--f",
+        "4mm",
+        "--lambda-d",
+        "450nm",
+        "--wavelength",
+        "440nm,450nm,530nm",
+        "--depth",
+        "45mm,inf",
+        "--delta-z",
+        "5mm",
+        "--at-depth",
+        "45mm",
+        "--json",
+    )
     assert code == 0 and err == ""
     data = json.loads(out)
     assert set(data) == {"f_m", "lambda_d_m", "rows", "focused_wavelengths", "delta"}
@@ -86,24 +101,56 @@ def test_bad_input_one_line_exit_2(capsys, args, option):
 def test_preset_show_json(capsys):
     code, out, _ = invoke(capsys, "preset", "show", PRESETS / "split-spectrum.toml", "--json")
     data = json.loads(out)
-    assert code == 0 and data["lens"]["focal_length_m"] == 0.004 and data["filter"]["centers_m"] == [457e-9, 530e-9, 628e-9]
+    assert (
+        code == 0
+        and data["lens"]["focal_length_m"] == 0.004
+        and data["filter"]["centers_m"] == [457e-9, 530e-9, 628e-9]
+    )
 
 
 def test_plots_written(capsys, tmp_path):
     sym, bands = tmp_path / "sym.png", tmp_path / "bands.png"
-    assert invoke(capsys, "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--z-near", "45mm", "--plot", sym, "--json")[0] == 0
-    assert invoke(capsys, "bands", "check", "--preset", PRESETS / "split-spectrum.toml", "--plot", bands, "--json")[0] == 0
+    assert (
+        invoke(capsys, "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--z-near", "45mm", "--plot", sym, "--json")[0]
+        == 0
+    )
+    assert (
+        invoke(capsys, "bands", "check", "--preset", PRESETS / "split-spectrum.toml", "--plot", bands, "--json")[0] == 0
+    )
     for path in (sym, bands):
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bands.png", "sym.png"]  # no temp files left
 
 
-@pytest.mark.parametrize("args, heavy", [
-    (["--help"], "[]"),
-    (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--json"], "[]"),
-    (["bands", "check", "--band", "457nm:22nm", "--band", "530nm:20nm", "--band", "628nm:28nm", "--f", "4mm", "--z-near", "45mm", "--json"], "[]"),
-    (["bands", "check", "--preset", str(PRESETS / "split-spectrum.toml"), "--json"], "['numpy']"),  # it reports the preset's η(λ)
-])
+@pytest.mark.parametrize(
+    "args, heavy",
+    [
+        (["--help"], "[]"),
+        (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--json"], "[]"),
+        (
+            [
+                "bands",
+                "check",
+                "--band",
+                "457nm:22nm",
+                "--band",
+                "530nm:20nm",
+                "--band",
+                "628nm:28nm",
+                "--f",
+                "4mm",
+                "--z-near",
+                "45mm",
+                "--json",
+            ],
+            "[]",
+        ),
+        (
+            ["bands", "check", "--preset", str(PRESETS / "split-spectrum.toml"), "--json"],
+            "['numpy']",
+        ),  # it reports the preset's η(λ)
+    ],
+)
 def test_closed_form_commands_do_not_import_torch(args, heavy):
     code = (
         "import sys; from metalens_cli.cli.main import run; rc = run(sys.argv[1:]); "
@@ -117,25 +164,47 @@ def test_closed_form_commands_do_not_import_torch(args, heavy):
 def test_installed_entry_point_subprocess():
     exe = shutil.which("metalens", path=os.path.dirname(sys.executable)) or shutil.which("metalens")
     assert exe is not None, "the metalens console script is not installed (pip install -e .)"
-    proc = subprocess.run([exe, "bands", "check", "--preset", str(PRESETS / "split-spectrum.toml"), "--json"],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [exe, "bands", "check", "--preset", str(PRESETS / "split-spectrum.toml"), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 0 and json.loads(proc.stdout)["ok"] is True
     proc = subprocess.run([exe, "symmetry", "--f", "4"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and proc.stdout == ""
 
 
 def test_python_dash_m():
-    proc = subprocess.run([sys.executable, "-m", "metalens_cli", "--version"], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", "metalens_cli", "--version"], capture_output=True, text=True, timeout=60
+    )
     assert proc.returncode == 0 and "metalens" in proc.stdout
 
 
 def test_symmetry_validate_json(capsys, tmp_path):
     plot = tmp_path / "map.png"
-    code, out, _ = invoke(capsys, "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate", "--aperture", "0.2mm",
-                          "--wavelength", "440nm,500nm,600nm", "--json", "--plot", plot)
+    code, out, _ = invoke(
+        capsys,
+        "symmetry",
+        "--f",
+        "4mm",
+        "--lambda-d",
+        "450nm",
+        "--validate",
+        "--aperture",
+        "0.2mm",
+        "--wavelength",
+        "440nm,500nm,600nm",
+        "--json",
+        "--plot",
+        plot,
+    )
     validation = json.loads(out)["validation"]
     assert code == 0 and plot.exists()
-    assert [set(r) for r in validation["rows"]] == [{"wavelength_m", "model_depth_m", "best_depth_m", "rel_deviation"}] * 3
+    assert [set(r) for r in validation["rows"]] == [
+        {"wavelength_m", "model_depth_m", "best_depth_m", "rel_deviation"}
+    ] * 3
     assert validation["rows"][0]["model_depth_m"] is None
     assert validation["max_abs_rel_deviation"] < 1e-3  # NA 0.025: paraxial
 

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
+from synthetic import save_png, texture, warp
 
 from metalens_cli.cli.main import run
 from metalens_cli.imaging.images import linear_to_srgb
-from synthetic import save_png, texture, warp
 
 SIDE = 256
 HOMOGRAPHY = np.array([[1.02, 0.03, -6.0], [-0.02, 0.99, 4.0], [2e-5, -1e-5, 1.0]])
@@ -53,11 +53,15 @@ def invoke(capsys, *args):
 
 
 def row(report, design, condition, capture="raw"):
-    return next(r for r in report["rows"] if (r["design"], r["condition"], r["capture"]) == (design, condition, capture))
+    return next(
+        r for r in report["rows"] if (r["design"], r["condition"], r["capture"]) == (design, condition, capture)
+    )
 
 
 def test_the_sharper_lens_scores_higher_and_obstruction_costs_both(capsys, pairs, tmp_path):
-    code, out, err = invoke(capsys, "evaluate", "--pairs", pairs, "--json", "--csv", tmp_path / "t.csv", "--plot", tmp_path / "t.png")
+    code, out, err = invoke(
+        capsys, "evaluate", "--pairs", pairs, "--json", "--csv", tmp_path / "t.csv", "--plot", tmp_path / "t.png"
+    )
     assert code == 0, err
     report = json.loads(out)
     assert report["images"] == ["scene0", "scene1", "scene2"] and report["alignment"] == "unobstructed"
@@ -98,15 +102,43 @@ def test_recon_folders_add_recon_rows(capsys, pairs, tmp_path):
     assert not any(r["capture"] == "recon" for r in report["rows"] if r["design"] == "blurry")
 
 
-@pytest.mark.parametrize(("change", "args", "code", "message"), [
-    (lambda root: (root / "sharp" / "obstructed" / "scene1.png").unlink(), [], 2, "sharp/obstructed lacks scene1"),
-    (lambda root: (root / "sharp" / "misc").mkdir(), [], 2, "unexpected folder sharp/misc"),
-    (None, ["--seed", "3"], 2, "--seed: does not apply to --pairs (the designs are the folders of DIR) (expected --pairs DIR with only "),
-    (None, ["hyperbolic:532nm"], 2, "DESIGN: does not apply to --pairs (the designs are the folders of DIR) (expected "),
-    (None, ["--max-time", "0.001s"], 2, "--pairs: evaluate --pairs of 2 design(s) × 3 scene(s)"),  # estimated, so --max-time holds
-    (lambda root: (root / "sharp" / "misc").mkdir(), ["--max-time", "1h"], 2, "unexpected folder sharp/misc"),  # past the option rule
-    (lambda root: save(root / "blurry" / "unobstructed" / "scene2.png", texture(SIDE, SIDE, 99)), [], 1, "scene2.png"),
-])
+@pytest.mark.parametrize(
+    ("change", "args", "code", "message"),
+    [
+        (lambda root: (root / "sharp" / "obstructed" / "scene1.png").unlink(), [], 2, "sharp/obstructed lacks scene1"),
+        (lambda root: (root / "sharp" / "misc").mkdir(), [], 2, "unexpected folder sharp/misc"),
+        (
+            None,
+            ["--seed", "3"],
+            2,
+            "--seed: does not apply to --pairs (the designs are the folders of DIR) (expected --pairs DIR with only ",
+        ),
+        (
+            None,
+            ["hyperbolic:532nm"],
+            2,
+            "DESIGN: does not apply to --pairs (the designs are the folders of DIR) (expected ",
+        ),
+        (
+            None,
+            ["--max-time", "0.001s"],
+            2,
+            "--pairs: evaluate --pairs of 2 design(s) × 3 scene(s)",
+        ),  # estimated, so --max-time holds
+        (
+            lambda root: (root / "sharp" / "misc").mkdir(),
+            ["--max-time", "1h"],
+            2,
+            "unexpected folder sharp/misc",
+        ),  # past the option rule
+        (
+            lambda root: save(root / "blurry" / "unobstructed" / "scene2.png", texture(SIDE, SIDE, 99)),
+            [],
+            1,
+            "scene2.png",
+        ),
+    ],
+)
 def test_bad_pairs_are_one_line_errors(capsys, pairs, tmp_path, change, args, code, message):
     import shutil
 
@@ -119,13 +151,23 @@ def test_bad_pairs_are_one_line_errors(capsys, pairs, tmp_path, change, args, co
     assert "internal error" not in err
 
 
-@pytest.mark.parametrize(("name", "args", "words"), [
-    ("sharp/obstructed/scene1.png", [], "is 128 × 128 pixels, the capture whose warp it shares ({folder}/sharp/unobstructed/scene1.png) "
-                                        "256 × 256 (expected the captures of one scene and design at one size (one camera), "
-                                        "or --align each)"),
-    ("blurry/unobstructed/scene0.png", ["--align", "none"], "is 128 × 128 pixels, its gt 256 × 256 "
-                                                            "(expected captures of the reference's size with --align none)"),
-])
+@pytest.mark.parametrize(
+    ("name", "args", "words"),
+    [
+        (
+            "sharp/obstructed/scene1.png",
+            [],
+            "is 128 × 128 pixels, the capture whose warp it shares ({folder}/sharp/unobstructed/scene1.png) "
+            "256 × 256 (expected the captures of one scene and design at one size (one camera), "
+            "or --align each)",
+        ),
+        (
+            "blurry/unobstructed/scene0.png",
+            ["--align", "none"],
+            "is 128 × 128 pixels, its gt 256 × 256 (expected captures of the reference's size with --align none)",
+        ),
+    ],
+)
 def test_a_half_size_capture_is_refused_naming_its_file(capsys, pairs, tmp_path, name, args, words):
     """A capture of another size than the one whose warp it reuses (or, unaligned, than its gt):
     the one line names --pairs and the file."""
@@ -135,7 +177,9 @@ def test_a_half_size_capture_is_refused_naming_its_file(capsys, pairs, tmp_path,
     shutil.copytree(pairs, folder)
     save(folder / name, texture(SIDE // 2, SIDE // 2, 1))
     got, out, err = invoke(capsys, "evaluate", "--pairs", folder, *args)
-    assert got == 2 and out == "" and err == f"metalens: error: --pairs: {folder / name}: {words.format(folder=folder)}\n"
+    assert (
+        got == 2 and out == "" and err == f"metalens: error: --pairs: {folder / name}: {words.format(folder=folder)}\n"
+    )
 
 
 def test_physics_a_capture_equal_to_its_reference_scores_perfectly_up_to_encoding(capsys, tmp_path):
@@ -152,7 +196,10 @@ def test_physics_a_capture_equal_to_its_reference_scores_perfectly_up_to_encodin
     clear = row(report, "identity", "unobstructed")
     assert clear["ssim"] == pytest.approx(1, abs=1e-6) and clear["psnr_db"] == 100.0  # the ceiling of an exact match
     assert "2 score(s) match their reference exactly" in report["warnings"][0]
-    assert math.isfinite(row(report, "identity", "obstructed")["psnr_db"]) and row(report, "identity", "obstructed")["psnr_db"] < 40
+    assert (
+        math.isfinite(row(report, "identity", "obstructed")["psnr_db"])
+        and row(report, "identity", "obstructed")["psnr_db"] < 40
+    )
 
 
 def test_a_greyscale_reference_is_compared_with_the_captures_luminance(capsys, tmp_path):

@@ -12,8 +12,20 @@ from metalens_cli.cli.main import run
 pytest.importorskip("klayout")
 
 PRESETS = Path(__file__).parents[2] / "presets"
-SMALL = ["--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "30um", "--pitch", "395nm", "--width", "305nm",
-         "--length", "125nm"]
+SMALL = [
+    "--design",
+    "hyperbolic:532nm",
+    "--f",
+    "4mm",
+    "--aperture",
+    "30um",
+    "--pitch",
+    "395nm",
+    "--width",
+    "305nm",
+    "--length",
+    "125nm",
+]
 KEYS = {"atoms", "file", "bytes", "format", "max_phase_error_rad", "seconds", "efficiency", "warnings"}
 
 
@@ -23,7 +35,9 @@ def invoke(capsys, *args):
     return code, out, err
 
 
-@pytest.mark.parametrize("name, angles", [("lens.gds", "exact"), ("lens.oas", "exact"), ("lens.gds", "32"), ("lens.oas", "32")])
+@pytest.mark.parametrize(
+    "name, angles", [("lens.gds", "exact"), ("lens.oas", "exact"), ("lens.gds", "32"), ("lens.oas", "32")]
+)
 def test_json_report_and_verify(capsys, tmp_path, name, angles):
     out_file = tmp_path / name
     code, out, _ = invoke(capsys, "export-gds", *SMALL, "-o", out_file, "--angles", angles, "--verify", "--json")
@@ -40,9 +54,20 @@ def test_json_report_and_verify(capsys, tmp_path, name, angles):
 
 
 def test_preset_geometry_and_text_output(capsys, tmp_path):
-    code, out, _ = invoke(capsys, "export-gds", "--design", PRESETS / "hyperbolic-532.toml", "--aperture", "20um",
-                          "-o", tmp_path / "x.gds", "--quiet")
-    assert code == 0 and "2,017" in out and "hyperbolic_532" in out  # the preset's 305 × 125 nm fins pass the overlap check
+    code, out, _ = invoke(
+        capsys,
+        "export-gds",
+        "--design",
+        PRESETS / "hyperbolic-532.toml",
+        "--aperture",
+        "20um",
+        "-o",
+        tmp_path / "x.gds",
+        "--quiet",
+    )
+    assert (
+        code == 0 and "2,017" in out and "hyperbolic_532" in out
+    )  # the preset's 305 × 125 nm fins pass the overlap check
 
 
 def test_verify_mismatch_exits_1(capsys, tmp_path, monkeypatch):
@@ -56,15 +81,18 @@ def test_verify_mismatch_exits_1(capsys, tmp_path, monkeypatch):
     assert result["worst"]["rotation_rad"] == pytest.approx(0.1, abs=0.005)  # the shift, within dbu rounding
 
 
-@pytest.mark.parametrize("args, option", [
-    (["--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "30um", "-o", "x.gds"], "--width"),
-    ([*SMALL, "--layer", "1/a", "-o", "x.gds"], "--layer"),
-    ([*SMALL, "--angles", "1", "-o", "x.gds"], "--angles"),
-    ([*SMALL, "--angles", "fine", "-o", "x.gds"], "--angles"),
-    ([*SMALL, "-o", "x.dxf"], "--output"),
-    ([*SMALL, "--width", "390nm", "-o", "x.gds"], "--width"),
-    ([*SMALL, "--dbu", "100nm", "-o", "x.gds"], "--dbu"),
-])
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "30um", "-o", "x.gds"], "--width"),
+        ([*SMALL, "--layer", "1/a", "-o", "x.gds"], "--layer"),
+        ([*SMALL, "--angles", "1", "-o", "x.gds"], "--angles"),
+        ([*SMALL, "--angles", "fine", "-o", "x.gds"], "--angles"),
+        ([*SMALL, "-o", "x.dxf"], "--output"),
+        ([*SMALL, "--width", "390nm", "-o", "x.gds"], "--width"),
+        ([*SMALL, "--dbu", "100nm", "-o", "x.gds"], "--dbu"),
+    ],
+)
 def test_bad_input(capsys, tmp_path, monkeypatch, args, option):
     monkeypatch.chdir(tmp_path)
     code, out, err = invoke(capsys, "export-gds", *args)
@@ -75,6 +103,22 @@ def test_bad_input(capsys, tmp_path, monkeypatch, args, option):
 def test_map_contradicting_pitch_exits_2(capsys, tmp_path):
     npy = tmp_path / "theta.npy"
     np.save(npy, np.zeros((77, 77)))  # the grid of a 30 µm pupil at 395 nm
-    code, _, err = invoke(capsys, "export-gds", "--design", npy, "--f", "4mm", "--aperture", "30um", "--pitch", "790nm",
-                          "--width", "305nm", "--length", "125nm", "-o", tmp_path / "x.gds")
+    code, _, err = invoke(
+        capsys,
+        "export-gds",
+        "--design",
+        npy,
+        "--f",
+        "4mm",
+        "--aperture",
+        "30um",
+        "--pitch",
+        "790nm",
+        "--width",
+        "305nm",
+        "--length",
+        "125nm",
+        "-o",
+        tmp_path / "x.gds",
+    )
     assert code == 2 and "contradicts" in err and not (tmp_path / "x.gds").exists()

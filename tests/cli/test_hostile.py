@@ -23,7 +23,18 @@ ROOT = Path(__file__).parents[2]
 PRESETS = ROOT / "presets"
 TINY = ROOT / "tests" / "design" / "tiny.toml"
 LENS = ["--f", "1mm", "--aperture", "0.1mm"]
-SCAN = ["psf-scan", "--design", "hyperbolic:532nm", *LENS, "--pixels", "16", "--wavelengths", "532nm", "--depths", "inf"]
+SCAN = [
+    "psf-scan",
+    "--design",
+    "hyperbolic:532nm",
+    *LENS,
+    "--pixels",
+    "16",
+    "--wavelengths",
+    "532nm",
+    "--depths",
+    "inf",
+]
 SIM = ["hyperbolic:532nm", *LENS, "--pixels", "32", "--wavelengths", "520nm,540nm", "--images", "{imgs}"]
 NPY, NPY_REST = ["psf-scan", "--design"], [*LENS, "--pitch", "395nm", *SCAN[5:], "-o", "{tmp}/n.exr"]
 GDS = ["export-gds", "--design", "hyperbolic:532nm", *LENS, "--pitch", "395nm", "--width", "200nm", "--length", "100nm"]
@@ -37,11 +48,14 @@ def cv2_write(path: Path, image: np.ndarray) -> None:
 
 def _png_header(path: Path, width: int, height: int) -> None:
     """A PNG whose header claims width × height pixels, with one tiny (truncated) data chunk."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
         return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
 
     ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 1024)) + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 1024)) + chunk(b"IEND", b"")
+    )
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +85,12 @@ def bench(tmp_path_factory):
     _png_header(root / "bomb.png", 60000, 60000)
     write_exr_rgb(root / "nan.exr", np.full((3, 32, 32), np.nan, np.float32))
     write_exr_rgb(root / "negative.exr", np.full((3, 32, 32), -0.5, np.float32))
-    for name, frame in (("bomb", "bomb.png"), ("nanframe", "nan.npy"), ("hugeframe", "huge.npy"), ("fifoframe", "fifo.csv")):
+    for name, frame in (
+        ("bomb", "bomb.png"),
+        ("nanframe", "nan.npy"),
+        ("hugeframe", "huge.npy"),
+        ("fifoframe", "fifo.csv"),
+    ):
         (root / f"m_{name}.csv").write_text(f"file,wavelength,depth\n{frame},530nm,inf\n")
     (root / "m_ok.csv").write_text("file,wavelength,depth\nmask.png,530nm,inf\n")
     (root / "nopairs").mkdir()
@@ -106,8 +125,16 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "psf-scan -o in /proc (unwritable)": ([*SCAN, "-o", "/proc/x.exr"], 2, "cannot write in folder"),
     "psf-scan -o name too long": ([*SCAN, "-o", "{tmp}/" + "a" * 300 + ".exr"], 2, "bytes"),
     "psf-scan -o without .exr": ([*SCAN, "-o", "{tmp}/x.png"], 2, "does not end in .exr"),
-    "psf-scan --plot in a missing folder": ([*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/nope/p.png"], 2, "does not exist"),
-    "psf-scan --plot unknown format": ([*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/p.xyz"], 2, "does not end in .png"),
+    "psf-scan --plot in a missing folder": (
+        [*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/nope/p.png"],
+        2,
+        "does not exist",
+    ),
+    "psf-scan --plot unknown format": (
+        [*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/p.xyz"],
+        2,
+        "does not end in .png",
+    ),
     "mtf --csv onto its input": (["mtf", "{cube_exr}", "--csv", "{cube_exr}"], 2, "also an input"),
     "mtf --csv onto a FIFO": (["mtf", "{cube_exr}", "--csv", "{fifo_csv}"], 2, "not a regular file"),
     "mtf --csv onto a symbolic link": (["mtf", "{cube_exr}", "--csv", "{link_csv}"], 2, "symbolic link"),
@@ -117,12 +144,26 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "evaluate --csv in a missing folder": (["evaluate", *SIM, "--csv", "{tmp}/nope/x.csv"], 2, "does not exist"),
     "simulate -o under a file": (["simulate", *SIM, "-o", "{a_file}/out"], 2, "not a folder"),
     "optimize -o under a file": (["optimize", str(TINY), "-o", "{a_file}/run"], 2, "not a folder"),
-    "symmetry --plot in a missing folder": (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--plot", "{tmp}/nope/s.png"], 2, "does not exist"),
-    "bands check --plot in a missing folder": (["bands", "check", "--preset", str(PRESETS / "split-spectrum.toml"), "--plot", "{tmp}/nope/b.png"], 2, "does not exist"),
-    "mtf: --csv and --plot on one path": (["mtf", "{cube_exr}", "--csv", "{tmp}/same.png", "--plot", "{tmp}/same.png"], 2,
-                                           "is also --csv's output"),
-    "obstruction file: mask as its own output": (["obstruction", "preview", "--pixels", "16", "--kinds", "file:{mask_png}",
-                                                  "-o", "{mask_png}"], 2, "also an input"),
+    "symmetry --plot in a missing folder": (
+        ["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--plot", "{tmp}/nope/s.png"],
+        2,
+        "does not exist",
+    ),
+    "bands check --plot in a missing folder": (
+        ["bands", "check", "--preset", str(PRESETS / "split-spectrum.toml"), "--plot", "{tmp}/nope/b.png"],
+        2,
+        "does not exist",
+    ),
+    "mtf: --csv and --plot on one path": (
+        ["mtf", "{cube_exr}", "--csv", "{tmp}/same.png", "--plot", "{tmp}/same.png"],
+        2,
+        "is also --csv's output",
+    ),
+    "obstruction file: mask as its own output": (
+        ["obstruction", "preview", "--pixels", "16", "--kinds", "file:{mask_png}", "-o", "{mask_png}"],
+        2,
+        "also an input",
+    ),
     "optimize into a folder of user files": (["optimize", str(TINY), "-o", "{user_files}"], 2, "is not empty"),
     # 2. input files
     "preset nested 100 000 deep": (["preset", "show", "{deep_toml}"], 2, "too deeply"),
@@ -147,8 +188,21 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "--device xpu": (["simulate", *SIM, "--device", "xpu", "-o", "{tmp}/s5"], 2, "unknown device"),
     "--wavelengths 1m": ([*SCAN[:-4], "--wavelengths", "1m", "-o", "{tmp}/w.exr"], 2, "not an optical wavelength"),
     "1141 wavelengths": ([*SCAN[:-4], "--wavelengths", "430:1000:0.5nm", "-o", "{tmp}/w.exr"], 2, "at most 1000"),
-    "one wavelength with a preset's filter": (["psf-scan", "--design", "hyperbolic:532nm", "--preset", str(PRESETS / "split-spectrum.toml"),
-                                              "--wavelengths", "530nm", "-o", "{tmp}/w.exr"], 2, "--wavelengths: channel quadrature"),
+    "one wavelength with a preset's filter": (
+        [
+            "psf-scan",
+            "--design",
+            "hyperbolic:532nm",
+            "--preset",
+            str(PRESETS / "split-spectrum.toml"),
+            "--wavelengths",
+            "530nm",
+            "-o",
+            "{tmp}/w.exr",
+        ],
+        2,
+        "--wavelengths: channel quadrature",
+    ),
     "101 depths": ([*SCAN[:-2], "--depths", "1m:101m:1m", "-o", "{tmp}/w.exr"], 2, "at most 100"),
     "preset: overlapping bands": (["preset", "show", "{overlap_toml}"], 2, "overlap"),
     "preset: unknown camera": (["preset", "show", "{camera_toml}"], 2, "unknown camera"),
@@ -160,51 +214,167 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "--images ''": (["simulate", *SIM[:-1], "", "-o", "{tmp}/s9"], 2, "--images: is empty"),
     "export-gds --format oas into .gds": ([*GDS, "-o", "{tmp}/f.gds", "--format", "oas"], 2, "extension says gds"),
     "a 1 km lens": ([*SCAN[:3], "--f", "1mm", "--aperture", "1km", *SCAN[7:], "-o", "{tmp}/k.exr"], 2, "--aperture"),
-    "hyperbolic:1e300nm": (["psf-scan", "--design", "hyperbolic:1e300nm", *SCAN[3:], "-o", "{tmp}/k.exr"], 2, "not an optical wavelength"),
+    "hyperbolic:1e300nm": (
+        ["psf-scan", "--design", "hyperbolic:1e300nm", *SCAN[3:], "-o", "{tmp}/k.exr"],
+        2,
+        "not an optical wavelength",
+    ),
     "--threads 100000": (["optimize", str(TINY), "-o", "{tmp}/run2", "--threads", "100000"], 2, "--threads"),
     "--seed 0:99999999999": (["evaluate", *SIM, "--seed", "0:99999999999"], 2, "holds 100000000000 seeds"),
-    "obstruction sheet of 1000 depths": (["obstruction", "preview", "--pixels", "16", "--z-near", "1:1000:1mm", "-o", "{tmp}/o.png"], 2,
-                                         "at most 16 rows"),
-    "obstruction 1 nm away": (["obstruction", "preview", "--pixels", "16", "--z-near", "1nm", "-o", "{tmp}/o.png"], 2, "spans"),
+    "obstruction sheet of 1000 depths": (
+        ["obstruction", "preview", "--pixels", "16", "--z-near", "1:1000:1mm", "-o", "{tmp}/o.png"],
+        2,
+        "at most 16 rows",
+    ),
+    "obstruction 1 nm away": (
+        ["obstruction", "preview", "--pixels", "16", "--z-near", "1nm", "-o", "{tmp}/o.png"],
+        2,
+        "spans",
+    ),
     "preset: name escaping runs/": (["preset", "show", "{name_toml}"], 2, "not a plain name"),
-    "psf import: manifest /dev/zero": (["psf", "import", "/dev/zero", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "not a regular file"),
-    "psf import: manifest a FIFO": (["psf", "import", "{fifo_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "not a regular file"),
-    "psf import: a decompression bomb frame": (["psf", "import", "{m_bomb_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "megapixels"),
-    "psf import: a NaN frame": (["psf", "import", "{m_nanframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "NaN"),
-    "psf import: a frame claiming 4 TB": (["psf", "import", "{m_hugeframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "claims"),
-    "psf import: a FIFO as frame": (["psf", "import", "{m_fifoframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"], 2, "not a frame format"),
-    "psf import --pixel-pitch nan": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "nan"], 2, "--pixel-pitch"),
-    "psf import --magnification inf": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um",
-                                        "--magnification", "inf"], 2, "--magnification"),
-    "psf import -o onto /dev/full": (["psf", "import", "{m_ok_csv}", "-o", "/dev/full", "--pixel-pitch", "2um"], 2, "does not end in .exr"),
-    "psf import --plot onto a frame": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um",
-                                        "--plot", "{mask_png}"], 2, "also an input"),
+    "psf import: manifest /dev/zero": (
+        ["psf", "import", "/dev/zero", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"],
+        2,
+        "not a regular file",
+    ),
+    "psf import: manifest a FIFO": (
+        ["psf", "import", "{fifo_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"],
+        2,
+        "not a regular file",
+    ),
+    "psf import: a decompression bomb frame": (
+        ["psf", "import", "{m_bomb_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"],
+        2,
+        "megapixels",
+    ),
+    "psf import: a NaN frame": (
+        ["psf", "import", "{m_nanframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"],
+        2,
+        "NaN",
+    ),
+    "psf import: a frame claiming 4 TB": (
+        ["psf", "import", "{m_hugeframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"],
+        2,
+        "claims",
+    ),
+    "psf import: a FIFO as frame": (
+        ["psf", "import", "{m_fifoframe_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um"],
+        2,
+        "not a frame format",
+    ),
+    "psf import --pixel-pitch nan": (
+        ["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "nan"],
+        2,
+        "--pixel-pitch",
+    ),
+    "psf import --magnification inf": (
+        ["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um", "--magnification", "inf"],
+        2,
+        "--magnification",
+    ),
+    "psf import -o onto /dev/full": (
+        ["psf", "import", "{m_ok_csv}", "-o", "/dev/full", "--pixel-pitch", "2um"],
+        2,
+        "does not end in .exr",
+    ),
+    "psf import --plot onto a frame": (
+        ["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um", "--plot", "{mask_png}"],
+        2,
+        "also an input",
+    ),
     "psf compare of garbage": (["psf", "compare", "{garbage_exr}", "{cube_exr}"], 2, "not a readable OpenEXR file"),
-    "psf compare --csv onto a FIFO": (["psf", "compare", "{cube_exr}", "{cube_exr}", "--csv", "{fifo_csv}"], 2, "not a regular file"),
+    "psf compare --csv onto a FIFO": (
+        ["psf", "compare", "{cube_exr}", "{cube_exr}", "--csv", "{fifo_csv}"],
+        2,
+        "not a regular file",
+    ),
     "evaluate --pairs of a file": (["evaluate", "--pairs", "{a_file}"], 2, "is a file"),
-    "evaluate --pairs --plot onto a capture": (["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/lens/obstructed/a.png"], 2,
-                                                "inside --pairs"),
-    "evaluate --pairs --plot into gt/": (["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/gt/new.png"], 2, "inside --pairs"),
+    "evaluate --pairs --plot onto a capture": (
+        ["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/lens/obstructed/a.png"],
+        2,
+        "inside --pairs",
+    ),
+    "evaluate --pairs --plot into gt/": (
+        ["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/gt/new.png"],
+        2,
+        "inside --pairs",
+    ),
     "evaluate --pairs of an empty folder": (["evaluate", "--pairs", "{nopairs}"], 2, "no images in"),
     "nanofin --material /dev/zero": (["nanofin", "efficiency", "--material", "/dev/zero"], 2, "--material"),
     "nanofin --material a FIFO": (["nanofin", "efficiency", "--material", "{fifo_csv}"], 2, "--material"),
     "nanofin --width nan": (["nanofin", "efficiency", "--width", "nan"], 2, "--width"),
-    "nanofin sweep -o under a file": (["nanofin", "sweep", "--width", "300nm", "--length", "100nm", "-o", "{a_file}/out"], 2,
-                                      "not a folder"),
-    "nanofin sweep of 10^6 fins": (["nanofin", "sweep", "--width", "1:395:0.4nm", "--length", "1:395:0.4nm", "-o", "{tmp}/sw"], 2,
-                                   "at most"),
+    "nanofin sweep -o under a file": (
+        ["nanofin", "sweep", "--width", "300nm", "--length", "100nm", "-o", "{a_file}/out"],
+        2,
+        "not a folder",
+    ),
+    "nanofin sweep of 10^6 fins": (
+        ["nanofin", "sweep", "--width", "1:395:0.4nm", "--length", "1:395:0.4nm", "-o", "{tmp}/sw"],
+        2,
+        "at most",
+    ),
     # 4. estimates before big jobs
-    "psf-scan 8192 px": (["psf-scan", "--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--pixels", "8192",
-                          "-o", "{tmp}/big.exr"], 2, "over the memory available"),
+    "psf-scan 8192 px": (
+        [
+            "psf-scan",
+            "--design",
+            "hyperbolic:532nm",
+            "--f",
+            "4mm",
+            "--aperture",
+            "2.516mm",
+            "--pixels",
+            "8192",
+            "-o",
+            "{tmp}/big.exr",
+        ],
+        2,
+        "over the memory available",
+    ),
     "psf-scan over --max-memory": ([*SCAN, "-o", "{tmp}/m.exr", "--max-memory", "1kB"], 2, "--max-memory"),
-    "simulate --psf-pixels 8192": (["simulate", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--psf-pixels", "8192",
-                                    "--images", "{imgs}", "-o", "{tmp}/s6"], 2, "over the memory available"),
-    "symmetry --validate of a 1 m lens": (["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate", "--aperture", "1m"], 2, "TiB"),
-    "export-gds of a 1 m lens": ([*GDS[:3], "--f", "1m", "--aperture", "1m", *GDS[7:], "-o", "{tmp}/big.gds"], 2, "TiB on disk"),
-    "optimize over --max-memory": (["optimize", str(TINY), "-o", "{tmp}/run", "--max-memory", "1MiB"], 2, "--max-memory"),
-    "evaluate --pairs over --max-memory": (["evaluate", "--pairs", "{pairs}", "--max-memory", "1kB"], 2, "--max-memory"),
-    "psf import over --max-memory": (["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um", "--max-memory", "1kB"],
-                                     2, "--max-memory"),
+    "simulate --psf-pixels 8192": (
+        [
+            "simulate",
+            "hyperbolic:532nm",
+            "--f",
+            "4mm",
+            "--aperture",
+            "2.516mm",
+            "--psf-pixels",
+            "8192",
+            "--images",
+            "{imgs}",
+            "-o",
+            "{tmp}/s6",
+        ],
+        2,
+        "over the memory available",
+    ),
+    "symmetry --validate of a 1 m lens": (
+        ["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate", "--aperture", "1m"],
+        2,
+        "TiB",
+    ),
+    "export-gds of a 1 m lens": (
+        [*GDS[:3], "--f", "1m", "--aperture", "1m", *GDS[7:], "-o", "{tmp}/big.gds"],
+        2,
+        "TiB on disk",
+    ),
+    "optimize over --max-memory": (
+        ["optimize", str(TINY), "-o", "{tmp}/run", "--max-memory", "1MiB"],
+        2,
+        "--max-memory",
+    ),
+    "evaluate --pairs over --max-memory": (
+        ["evaluate", "--pairs", "{pairs}", "--max-memory", "1kB"],
+        2,
+        "--max-memory",
+    ),
+    "psf import over --max-memory": (
+        ["psf", "import", "{m_ok_csv}", "-o", "{tmp}/p.exr", "--pixel-pitch", "2um", "--max-memory", "1kB"],
+        2,
+        "--max-memory",
+    ),
 }
 
 
@@ -260,8 +430,13 @@ def test_optimize_early_failure_leaves_no_run_directory(tmp_path, capsys):
 
 
 def _cli(*args, **kwargs):
-    return subprocess.Popen([sys.executable, "-m", "metalens_cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, **kwargs)
+    return subprocess.Popen(
+        [sys.executable, "-m", "metalens_cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kwargs,
+    )
 
 
 def test_sigterm_removes_the_output_being_written(tmp_path):
@@ -278,6 +453,7 @@ def test_sigterm_removes_the_output_being_written(tmp_path):
 
 def test_file_size_limit_is_one_line_exit_1(tmp_path):
     """RLIMIT_FSIZE (ulimit -f) below the layout's size: the writer fails with EFBIG."""
+
     def limit():
         import resource
 
@@ -303,8 +479,13 @@ def test_simulate_under_a_file_size_limit_leaves_no_folder(bench, tmp_path):
 
 def test_full_stdout_is_one_line_exit_1():
     with open("/dev/full", "w") as full:
-        proc = subprocess.run([sys.executable, "-m", "metalens_cli", "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--json"],
-                              stdout=full, stderr=subprocess.PIPE, text=True, timeout=60)
+        proc = subprocess.run(
+            [sys.executable, "-m", "metalens_cli", "symmetry", "--f", "4mm", "--lambda-d", "450nm", "--json"],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=60,
+        )
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "No space left" in proc.stderr, proc.stderr
 
 
@@ -320,8 +501,11 @@ def test_json_stdout_stays_json_when_the_exr_library_complains(bench, capfd):
 def test_closed_standard_streams_are_not_errors(tmp_path):
     """`>&-` / `2>&-`: what would go there is dropped, the work is done."""
     out = tmp_path / "sheet.png"
-    proc = subprocess.run(f"{sys.executable} -m metalens_cli obstruction preview --pixels 16 -o {out} --json >&- 2>&-",
-                          shell=True, timeout=60)
+    proc = subprocess.run(
+        f"{sys.executable} -m metalens_cli obstruction preview --pixels 16 -o {out} --json >&- 2>&-",
+        shell=True,
+        timeout=60,
+    )
     assert proc.returncode == 0 and out.is_file()
 
 

@@ -12,11 +12,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from cli.test_align import capture  # tests/ is on the path (pyproject's pythonpath)
 from cli.test_hostile import _cli
-from metalens_cli.cli.main import run
 from synthetic import gaussian_spot, save_png, texture
+
+from metalens_cli.cli.main import run
 
 
 def _one_line(capsys, code: int, *words) -> None:
@@ -48,19 +48,53 @@ def frames(tmp_path):
 
 
 def test_a_noiseless_simulated_spot_imports(frames, capsys):
-    assert run(["psf", "import", str(frames / "spot.csv"), "-o", str(frames / "spot.exr"), "--pixel-pitch", "2um", "--json"]) == 0
+    assert (
+        run(
+            [
+                "psf",
+                "import",
+                str(frames / "spot.csv"),
+                "-o",
+                str(frames / "spot.exr"),
+                "--pixel-pitch",
+                "2um",
+                "--json",
+            ]
+        )
+        == 0
+    )
     report = json.loads(capsys.readouterr().out)
     assert [f["centre_px"] for f in report["frames"]] == [[31.4, 32.7]] * 2 and report["warnings"] == []
 
 
-@pytest.mark.parametrize(("manifest", "args", "words"), [
-    ("flat", [], "flat.csv line 3: flat.png has no light above the background noise"),
-    ("full", ["--allow-saturated"],
-     "full.csv line 3: full.png has no light above the background noise (4096 of its 4096 pixels saturated)"),
-])
+@pytest.mark.parametrize(
+    ("manifest", "args", "words"),
+    [
+        ("flat", [], "flat.csv line 3: flat.png has no light above the background noise"),
+        (
+            "full",
+            ["--allow-saturated"],
+            "full.csv line 3: full.png has no light above the background noise (4096 of its 4096 pixels saturated)",
+        ),
+    ],
+)
 def test_a_frame_without_a_spot_is_refused_naming_its_manifest_line(frames, capsys, manifest, args, words):
     before = _files(frames)
-    assert run(["psf", "import", str(frames / f"{manifest}.csv"), "-o", str(frames / "p.exr"), "--pixel-pitch", "2um", *args]) == 2
+    assert (
+        run(
+            [
+                "psf",
+                "import",
+                str(frames / f"{manifest}.csv"),
+                "-o",
+                str(frames / "p.exr"),
+                "--pixel-pitch",
+                "2um",
+                *args,
+            ]
+        )
+        == 2
+    )
     _one_line(capsys, 2, words)
     assert _files(frames) == before
 
@@ -79,8 +113,11 @@ def test_psf_outputs_are_published_together_or_not_at_all(frames, capsys, monkey
     before = _files(frames)
     plotter = "psf_scan.plot_psf_scan" if command == "import" else "psf_compare.plot_psf_comparison"
     monkeypatch.setattr(f"metalens_cli.plotting.{plotter}", _full_disk)
-    first = ["import", str(frames / "spot.csv"), "-o", str(frames / "new.exr"), "--pixel-pitch", "2um"] if command == "import" \
+    first = (
+        ["import", str(frames / "spot.csv"), "-o", str(frames / "new.exr"), "--pixel-pitch", "2um"]
+        if command == "import"
         else ["compare", str(cube), str(cube), "--csv", str(frames / "c.csv")]
+    )
     assert run(["psf", *first, "--plot", str(frames / "p.png")]) == 1
     _one_line(capsys, 1, f"{frames / 'p.png'}: No space left on device")
     assert _files(frames) == before
@@ -112,29 +149,60 @@ def pair(tmp_path_factory):
 def test_align_under_a_file_size_limit_exits_1_with_one_line(pair, tmp_path):
     """OpenCV's PNG writer failed at the limit, printed libpng's line and deleted its file, so the
     error read as a bad suffix (exit 2); now the image is encoded in memory and written by Python."""
-    proc = _cli("align", str(pair / "ref.png"), str(pair / "shot.png"), "-o", str(tmp_path / "a.png"),
-                "--warp-out", str(tmp_path / "w.npz"), "--quiet",
-                preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536)))
+    proc = _cli(
+        "align",
+        str(pair / "ref.png"),
+        str(pair / "shot.png"),
+        "-o",
+        str(tmp_path / "a.png"),
+        "--warp-out",
+        str(tmp_path / "w.npz"),
+        "--quiet",
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536)),
+    )
     out, err = proc.communicate(timeout=300)
     assert proc.returncode == 1, err
-    assert err == f"metalens: error: {tmp_path / 'a.png'}: File too large (the file-size limit, ulimit -f, is reached)\n"
+    assert (
+        err == f"metalens: error: {tmp_path / 'a.png'}: File too large (the file-size limit, ulimit -f, is reached)\n"
+    )
     assert _files(tmp_path) == []
 
 
-@pytest.mark.parametrize("writer", ["metalens_cli.cli.align._write_image", "metalens_cli.imaging.registration.save_warp"])
+@pytest.mark.parametrize(
+    "writer", ["metalens_cli.cli.align._write_image", "metalens_cli.imaging.registration.save_warp"]
+)
 def test_align_on_a_full_disk_publishes_neither_output(pair, tmp_path, capsys, monkeypatch, writer):
     monkeypatch.setattr(writer, _full_disk)
-    assert run(["align", str(pair / "ref.png"), str(pair / "shot.png"), "-o", str(tmp_path / "a.png"),
-                "--warp-out", str(tmp_path / "w.npz"), "--quiet"]) == 1
+    assert (
+        run(
+            [
+                "align",
+                str(pair / "ref.png"),
+                str(pair / "shot.png"),
+                "-o",
+                str(tmp_path / "a.png"),
+                "--warp-out",
+                str(tmp_path / "w.npz"),
+                "--quiet",
+            ]
+        )
+        == 1
+    )
     _one_line(capsys, 1, "No space left on device")
     assert _files(tmp_path) == []
 
 
-@pytest.mark.parametrize(("table", "words"), [
-    ("lam,index\n400,2.1\n700,2.0\n", "--material: film.csv: header 'lam,index' does not name its columns (expected a header "
-                                      "naming its columns, in any order (wavelength_nm: wavelength_nm or wavelength"),
-    (None, "--material: cauchy:1,-0.2809 gives n = "),
-])
+@pytest.mark.parametrize(
+    ("table", "words"),
+    [
+        (
+            "lam,index\n400,2.1\n700,2.0\n",
+            "--material: film.csv: header 'lam,index' does not name its columns (expected a header "
+            "naming its columns, in any order (wavelength_nm: wavelength_nm or wavelength",
+        ),
+        (None, "--material: cauchy:1,-0.2809 gives n = "),
+    ],
+)
 def test_nanofin_refuses_a_material_it_cannot_read_as_given(tmp_path, capsys, table, words):
     material = "cauchy:1,-0.2809"
     if table is not None:
@@ -147,8 +215,14 @@ def test_nanofin_refuses_a_material_it_cannot_read_as_given(tmp_path, capsys, ta
 def test_a_material_tables_columns_are_read_by_name(tmp_path, capsys):
     """k before n: η is that of the same film written n before k (it read n = k, η 0.175 for 0.577)."""
     efficiency = []
-    for header, rows in (("wavelength_nm,n,k", ("400,2.1,0.01", "700,2.0,0.0")), ("wavelength_nm,k,n", ("400,0.01,2.1", "700,0.0,2.0"))):
+    for header, rows in (
+        ("wavelength_nm,n,k", ("400,2.1,0.01", "700,2.0,0.0")),
+        ("wavelength_nm,k,n", ("400,0.01,2.1", "700,0.0,2.0")),
+    ):
         (tmp_path / "film.csv").write_text("\n".join((header, *rows)) + "\n")
-        assert run(["nanofin", "efficiency", "--material", str(tmp_path / "film.csv"), "--wavelengths", "530nm", "--json"]) == 0
+        assert (
+            run(["nanofin", "efficiency", "--material", str(tmp_path / "film.csv"), "--wavelengths", "530nm", "--json"])
+            == 0
+        )
         efficiency.append(json.loads(capsys.readouterr().out)["conversion_efficiency"])
     assert efficiency[0] == efficiency[1] and efficiency[0][0] > 0.3

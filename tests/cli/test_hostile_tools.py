@@ -8,8 +8,8 @@ import shutil
 
 import numpy as np
 import pytest
-
 from cli.test_hostile import _cli  # tests/ is on the path (pyproject's pythonpath)
+
 from metalens_cli.cli.main import run
 from metalens_cli.imaging.network import NetworkShape, ReconstructionNet
 from metalens_cli.imaging.restore import save_model
@@ -37,8 +37,14 @@ def _one_line(capsys, *words) -> None:
 def test_export_under_a_file_size_limit_exits_1_without_aborting(tiny, tmp_path):
     """torch's own writer aborts the process (SIGABRT, a C++ stack) on EFBIG; ours raises in Python."""
     target = tmp_path / "model.pt2"
-    proc = _cli("reconstruct", "export", str(tiny), "-o", str(target),
-                preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096)))
+    proc = _cli(
+        "reconstruct",
+        "export",
+        str(tiny),
+        "-o",
+        str(target),
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096)),
+    )
     out, err = proc.communicate(timeout=300)
     assert proc.returncode == 1 and err.count("\n") == 1 and "file-size limit" in err, err
     assert "terminate called" not in err and not target.exists()
@@ -53,11 +59,14 @@ def test_export_to_a_full_disk_is_refused_before_writing(tiny, tmp_path, monkeyp
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 
-@pytest.mark.parametrize(("extra", "words"), [
-    ({"steps": -5}, "steps is -5, not an integer ≥ 0"),
-    ({"steps": 2.5}, "steps is 2.5"),
-    ({"loss_terms": ["l1", "magic"]}, "loss_terms"),
-])
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        ({"steps": -5}, "steps is -5, not an integer ≥ 0"),
+        ({"steps": 2.5}, "steps is 2.5"),
+        ({"loss_terms": ["l1", "magic"]}, "loss_terms"),
+    ],
+)
 def test_apply_refuses_model_fields_no_training_writes(tmp_path, capsys, extra, words):
     run_dir = _model(tmp_path / "run", NetworkShape(width=4, depth=2, frequencies=2), **extra)
     write_exr_rgb(tmp_path / "capture.exr", np.full((3, 16, 16), 0.5, np.float32))
@@ -87,7 +96,9 @@ def test_apply_never_writes_over_the_users_files_unless_told(tiny, tmp_path, cap
     apply = ["reconstruct", "apply", str(tiny), str(tmp_path / "photo.exr"), "-o", str(out), "--quiet"]
     assert run(apply) == 2
     _one_line(capsys, "--output", "'photo.png'", "--overwrite")
-    assert [p.name for p in out.iterdir()] == ["photo.png"] and (out / "photo.png").read_bytes() == b"the user's own photo"
+    assert [p.name for p in out.iterdir()] == ["photo.png"] and (
+        out / "photo.png"
+    ).read_bytes() == b"the user's own photo"
     assert run([*apply, "--overwrite"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["photo.exr", "photo.png"]
     assert (out / "photo.png").read_bytes() != b"the user's own photo"

@@ -8,11 +8,10 @@ import cv2
 import numpy as np
 import OpenEXR
 import pytest
+from synthetic import render_edge
 
 from metalens_cli.cli.main import run
 from metalens_cli.io.exr import write_psf_cube
-from synthetic import render_edge
-
 
 PITCH = 1.85e-6
 WAVELENGTHS = [450e-9, 530e-9, 630e-9]
@@ -30,7 +29,9 @@ def cube_file(tmp_path):
     y, x = np.mgrid[:32, :32] - 16
     psf = np.array([[np.exp(-(x**2 + y**2) / (2 * (1 + i + 0.5 * j) ** 2)) for j in range(3)] for i in range(2)])
     path = tmp_path / "cube.exr"
-    write_psf_cube(path, psf, WAVELENGTHS, [0.045, math.inf], PITCH, "gaussian test cube", rgb=psf[:, ::-1], extra={"na": 0.3})
+    write_psf_cube(
+        path, psf, WAVELENGTHS, [0.045, math.inf], PITCH, "gaussian test cube", rgb=psf[:, ::-1], extra={"na": 0.3}
+    )
     return path
 
 
@@ -65,12 +66,22 @@ def test_edge_json_csv_plot(capsys, tmp_path):
     image, table, plot = tmp_path / "edge.png", tmp_path / "edge.csv", tmp_path / "edge.png.png"
     edge = render_edge(96, 96, 5.0, 1.0)
     cv2.imwrite(str(image), np.round(np.dstack([edge] * 3) * 65535).astype(np.uint16))
-    code, out, err = invoke(capsys, "mtf", "--edge", image, "--pixel-pitch", "1.85um", "--json", "--csv", table, "--plot", plot)
+    code, out, err = invoke(
+        capsys, "mtf", "--edge", image, "--pixel-pitch", "1.85um", "--json", "--csv", table, "--plot", plot
+    )
     assert code == 0 and err == ""
     data = json.loads(out)
     assert [e["channel"] for e in data["edge"]] == ["R", "G", "B"]
     entry = data["edge"][0]
-    assert set(entry) == {"channel", "angle_deg", "frequencies_cy_per_px", "mtf", "mtf50_cy_per_px", "frequencies_lpmm", "mtf50_lpmm"}
+    assert set(entry) == {
+        "channel",
+        "angle_deg",
+        "frequencies_cy_per_px",
+        "mtf",
+        "mtf50_cy_per_px",
+        "frequencies_lpmm",
+        "mtf50_lpmm",
+    }
     assert entry["angle_deg"] == pytest.approx(5.0, abs=0.05)
     assert entry["mtf50_lpmm"] == pytest.approx(entry["mtf50_cy_per_px"] / 1.85e-3)
     rows = list(csv.reader(table.open()))

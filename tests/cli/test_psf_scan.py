@@ -11,7 +11,18 @@ from metalens_cli.cli.main import run
 from metalens_cli.io.exr import read_psf_cube
 
 PRESETS = Path(__file__).parents[2] / "presets"
-SMALL = ["--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "0.3mm", "--pixels", "33", "--pixel-pitch", "1.85um"]
+SMALL = [
+    "--design",
+    "hyperbolic:532nm",
+    "--f",
+    "4mm",
+    "--aperture",
+    "0.3mm",
+    "--pixels",
+    "33",
+    "--pixel-pitch",
+    "1.85um",
+]
 
 
 def invoke(capsys, *args):
@@ -22,12 +33,31 @@ def invoke(capsys, *args):
 
 def test_scan_writes_contract_and_json(capsys, tmp_path):
     out_file, plot = tmp_path / "psf.exr", tmp_path / "scan.png"
-    code, out, _ = invoke(capsys, "psf-scan", *SMALL, "--wavelengths", "500:560:20nm", "--depths", "45mm,inf",
-                          "-o", out_file, "--json", "--plot", plot)
+    code, out, _ = invoke(
+        capsys,
+        "psf-scan",
+        *SMALL,
+        "--wavelengths",
+        "500:560:20nm",
+        "--depths",
+        "45mm,inf",
+        "-o",
+        out_file,
+        "--json",
+        "--plot",
+        plot,
+    )
     assert code == 0 and plot.exists()
     report = json.loads(out)
     assert report["depths_m"] == [0.045, None] and len(report["psfs"]) == 8
-    assert set(report["psfs"][0]) == {"depth_m", "wavelength_m", "peak", "energy_in_window", "energy_center_5x5", "fwhm_m"}
+    assert set(report["psfs"][0]) == {
+        "depth_m",
+        "wavelength_m",
+        "peak",
+        "energy_in_window",
+        "energy_center_5x5",
+        "fwhm_m",
+    }
     assert report["timing_s"]["total"] > 0 and report["propagator"] == "radial"
     cube = read_psf_cube(out_file)
     assert cube.psf.shape == (2, 4, 33, 33) and math.isinf(cube.depths_m[1])
@@ -40,8 +70,21 @@ def test_scan_writes_contract_and_json(capsys, tmp_path):
 
 def test_scan_with_preset_writes_rgb(capsys, tmp_path):
     out_file = tmp_path / "psf.exr"
-    code, out, _ = invoke(capsys, "psf-scan", *SMALL, "--preset", PRESETS / "split-spectrum.toml", "--wavelengths", "430:645:5nm",
-                          "--depths", "inf", "-o", out_file, "--json", "--quiet")
+    code, out, _ = invoke(
+        capsys,
+        "psf-scan",
+        *SMALL,
+        "--preset",
+        PRESETS / "split-spectrum.toml",
+        "--wavelengths",
+        "430:645:5nm",
+        "--depths",
+        "inf",
+        "-o",
+        out_file,
+        "--json",
+        "--quiet",
+    )
     assert code == 0
     cube = read_psf_cube(out_file)
     assert cube.rgb.shape == (1, 3, 33, 33)
@@ -58,8 +101,9 @@ def test_scan_with_preset_writes_rgb(capsys, tmp_path):
     from metalens_cli.io.presets import load_preset
     from metalens_cli.optics.spectra import quadrature_weights
 
-    weights = quadrature_weights(preset_sensitivity(load_preset(PRESETS / "split-spectrum.toml")),
-                                 np.array(report["wavelengths_m"])).weights
+    weights = quadrature_weights(
+        preset_sensitivity(load_preset(PRESETS / "split-spectrum.toml")), np.array(report["wavelengths_m"])
+    ).weights
     per_wavelength = np.array([p["energy_center_5x5"] for p in report["psfs"]])
     channels = {m["channel"]: m for m in report["channel_psfs"]}
     assert list(channels) == ["R", "G", "B"] and all(m["depth_m"] is None for m in channels.values())
@@ -68,18 +112,32 @@ def test_scan_with_preset_writes_rgb(capsys, tmp_path):
 
 
 def test_check_accuracy_reports(capsys, tmp_path):
-    code, out, _ = invoke(capsys, "psf-scan", *SMALL, "--wavelengths", "532nm", "--depths", "inf", "-o", tmp_path / "p.exr",
-                          "--check-accuracy", "--json")
+    code, out, _ = invoke(
+        capsys,
+        "psf-scan",
+        *SMALL,
+        "--wavelengths",
+        "532nm",
+        "--depths",
+        "inf",
+        "-o",
+        tmp_path / "p.exr",
+        "--check-accuracy",
+        "--json",
+    )
     accuracy = json.loads(out)["accuracy"]
     assert code == 0
     assert accuracy["doubled_sampling_rel_l2"] < 1e-3 and accuracy["rs_rel_l2"] < 1e-3
 
 
-@pytest.mark.parametrize("args, option", [
-    (["--design", "hyperbolic:532nm", "--aperture", "1mm", "-o", "x.exr"], "--f"),
-    ([*SMALL, "--device", "cuda:7", "-o", "x.exr"], "--device"),
-    ([*SMALL, "--wavelengths", "500", "-o", "x.exr"], "--wavelengths"),
-])
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["--design", "hyperbolic:532nm", "--aperture", "1mm", "-o", "x.exr"], "--f"),
+        ([*SMALL, "--device", "cuda:7", "-o", "x.exr"], "--device"),
+        ([*SMALL, "--wavelengths", "500", "-o", "x.exr"], "--wavelengths"),
+    ],
+)
 def test_bad_input(capsys, tmp_path, monkeypatch, args, option):
     monkeypatch.chdir(tmp_path)
     code, out, err = invoke(capsys, "psf-scan", *args)
@@ -90,8 +148,22 @@ def test_bad_input(capsys, tmp_path, monkeypatch, args, option):
 def test_a_scan_estimated_at_days_is_refused_before_it_starts(capsys, tmp_path):
     """Direct Rayleigh-Sommerfeld integration of the paper's lens over 512² pixels takes hours a
     PSF: refused by the default --max-time (a day) and by a stricter one, with the estimate."""
-    lens = ["--design", "hyperbolic:532nm", "--f", "4mm", "--aperture", "2.516mm", "--propagator", "rs", "--pixels", "512",
-            "--depths", "inf", "-o", tmp_path / "rs.exr"]
+    lens = [
+        "--design",
+        "hyperbolic:532nm",
+        "--f",
+        "4mm",
+        "--aperture",
+        "2.516mm",
+        "--propagator",
+        "rs",
+        "--pixels",
+        "512",
+        "--depths",
+        "inf",
+        "-o",
+        tmp_path / "rs.exr",
+    ]
     code, out, err = invoke(capsys, "psf-scan", *lens, "--wavelengths", "430:645:5nm")
     assert code == 2 and out == ""
     assert "--pixels: psf-scan of 44 PSFs" in err and "days, over the --max-time limit (24.0 h)" in err
@@ -104,10 +176,23 @@ def test_an_undersampled_lens_names_pitch_and_offers_force_only_where_it_exists(
     """The sampling guard is bad input about the lens: it names --pitch and what would fix it;
     psf-scan, which has --force, says so; simulate, which has not, does not."""
     lens = ["--f", "1mm", "--aperture", "10mm", "--pixels", "32"]
-    code, _, err = invoke(capsys, "psf-scan", "--design", "hyperbolic:532nm", *lens, "--wavelengths", "532nm", "--depths", "45mm",
-                          "-o", tmp_path / "x.exr")
+    code, _, err = invoke(
+        capsys,
+        "psf-scan",
+        "--design",
+        "hyperbolic:532nm",
+        *lens,
+        "--wavelengths",
+        "532nm",
+        "--depths",
+        "45mm",
+        "-o",
+        tmp_path / "x.exr",
+    )
     assert code == 2 and err.startswith("metalens: error: --pitch: the field leaving the lens reaches ")
     assert err.rstrip().endswith("or a more distant source; or --force to compute anyway)") and err.count("\n") == 1
-    code, _, err = invoke(capsys, "simulate", "hyperbolic:532nm", *lens, "--images", "charts", "--limit", "1", "-o", tmp_path / "s")
+    code, _, err = invoke(
+        capsys, "simulate", "hyperbolic:532nm", *lens, "--images", "charts", "--limit", "1", "-o", tmp_path / "s"
+    )
     assert code == 2 and err.startswith("metalens: error: --pitch: ") and "force" not in err
     assert list(tmp_path.iterdir()) == []

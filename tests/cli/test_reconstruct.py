@@ -49,7 +49,9 @@ def test_apply_writes_exr_and_png_equal_to_the_core(trained, tmp_path, capsys):
     linear = rng.uniform(0, 1, size=(3, 21, 17)).astype(np.float32)
     write_exr_rgb(inputs / "raw.exr", linear)
     capsys.readouterr()
-    assert run(["reconstruct", "apply", str(trained), str(inputs), "-o", str(tmp_path / "out"), "--json", "--quiet"]) == 0
+    assert (
+        run(["reconstruct", "apply", str(trained), str(inputs), "-o", str(tmp_path / "out"), "--json", "--quiet"]) == 0
+    )
     report = json.loads(capsys.readouterr().out)
     assert [Path(r["input"]).name for r in report["images"]] == ["photo.png", "raw.exr"]
     recon = load_reconstructor(trained)
@@ -82,10 +84,18 @@ def test_evaluate_with_recon_adds_recon_rows(trained, capsys):
     assert run(["evaluate", *LENS, *common, "--recon", str(trained), "--json", "--quiet"]) == 0
     report = json.loads(capsys.readouterr().out)
     captures = {(r["capture"], r["condition"]) for r in report["rows"]}
-    assert captures == {("raw", "unobstructed"), ("raw", "obstructed"), ("recon", "unobstructed"), ("recon", "obstructed")}
+    assert captures == {
+        ("raw", "unobstructed"),
+        ("raw", "obstructed"),
+        ("recon", "unobstructed"),
+        ("recon", "obstructed"),
+    }
     versus = [c for c in report["comparisons"] if c["capture"] == "recon" and c["versus_capture"] == "raw"]
     assert versus and all(c["design"] == c["versus"] == "hyperbolic:532nm" for c in versus)
-    assert run(["evaluate", "hyperbolic:500nm", "--f", "1mm", "--aperture", "0.2mm", *common, "--recon", str(trained)]) == 2
+    assert (
+        run(["evaluate", "hyperbolic:500nm", "--f", "1mm", "--aperture", "0.2mm", *common, "--recon", str(trained)])
+        == 2
+    )
     _one_line_error(capsys, "was trained for 'hyperbolic:532nm'")
     assert run(["evaluate", *LENS, "hyperbolic:500nm", *common, "--recon", str(trained)]) == 2
     _one_line_error(capsys, "1 runs for 2 designs")
@@ -117,7 +127,23 @@ def test_bad_inputs_are_one_line_exit_2(trained, tmp_path, capsys):
     assert run(["reconstruct", "train", *LENS, "--preset", str(TINY), "-o", str(blocker / "run")]) == 2
     _one_line_error(capsys, "not a folder")
     assert not (tmp_path / "missing").exists()
-    assert run(["reconstruct", "train", "hyperbolic:500nm", "--f", "1mm", "--aperture", "0.2mm", "-o", str(trained), "--resume"]) == 2
+    assert (
+        run(
+            [
+                "reconstruct",
+                "train",
+                "hyperbolic:500nm",
+                "--f",
+                "1mm",
+                "--aperture",
+                "0.2mm",
+                "-o",
+                str(trained),
+                "--resume",
+            ]
+        )
+        == 2
+    )
     _one_line_error(capsys, "not the design the run was made for")
 
 
@@ -132,8 +158,26 @@ def test_train_on_captured_pairs(tmp_path, capsys):
         cv2.imwrite(str(tmp_path / "pairs" / "gt" / f"scene{k}.png"), gt)
         cv2.imwrite(str(tmp_path / "pairs" / "captures" / f"scene{k}@a.png"), cv2.GaussianBlur(gt, (0, 0), 2))
     out = tmp_path / "run"
-    assert run(["reconstruct", "train", *LENS, "--preset", str(TINY), "--pairs", str(tmp_path / "pairs"), "-o", str(out),
-                "--steps", "2", "--json", "--quiet"]) == 0
+    assert (
+        run(
+            [
+                "reconstruct",
+                "train",
+                *LENS,
+                "--preset",
+                str(TINY),
+                "--pairs",
+                str(tmp_path / "pairs"),
+                "-o",
+                str(out),
+                "--steps",
+                "2",
+                "--json",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     report = json.loads(capsys.readouterr().out)
     assert report["data"]["kind"] == "captured pairs" and report["data"]["pool_entries"] == 2
     assert report["data"]["validation_entries"] == 1 and report["data"]["pool_pixels"] == 40
@@ -150,14 +194,22 @@ def test_train_refuses_degenerate_pairs_bad_names_and_names_design(tmp_path, cap
         for sub in ("gt", "captures"):
             (tmp_path / folder / sub).mkdir(parents=True)
         for name in scenes:
-            cv2.imwrite(str(tmp_path / folder / "gt" / f"{name}.png"), rng.integers(0, 255, size=(40, 40, 3), dtype=np.uint8))
+            cv2.imwrite(
+                str(tmp_path / folder / "gt" / f"{name}.png"), rng.integers(0, 255, size=(40, 40, 3), dtype=np.uint8)
+            )
         for name in captured:
-            cv2.imwrite(str(tmp_path / folder / "captures" / f"{name}.png"), rng.integers(0, 255, size=(40, 40, 3), dtype=np.uint8))
+            cv2.imwrite(
+                str(tmp_path / folder / "captures" / f"{name}.png"),
+                rng.integers(0, 255, size=(40, 40, 3), dtype=np.uint8),
+            )
     out = tmp_path / "run"
     train = ["reconstruct", "train", *LENS, "-o", str(out), "--steps", "1", "--quiet", "--preset"]
     assert run([*train, str(TINY), "--pairs", str(tmp_path / "one")]) == 2
-    _one_line_error(capsys, "--pairs: '" + str(tmp_path / "one") + "' holds 1 scene (s0), too few to hold out validation scenes "
-                    "apart from the training ones (expected at least 2 scenes")
+    _one_line_error(
+        capsys,
+        "--pairs: '" + str(tmp_path / "one") + "' holds 1 scene (s0), too few to hold out validation scenes "
+        "apart from the training ones (expected at least 2 scenes",
+    )
     assert run([*train, str(TINY), "--pairs", str(tmp_path / "lacking")]) == 2
     _one_line_error(capsys, "--pairs: captures lacks s1, s2")
     evil = tmp_path / "evil.toml"
@@ -185,7 +237,24 @@ def test_resume_refuses_another_preset_and_too_many_threads(trained, tmp_path, c
     assert run(["reconstruct", "train", *LENS, "--preset", str(other), "-o", str(copy), "--resume"]) == 2
     _one_line_error(capsys, "wider.toml sets network.width = 8, but the run")
     assert {p: p.stat().st_mtime_ns for p in copy.rglob("*")} == before
-    assert run(["reconstruct", "train", *LENS, "--preset", str(TINY), "-o", str(copy), "--resume", "--steps", "4", "--quiet"]) == 0
+    assert (
+        run(
+            [
+                "reconstruct",
+                "train",
+                *LENS,
+                "--preset",
+                str(TINY),
+                "-o",
+                str(copy),
+                "--resume",
+                "--steps",
+                "4",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     cores = len(os.sched_getaffinity(0))
     assert run(["reconstruct", "train", *LENS, "-o", str(tmp_path / "new"), "--threads", str(cores + 1)]) == 2

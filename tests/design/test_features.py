@@ -211,7 +211,9 @@ def _reference_bottleneck(x, blk, stride, dilation, downsample):
 def test_bottleneck_matches_explicit_functional(extractor, stage, index, cin, stride, dilation, downsample):
     blk = getattr(extractor.backbone, f"layer{stage}")[index]
     x = torch.randn(1, cin, 9, 9, generator=torch.Generator().manual_seed(2))
-    torch.testing.assert_close(blk(x), _reference_bottleneck(x, blk, stride, dilation, downsample), rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(
+        blk(x), _reference_bottleneck(x, blk, stride, dilation, downsample), rtol=1e-5, atol=1e-5
+    )
 
 
 # ---------------------------------------------------------------- checkpoint variants and errors

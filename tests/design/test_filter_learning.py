@@ -12,8 +12,16 @@ import torch
 
 from metalens_cli.analysis.bands import bands_from_centers, check_bands, incidence_factor, preset_incidence_factor
 from metalens_cli.cli.main import run as run_cli
-from metalens_cli.design.filter_learning import (LearnedFilter, band_nodes, band_sampler, band_weights, check_filter,
-                                                 make_feasible, snap_to_catalogue, split_penalty)
+from metalens_cli.design.filter_learning import (
+    LearnedFilter,
+    band_nodes,
+    band_sampler,
+    band_weights,
+    check_filter,
+    make_feasible,
+    snap_to_catalogue,
+    split_penalty,
+)
 from metalens_cli.design.training import train
 from metalens_cli.errors import InputError, ResultFailed
 from metalens_cli.io.filter_catalogue import read_catalogue
@@ -43,8 +51,9 @@ def test_band_weights_equal_the_exact_quadrature_of_a_fixed_filter(joint):
     sampler = band_sampler(joint)
     nodes = np.arange(402.5, 700, 5.0) * NM
     weights = band_weights(nodes, sampler.fine_m, sampler.base, sampler.band_filter.transmission(sampler.fine_m))
-    sensitivity = spectra.SpectralSensitivity(sampler.fine_m, sampler.base * sampler.band_filter.transmission(sampler.fine_m)
-                                              .detach().numpy())
+    sensitivity = spectra.SpectralSensitivity(
+        sampler.fine_m, sampler.base * sampler.band_filter.transmission(sampler.fine_m).detach().numpy()
+    )
     exact = spectra.quadrature_weights(sensitivity, nodes)
     np.testing.assert_allclose(weights.detach().sum(1).numpy(), 1.0, atol=1e-12)
     np.testing.assert_allclose(weights.detach().numpy(), exact.weights, atol=2e-3)
@@ -69,7 +78,7 @@ def test_moving_a_band_moves_its_channel_mean_wavelength_as_the_integral_does(jo
     h = 1e-3
     numeric = (g_mean(h) - g_mean(-h)) / (2 * h)
     assert float(grad[1]) == pytest.approx(numeric, rel=0.02)
-    assert float(grad[1]) > 0.5 * NM   # most of G's signal moves with its band
+    assert float(grad[1]) > 0.5 * NM  # most of G's signal moves with its band
 
 
 def test_stratified_nodes_cover_each_band_and_its_edges():
@@ -99,7 +108,7 @@ def test_projection_restores_every_limit(joint):
     hi = [c + w / 2 for c, w in zip(centres, widths)]
     assert lo[0] >= 400 * NM - 1e-15 and hi[-1] <= 700 * NM + 1e-15
     assert all(b - a >= f.min_gap_m - 1e-12 for a, b in zip(hi, lo[1:]))
-    spectra.bandpass_transmission(np.linspace(400, 700, 11) * NM, centres, widths, edge_width_m=edge)   # a valid filter
+    spectra.bandpass_transmission(np.linspace(400, 700, 11) * NM, centres, widths, edge_width_m=edge)  # a valid filter
 
 
 def test_penalty_is_zero_exactly_when_bands_check_passes_with_the_margin(joint):
@@ -136,8 +145,8 @@ def test_an_infeasible_start_is_moved_just_inside_before_theta_learns(joint):
     assert done["penalty_before_nm2"] > 100 and done["penalty_after_nm2"] == 0 and 0 < done["steps"] < 1000
     moved = LearnedFilter(joint.filter)
     report = check_filter(model.to_config(joint.filter), joint)
-    assert report.ok and min(c.margin_m for c in report.conditions) < 2 * joint.filter.split_margin_m   # just inside
-    for a, b in zip(model.bands(), moved.bands()):   # each edge moved by a few nm, not redrawn
+    assert report.ok and min(c.margin_m for c in report.conditions) < 2 * joint.filter.split_margin_m  # just inside
+    for a, b in zip(model.bands(), moved.bands()):  # each edge moved by a few nm, not redrawn
         assert abs(float((a.lo_m - b.lo_m).detach())) < 6 * NM and abs(float((a.hi_m - b.hi_m).detach())) < 6 * NM
     assert make_feasible(model, joint, preset_incidence_factor(joint))["steps"] == 0
 
@@ -161,24 +170,33 @@ def test_snapping_gives_the_nearest_listed_filter_that_passes(joint, tmp_path):
     path = tmp_path / "catalogue.csv"
     path.write_text(CATALOGUE)
     listed = read_catalogue(path)
-    assert [f.name for f in listed] == ["paper tri-band", "narrow tri-band", "dual"] and listed[1].peak_transmission == 0.9
+    assert [f.name for f in listed] == ["paper tri-band", "narrow tri-band", "dual"] and listed[
+        1
+    ].peak_transmission == 0.9
     # the paper's filter is nearer to itself but fails at 25.7°: the narrow one is chosen
     entry, distance = snap_to_catalogue(joint.filter, listed, joint)
     assert entry.name == "narrow tri-band" and distance > 0
-    assert entry in listed and check_filter(dataclasses.replace(joint.filter, centers_m=entry.centers_m,
-                                                                widths_m=entry.widths_m), joint).ok
+    assert (
+        entry in listed
+        and check_filter(
+            dataclasses.replace(joint.filter, centers_m=entry.centers_m, widths_m=entry.widths_m), joint
+        ).ok
+    )
     normal = _with(joint, max_incidence="0deg")
     assert snap_to_catalogue(normal.filter, listed, normal)[0].name == "paper tri-band"
     with pytest.raises(InputError, match="filter.catalogue"):
         snap_to_catalogue(joint.filter, listed[:1], joint)
 
 
-@pytest.mark.parametrize("text, message", [
-    ("centre,fwhm\n457,22\n", "header"),
-    ("name,center_nm,fwhm_nm,edge_nm,peak\na,457,twenty,2,0.9\n", "not a number"),
-    ("name,center_nm,fwhm_nm,edge_nm,peak\na,457,22,2,0.9\na,530,20,3,0.9\n", "different edges"),
-    ("name,center_nm,fwhm_nm,edge_nm,peak\n", "no filter"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("centre,fwhm\n457,22\n", "header"),
+        ("name,center_nm,fwhm_nm,edge_nm,peak\na,457,twenty,2,0.9\n", "not a number"),
+        ("name,center_nm,fwhm_nm,edge_nm,peak\na,457,22,2,0.9\na,530,20,3,0.9\n", "different edges"),
+        ("name,center_nm,fwhm_nm,edge_nm,peak\n", "no filter"),
+    ],
+)
 def test_a_bad_catalogue_is_refused_naming_the_field(tmp_path, text, message):
     path = tmp_path / "c.csv"
     path.write_text(text)
@@ -217,7 +235,7 @@ def _tiny_joint(**filter_fields):
     data = read_toml(TINY)
     data["filter"].update({"learn": True, "learning_rate": 1.0, **filter_fields})
     data["optimize"].update({"spectral_sampling": "bands", "steps": 4, "t_max": 4})
-    data["scene"]["z_near"] = "40mm:50mm"   # the tiny lens has f = 1 mm: s = 1.02-1.025
+    data["scene"]["z_near"] = "40mm:50mm"  # the tiny lens has f = 1 mm: s = 1.02-1.025
     return preset_from_dict(data, name="tiny-joint")
 
 
@@ -227,23 +245,32 @@ def bands_check(capsys, *args) -> tuple[int, dict]:
 
 
 def test_a_joint_run_keeps_its_limits_and_writes_the_filter_every_command_uses(tmp_path, capsys):
-    preset = _tiny_joint(centers=["455nm", "530nm", "620nm"], widths=["8nm", "8nm", "8nm"], min_width="6nm",
-                         split_margin="0.5nm", split_weight=10.0)
+    preset = _tiny_joint(
+        centers=["455nm", "530nm", "620nm"],
+        widths=["8nm", "8nm", "8nm"],
+        min_width="6nm",
+        split_margin="0.5nm",
+        split_weight=10.0,
+    )
     assert check_filter(preset.filter, preset).ok
     summary = train(preset, tmp_path / "run")
     run = tmp_path / "run"
     f = preset.filter
-    for row in summary.history:   # the limits hold after every step
+    for row in summary.history:  # the limits hold after every step
         widths = [row[f"filter_width_{i}_nm"] * NM for i in range(3)]
         centres = [row[f"filter_center_{i}_nm"] * NM for i in range(3)]
         assert all(f.min_width_m - 1e-15 <= w <= f.max_width_m + 1e-15 for w in widths)
         assert row["filter_edge_nm"] * NM >= f.min_edge_width_m - 1e-15
-        assert all((c2 - w2 / 2) - (c1 + w1 / 2) >= f.min_gap_m - 1e-12
-                   for c1, w1, c2, w2 in zip(centres, widths, centres[1:], widths[1:]))
+        assert all(
+            (c2 - w2 / 2) - (c1 + w1 / 2) >= f.min_gap_m - 1e-12
+            for c1, w1, c2, w2 in zip(centres, widths, centres[1:], widths[1:])
+        )
     moved = summary.history[-1]
     assert any(abs(moved[f"filter_center_{i}_nm"] - c / NM) > 1e-3 for i, c in enumerate(f.centers_m))
     learned = load_preset(run / "preset.toml").filter
-    np.testing.assert_allclose(np.array(learned.centers_m) / NM, [moved[f"filter_center_{i}_nm"] for i in range(3)], atol=1e-9)
+    np.testing.assert_allclose(
+        np.array(learned.centers_m) / NM, [moved[f"filter_center_{i}_nm"] for i in range(3)], atol=1e-9
+    )
     assert learned.learn and learned.edge_width_m == pytest.approx(moved["filter_edge_nm"] * NM)
     header, *rows = (run / "filter.csv").read_text().splitlines()
     assert header == "wavelength_nm,transmission" and len(rows) == 601 and rows[1].startswith("400.5,")
@@ -257,8 +284,9 @@ def test_a_joint_run_keeps_its_limits_and_writes_the_filter_every_command_uses(t
 def test_a_learned_filter_that_fails_the_conditions_is_refused_not_written(tmp_path):
     # no penalty (so no feasible start either) and a start that fails at 40-50 mm: the run ends
     # refused, preset.toml untouched
-    preset = _tiny_joint(centers=["500nm", "530nm", "560nm"], widths=["20nm", "20nm", "20nm"], split_weight=0.0,
-                         learning_rate=0.0)
+    preset = _tiny_joint(
+        centers=["500nm", "530nm", "560nm"], widths=["20nm", "20nm", "20nm"], split_weight=0.0, learning_rate=0.0
+    )
     assert not check_filter(preset.filter, preset).ok
     with pytest.raises(ResultFailed, match="fails the split-spectrum conditions"):
         train(preset, tmp_path / "run")
@@ -295,7 +323,7 @@ def test_the_samplers_differentiable_throughput_matches_the_presets(joint):
     share = sampler.throughput()
     np.testing.assert_allclose(share.detach().numpy(), channel_throughput(joint), rtol=2e-3)
     (grad,) = torch.autograd.grad(share.sum(), sampler.band_filter.widths_nm)
-    assert torch.all(grad > 0)   # a wider band passes more light: the noise term pays for narrow bands
+    assert torch.all(grad > 0)  # a wider band passes more light: the noise term pays for narrow bands
 
 
 def test_per_channel_photons_set_each_channels_shot_noise():

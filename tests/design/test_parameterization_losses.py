@@ -25,8 +25,9 @@ def test_radial_hyperbolic_init_is_the_hyperbolic_lens():
 
 def test_2d_full_grid_init_is_the_hyperbolic_map():
     model = initial_parameterization("2d", "hyperbolic", LAM, F, D, P)
-    np.testing.assert_allclose(model.lens().theta.detach().numpy(), hyperbolic(LAM, F, D, P, radial=False).theta.numpy(),
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        model.lens().theta.detach().numpy(), hyperbolic(LAM, F, D, P, radial=False).theta.numpy(), rtol=0, atol=1e-12
+    )
 
 
 def test_coarse_design_grid_upsamples_with_aligned_centre_and_corners():
@@ -97,10 +98,14 @@ def test_per_channel_sharp_loss_weighs_the_weakest_channel():
 def test_per_wavelength_sharp_loss_prefers_a_flat_spectrum():
     """−mean log E_λ: for one mean core energy a flat spectrum scores lower than a peaked one
     (Jensen), its gradient is −1/(W·E_λ); without cores it refuses with the preset key."""
-    flat, peaked = torch.full((4,), 0.04, dtype=torch.float64), torch.tensor([0.13, 0.01, 0.01, 0.01], dtype=torch.float64)
+    flat, peaked = (
+        torch.full((4,), 0.04, dtype=torch.float64),
+        torch.tensor([0.13, 0.01, 0.01, 0.01], dtype=torch.float64),
+    )
     assert float(sharp_loss(_delta_psf(), mode="log_wavelength", cores=flat)) == pytest.approx(-math.log(0.04))
     assert float(sharp_loss(_delta_psf(), mode="log_wavelength", cores=flat)) < float(
-        sharp_loss(_delta_psf(), mode="log_wavelength", cores=peaked))
+        sharp_loss(_delta_psf(), mode="log_wavelength", cores=peaked)
+    )
     energy = peaked.clone().requires_grad_(True)
     sharp_loss(_delta_psf(), mode="log_wavelength", cores=energy).backward()
     assert_allclose(energy.grad.numpy(), -1 / (4 * peaked.numpy()))
@@ -111,16 +116,21 @@ def test_per_wavelength_sharp_loss_prefers_a_flat_spectrum():
 def test_harmonic_sharp_loss_weighs_the_weakest_wavelength_most():
     """log mean 1/E_λ: −log E on a flat spectrum (as −mean log E_λ), above the geometric form on
     a peaked one (harmonic ≤ geometric mean), and its gradient (1/E_λ²)/Σ(1/E_μ) by hand."""
-    flat, uneven = torch.full((4,), 0.04, dtype=torch.float64), torch.tensor([0.1, 0.05, 0.02, 0.01], dtype=torch.float64)
+    flat, uneven = (
+        torch.full((4,), 0.04, dtype=torch.float64),
+        torch.tensor([0.1, 0.05, 0.02, 0.01], dtype=torch.float64),
+    )
     assert float(sharp_loss(_delta_psf(), mode="harmonic_wavelength", cores=flat)) == pytest.approx(-math.log(0.04))
     assert float(sharp_loss(_delta_psf(), mode="harmonic_wavelength", cores=uneven)) == pytest.approx(
-        math.log(np.mean(1 / uneven.numpy())))
+        math.log(np.mean(1 / uneven.numpy()))
+    )
     assert float(sharp_loss(_delta_psf(), mode="harmonic_wavelength", cores=uneven)) > float(
-        sharp_loss(_delta_psf(), mode="log_wavelength", cores=uneven))
+        sharp_loss(_delta_psf(), mode="log_wavelength", cores=uneven)
+    )
     energy = uneven.clone().requires_grad_(True)
     sharp_loss(_delta_psf(), mode="harmonic_wavelength", cores=energy).backward()
     inverse = 1 / uneven.numpy()
-    assert_allclose(energy.grad.numpy(), -inverse**2 / inverse.sum())
+    assert_allclose(energy.grad.numpy(), -(inverse**2) / inverse.sum())
     assert np.argmax(np.abs(energy.grad.numpy())) == 3  # the weakest wavelength is pushed hardest
     with pytest.raises(InputError, match="loss.sharp_mode"):
         sharp_loss(_delta_psf(), mode="harmonic_wavelength")
@@ -130,7 +140,9 @@ def test_image_losses_vanish_for_identical_images_and_grow_with_noise():
     gen = torch.Generator().manual_seed(0)
     clean = torch.rand(2, 3, 32, 32, generator=gen, dtype=torch.float64)
     noisy = clean + 0.1 * torch.randn(clean.shape, generator=gen, dtype=torch.float64)
-    assert torch.all(l1_loss(clean, clean) == 0) and torch.allclose(ssim_loss(clean, clean), torch.zeros(2, dtype=torch.float64), atol=1e-12)
+    assert torch.all(l1_loss(clean, clean) == 0) and torch.allclose(
+        ssim_loss(clean, clean), torch.zeros(2, dtype=torch.float64), atol=1e-12
+    )
     assert torch.all(l1_loss(noisy, clean) > 0.07) and torch.all(ssim_loss(noisy, clean) > 0.05)
     # E|N(0, σ)| = σ·√(2/π): L1 of Gaussian noise, 3 % tolerance for 6144 samples
     assert float(l1_loss(noisy, clean).mean()) == pytest.approx(0.1 * math.sqrt(2 / math.pi), rel=0.03)
@@ -146,7 +158,9 @@ def test_training_loss_weights_and_shares():
     expected = 2.0 * parts["l1"] + 0.5 * parts["ssim"] + 3.0 * parts["bright"]
     assert float(total) == pytest.approx(float(expected)) and float(parts["total"]) == pytest.approx(float(expected))
     half, _ = training_loss(capture, clean, psf, weights, image_share=0.5, psf_share=0.25)
-    assert float(half) == pytest.approx(float(0.5 * (2.0 * parts["l1"] + 0.5 * parts["ssim"]) + 0.25 * 3.0 * parts["bright"]))
+    assert float(half) == pytest.approx(
+        float(0.5 * (2.0 * parts["l1"] + 0.5 * parts["ssim"]) + 0.25 * 3.0 * parts["bright"])
+    )
 
 
 def test_spline_basis_starts_at_the_hyperbolic_lens_and_moves_smoothly():
@@ -167,7 +181,9 @@ def test_spline_basis_starts_at_the_hyperbolic_lens_and_moves_smoothly():
     samples = initial_parameterization("radial", "hyperbolic", LAM, F, D, P, design_grid=16)
     with torch.no_grad():
         samples.theta[8] += 0.1
-    linear_kink = np.abs(np.diff((samples.full_theta() - torch.from_numpy(hyperbolic(LAM, F, D, P).theta.numpy())).detach().numpy(), 2)).max()
+    linear_kink = np.abs(
+        np.diff((samples.full_theta() - torch.from_numpy(hyperbolic(LAM, F, D, P).theta.numpy())).detach().numpy(), 2)
+    ).max()
     assert kink < linear_kink / 10
 
 

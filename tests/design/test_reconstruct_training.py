@@ -78,7 +78,9 @@ def _write_pairs(root: Path, names, size=(40, 48), mismatch: str | None = None) 
         cv2.imwrite(str(root / "gt" / f"{name}.png"), gt)
         for k in range(2):
             shape = (size[0] - 2, size[1]) if name == mismatch else size
-            cv2.imwrite(str(root / "captures" / f"{name}@{k}.png"), rng.integers(0, 255, size=(*shape, 3), dtype=np.uint8))
+            cv2.imwrite(
+                str(root / "captures" / f"{name}@{k}.png"), rng.integers(0, 255, size=(*shape, 3), dtype=np.uint8)
+            )
 
 
 def test_captured_pairs_layout_and_refusals(tmp_path):
@@ -143,7 +145,19 @@ def test_resume_repeats_an_uninterrupted_run(tmp_path):
 
 
 def _train_cli(out: Path, ranks: int) -> dict:
-    args = ["reconstruct", "train", "hyperbolic:532nm", "--f", "1mm", "--aperture", "0.2mm", "--preset", str(TINY), "--steps", "3"]
+    args = [
+        "reconstruct",
+        "train",
+        "hyperbolic:532nm",
+        "--f",
+        "1mm",
+        "--aperture",
+        "0.2mm",
+        "--preset",
+        str(TINY),
+        "--steps",
+        "3",
+    ]
     return _states(run_metalens(args, out, ranks=ranks))
 
 

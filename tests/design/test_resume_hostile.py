@@ -24,10 +24,12 @@ LENS = ["hyperbolic:532nm", "--f", "1mm", "--aperture", "0.2mm"]
 
 def _edit(change):
     """A corruption that rewrites a torch file after ``change(contents)``."""
+
     def corrupt(path: Path) -> None:
         state = torch.load(path, weights_only=True)
         change(state)
         torch.save(state, path)
+
     return corrupt
 
 
@@ -57,7 +59,9 @@ def _short_moment(state: dict) -> None:
 
 def _snapshot(folder: Path) -> dict:
     """Bytes and modification time of every file under ``folder``."""
-    return {p.relative_to(folder): (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        p.relative_to(folder): (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.rglob("*")) if p.is_file()
+    }
 
 
 def _refused(capsys, field: str, *fragments: str) -> None:
@@ -75,20 +79,39 @@ def optimized(tmp_path_factory) -> Path:
     return out
 
 
-@pytest.mark.parametrize("corrupt, field, message", [
-    (_truncate, "--resume", "truncated, damaged or not a torch file"),
-    (_garbage, "--resume", "truncated, damaged or not a torch file"),
-    (lambda path: torch.save(torch.zeros(3), path), "--resume", "holds a Tensor, not a checkpoint"),
-    (lambda path: torch.save({"step": 1}, path), "--resume", "lacks model, optimizer, scheduler, history"),
-    (_edit(lambda state: state["model"].update(theta=torch.zeros(7, dtype=torch.float64))), "--resume", "size mismatch for theta"),
-    (_edit(_nan_theta), "--resume", "NaN or infinite values in its model state"),
-    (_edit(_inf_moment), "--resume", "NaN or infinite values in its optimizer state"),
-    (_edit(_short_moment), "--resume", "moment's shape differs"),
-    (_set("step", -1), "--resume", "has step -1"),
-    (_set("step", 3.0), "--resume", "has step 3.0"),
-    (_set("step", 9), "--steps", "4 is below the 9 steps already run"),
-], ids=["truncated", "not-torch", "tensor", "other-dict", "theta-shape", "nan-theta", "inf-moment", "moment-shape",
-        "negative-step", "float-step", "step-past-steps"])
+@pytest.mark.parametrize(
+    "corrupt, field, message",
+    [
+        (_truncate, "--resume", "truncated, damaged or not a torch file"),
+        (_garbage, "--resume", "truncated, damaged or not a torch file"),
+        (lambda path: torch.save(torch.zeros(3), path), "--resume", "holds a Tensor, not a checkpoint"),
+        (lambda path: torch.save({"step": 1}, path), "--resume", "lacks model, optimizer, scheduler, history"),
+        (
+            _edit(lambda state: state["model"].update(theta=torch.zeros(7, dtype=torch.float64))),
+            "--resume",
+            "size mismatch for theta",
+        ),
+        (_edit(_nan_theta), "--resume", "NaN or infinite values in its model state"),
+        (_edit(_inf_moment), "--resume", "NaN or infinite values in its optimizer state"),
+        (_edit(_short_moment), "--resume", "moment's shape differs"),
+        (_set("step", -1), "--resume", "has step -1"),
+        (_set("step", 3.0), "--resume", "has step 3.0"),
+        (_set("step", 9), "--steps", "4 is below the 9 steps already run"),
+    ],
+    ids=[
+        "truncated",
+        "not-torch",
+        "tensor",
+        "other-dict",
+        "theta-shape",
+        "nan-theta",
+        "inf-moment",
+        "moment-shape",
+        "negative-step",
+        "float-step",
+        "step-past-steps",
+    ],
+)
 def test_optimize_resume_refuses_a_hostile_checkpoint(optimized, tmp_path, capsys, corrupt, field, message):
     out = tmp_path / "run"
     shutil.copytree(optimized, out)
@@ -106,7 +129,23 @@ def test_optimize_resume_refuses_a_hostile_checkpoint(optimized, tmp_path, capsy
 def reconstructed(tmp_path_factory) -> Path:
     """A reconstruct train run of 2 steps: its only checkpoint is checkpoints/step_000002.pt."""
     out = tmp_path_factory.mktemp("reconstruct") / "run"
-    assert run(["reconstruct", "train", *LENS, "--preset", str(TINY_RECONSTRUCT), "-o", str(out), "--steps", "2", "--quiet"]) == 0
+    assert (
+        run(
+            [
+                "reconstruct",
+                "train",
+                *LENS,
+                "--preset",
+                str(TINY_RECONSTRUCT),
+                "-o",
+                str(out),
+                "--steps",
+                "2",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -114,10 +153,14 @@ def _wide_head(state: dict) -> None:
     state["model"]["head.weight"] = torch.zeros(5, *state["model"]["head.weight"].shape[1:])
 
 
-@pytest.mark.parametrize("corrupt, message", [
-    (_garbage, "truncated, damaged or not a torch file"),
-    (_edit(_wide_head), "size mismatch for head.weight"),
-], ids=["not-torch", "weight-shape"])
+@pytest.mark.parametrize(
+    "corrupt, message",
+    [
+        (_garbage, "truncated, damaged or not a torch file"),
+        (_edit(_wide_head), "size mismatch for head.weight"),
+    ],
+    ids=["not-torch", "weight-shape"],
+)
 def test_reconstruct_resume_refuses_a_hostile_checkpoint(reconstructed, tmp_path, capsys, corrupt, message):
     out = tmp_path / "run"
     shutil.copytree(reconstructed, out)
@@ -134,16 +177,25 @@ def _nan_weight(state: dict) -> None:
     state["state_dict"]["head.weight"][0] = math.nan
 
 
-@pytest.mark.parametrize("corrupt, message", [
-    (_truncate, "truncated, damaged or not a torch file"),
-    (_edit(_nan_weight), "NaN or infinite weights"),
-    (_edit(lambda state: state["shape"].update(position_scale=math.inf)), "NaN or infinite weights or position scale"),
-    (_set("design", "x"), "is not a metalens reconstruction model"),
-], ids=["truncated", "nan-weight", "inf-position-scale", "design-not-a-dict"])
+@pytest.mark.parametrize(
+    "corrupt, message",
+    [
+        (_truncate, "truncated, damaged or not a torch file"),
+        (_edit(_nan_weight), "NaN or infinite weights"),
+        (
+            _edit(lambda state: state["shape"].update(position_scale=math.inf)),
+            "NaN or infinite weights or position scale",
+        ),
+        (_set("design", "x"), "is not a metalens reconstruction model"),
+    ],
+    ids=["truncated", "nan-weight", "inf-position-scale", "design-not-a-dict"],
+)
 def test_apply_refuses_a_hostile_model(tmp_path, capsys, corrupt, message):
     model = tmp_path / "run" / "model.pt"
     model.parent.mkdir()
-    save_model(model, ReconstructionNet(NetworkShape(width=4, depth=2, frequencies=2)), {"spec": "x", "fingerprint": "abc"})
+    save_model(
+        model, ReconstructionNet(NetworkShape(width=4, depth=2, frequencies=2)), {"spec": "x", "fingerprint": "abc"}
+    )
     corrupt(model)
     capture = tmp_path / "capture.exr"
     write_exr_rgb(capture, np.full((3, 16, 16), 0.5, dtype=np.float32))

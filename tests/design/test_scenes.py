@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from metalens_cli.imaging.scene_statistics import STATISTICS, scene_statistics, spectrum_slope, summarise
 from metalens_cli.design.scenes import procedural_scene, training_scene
 from metalens_cli.imaging.images import PHOTOGRAPHS, load_images
+from metalens_cli.imaging.scene_statistics import STATISTICS, scene_statistics, spectrum_slope, summarise
 
 N = 256
 
@@ -43,7 +43,11 @@ def test_spectrum_slope_of_a_power_law_field():
 def test_statistics_of_plain_images():
     grey = np.full((3, 64, 64), 0.18, np.float32)
     stats = scene_statistics(np.pad(grey, ((0, 0), (0, 64), (0, 64)), constant_values=0.18))
-    assert stats["saturation"] == 0 and stats["edge_density"] == 0 and stats["log_luminance_std"] == pytest.approx(0, abs=1e-6)
+    assert (
+        stats["saturation"] == 0
+        and stats["edge_density"] == 0
+        and stats["log_luminance_std"] == pytest.approx(0, abs=1e-6)
+    )
     assert stats["luminance_median"] == pytest.approx(0.18, rel=1e-5)
     red = np.zeros((3, 128, 128), np.float32)
     red[0] = 0.5

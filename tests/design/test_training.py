@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 import torch
 
-from metalens_cli.design.training import TrainingInterrupted, build_model, step_batch, time_steps, train, validation_loss
+from metalens_cli.design.training import (
+    TrainingInterrupted,
+    build_model,
+    step_batch,
+    time_steps,
+    train,
+    validation_loss,
+)
 from metalens_cli.io.designs import resolve_design
 from metalens_cli.io.presets import load_preset
 
@@ -44,7 +51,16 @@ def test_time_steps_reports_cost_and_writes_nothing(tiny, tmp_path, monkeypatch)
 def test_run_directory_contents(tiny, tmp_path):
     summary = train(tiny, tmp_path / "run", steps=3)
     run = tmp_path / "run"
-    for name in ("preset.toml", "theta.npy", "theta_radial.csv", "theta.png", "psf.exr", "loss.csv", "loss.png", "run.json"):
+    for name in (
+        "preset.toml",
+        "theta.npy",
+        "theta_radial.csv",
+        "theta.png",
+        "psf.exr",
+        "loss.csv",
+        "loss.png",
+        "run.json",
+    ):
         assert (run / name).is_file(), name
     assert sorted(p.name for p in (run / "samples").iterdir()) == ["step_000003.png"]
     report = json.loads((run / "run.json").read_text())
@@ -201,7 +217,9 @@ def test_the_time_estimate_counts_what_follows_the_steps(tiny, tmp_path):
 def test_a_batch_is_the_same_on_any_number_of_threads(tiny):
     """Scenes and obstructions are separate tasks (rain inside its scene's task): one thread or
     two, the same batch, element for element."""
-    preset = dataclasses.replace(tiny, optimize=dataclasses.replace(tiny.optimize, obstructions=("rain", "dirt", "fence")))
+    preset = dataclasses.replace(
+        tiny, optimize=dataclasses.replace(tiny.optimize, obstructions=("rain", "dirt", "fence"))
+    )
     threads = torch.get_num_threads()
     try:
         batches = []

@@ -25,8 +25,8 @@ def test_margin_comes_from_the_source_then_reflection():
     image = np.random.default_rng(2).random((3, 100, 160)).astype(np.float32)
     canvas = fit_to_canvas(image, (100, 100), 40)
     np.testing.assert_array_equal(canvas[:, 40:140, 10:170], image)
-    np.testing.assert_array_equal(canvas[:, 39, 10:170], image[:, 0, :])        # symmetric reflection at the top edge
-    np.testing.assert_array_equal(canvas[:, 40:140, 9], image[:, :, 0])         # and at the left edge of the source
+    np.testing.assert_array_equal(canvas[:, 39, 10:170], image[:, 0, :])  # symmetric reflection at the top edge
+    np.testing.assert_array_equal(canvas[:, 40:140, 9], image[:, :, 0])  # and at the left edge of the source
 
 
 def test_builtin_scenes_and_file_obstructions_fill_the_canvas(tmp_path):
@@ -53,9 +53,13 @@ def test_image_sets_and_folders(tmp_path, monkeypatch):
     folder.mkdir()
     (folder / "a.png").write_bytes(b"")
     monkeypatch.chdir(tmp_path)
-    assert image_entries("photos") == list(PHOTOGRAPHS)          # the set wins over a folder of its name
+    assert image_entries("photos") == list(PHOTOGRAPHS)  # the set wins over a folder of its name
     assert image_entries("./photos") == [Path("photos/a.png")]  # the folder, written as a path
-    for source, message in (("", "is empty"), ("nowhere", "no such folder"), (str(tmp_path / "photos" / "a.png") + "x", "no such")):
+    for source, message in (
+        ("", "is empty"),
+        ("nowhere", "no such folder"),
+        (str(tmp_path / "photos" / "a.png") + "x", "no such"),
+    ):
         with pytest.raises(InputError, match=message) as error:
             image_entries(source)
         assert "photos, charts, all" in str(error.value)

@@ -24,16 +24,19 @@ def test_values_are_finite_linear_colours():
     assert 0.015 < lo and hi < 0.9
 
 
-@pytest.mark.parametrize(("shape", "margin", "kwargs"), [
-    ((64, 64), (40, 40), {}),
-    ((33, 50), (7, 90), {"r_min_px": 0.7, "r_max_px": 5.5}),  # odd, non-square, uneven margins
-])
+@pytest.mark.parametrize(
+    ("shape", "margin", "kwargs"),
+    [
+        ((64, 64), (40, 40), {}),
+        ((33, 50), (7, 90), {"r_min_px": 0.7, "r_max_px": 5.5}),  # odd, non-square, uneven margins
+    ],
+)
 def test_canvas_centre_equals_sensor_chart(shape, margin, kwargs):
     (h, w), (my, mx) = shape, margin
     for seed in (3, 11):
         sensor = dl.dead_leaves(shape, seed, sensor_shape=shape, **kwargs)
         canvas = dl.dead_leaves((h + 2 * my, w + 2 * mx), seed, sensor_shape=shape, **kwargs)
-        np.testing.assert_array_equal(canvas[:, my:my + h, mx:mx + w], sensor)  # bit for bit
+        np.testing.assert_array_equal(canvas[:, my : my + h, mx : mx + w], sensor)  # bit for bit
 
 
 def test_every_pixel_is_covered(monkeypatch):

@@ -15,8 +15,9 @@ def test_an_obstruction_never_raises_the_expected_score(images):
     removes). With the paper's luminance match this failed for the fence on photographs (Δ > 0
     on 30 % of units): see imaging.metrics."""
     design = resolve_design("hyperbolic:532nm", None, 4e-3, 2.516e-3, None)
-    settings = EvaluationSettings(128, 1.85e-6, (0.04, 0.05), (1.0, 20.0), list(np.arange(420e-9, 681e-9, 40e-9)),
-                                  images=images, limit=7)
+    settings = EvaluationSettings(
+        128, 1.85e-6, (0.04, 0.05), (1.0, 20.0), list(np.arange(420e-9, 681e-9, 40e-9)), images=images, limit=7
+    )
     result = evaluate([design], ["dirt", "fence"], [0, 1, 2], settings)
     assert [row["n"] for row in result.deltas] == [21, 21] and result.warnings == []
     for row in result.deltas:

@@ -38,7 +38,9 @@ def test_convolution_matches_direct_sum(n, extra):
     psf /= psf.sum(axis=(-2, -1), keepdims=True)
     ours = convolve(t(canvas), t(psf), margin).numpy()
     k = margin + n // 2
-    direct = np.stack([scipy.signal.convolve2d(canvas[c], psf[c], mode="full")[k:k + 20, k:k + 23] for c in range(3)])
+    direct = np.stack(
+        [scipy.signal.convolve2d(canvas[c], psf[c], mode="full")[k : k + 20, k : k + 23] for c in range(3)]
+    )
     np.testing.assert_allclose(ours, direct, atol=1e-12)  # float64 FFT round-off only
 
 
@@ -75,8 +77,11 @@ def test_opaque_cover_shows_only_the_blurred_obstruction():
     scene, colour = t(rng.random(shape)), t(rng.random(shape))
     capture = form_image(scene, colour, torch.ones(1, *shape[1:], dtype=torch.float64), near, far, margin)
     np.testing.assert_allclose(capture.alpha.numpy(), 1.0, atol=1e-12)
-    np.testing.assert_allclose(capture.obstructed.numpy(), convolve(colour, near / near.sum((-2, -1), keepdim=True), margin).numpy(),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        capture.obstructed.numpy(),
+        convolve(colour, near / near.sum((-2, -1), keepdim=True), margin).numpy(),
+        atol=1e-12,
+    )
 
 
 def test_delta_psfs_composite_the_scene_and_obstruction():
@@ -109,7 +114,7 @@ def test_energy_of_a_small_obstruction_is_conserved():
     margin = canvas_margin(21, 9)
     shape = (3, 60 + 2 * margin, 60 + 2 * margin)
     mask = torch.zeros(1, *shape[1:], dtype=torch.float64)
-    mask[..., margin + 25:margin + 35, margin + 25:margin + 35] = 0.6
+    mask[..., margin + 25 : margin + 35, margin + 25 : margin + 35] = 0.6
     colour = torch.full(shape, 0.8, dtype=torch.float64)
     capture = form_image(torch.zeros(shape, dtype=torch.float64), colour, mask, near, far, margin)
     np.testing.assert_allclose(capture.obstructed.sum((-2, -1)).numpy(), 0.6 * 0.8 * 100, rtol=1e-12)
@@ -126,7 +131,9 @@ def test_paper_form_dims_partial_coverage():
     wires[..., ::4, :] = 1.0  # φ = 1/4, period 4 ≪ 40
     colour = 0.5 * wires.expand(3, -1, -1)
     for formation, expected in (("physical", 0.25 * 0.5), ("paper", 0.25**2 * 0.5)):
-        light = form_image(torch.zeros(3, size, size, dtype=torch.float64), colour, wires, near, near, margin, formation).obstruction_light
+        light = form_image(
+            torch.zeros(3, size, size, dtype=torch.float64), colour, wires, near, near, margin, formation
+        ).obstruction_light
         np.testing.assert_allclose(light.numpy(), expected, rtol=1e-12)
 
 
@@ -151,7 +158,10 @@ def test_transforms_reuse_gradients_and_gain_clamp():
 
 def test_noise_seeded_and_scaled():
     image = torch.full((3, 64, 64), 0.25, dtype=torch.float64)
-    a, b = add_noise(image, photons=1000, read_noise=0.01, generator=3), add_noise(image, photons=1000, read_noise=0.01, generator=3)
+    a, b = (
+        add_noise(image, photons=1000, read_noise=0.01, generator=3),
+        add_noise(image, photons=1000, read_noise=0.01, generator=3),
+    )
     assert torch.equal(a, b)
     # variance 0.25/1000 + 1e-4 = 3.5e-4; 12288 samples → relative standard error of the variance ≈ 1.3 %
     assert float((a - image).var()) == pytest.approx(3.5e-4, rel=0.06)

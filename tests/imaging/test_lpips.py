@@ -24,8 +24,14 @@ def write_weights(folder, seed=0, lin_scale=(1, 1, 1, 1, 1), bad_key=None):
         bound = 1 / (cin * k * k) ** 0.5
         alex[f"features.{i}.weight"] = (2 * torch.rand(cout, cin, k, k, generator=g) - 1) * bound
         alex[f"features.{i}.bias"] = (2 * torch.rand(cout, generator=g) - 1) * bound
-    alex["classifier.1.weight"], alex["classifier.1.bias"] = torch.zeros(4, 9), torch.zeros(4)  # ignored (real: 4096 × 9216)
-    lin = {f"lin{n}.model.1.weight": s * torch.rand(1, c, 1, 1, generator=g) for n, (c, s) in enumerate(zip(CHANNELS, lin_scale))}
+    alex["classifier.1.weight"], alex["classifier.1.bias"] = (
+        torch.zeros(4, 9),
+        torch.zeros(4),
+    )  # ignored (real: 4096 × 9216)
+    lin = {
+        f"lin{n}.model.1.weight": s * torch.rand(1, c, 1, 1, generator=g)
+        for n, (c, s) in enumerate(zip(CHANNELS, lin_scale))
+    }
     for state in (alex, lin):
         if bad_key in state:
             state[bad_key] = state[bad_key][:, :1].clone()  # (out, 1, …) instead of (out, in, …)
@@ -75,7 +81,10 @@ def test_discovery_hub_with_lpips_package(weights_dir, no_defaults, monkeypatch,
     (package / "weights" / "v0.1" / LIN_FILE).write_bytes((weights_dir / LIN_FILE).read_bytes())
     monkeypatch.syspath_prepend(str(tmp_path / "site"))
     paths, note = find_lpips_weights()
-    assert note is None and paths == (no_defaults / "checkpoints" / ALEXNET_FILE, package / "weights" / "v0.1" / LIN_FILE)
+    assert note is None and paths == (
+        no_defaults / "checkpoints" / ALEXNET_FILE,
+        package / "weights" / "v0.1" / LIN_FILE,
+    )
 
 
 def test_skip_note_when_absent(no_defaults, monkeypatch, tmp_path):
@@ -151,9 +160,33 @@ def test_layer1_against_independent_reference(tmp_path):
 
 def test_evaluate_reports_lpips(capsys, weights_dir, tmp_path):
     csv = tmp_path / "e.csv"
-    args = ["evaluate", "hyperbolic:532nm", "--f", "4mm", "--aperture", "0.3mm", "--pixels", "64", "--wavelengths", "420:680:20nm",
-            "--z-near", "45mm", "--z-far", "1m", "--images", "charts", "--limit", "1", "--obstruction", "dirt",
-            "--lpips-weights", str(weights_dir), "--csv", str(csv), "--json"]
+    args = [
+        "evaluate",
+        "hyperbolic:532nm",
+        "--f",
+        "4mm",
+        "--aperture",
+        "0.3mm",
+        "--pixels",
+        "64",
+        "--wavelengths",
+        "420:680:20nm",
+        "--z-near",
+        "45mm",
+        "--z-far",
+        "1m",
+        "--images",
+        "charts",
+        "--limit",
+        "1",
+        "--obstruction",
+        "dirt",
+        "--lpips-weights",
+        str(weights_dir),
+        "--csv",
+        str(csv),
+        "--json",
+    ]
     code = run(args)
     out, err = capsys.readouterr()
     assert code == 0 and "LPIPS" not in err

@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-from metalens_cli.imaging.network import GAIN_SCALE, Cbam, NetworkShape, ReconstructionNet, SpectralFilter, input_planes, pixel_positions
+from metalens_cli.imaging.network import (
+    GAIN_SCALE,
+    Cbam,
+    NetworkShape,
+    ReconstructionNet,
+    SpectralFilter,
+    input_planes,
+    pixel_positions,
+)
 
 
 def _randomised(shape: NetworkShape, seed: int = 0) -> ReconstructionNet:
@@ -77,7 +85,9 @@ def test_input_planes_gradient_mask_and_encoding():
     # centre, y = 0; even w: the centre lies between columns 5 and 6, so column 6 is at x = +0.5 px = 0.125
     assert planes[0, 5, 4, 6].item() == pytest.approx(math.sin(math.pi * 0.125))
     assert planes[0, 6, 4, 6].item() == pytest.approx(math.sin(2 * math.pi * 0.125))
-    assert planes[0, 7, 4, 6].item() == pytest.approx(0.0, abs=1e-12) and planes[0, 11, 4, 6].item() == pytest.approx(1.0)
+    assert planes[0, 7, 4, 6].item() == pytest.approx(0.0, abs=1e-12) and planes[0, 11, 4, 6].item() == pytest.approx(
+        1.0
+    )
     assert planes[0, 9, 4, 0].item() == pytest.approx(math.cos(math.pi * (-5.5 / 4)))
 
 

@@ -22,8 +22,12 @@ def _perlin_by_pixel(shape, cell, rng):
             y, x = i / cell + offset[0], j / cell + offset[1]
             iy, ix = math.floor(y), math.floor(x)
             fy, fx = y - iy, x - ix
-            dots = {(dy, dx): math.cos(angles[iy + dy, ix + dx]) * (fx - dx) + math.sin(angles[iy + dy, ix + dx]) * (fy - dy)
-                    for dy in (0, 1) for dx in (0, 1)}
+            dots = {
+                (dy, dx): math.cos(angles[iy + dy, ix + dx]) * (fx - dx)
+                + math.sin(angles[iy + dy, ix + dx]) * (fy - dy)
+                for dy in (0, 1)
+                for dx in (0, 1)
+            }
             u, v = (t * t * t * (t * (t * 6 - 15) + 10) for t in (fx, fy))
             top = dots[0, 0] * (1 - u) + dots[0, 1] * u
             bottom = dots[1, 0] * (1 - u) + dots[1, 1] * u

@@ -7,19 +7,23 @@ import math
 import cv2
 import numpy as np
 import pytest
+from synthetic import texture, warp
 
 from metalens_cli.errors import InputError, ResultFailed
 from metalens_cli.imaging import registration
-from metalens_cli.imaging.registration import expand_flow, load_warp, register, Registration, save_warp
+from metalens_cli.imaging.registration import Registration, expand_flow, load_warp, register, save_warp
 from metalens_cli.io.warp_files import node_positions
-from synthetic import texture, warp
 
 SIDE = 320
 ANGLE = math.radians(4)
 # target pixel → reference pixel (the camera's view of the scene): rotation, zoom, shift, perspective
-CAMERA = np.array([[1.04 * math.cos(ANGLE), -1.04 * math.sin(ANGLE), 12.0],
-                   [1.04 * math.sin(ANGLE), 1.04 * math.cos(ANGLE), -9.0],
-                   [3e-5, -2e-5, 1.0]])
+CAMERA = np.array(
+    [
+        [1.04 * math.cos(ANGLE), -1.04 * math.sin(ANGLE), 12.0],
+        [1.04 * math.sin(ANGLE), 1.04 * math.cos(ANGLE), -9.0],
+        [3e-5, -2e-5, 1.0],
+    ]
+)
 GAIN, BIAS = np.array([0.7, 0.5, 0.8], np.float32), 0.04
 
 
@@ -59,7 +63,11 @@ def test_flow_recovers_a_smooth_warp_and_matters(scene, rippled):
     with_flow, without = psnr(flow.apply(target), scene, mask), psnr(flat.apply(target), scene, flat.valid_mask())
     assert with_flow >= 30 and with_flow > without + 10
     report = flow.to_report()
-    assert report["refine"] == "flow" and 1.0 < report["flow_rms_px"] < 5 and report["refined_residual_px"] < 0.5 * report["residual_px"]
+    assert (
+        report["refine"] == "flow"
+        and 1.0 < report["flow_rms_px"] < 5
+        and report["refined_residual_px"] < 0.5 * report["residual_px"]
+    )
     assert any("--refine flow" in w for w in flat.warnings()) and flow.warnings() == []
 
 
@@ -186,18 +194,24 @@ def test_load_warp_refuses_what_is_not_a_warp(tmp_path, rippled):
     for path, text_in_message in cases:
         with pytest.raises(InputError) as failure:
             load_warp(path)
-        assert failure.value.field == "--warp" and text_in_message in failure.value.message, (path.name, str(failure.value))
+        assert failure.value.field == "--warp" and text_in_message in failure.value.message, (
+            path.name,
+            str(failure.value),
+        )
 
 
-@pytest.mark.parametrize(("homography", "why"), [
-    ([[-1.0, 0, 255], [0, 1, 0], [0, 0, 1]], "mirrors"),
-    ([[1e-9, 0, 0], [0, 1e-9, 0], [0, 0, 1]], "scale change"),
-    ([[1.0, 0, 0], [0, 1, 0], [-0.01, 0, 1]], "horizon"),
-])
+@pytest.mark.parametrize(
+    ("homography", "why"),
+    [
+        ([[-1.0, 0, 255], [0, 1, 0], [0, 0, 1]], "mirrors"),
+        ([[1e-9, 0, 0], [0, 1e-9, 0], [0, 0, 1]], "scale change"),
+        ([[1.0, 0, 0], [0, 1, 0], [-0.01, 0, 1]], "horizon"),
+    ],
+)
 def test_a_degenerate_saved_warp_is_refused(tmp_path, homography, why):
     """A warp file is input: --warp refuses what registration itself would never produce."""
     from metalens_cli.errors import InputError
-    from metalens_cli.imaging.registration import load_warp, Registration, save_warp
+    from metalens_cli.imaging.registration import Registration, load_warp, save_warp
 
     path = tmp_path / "w.npz"
     save_warp(path, Registration(np.array(homography), None, (256, 256), (256, 256), 100, 80, 0.5, "none"))

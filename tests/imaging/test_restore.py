@@ -8,7 +8,14 @@ import torch
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.network import NetworkShape, ReconstructionNet
-from metalens_cli.imaging.restore import Reconstructor, _starts, design_fingerprint, inference_bytes, load_reconstructor, save_model
+from metalens_cli.imaging.restore import (
+    Reconstructor,
+    _starts,
+    design_fingerprint,
+    inference_bytes,
+    load_reconstructor,
+    save_model,
+)
 
 
 def _net(seed: int = 0, identity: bool = False) -> ReconstructionNet:

@@ -25,13 +25,16 @@ def test_atomic_folder_publishes_everything_or_nothing(tmp_path):
     assert os.listdir(tmp_path / "new") == ["out"]
 
 
-@pytest.mark.parametrize("make, path, words", [
-    (lambda t: None, "missing/x.csv", "does not exist"),
-    (lambda t: (t / "d.csv").mkdir(), "d.csv", "is a folder"),
-    (lambda t: os.mkfifo(t / "f.csv"), "f.csv", "not a regular file"),
-    (lambda t: None, "a" * 300 + ".csv", "bytes"),
-    (lambda t: None, "x.txt", "does not end in .csv"),
-])
+@pytest.mark.parametrize(
+    "make, path, words",
+    [
+        (lambda t: None, "missing/x.csv", "does not exist"),
+        (lambda t: (t / "d.csv").mkdir(), "d.csv", "is a folder"),
+        (lambda t: os.mkfifo(t / "f.csv"), "f.csv", "not a regular file"),
+        (lambda t: None, "a" * 300 + ".csv", "bytes"),
+        (lambda t: None, "x.txt", "does not end in .csv"),
+    ],
+)
 def test_check_output_file_refuses(tmp_path, make, path, words):
     make(tmp_path)
     with pytest.raises(InputError, match=words) as info:
@@ -89,8 +92,14 @@ def test_a_failed_write_in_a_folder_names_the_target_file_not_its_staging_copy(t
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("make, what", [(lambda p: p.mkdir(), "is a folder"), (os.mkfifo, "is not a regular file"),
-                                        (lambda p: p.symlink_to(p.with_name("victim")), "is a symbolic link")])
+@pytest.mark.parametrize(
+    "make, what",
+    [
+        (lambda p: p.mkdir(), "is a folder"),
+        (os.mkfifo, "is not a regular file"),
+        (lambda p: p.symlink_to(p.with_name("victim")), "is a symbolic link"),
+    ],
+)
 def test_a_folder_published_into_never_replaces_anything_but_a_regular_file(tmp_path, make, what):
     """--overwrite replaces same-named regular files; a folder, FIFO or link in a file's place is
     refused naming it, before any file is moved (the folder keeps all of the old files, none of

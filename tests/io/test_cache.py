@@ -98,8 +98,10 @@ def test_a_missing_entry_is_computed_without_a_word(folder):
 
 def plant_arrays(arrays):
     """An entry whose metadata and checksum vouch for ``arrays``: only the caller's check can tell."""
+
     def plant(path):
         cache._store(path, KIND, KEY, {name: np.asarray(value) for name, value in arrays.items()})
+
     return plant
 
 
@@ -129,19 +131,35 @@ def another_key(path):
     cache._store(path, KIND, "f" * 24, {"eta": GOOD})
 
 
-@pytest.mark.parametrize(("spoil", "reason"), [
-    (plant_arrays({"eta": [0.25, np.nan, 0.75]}), "eta: 1 of 3 value(s) not finite"),
-    (plant_arrays({"eta": [0.25, 5.0, 0.75]}), "eta: 1 value(s) outside 0..1 (such as 5)"),
-    (plant_arrays({"eta": [0.25, 0.5, 0.75, 1.0]}), "eta: of shape (4,), expected (3,)"),
-    (plant_arrays({"eta": [[0.25, 0.5, 0.75]]}), "eta: of shape (1, 3), expected (3,)"),
-    (plant_arrays({"eta": ["a", "b", "c"]}), "eta: of type <U1, not real numbers"),
-    (plant_arrays({"other": GOOD}), "eta: missing"),
-    (truncate, "unreadable (BadZipFile"),
-    (flip_payload_byte, "unreadable (BadZipFile: Bad CRC-32"),
-    (rewrite_payload, "checksum mismatch"),
-    (old_format, "no format version"),
-    (another_key, f"written as 'test' entry '{'f' * 24}'"),
-], ids=["nan", "eta-5", "longer", "2d", "text", "renamed", "truncated", "flipped-byte", "checksum", "old-format", "other-key"])
+@pytest.mark.parametrize(
+    ("spoil", "reason"),
+    [
+        (plant_arrays({"eta": [0.25, np.nan, 0.75]}), "eta: 1 of 3 value(s) not finite"),
+        (plant_arrays({"eta": [0.25, 5.0, 0.75]}), "eta: 1 value(s) outside 0..1 (such as 5)"),
+        (plant_arrays({"eta": [0.25, 0.5, 0.75, 1.0]}), "eta: of shape (4,), expected (3,)"),
+        (plant_arrays({"eta": [[0.25, 0.5, 0.75]]}), "eta: of shape (1, 3), expected (3,)"),
+        (plant_arrays({"eta": ["a", "b", "c"]}), "eta: of type <U1, not real numbers"),
+        (plant_arrays({"other": GOOD}), "eta: missing"),
+        (truncate, "unreadable (BadZipFile"),
+        (flip_payload_byte, "unreadable (BadZipFile: Bad CRC-32"),
+        (rewrite_payload, "checksum mismatch"),
+        (old_format, "no format version"),
+        (another_key, f"written as 'test' entry '{'f' * 24}'"),
+    ],
+    ids=[
+        "nan",
+        "eta-5",
+        "longer",
+        "2d",
+        "text",
+        "renamed",
+        "truncated",
+        "flipped-byte",
+        "checksum",
+        "old-format",
+        "other-key",
+    ],
+)
 def test_a_lying_entry_is_named_set_aside_and_recomputed(folder, spoil, reason):
     path = ask().path
     spoil(path)
@@ -151,7 +169,9 @@ def test_a_lying_entry_is_named_set_aside_and_recomputed(folder, spoil, reason):
         entry = ask(compute)
     assert len(caught) == 1
     message = str(caught[0].message)
-    assert message.startswith(f"cache entry {str(path)!r}: {reason}") and f"moved to {KEY}.npz.bad, recomputing" in message, message
+    assert (
+        message.startswith(f"cache entry {str(path)!r}: {reason}") and f"moved to {KEY}.npz.bad, recomputing" in message
+    ), message
     assert (folder / KIND / f"{KEY}.npz.bad").read_bytes() == planted
     assert compute.calls == 1 and not entry.hit and entry.arrays["eta"].tolist() == [0.1, 0.2, 0.3]
     assert ask(Counted()).hit and cache.load(KIND, KEY, three_fractions)["eta"].tolist() == [0.1, 0.2, 0.3]
@@ -189,7 +209,8 @@ def test_an_unusable_folder_is_named_once_and_results_are_computed(folder, tmp_p
         entries = [cache.cached(kind, KEY, compute, three_fractions) for kind in (KIND, KIND, "other")]
     assert [str(w.message) for w in caught] == [
         f"cache folder {str(place)!r} cannot be used ({'Permission denied' if which == 'read-only' else 'Not a directory'}): "
-        "results are computed on every run, not stored (set METALENS_CACHE to a writable folder)"]
+        "results are computed on every run, not stored (set METALENS_CACHE to a writable folder)"
+    ]
     assert compute.calls == 3 and all(e.path is None and not e.hit for e in entries)
 
 
@@ -236,8 +257,15 @@ def start_workers(tmp_path, count, seconds):
     """``count`` WORKER processes released together; returns them and their calls folder."""
     calls, go = tmp_path / "calls", tmp_path / "go"
     calls.mkdir(exist_ok=True)
-    workers = [subprocess.Popen([sys.executable, "-c", WORKER, str(calls), str(go), str(seconds), KIND, KEY],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(count)]
+    workers = [
+        subprocess.Popen(
+            [sys.executable, "-c", WORKER, str(calls), str(go), str(seconds), KIND, KEY],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(count)
+    ]
     deadline = time.monotonic() + 60
     while len(list(tmp_path.glob("ready-*"))) < count and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -289,9 +317,11 @@ def test_a_preset_s_eta_entry_that_lies_is_recomputed(folder):
     first = preset_spectra.preset_efficiency(nanofin, narrow)
     path = Path(first.report["cache_entry"])
     key = path.stem
-    for change, reason in [(lambda a: a["conversion"].__setitem__(1, np.nan), "conversion: 1 of"),
-                           (lambda a: a["conversion"].__setitem__(1, 5.0), "conversion: 1 value(s) outside 0..1"),
-                           (lambda a: a.update(wavelengths_m=a["wavelengths_m"][:-1]), "conversion: of shape")]:
+    for change, reason in [
+        (lambda a: a["conversion"].__setitem__(1, np.nan), "conversion: 1 of"),
+        (lambda a: a["conversion"].__setitem__(1, 5.0), "conversion: 1 value(s) outside 0..1"),
+        (lambda a: a.update(wavelengths_m=a["wavelengths_m"][:-1]), "conversion: of shape"),
+    ]:
         arrays = {name: np.array(value) for name, value in cache.load(preset_spectra.CACHE_KIND, key).items()}
         change(arrays)
         cache._store(path, preset_spectra.CACHE_KIND, key, arrays)

@@ -1,5 +1,7 @@
 """Design specs resolve to the same lenses however they are named."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -7,7 +9,6 @@ from numpy.testing import assert_allclose
 from metalens_cli.errors import InputError
 from metalens_cli.io.designs import resolve_design
 from metalens_cli.io.presets import load_preset
-from pathlib import Path
 
 PRESETS = Path(__file__).parents[2] / "presets"
 

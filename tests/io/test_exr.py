@@ -31,7 +31,9 @@ def random_cube(n=9, seed=0):
 def write_example(path, **changes):
     """A valid cube with optional argument changes."""
     psf, rgb = random_cube()
-    arguments = dict(psf=psf, wavelengths_m=WAVELENGTHS, depths_m=DEPTHS, pixel_pitch_m=PITCH, design="hyperbolic:532nm", rgb=rgb)
+    arguments = dict(
+        psf=psf, wavelengths_m=WAVELENGTHS, depths_m=DEPTHS, pixel_pitch_m=PITCH, design="hyperbolic:532nm", rgb=rgb
+    )
     arguments.update(changes)
     write_psf_cube(path, **arguments)
     return arguments
@@ -117,7 +119,11 @@ def test_float64_input_is_stored_as_float32(tmp_path):
         (valid_metadata(format="metalens-psf-cube/2"), one_channel(), "format is"),
         ({k: v for k, v in valid_metadata().items() if k != "pixel_pitch_m"}, one_channel(), "lacks pixel_pitch_m"),
         (valid_metadata(wavelengths_m=[530e-9, 630e-9]), one_channel(), "missing channels psf.d00.w001"),
-        (valid_metadata(), {**one_channel(), "psf.d00.w001": np.zeros((5, 5), np.float32)}, "unexpected channels psf.d00.w001"),
+        (
+            valid_metadata(),
+            {**one_channel(), "psf.d00.w001": np.zeros((5, 5), np.float32)},
+            "unexpected channels psf.d00.w001",
+        ),
         (valid_metadata(), {**one_channel(), "Z": np.zeros((5, 5), np.float32)}, "foreign channels Z"),
         (valid_metadata(), {**one_channel(), "rgb.d00.R": np.zeros((5, 5), np.float32)}, "missing channels rgb.d00.B"),
         (valid_metadata(), {"psf.d00.w000": np.zeros((4, 6), np.float32)}, "square"),
@@ -127,8 +133,11 @@ def test_float64_input_is_stored_as_float32(tmp_path):
         (valid_metadata(depths_m=[]), one_channel(), "depths_m is not a list"),
         (valid_metadata(pixel_pitch_m="1.85um"), one_channel(), "pixel_pitch_m"),
         (valid_metadata(design=3), one_channel(), "design"),
-        (valid_metadata(wavelengths_m=[530e-9, 530e-9]), {**one_channel(), "psf.d00.w001": np.zeros((5, 5), np.float32)},
-         "wavelengths_m holds 5.3e-07 twice"),
+        (
+            valid_metadata(wavelengths_m=[530e-9, 530e-9]),
+            {**one_channel(), "psf.d00.w001": np.zeros((5, 5), np.float32)},
+            "wavelengths_m holds 5.3e-07 twice",
+        ),
     ],
 )
 def test_broken_files_are_refused_with_one_line(tmp_path, metadata, channels, reason):

@@ -30,21 +30,27 @@ def records(data: bytes) -> list[tuple[int, bytes]]:
     """Split a GDSII byte string into (header word, data) records, checking the length fields."""
     out, at = [], 0
     while at < len(data):
-        length, header = struct.unpack(">HH", data[at:at + 4])
+        length, header = struct.unpack(">HH", data[at : at + 4])
         assert length >= 4 and length % 2 == 0
-        out.append((header, data[at + 4:at + length]))
+        out.append((header, data[at + 4 : at + length]))
         at += length
     assert at == len(data)  # lengths tile the file exactly
     return out
 
 
-@pytest.mark.parametrize("value, known", [
-    (1e-3, "3e4189374bc6a7f0"),  # the user-unit ratio of every 1 nm / 1 µm library (gdstk and KLayout write the same)
-    (1e-9, "3944b82fa09b5a54"),  # the database unit in metres
-    (1.0, "4110000000000000"),  # 16^(65−64) · 1/16
-    (-2.5, "c128000000000000"),  # sign bit, 16^(65−64) · 0x28/256
-    (0.0, "0000000000000000"),
-])
+@pytest.mark.parametrize(
+    "value, known",
+    [
+        (
+            1e-3,
+            "3e4189374bc6a7f0",
+        ),  # the user-unit ratio of every 1 nm / 1 µm library (gdstk and KLayout write the same)
+        (1e-9, "3944b82fa09b5a54"),  # the database unit in metres
+        (1.0, "4110000000000000"),  # 16^(65−64) · 1/16
+        (-2.5, "c128000000000000"),  # sign bit, 16^(65−64) · 0x28/256
+        (0.0, "0000000000000000"),
+    ],
+)
 def test_real8_known_bytes(value, known):
     assert gdsii.real8(value).hex() == known
 
@@ -150,10 +156,13 @@ def test_quantised_levels_phase_error(tmp_path, gdstk):
             assert abs(rotation) <= 0.005 and np.allclose(fin.points.mean(axis=0), 0)
 
 
-@pytest.mark.parametrize("pitch, field", [
-    (800e-9, "--design"),  # the map reaches far beyond the pupil: its pitch was not 800 nm
-    (200e-9, "design"),  # the map cannot hold the pupil (refused by optics.lens.from_array)
-])
+@pytest.mark.parametrize(
+    "pitch, field",
+    [
+        (800e-9, "--design"),  # the map reaches far beyond the pupil: its pitch was not 800 nm
+        (200e-9, "design"),  # the map cannot hold the pupil (refused by optics.lens.from_array)
+    ],
+)
 def test_refuses_map_contradicting_pitch(tmp_path, pitch, field):
     npy = tmp_path / "theta.npy"
     np.save(npy, np.zeros((51, 51)))  # holds a 20 µm pupil at 395 nm: 2·25 + 1 sites

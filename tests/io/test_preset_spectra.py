@@ -59,7 +59,9 @@ def test_the_interpolation_is_within_1e_3_of_rcwa_away_from_rayleigh_anomalies()
     efficiency = preset_spectra.preset_efficiency(preset_with().nanofin, (540e-9, 620e-9))
     assert 20 < efficiency.wavelengths_m.size < 100
     probe = np.arange(541.3e-9, 620e-9, 1.7e-9)
-    direct = fin_response(Fin(395e-9, 700e-9, 305e-9, 125e-9), SINX.index(probe), FUSED_SILICA.index(probe), probe, HARMONICS)
+    direct = fin_response(
+        Fin(395e-9, 700e-9, 305e-9, 125e-9), SINX.index(probe), FUSED_SILICA.index(probe), probe, HARMONICS
+    )
     rayleigh = FUSED_SILICA.index(np.array([576e-9]))[0].real * 395e-9
     unresolved = np.array(efficiency.report["unresolved_m"])
     assert np.abs(unresolved - rayleigh).min() < 1e-9
@@ -98,14 +100,17 @@ def test_an_unwritable_cache_costs_only_the_recomputation_and_says_so(tmp_path, 
     assert cache.load("nanofin", "0" * 24) is None
 
 
-@pytest.mark.parametrize("change, field", [
-    ({"efficiency_wavelengths": ["530nm"]}, "nanofin.efficiency_wavelengths"),  # a table's wavelengths with rcwa
-    ({"efficiency": "exact"}, "nanofin.efficiency"),
-    ({"harmonics": 20}, "nanofin.harmonics"),
-    ({"material": "unobtainium"}, "nanofin.material"),
-    ({"substrate": "2.0-0.1j"}, "nanofin.substrate"),
-    ({"width": "400nm"}, "nanofin.width"),
-])
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        ({"efficiency_wavelengths": ["530nm"]}, "nanofin.efficiency_wavelengths"),  # a table's wavelengths with rcwa
+        ({"efficiency": "exact"}, "nanofin.efficiency"),
+        ({"harmonics": 20}, "nanofin.harmonics"),
+        ({"material": "unobtainium"}, "nanofin.material"),
+        ({"substrate": "2.0-0.1j"}, "nanofin.substrate"),
+        ({"width": "400nm"}, "nanofin.width"),
+    ],
+)
 def test_bad_nanofin_sections_name_the_key(change, field):
     with pytest.raises(InputError) as caught:
         preset_with(**change)
@@ -114,7 +119,11 @@ def test_bad_nanofin_sections_name_the_key(change, field):
 
 def test_a_material_file_is_read_relative_to_the_preset(tmp_path):
     (tmp_path / "film.csv").write_text("wavelength_nm,n\n380,2.05\n800,1.98\n")
-    text = (PRESETS / "quick-split-spectrum.toml").read_text().replace('length = "125nm"', 'length = "125nm"\nmaterial = "film.csv"')
+    text = (
+        (PRESETS / "quick-split-spectrum.toml")
+        .read_text()
+        .replace('length = "125nm"', 'length = "125nm"\nmaterial = "film.csv"')
+    )
     (tmp_path / "p.toml").write_text(text)
     preset = load_preset(tmp_path / "p.toml")
     assert preset.nanofin.material == str(tmp_path / "film.csv")

@@ -17,7 +17,12 @@ PRESETS = Path(__file__).parents[2] / "presets"
 def test_paper_preset_values():
     p = load_preset(PRESETS / "split-spectrum.toml")
     assert (p.lens.focal_length_m, p.lens.aperture_m) == (4e-3, 2.516e-3)
-    assert (p.nanofin.pitch_m, p.nanofin.height_m, p.nanofin.width_m, p.nanofin.length_m) == (395e-9, 700e-9, 305e-9, 125e-9)
+    assert (p.nanofin.pitch_m, p.nanofin.height_m, p.nanofin.width_m, p.nanofin.length_m) == (
+        395e-9,
+        700e-9,
+        305e-9,
+        125e-9,
+    )
     assert p.nanofin.efficiency == (0.784, 0.729, 0.669)
     assert p.filter.centers_m == (457e-9, 530e-9, 628e-9) and p.filter.widths_m == (22e-9, 20e-9, 28e-9)
     assert (p.sensor.pixel_pitch_m, p.sensor.pixels) == (1.85e-6, 512)
@@ -88,11 +93,17 @@ def test_filter_and_efficiency_from_csv_relative_to_preset(tmp_path):
     nm = np.arange(380, 781)
     inside = ((nm >= 446) & (nm <= 468)) | ((nm >= 520) & (nm <= 540)) | ((nm >= 614) & (nm <= 642))
     (tmp_path / "data").mkdir()
-    (tmp_path / "data" / "filter.csv").write_text("wavelength_nm,T\n" + "\n".join(f"{w},{90 if i else 0}" for w, i in zip(nm, inside)))
+    (tmp_path / "data" / "filter.csv").write_text(
+        "wavelength_nm,T\n" + "\n".join(f"{w},{90 if i else 0}" for w, i in zip(nm, inside))
+    )
     (tmp_path / "data" / "eta.csv").write_text("\n".join(f"{w},0.7" for w in nm))
     text = (PRESETS / "split-spectrum.toml").read_text()
-    text = text.replace('centers = ["457nm", "530nm", "628nm"]\nwidths = ["22nm", "20nm", "28nm"]    # FWHM', 'csv = "data/filter.csv"')
-    text = text.replace("efficiency = [0.784, 0.729, 0.669]", 'efficiency = [0.784, 0.729, 0.669]\nefficiency_csv = "data/eta.csv"')
+    text = text.replace(
+        'centers = ["457nm", "530nm", "628nm"]\nwidths = ["22nm", "20nm", "28nm"]    # FWHM', 'csv = "data/filter.csv"'
+    )
+    text = text.replace(
+        "efficiency = [0.784, 0.729, 0.669]", 'efficiency = [0.784, 0.729, 0.669]\nefficiency_csv = "data/eta.csv"'
+    )
     (tmp_path / "csv.toml").write_text(text)
     preset = load_preset(tmp_path / "csv.toml")
     assert preset.filter.csv == str((tmp_path / "data" / "filter.csv").resolve())
@@ -105,8 +116,13 @@ def test_filter_and_efficiency_from_csv_relative_to_preset(tmp_path):
 
 
 def test_missing_csv_named(tmp_path):
-    text = (PRESETS / "split-spectrum.toml").read_text().replace(
-        'centers = ["457nm", "530nm", "628nm"]\nwidths = ["22nm", "20nm", "28nm"]    # FWHM', 'csv = "nope.csv"')
+    text = (
+        (PRESETS / "split-spectrum.toml")
+        .read_text()
+        .replace(
+            'centers = ["457nm", "530nm", "628nm"]\nwidths = ["22nm", "20nm", "28nm"]    # FWHM', 'csv = "nope.csv"'
+        )
+    )
     (tmp_path / "p.toml").write_text(text)
     with pytest.raises(InputError, match="filter.csv: no such file"):
         load_preset(tmp_path / "p.toml")

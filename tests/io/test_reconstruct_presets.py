@@ -7,7 +7,11 @@ from pathlib import Path
 import pytest
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.reconstruct_presets import load_reconstruct_preset, reconstruct_preset_from_dict, reconstruct_to_toml
+from metalens_cli.io.reconstruct_presets import (
+    load_reconstruct_preset,
+    reconstruct_preset_from_dict,
+    reconstruct_to_toml,
+)
 
 PRESETS = Path(__file__).parents[2] / "presets"
 
@@ -21,17 +25,20 @@ def test_shipped_presets_load_and_round_trip(name, tmp_path):
     assert again.network == preset.network and again.train == preset.train and again.data == preset.data
 
 
-@pytest.mark.parametrize("document, field", [
-    ({"train": {"steps": 1, "crop": 512}, "data": {"pool_pixels": 256}}, "train.crop"),
-    ({"train": {"steps": 1, "lr": 1}}, "train.lr"),
-    ({"train": {"steps": -1}}, "train.steps"),
-    ({"train": {"steps": 1}, "data": {"obstructions": ["mud"]}}, "data.obstructions"),
-    ({"train": {"steps": 1}, "data": {"wavelengths": "500nm"}}, "data.wavelengths"),
-    ({"network": {"width": 16}}, "train"),
-    ({"train": {"steps": 1}, "optimize": {}}, "optimize"),
-    ({"name": "../evil", "train": {"steps": 1}}, "name"),  # the camera presets' rule: it names runs/NAME
-    ({"name": ".hidden", "train": {"steps": 1}}, "name"),
-])
+@pytest.mark.parametrize(
+    "document, field",
+    [
+        ({"train": {"steps": 1, "crop": 512}, "data": {"pool_pixels": 256}}, "train.crop"),
+        ({"train": {"steps": 1, "lr": 1}}, "train.lr"),
+        ({"train": {"steps": -1}}, "train.steps"),
+        ({"train": {"steps": 1}, "data": {"obstructions": ["mud"]}}, "data.obstructions"),
+        ({"train": {"steps": 1}, "data": {"wavelengths": "500nm"}}, "data.wavelengths"),
+        ({"network": {"width": 16}}, "train"),
+        ({"train": {"steps": 1}, "optimize": {}}, "optimize"),
+        ({"name": "../evil", "train": {"steps": 1}}, "name"),  # the camera presets' rule: it names runs/NAME
+        ({"name": ".hidden", "train": {"steps": 1}}, "name"),
+    ],
+)
 def test_bad_presets_name_the_key(document, field):
     with pytest.raises(InputError) as error:
         reconstruct_preset_from_dict(document)

@@ -3,7 +3,7 @@
 import pytest
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.resources import Estimate, LONG_JOB_SECONDS, check, is_long
+from metalens_cli.io.resources import LONG_JOB_SECONDS, Estimate, check, is_long
 
 
 def test_a_range_is_said_only_when_the_longest_differs_and_counts_as_long():
@@ -11,7 +11,9 @@ def test_a_range_is_said_only_when_the_longest_differs_and_counts_as_long():
     assert converge.describe() == "η by convergence: about 1 MiB of memory, about 12 s (up to 79 s)"
     assert is_long(converge)  # 79 s can be long though 12 s is typical
     assert not is_long(Estimate("short", 1, "--x", 12.0, seconds_max=LONG_JOB_SECONDS))
-    assert Estimate("fixed", 1, "--x", 200.0, seconds_max=250.0).describe().endswith("about 3 min")  # within 1.5×: one figure
+    assert (
+        Estimate("fixed", 1, "--x", 200.0, seconds_max=250.0).describe().endswith("about 3 min")
+    )  # within 1.5×: one figure
     assert not is_long(Estimate("unknown", 1, "--x"))
 
 

@@ -44,12 +44,13 @@ def test_efficiency_csv_and_refusals(tmp_path):
         spectra.efficiency_from_table(PAPER_CENTRES, PAPER_CENTRES, [78.4, 72.9, 66.9])
 
 
-
 def test_camera_csv_and_unknown_name(tmp_path):
     path = tmp_path / "crf.csv"
     path.write_text("wavelength_nm,r,g,b\n400,0,0,1\n600,1,0.5,-0.01\n")
     assert_allclose(spectra_files.camera_from_csv(path, np.array([500 * NM])), [[0.5], [0.25], [0.5]], atol=1e-12)
-    assert np.all(spectra_files.camera_from_csv(path, np.array([300 * NM, 700 * NM])) == 0)  # no response outside the table
+    assert np.all(
+        spectra_files.camera_from_csv(path, np.array([300 * NM, 700 * NM])) == 0
+    )  # no response outside the table
     with pytest.raises(InputError, match="unknown camera"):
         spectra.camera_response(spectra.wavelength_grid(), "Canon 5D")
 
@@ -66,8 +67,11 @@ def test_a_camera_table_is_read_by_its_header_in_any_order(tmp_path):
     expected = np.array([[0.1 + (0.7 - 0.1) * t, 0.2 + 0.1 * t, 0.9 * (1 - t)] for t in (1 / 6, 0.5, 5 / 6)]).T
     assert_allclose(spectra_files.camera_from_csv(plain, grid), expected, atol=1e-12)
     assert_allclose(spectra_files.camera_from_csv(named, grid), expected, atol=1e-12)
-    for header, why in (("nm,r,g,g", "does not name its columns"), ("nm,r,g,x", "does not name its columns"),
-                        ("nm,r,g", "lacks b")):
+    for header, why in (
+        ("nm,r,g,g", "does not name its columns"),
+        ("nm,r,g,x", "does not name its columns"),
+        ("nm,r,g", "lacks b"),
+    ):
         named.write_text(f"{header}\n400,0.1,0.2,0.9\n700,0.7,0.3,0.0\n")
         with pytest.raises(InputError, match=f"camera: named.csv: header '{header}' {why}.*r: r or red"):
             spectra_files.camera_from_csv(named, grid)

@@ -10,8 +10,18 @@ from metalens_cli.io import units
 
 @pytest.mark.parametrize(
     "text, metres",
-    [("4mm", 4e-3), ("450nm", 450e-9), ("1.85um", 1.85e-6), ("1.85µm", 1.85e-6), ("1.85μm", 1.85e-6),
-     ("0.045m", 0.045), ("2.516 mm", 2.516e-3), ("1e3nm", 1e-6), ("395nm", 3.95e-7), ("1km", 1e3)],
+    [
+        ("4mm", 4e-3),
+        ("450nm", 450e-9),
+        ("1.85um", 1.85e-6),
+        ("1.85µm", 1.85e-6),
+        ("1.85μm", 1.85e-6),
+        ("0.045m", 0.045),
+        ("2.516 mm", 2.516e-3),
+        ("1e3nm", 1e-6),
+        ("395nm", 3.95e-7),
+        ("1km", 1e3),
+    ],
 )
 def test_lengths(text, metres):
     assert units.parse_length(text, "--x") == metres  # exact: scaled by exact powers of ten
@@ -23,8 +33,18 @@ def test_inf_only_where_allowed():
         units.parse_length("inf", "--f")
 
 
-@pytest.mark.parametrize("text, why", [("4", "no unit"), ("4xm", "unknown unit"), ("-4mm", "positive"),
-                                        ("0nm", "positive"), ("nan", "not a length"), ("nanmm", "not a length"), ("", "not a length")])
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ("4", "no unit"),
+        ("4xm", "unknown unit"),
+        ("-4mm", "positive"),
+        ("0nm", "positive"),
+        ("nan", "not a length"),
+        ("nanmm", "not a length"),
+        ("", "not a length"),
+    ],
+)
 def test_bad_lengths_name_the_field_and_form(text, why):
     with pytest.raises(InputError) as info:
         units.parse_length(text, "--lambda-d")
@@ -75,8 +95,18 @@ def test_spaces_separate_a_number_from_its_unit_but_never_split_it():
             units.parse_length(text, "x")
 
 
-@pytest.mark.parametrize("text, seconds", [("90s", 90.0), ("90", 90.0), ("30min", 1800.0), ("1.5h", 5400.0),
-                                           ("2d", 172800.0), (" 2 h ", 7200.0), ("inf", math.inf)])
+@pytest.mark.parametrize(
+    "text, seconds",
+    [
+        ("90s", 90.0),
+        ("90", 90.0),
+        ("30min", 1800.0),
+        ("1.5h", 5400.0),
+        ("2d", 172800.0),
+        (" 2 h ", 7200.0),
+        ("inf", math.inf),
+    ],
+)
 def test_durations(text, seconds):
     assert units.parse_duration(text, "--max-time") == seconds
 

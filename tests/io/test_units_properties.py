@@ -35,9 +35,51 @@ normal_lengths = st.floats(min_value=1e-280, max_value=1e280, allow_nan=False, a
 # Numbers as users type them (and worse): digits, a point, an exponent, a sign.
 number_texts = st.from_regex(r"[+-]?[0-9]{1,25}(\.[0-9]{0,25})?([eE][+-]?[0-9]{1,3})?", fullmatch=True)
 # Pieces of the grammar glued at random: near misses reach deeper than st.text().
-TOKENS = ["0", "1", "4", "9", ".", "e", "E", "-", "+", " ", "\t", "\n", ":", ",", "inf", "Inf", "nan", "infinity",
-          "mm", "nm", "um", "µm", "μm", "pm", "cm", "m", "km", "M", "µ", "e308", "e309", "e-324", "e-400", "e99999999999999999999",
-          "1" * 30, "0" * 30, "5e-324", "1.7976931348623157e308", "٤", "４", "\u00a0", "\u2028", "\x00"]
+TOKENS = [
+    "0",
+    "1",
+    "4",
+    "9",
+    ".",
+    "e",
+    "E",
+    "-",
+    "+",
+    " ",
+    "\t",
+    "\n",
+    ":",
+    ",",
+    "inf",
+    "Inf",
+    "nan",
+    "infinity",
+    "mm",
+    "nm",
+    "um",
+    "µm",
+    "μm",
+    "pm",
+    "cm",
+    "m",
+    "km",
+    "M",
+    "µ",
+    "e308",
+    "e309",
+    "e-324",
+    "e-400",
+    "e99999999999999999999",
+    "1" * 30,
+    "0" * 30,
+    "5e-324",
+    "1.7976931348623157e308",
+    "٤",
+    "４",
+    "\u00a0",
+    "\u2028",
+    "\x00",
+]
 grammarish = st.lists(st.sampled_from(TOKENS), max_size=12).map("".join)
 hostile = st.one_of(st.text(), grammarish)
 
@@ -141,10 +183,33 @@ def test_only_ascii_digits_make_a_number(text):
 
 
 N = 50_000
-LONG_TEXTS = ["1" * N, "1" * N + "x", "1" * N + "e", "1" * N + ".", "." + "1" * N, "1e" + "1" * N, "1." + "1" * N + "e1",
-              "1:1:" + "1" * N, "1" * N + ":1:1", "1:" + "1" * N + ":1", "1mm:" + "1" * N, "1" * N + ":1mm", "1" * N + "mm:",
-              "1." * N, "1e1" * N, "1mm" * N, ":" * N, "1:" * N, "1 " * N, "1µ" * N, "1" * N + "e-" + "0" * N + "1nm",
-              "1:" + "m" * N + "1", "1:" + "m" * N + "1mm", "1" + "\t" * N + "m1", "1" + "m" * N + ":1mm:1mm"]
+LONG_TEXTS = [
+    "1" * N,
+    "1" * N + "x",
+    "1" * N + "e",
+    "1" * N + ".",
+    "." + "1" * N,
+    "1e" + "1" * N,
+    "1." + "1" * N + "e1",
+    "1:1:" + "1" * N,
+    "1" * N + ":1:1",
+    "1:" + "1" * N + ":1",
+    "1mm:" + "1" * N,
+    "1" * N + ":1mm",
+    "1" * N + "mm:",
+    "1." * N,
+    "1e1" * N,
+    "1mm" * N,
+    ":" * N,
+    "1:" * N,
+    "1 " * N,
+    "1µ" * N,
+    "1" * N + "e-" + "0" * N + "1nm",
+    "1:" + "m" * N + "1",
+    "1:" + "m" * N + "1mm",
+    "1" + "\t" * N + "m1",
+    "1" + "m" * N + ":1mm:1mm",
+]
 
 
 @pytest.mark.parametrize("text", LONG_TEXTS, ids=lambda t: f"{t[:6]!r}x{len(t)}")
@@ -183,8 +248,15 @@ def decimal_text(n: int, places: int) -> str:
 
 
 @PROPS
-@given(start=st.integers(1, 10**7), step=st.integers(1, 10**5), steps=st.integers(0, 300), extra=st.floats(0, 1, exclude_max=True),
-       places=st.integers(0, 4), unit=units_st, unit_everywhere=st.booleans())
+@given(
+    start=st.integers(1, 10**7),
+    step=st.integers(1, 10**5),
+    steps=st.integers(0, 300),
+    extra=st.floats(0, 1, exclude_max=True),
+    places=st.integers(0, 4),
+    unit=units_st,
+    unit_everywhere=st.booleans(),
+)
 @example(start=430, step=5, steps=43, extra=0.0, places=0, unit="nm", unit_everywhere=False)
 def test_range_values_are_the_grid_as_if_typed(start, step, steps, extra, places, unit, unit_everywhere):
     """a:b:s gives a, a+s, … up to b inclusive, each the float nearest to its exact decimal,
@@ -196,7 +268,9 @@ def test_range_values_are_the_grid_as_if_typed(start, step, steps, extra, places
     values = units.parse_range(text, FIELD)
     assert values == units.parse_length_list(text, FIELD)
     assert len(values) == steps + 1
-    assert values == [units.parse_length(decimal_text(start + i * step, places) + unit, FIELD) for i in range(steps + 1)]
+    assert values == [
+        units.parse_length(decimal_text(start + i * step, places) + unit, FIELD) for i in range(steps + 1)
+    ]
     assert values[0] == units.parse_length(a + unit, FIELD)
     assert all(p < q for p, q in zip(values, values[1:]))
     last = units.parse_length(b + unit, FIELD)
@@ -209,8 +283,10 @@ def exact_part(number: str, unit: str) -> Fraction:
 
 
 @PROPS
-@given(numbers=st.lists(st.from_regex(r"[0-9]{1,6}(\.[0-9]{1,6})?(e-?[0-9])?", fullmatch=True), min_size=3, max_size=3),
-       parts_units=st.lists(units_st, min_size=3, max_size=3))
+@given(
+    numbers=st.lists(st.from_regex(r"[0-9]{1,6}(\.[0-9]{1,6})?(e-?[0-9])?", fullmatch=True), min_size=3, max_size=3),
+    parts_units=st.lists(units_st, min_size=3, max_size=3),
+)
 @example(numbers=["430", "645", "5"], parts_units=["nm", "um", "pm"])
 def test_range_with_a_unit_on_each_part(numbers, parts_units):
     """Against exact rational arithmetic: the values are round(A + i·S) for i = 0 … ⌊(B−A)/S⌋,
@@ -223,7 +299,11 @@ def test_range_with_a_unit_on_each_part(numbers, parts_units):
         return
     count = math.floor((B - A) / S) + 1
     # Every value for short ranges; the ends and a sample of the rest for long ones.
-    checked = range(count) if count <= 1000 else sorted({*range(20), *range(count - 20, count), *range(0, count, count // 50)})
+    checked = (
+        range(count)
+        if count <= 1000
+        else sorted({*range(20), *range(count - 20, count), *range(0, count, count // 50)})
+    )
     expected = [float(A + i * S) for i in checked]
     if len(set(expected)) < len(expected):
         assert values is None  # the step is below float resolution there
@@ -253,15 +333,29 @@ def test_any_text_is_a_range_or_an_input_error(text):
         assert all(p < q for p, q in zip(values, values[1:]))
 
 
-@pytest.mark.parametrize("text", ["1nm:1m:1pm", "1:1000000:1nm", "1pm:1km:1pm", "5e-324m:1.7976931348623157e308m:5e-324m",
-                                  "1:1e300:1e-300m", "1e-300m:1m:1e-300m"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "1nm:1m:1pm",
+        "1:1000000:1nm",
+        "1pm:1km:1pm",
+        "5e-324m:1.7976931348623157e308m:5e-324m",
+        "1:1e300:1e-300m",
+        "1e-300m:1m:1e-300m",
+    ],
+)
 def test_huge_ranges_are_refused_before_expanding(text):
     with pytest.raises(InputError, match="at most 100000"):
         units.parse_range(text, FIELD)
 
 
 @FEW
-@given(start=st.integers(1, 10**6), step=st.integers(1, 10**3), unit=units_st, bad_step=st.sampled_from(["0", "-1", "-0", "0.0", "-5e-3", "1e-400"]))
+@given(
+    start=st.integers(1, 10**6),
+    step=st.integers(1, 10**3),
+    unit=units_st,
+    bad_step=st.sampled_from(["0", "-1", "-0", "0.0", "-5e-3", "1e-400"]),
+)
 def test_zero_negative_or_backwards_ranges_are_refused(start, step, unit, bad_step):
     assert outcome(units.parse_range, f"{start}:{start + step}:{bad_step}{unit}") is None
     assert outcome(units.parse_range, f"{start + step}:{start}:{step}{unit}") is None
@@ -273,13 +367,21 @@ def test_zero_negative_or_backwards_ranges_are_refused(start, step, unit, bad_st
 valid_items = st.one_of(
     st.builds(lambda x, u: in_unit(x, u), st.floats(min_value=5e-324, max_value=MAX_FLOAT), units_st),
     st.builds(lambda n, u: f"{n}{u}", st.integers(1, 10**9), units_st),
-    st.builds(lambda a, k, s, u: f"{a}:{a + k * s}:{s}{u}", st.integers(1, 1000), st.integers(0, 20), st.integers(1, 100), units_st),
+    st.builds(
+        lambda a, k, s, u: f"{a}:{a + k * s}:{s}{u}",
+        st.integers(1, 1000),
+        st.integers(0, 20),
+        st.integers(1, 100),
+        units_st,
+    ),
     st.just("inf"),
 )
 
 
 @PROPS
-@given(items=st.lists(valid_items, min_size=1, max_size=8), allow_inf=st.booleans(), pad=st.sampled_from(["", " ", "  "]))
+@given(
+    items=st.lists(valid_items, min_size=1, max_size=8), allow_inf=st.booleans(), pad=st.sampled_from(["", " ", "  "])
+)
 def test_a_list_is_its_items_in_order(items, allow_inf, pad):
     text = ",".join(pad + item + pad for item in items)
     values = outcome(units.parse_length_list, text, allow_inf=allow_inf)
@@ -288,7 +390,11 @@ def test_a_list_is_its_items_in_order(items, allow_inf, pad):
         return
     expected = []
     for item in items:
-        expected += units.parse_range(item, FIELD) if item.count(":") == 2 else [units.parse_length(item, FIELD, allow_inf=True)]
+        expected += (
+            units.parse_range(item, FIELD)
+            if item.count(":") == 2
+            else [units.parse_length(item, FIELD, allow_inf=True)]
+        )
     assert values == expected
 
 
@@ -336,7 +442,9 @@ def test_an_interval_is_its_two_ends_in_order(lo, hi, allow_inf):
 @given(lo=st.integers(1, 10**6), hi=st.integers(1, 10**6), unit=units_st)
 def test_an_interval_shares_a_trailing_unit(lo, hi, unit):
     got = outcome(units.parse_interval, f"{lo}:{hi}{unit}")
-    assert got == (None if hi < lo else (units.parse_length(f"{lo}{unit}", FIELD), units.parse_length(f"{hi}{unit}", FIELD)))
+    assert got == (
+        None if hi < lo else (units.parse_length(f"{lo}{unit}", FIELD), units.parse_length(f"{hi}{unit}", FIELD))
+    )
 
 
 @PROPS
@@ -354,8 +462,13 @@ def test_any_text_is_an_interval_or_an_input_error(text, allow_inf):
 
 
 def test_messages_are_one_short_line_naming_the_field_and_form():
-    for parse, text in [(units.parse_length, "1" * 100_000), (units.parse_length, "1" + "x" * 10_000), (units.parse_length_list, "x\n" * 1000),
-                        (units.parse_interval, "40mm:\u2028"), (units.parse_range, "1:1e300:1e-300m")]:
+    for parse, text in [
+        (units.parse_length, "1" * 100_000),
+        (units.parse_length, "1" + "x" * 10_000),
+        (units.parse_length_list, "x\n" * 1000),
+        (units.parse_interval, "40mm:\u2028"),
+        (units.parse_range, "1:1e300:1e-300m"),
+    ]:
         with pytest.raises(InputError) as info:
             parse(text, FIELD)
         message = str(info.value)

@@ -31,7 +31,9 @@ def test_two_dimensional_map_traces_like_its_radial_profile():
     radial, grid = (hyperbolic(532e-9, 1e-3, 0.1e-3, PITCH, radial=r) for r in (True, False))
     for lam, z in ((457e-9, 0.012), (628e-9, math.inf)):
         # the 2-D map's central differences and its rim sites differ from the radial midpoints by ~p
-        assert geometric_blur_radius(grid, lam, z, 1e-3) == pytest.approx(geometric_blur_radius(radial, lam, z, 1e-3), rel=0.02)
+        assert geometric_blur_radius(grid, lam, z, 1e-3) == pytest.approx(
+            geometric_blur_radius(radial, lam, z, 1e-3), rel=0.02
+        )
 
 
 def test_window_pixels_inscribes_the_radius():

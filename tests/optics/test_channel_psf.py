@@ -11,7 +11,7 @@ from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, channel_psf_stack
 from metalens_cli.optics.lens import hyperbolic
 from metalens_cli.optics.psf import compute_psf
-from metalens_cli.optics.sensor import build_radial_sensor, radial_sensor
+from metalens_cli.optics.sensor import build_radial_sensor
 from metalens_cli.optics.spectra import mix_channels
 
 # A small lens (D = 0.3 mm, f = 1 mm, NA ≈ 0.15) keeps the radial plan small; its near depth
@@ -66,11 +66,13 @@ def test_window_holds_the_light_of_a_psf_twice_as_large(lens, stack):
     smaller disc holds less than 99.9 % of the sensor plane's light for some channel."""
     for i in range(len(DEPTHS)):
         n = stack.psfs[i].shape[-1]
-        large = mix_channels(compute_psf(lens, WAVES, [DEPTHS[i]], 2 * n + 1, PITCH, dtype=torch.float64).psf[0], WEIGHTS)
+        large = mix_channels(
+            compute_psf(lens, WAVES, [DEPTHS[i]], 2 * n + 1, PITCH, dtype=torch.float64).psf[0], WEIGHTS
+        )
         total = large.sum(dim=(-2, -1)).numpy()
         assert np.all(stack.kept[i] >= ENCIRCLED_ENERGY * total)
         assert np.all(stack.held[i] >= ENCIRCLED_ENERGY - 2e-4)  # pixel integral vs disc: interpolation error
-        assert np.all(total <= stack.on_sensor[i] * (1 + 1e-4))   # Parseval bounds every window's sum
+        assert np.all(total <= stack.on_sensor[i] * (1 + 1e-4))  # Parseval bounds every window's sum
         # the rule is the disc inscribed in the window: a square inside the next smaller disc falls short
         inner = crop_window(large, 2 * math.floor((n // 2 - 0.5) / math.sqrt(2)) + 1).sum(dim=(-2, -1)).numpy()
         assert np.any(inner < ENCIRCLED_ENERGY * stack.on_sensor[i])
@@ -100,12 +102,14 @@ def test_radial_sensor_window_is_the_smaller_operator():
     for n in (1, 2, 17, 30, 61):
         own, cut = build_radial_sensor(0.1e-6, n, PITCH), big.window(n)
         assert cut.n_radii == own.n_radii
-        torch.testing.assert_close(cut.apply(samples[:cut.n_radii]), own.apply(samples[:own.n_radii]), rtol=0, atol=0)
+        torch.testing.assert_close(cut.apply(samples[: cut.n_radii]), own.apply(samples[: own.n_radii]), rtol=0, atol=0)
 
 
 def test_two_d_lens_uses_square_energy(lens):
     """A 2-D lens (the ASM path): the window holds ≥ 99.9 % of the capacity's light."""
-    grid_lens = hyperbolic(LENS["lambda_d_m"], LENS["focal_length_m"], LENS["aperture_m"], LENS["pitch_m"], radial=False)
+    grid_lens = hyperbolic(
+        LENS["lambda_d_m"], LENS["focal_length_m"], LENS["aperture_m"], LENS["pitch_m"], radial=False
+    )
     stack = channel_psf_stack(grid_lens, WAVES[3:6], [math.inf], WEIGHTS[:, 3:6] * 0 + np.eye(3), 61, PITCH)
     full = mix_channels(compute_psf(grid_lens, WAVES[3:6], [math.inf], 61, PITCH).psf[0], np.eye(3)).sum(dim=(-2, -1))
     assert np.all(stack.kept[0] >= ENCIRCLED_ENERGY * full.numpy() * (1 - 1e-6))

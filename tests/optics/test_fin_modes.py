@@ -21,8 +21,9 @@ SQUARE_FIN = Fin(395e-9, 700e-9, 200e-9, 200e-9)
 
 def response(fin, n_fin=2.0, harmonics=5, wavelengths=WAVELENGTHS, symmetric=True):
     count = len(wavelengths)
-    return fin_response_symmetric(fin, np.full(count, n_fin, complex), np.full(count, N_SUB, complex), wavelengths,
-                                  harmonics, symmetric=symmetric)
+    return fin_response_symmetric(
+        fin, np.full(count, n_fin, complex), np.full(count, N_SUB, complex), wavelengths, harmonics, symmetric=symmetric
+    )
 
 
 @pytest.mark.parametrize("symmetric", [True, False])
@@ -35,8 +36,12 @@ def test_a_homogeneous_layer_is_a_fabry_perot_slab_and_converts_nothing(symmetri
     r = response(Fin(395e-9, d, 395e-9, 395e-9), n2, harmonics, symmetric=symmetric)
     n1, n3 = N_SUB, 1.0
     beta = 2 * math.pi * n2 * d / WAVELENGTHS
-    t = (2 * n1 / (n1 + n2)) * (2 * n2 / (n2 + n3)) * np.exp(1j * beta) / (
-        1 + ((n1 - n2) / (n1 + n2)) * ((n2 - n3) / (n2 + n3)) * np.exp(2j * beta))
+    t = (
+        (2 * n1 / (n1 + n2))
+        * (2 * n2 / (n2 + n3))
+        * np.exp(1j * beta)
+        / (1 + ((n1 - n2) / (n1 + n2)) * ((n2 - n3) / (n2 + n3)) * np.exp(2j * beta))
+    )
     np.testing.assert_allclose(r.transmittance, n3 / n1 * np.abs(t) ** 2, rtol=1e-9)
     np.testing.assert_allclose(r.transmittance + r.reflectance, 1.0, atol=1e-9)
     np.testing.assert_allclose(r.t_xx, math.sqrt(n3 / n1) * t, atol=1e-9)
@@ -100,9 +105,15 @@ def full_operator(fin, harmonics, wavelength=530e-9, eps=4.0):
     fields = fin_modes._fields(harmonics, False, None)
     orders = torch.arange(harmonics, dtype=torch.float64) - (harmonics - 1) // 2
     kx = (orders * wavelength / fin.period_m).expand(1, harmonics, -1)
-    p, q = fin_modes._layer_matrices(fields, kx, kx.transpose(-1, -2), torch.tensor([eps + 0j]),
-                                     torch.tensor([fin.width_m / fin.period_m]),
-                                     torch.tensor([fin.length_m / fin.period_m]), harmonics)
+    p, q = fin_modes._layer_matrices(
+        fields,
+        kx,
+        kx.transpose(-1, -2),
+        torch.tensor([eps + 0j]),
+        torch.tensor([fin.width_m / fin.period_m]),
+        torch.tensor([fin.length_m / fin.period_m]),
+        harmonics,
+    )
     return (p @ q)[0].numpy()
 
 
@@ -171,11 +182,14 @@ def test_meent_agrees_at_the_same_and_at_high_order():
     np.testing.assert_allclose(ours[31].t_yy, theirs[25].t_yy, atol=3e-3)
 
 
-@pytest.mark.parametrize(("fin", "harmonics", "message"), [
-    (Fin(395e-9, 700e-9, 400e-9, 125e-9), 5, "width: 400 nm is larger than the 395 nm period"),
-    (Fin(395e-9, -1e-9, 305e-9, 125e-9), 5, "height"),
-    (PAPER_FIN, 4, "an odd number"),
-])
+@pytest.mark.parametrize(
+    ("fin", "harmonics", "message"),
+    [
+        (Fin(395e-9, 700e-9, 400e-9, 125e-9), 5, "width: 400 nm is larger than the 395 nm period"),
+        (Fin(395e-9, -1e-9, 305e-9, 125e-9), 5, "height"),
+        (PAPER_FIN, 4, "an odd number"),
+    ],
+)
 def test_bad_input_is_refused(fin, harmonics, message):
     with pytest.raises(InputError, match=message):
         response(fin, harmonics=harmonics)
@@ -191,14 +205,19 @@ def test_the_numbers_do_not_depend_on_torch_set_num_threads():
     import subprocess
     import sys
 
-    code = ("import json, sys, numpy as np, torch\n"
-            "if sys.argv[1] == 'set': torch.set_num_threads(2)\n"
-            "from metalens_cli.optics.fin_modes import fin_response_symmetric\n"
-            "from metalens_cli.optics.nanofin import Fin\n"
-            "r = fin_response_symmetric(Fin(395e-9, 700e-9, 305e-9, 125e-9), np.full(3, 2.0), np.full(3, 1.46),"
-            " np.array([457e-9, 530e-9, 628e-9]), 9, symmetric=False)\n"
-            "print(json.dumps(r.conversion.tolist()))\n")
-    runs = [subprocess.run([sys.executable, "-c", code, mode], capture_output=True, text=True, timeout=120) for mode in ("fresh", "set")]
+    code = (
+        "import json, sys, numpy as np, torch\n"
+        "if sys.argv[1] == 'set': torch.set_num_threads(2)\n"
+        "from metalens_cli.optics.fin_modes import fin_response_symmetric\n"
+        "from metalens_cli.optics.nanofin import Fin\n"
+        "r = fin_response_symmetric(Fin(395e-9, 700e-9, 305e-9, 125e-9), np.full(3, 2.0), np.full(3, 1.46),"
+        " np.array([457e-9, 530e-9, 628e-9]), 9, symmetric=False)\n"
+        "print(json.dumps(r.conversion.tolist()))\n"
+    )
+    runs = [
+        subprocess.run([sys.executable, "-c", code, mode], capture_output=True, text=True, timeout=120)
+        for mode in ("fresh", "set")
+    ]
     assert all(run.returncode == 0 for run in runs), runs[-1].stderr[-500:]
     fresh, after = (np.array(json.loads(run.stdout)) for run in runs)
     np.testing.assert_allclose(after, fresh, rtol=1e-12)

@@ -55,8 +55,16 @@ def test_air_and_vacuum_are_one():
         assert_allclose(BUILTIN[name].index([100 * NM, 10e-6]), 1.0, rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("material", [Constant(1.5 + 0.01j), Cauchy(1.9, 0.012, 1e-4), materials.SINX, materials.A_SI,
-                                      Tabulated([400 * NM, 800 * NM], [2.0, 1.9], [0.1, 0.0])])
+@pytest.mark.parametrize(
+    "material",
+    [
+        Constant(1.5 + 0.01j),
+        Cauchy(1.9, 0.012, 1e-4),
+        materials.SINX,
+        materials.A_SI,
+        Tabulated([400 * NM, 800 * NM], [2.0, 1.9], [0.1, 0.0]),
+    ],
+)
 @pytest.mark.parametrize("shape", [(), (3,), (2, 3), (0,)])
 def test_every_model_returns_complex128_of_the_input_shape(material, shape):
     wavelengths = np.full(shape, 532 * NM)
@@ -108,15 +116,18 @@ def test_tabulated_refuses_wavelengths_outside_the_table(wavelength):
     assert info.value.field == "--wavelengths" and "400-700 nm" in str(info.value)
 
 
-@pytest.mark.parametrize("lam, n, k, why", [
-    ([500, 400], [2, 2], None, "not strictly increasing"),
-    ([400, 400], [2, 2], None, "not strictly increasing"),
-    ([400], [2], None, "at least 2"),
-    ([400, 500], [2, 0], None, "n > 0"),
-    ([400, 500], [2, 2], [0, -0.1], "k >= 0"),
-    ([400, math.nan], [2, 2], None, "finite"),
-    ([400, 500], [2, 2, 2], None, "one n and k per wavelength"),
-])
+@pytest.mark.parametrize(
+    "lam, n, k, why",
+    [
+        ([500, 400], [2, 2], None, "not strictly increasing"),
+        ([400, 400], [2, 2], None, "not strictly increasing"),
+        ([400], [2], None, "at least 2"),
+        ([400, 500], [2, 0], None, "n > 0"),
+        ([400, 500], [2, 2], [0, -0.1], "k >= 0"),
+        ([400, math.nan], [2, 2], None, "finite"),
+        ([400, 500], [2, 2, 2], None, "one n and k per wavelength"),
+    ],
+)
 def test_tabulated_refuses_bad_tables(lam, n, k, why):
     with pytest.raises(InputError, match=why):
         Tabulated(np.array(lam) * NM, n, k)
@@ -130,8 +141,10 @@ def test_models_are_immutable():
         materials.SINX.b = (1.0,)
 
 
-@pytest.mark.parametrize("name, outside_nm", [("fused-silica", 200), ("sinx", 300), ("sinx", 5600), ("tio2", 420),
-                                               ("tio2", 1600), ("a-si", 190)])
+@pytest.mark.parametrize(
+    "name, outside_nm",
+    [("fused-silica", 200), ("sinx", 300), ("sinx", 5600), ("tio2", 420), ("tio2", 1600), ("a-si", 190)],
+)
 def test_builtins_refuse_wavelengths_outside_their_published_range(name, outside_nm):
     with pytest.raises(InputError) as info:
         BUILTIN[name].index(outside_nm * NM, field="--wavelength")
@@ -144,12 +157,18 @@ def test_index_refuses_non_wavelengths(bad):
         Constant(1.5).index([500 * NM, bad], field="--wavelength")
 
 
-@pytest.mark.parametrize("make, why", [
-    (lambda: Constant(2.0 - 0.1j), "gain"), (lambda: Constant(0), "n <= 0"), (lambda: Constant(math.nan), "finite"),
-    (lambda: Cauchy(-1.0, 0.01), "not positive"), (lambda: Cauchy(1.5, math.inf), "not finite"),
-    (lambda: Sellmeier((1.0,), (0.25,), valid_m=(0.3e-6, 1e-6)), "pole"),
-    (lambda: Sellmeier((1.0, 2.0), (0.01,), valid_m=(0.3e-6, 1e-6)), "as many B as C"),
-])
+@pytest.mark.parametrize(
+    "make, why",
+    [
+        (lambda: Constant(2.0 - 0.1j), "gain"),
+        (lambda: Constant(0), "n <= 0"),
+        (lambda: Constant(math.nan), "finite"),
+        (lambda: Cauchy(-1.0, 0.01), "not positive"),
+        (lambda: Cauchy(1.5, math.inf), "not finite"),
+        (lambda: Sellmeier((1.0,), (0.25,), valid_m=(0.3e-6, 1e-6)), "pole"),
+        (lambda: Sellmeier((1.0, 2.0), (0.01,), valid_m=(0.3e-6, 1e-6)), "as many B as C"),
+    ],
+)
 def test_models_refuse_bad_parameters(make, why):
     with pytest.raises(InputError, match=why):
         make()
@@ -170,6 +189,7 @@ def test_describe_is_json():
 
 
 # --- amorphous silicon: Tauc–Lorentz (Jellison & Modine 1996) ----------------------------------
+
 
 def kramers_kronig_eps1(model: TaucLorentz, energy: float) -> float:
     """ε₁(∞) + (2/π)·P∫ ξ·ε₂(ξ)/(ξ² − E²) dξ by quadrature (Cauchy principal value where the

@@ -15,7 +15,13 @@ N_SUB = 1.46
 
 
 def response(fin, n_fin=2.0, harmonics=5, wavelengths=WAVELENGTHS):
-    return fin_response_meent(fin, np.full(len(wavelengths), n_fin, complex), np.full(len(wavelengths), N_SUB, complex), wavelengths, harmonics)
+    return fin_response_meent(
+        fin,
+        np.full(len(wavelengths), n_fin, complex),
+        np.full(len(wavelengths), N_SUB, complex),
+        wavelengths,
+        harmonics,
+    )
 
 
 def test_a_homogeneous_layer_is_a_fabry_perot_slab_and_converts_nothing():
@@ -25,8 +31,12 @@ def test_a_homogeneous_layer_is_a_fabry_perot_slab_and_converts_nothing():
     r = response(Fin(395e-9, d, 395e-9, 395e-9), n2, harmonics=3)
     n1, n3 = N_SUB, 1.0
     beta = 2 * math.pi * n2 * d / WAVELENGTHS
-    t = (2 * n1 / (n1 + n2)) * (2 * n2 / (n2 + n3)) * np.exp(1j * beta) / (
-        1 + ((n1 - n2) / (n1 + n2)) * ((n2 - n3) / (n2 + n3)) * np.exp(2j * beta))
+    t = (
+        (2 * n1 / (n1 + n2))
+        * (2 * n2 / (n2 + n3))
+        * np.exp(1j * beta)
+        / (1 + ((n1 - n2) / (n1 + n2)) * ((n2 - n3) / (n2 + n3)) * np.exp(2j * beta))
+    )
     np.testing.assert_allclose(r.transmittance, n3 / n1 * np.abs(t) ** 2, rtol=1e-9)
     np.testing.assert_allclose(np.abs(r.t_xx) ** 2, r.transmittance, rtol=1e-9)  # one order: all of T is in it
     np.testing.assert_allclose(r.t_xx, r.t_yy, atol=1e-12)  # isotropic: the TE/TM phase convention is right
@@ -44,7 +54,10 @@ def test_a_fin_turned_by_90_degrees_converts_the_same_in_the_limit():
     """Turning the fin swaps t_xx and t_yy: η is the same, up to the factorisation's asymmetry."""
     gaps = []
     for n in (5, 9):
-        a, b = response(Fin(395e-9, 700e-9, 305e-9, 125e-9), harmonics=n), response(Fin(395e-9, 700e-9, 125e-9, 305e-9), harmonics=n)
+        a, b = (
+            response(Fin(395e-9, 700e-9, 305e-9, 125e-9), harmonics=n),
+            response(Fin(395e-9, 700e-9, 125e-9, 305e-9), harmonics=n),
+        )
         gaps.append(np.abs(a.conversion - b.conversion).max())
         np.testing.assert_allclose(a.t_xx, b.t_yy, atol=0.05)
     assert gaps[1] < 5e-3 and gaps[1] < 0.7 * gaps[0]
@@ -55,16 +68,21 @@ def test_energy_is_conserved_for_a_lossless_fin_and_lost_in_an_absorbing_one():
     fin = Fin(395e-9, 700e-9, 305e-9, 125e-9)
     lossless = response(fin)
     np.testing.assert_allclose(lossless.transmittance + lossless.reflectance, 1.0, atol=1e-9)
-    assert np.all(lossless.conversion + lossless.co_polarized <= lossless.transmittance + 1e-12)  # the zeroth order is part of T
+    assert np.all(
+        lossless.conversion + lossless.co_polarized <= lossless.transmittance + 1e-12
+    )  # the zeroth order is part of T
     lossy = response(fin, 2.0 + 0.05j)
     assert np.all(lossy.transmittance + lossy.reflectance < 0.99)
 
 
-@pytest.mark.parametrize(("fin", "message"), [
-    (Fin(395e-9, 700e-9, 400e-9, 125e-9), "width: 400 nm is larger than the 395 nm period"),
-    (Fin(395e-9, 700e-9, 305e-9, 0.0), "length: 0.0 m"),
-    (Fin(395e-9, -1e-9, 305e-9, 125e-9), "height"),
-])
+@pytest.mark.parametrize(
+    ("fin", "message"),
+    [
+        (Fin(395e-9, 700e-9, 400e-9, 125e-9), "width: 400 nm is larger than the 395 nm period"),
+        (Fin(395e-9, 700e-9, 305e-9, 0.0), "length: 0.0 m"),
+        (Fin(395e-9, -1e-9, 305e-9, 125e-9), "height"),
+    ],
+)
 def test_bad_geometry_is_refused(fin, message):
     with pytest.raises(InputError, match=message):
         response(fin)

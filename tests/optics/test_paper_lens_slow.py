@@ -9,9 +9,9 @@ import math
 import pytest
 import torch
 
+from metalens_cli.imaging.psf_scan import relative_l2
 from metalens_cli.optics.lens import hyperbolic
 from metalens_cli.optics.psf import compute_psf
-from metalens_cli.imaging.psf_scan import relative_l2
 
 pytestmark = pytest.mark.slow
 LENS = dict(lambda_d_m=532e-9, focal_length_m=4e-3, aperture_m=2.516e-3, pitch_m=395e-9)

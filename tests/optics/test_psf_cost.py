@@ -29,12 +29,17 @@ print(json.dumps({"estimate": cost.memory_bytes, "measured": peak - before}))
 
 
 @pytest.mark.skipif(not os.access("/proc/self/clear_refs", os.W_OK), reason="needs Linux's resettable peak RSS")
-@pytest.mark.parametrize("case", [
-    (True, 2.516e-3, 384, 4, "radial"),   # the paper's lens: Hankel matrices and the sensor operator dominate
-    (False, 0.4e-3, 256, 2, "asm"),       # a 2-D lens: the padded FFT grid dominates
-])
+@pytest.mark.parametrize(
+    "case",
+    [
+        (True, 2.516e-3, 384, 4, "radial"),  # the paper's lens: Hankel matrices and the sensor operator dominate
+        (False, 0.4e-3, 256, 2, "asm"),  # a 2-D lens: the padded FFT grid dominates
+    ],
+)
 def test_estimate_bounds_the_measured_peak_within_a_factor_of_2(case):
-    proc = subprocess.run([sys.executable, "-c", MEASURE, json.dumps(case)], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", MEASURE, json.dumps(case)], capture_output=True, text=True, timeout=300
+    )
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout)
     assert 0.8 * result["measured"] <= result["estimate"] <= 2.0 * result["measured"], result

@@ -26,8 +26,12 @@ def on_axis_field(lens, wavelength, distances, radii):
     field = torch.polar(torch.ones_like(kernel.r), lens.phase_at_radius(kernel.r))[:, None]
     power = (kernel.weight * field[:, 0].abs() ** 2).sum()
     out = prop.hankel_output_matrix(kernel, torch.as_tensor(radii, dtype=torch.float64))
-    rows = [prop.radial_propagate(field, kernel, prop.radial_transfer(
-        kernel, torch.tensor([wavelength]), d, 0.3), out)[:, 0] for d in distances]
+    rows = [
+        prop.radial_propagate(field, kernel, prop.radial_transfer(kernel, torch.tensor([wavelength]), d, 0.3), out)[
+            :, 0
+        ]
+        for d in distances
+    ]
     return torch.stack(rows) / power.sqrt()
 
 
@@ -45,8 +49,15 @@ def test_airy_pattern_at_low_na():
     first_zero = rho[near][np.argmin(intensity[near])]
     assert_allclose(first_zero, 1.22 * LAM * F / D, rtol=5e-3)
     # encircled energy 1 − J0²(v) − J1²(v) at the first three rings (trapezoid on 10 nm steps)
-    ee = np.concatenate([[0], np.cumsum(np.diff(rho) * 0.5 * np.diff(2 * np.pi * rho * intensity)
-                                        + np.diff(rho) * (2 * np.pi * rho * intensity)[:-1])])
+    ee = np.concatenate(
+        [
+            [0],
+            np.cumsum(
+                np.diff(rho) * 0.5 * np.diff(2 * np.pi * rho * intensity)
+                + np.diff(rho) * (2 * np.pi * rho * intensity)[:-1]
+            ),
+        ]
+    )
     for zero in (3.8317, 7.0156, 10.1735):
         i = np.searchsorted(v, zero)
         assert_allclose(ee[i], 1 - j0(v[i]) ** 2 - j1(v[i]) ** 2, atol=5e-3)
@@ -60,15 +71,14 @@ def test_airy_peak_pixel():
     x = (np.arange(400) + 0.5) / 400 * pitch - pitch / 2
     v = 2 * math.pi * (D / 2) * np.hypot(x[:, None], x[None, :]) / (LAM * F)
     airy = (2 * j1(v) / v) ** 2 * math.pi * (D / 2) ** 2 / (LAM * F) ** 2
-    assert_allclose(psf[4, 4].item(), airy.mean() * pitch**2, rtol=1e-2)   # O(NA²) as above
+    assert_allclose(psf[4, 4].item(), airy.mean() * pitch**2, rtol=1e-2)  # O(NA²) as above
 
 
 @pytest.mark.parametrize("propagator", ["radial", "asm"])
 @pytest.mark.parametrize("wavelength", [532e-9, 450e-9])
 def test_energy_conservation(propagator, wavelength):
-    lens = L.hyperbolic(532e-9, 200e-6, 100e-6, 395e-9)      # NA 0.24
-    psf = compute_psf(lens, [wavelength], [math.inf, 0.01], 101, 1e-6, propagator=propagator,
-                      dtype=torch.float64).psf
+    lens = L.hyperbolic(532e-9, 200e-6, 100e-6, 395e-9)  # NA 0.24
+    psf = compute_psf(lens, [wavelength], [math.inf, 0.01], 101, 1e-6, propagator=propagator, dtype=torch.float64).psf
     # the 101 µm window holds the focus or the geometric blur (≤ 16 µm); what misses is the
     # edge-diffracted light beyond ±50 µm, measured 0.9 % (bound 1.5 %), and nothing is created.
     total = psf.sum((-2, -1))
@@ -83,14 +93,14 @@ def test_best_focus_moves_as_f_lambda_d_over_lambda():
         d = expected * np.linspace(0.97, 1.03, 121)
         axial = (on_axis_field(lens, wavelength, d, [0.0])[:, 0].abs() ** 2).numpy()
         i = int(np.argmax(axial))
-        c = np.polyfit(d[i - 3:i + 4], axial[i - 3:i + 4], 2)
+        c = np.polyfit(d[i - 3 : i + 4], axial[i - 3 : i + 4], 2)
         best = -c[1] / (2 * c[0])
         # the focal shift of Fresnel number 25 (≈ 12/(π²N²) = 0.2 %) plus residual aberration
         assert_allclose(best, expected, rtol=5e-3)
 
 
 def test_radial_matches_2d_asm_on_small_lens():
-    lens = L.hyperbolic(532e-9, 100e-6, 60e-6, 395e-9)        # NA 0.29, 153² sites
+    lens = L.hyperbolic(532e-9, 100e-6, 60e-6, 395e-9)  # NA 0.29, 153² sites
     kw = dict(pixels=33, pixel_pitch_m=1e-6, dtype=torch.float64)
     for wavelength, depth in [(532e-9, math.inf), (480e-9, 0.002)]:
         radial = compute_psf(lens, [wavelength], [depth], propagator="radial", **kw).psf
@@ -110,7 +120,7 @@ def test_asm_pads_each_wavelength_for_its_own_rays():
     radial = compute_psf(lens, lams, [0.002], propagator="radial", **kw).psf
     asm = compute_psf(lens, lams, [0.002], propagator="asm", **kw).psf
     errors = ((radial - asm).flatten(2).norm(dim=-1) / radial.flatten(2).norm(dim=-1)).flatten()
-    assert (errors < 6e-3).all(), errors     # the staircase pupil edge, as above
+    assert (errors < 6e-3).all(), errors  # the staircase pupil edge, as above
     sizes = [compute_psf(lens, [lam], [0.002], propagator="asm", **kw).grid["fft_size"] for lam in lams]
     assert sizes[0] < sizes[1], sizes
 
@@ -151,7 +161,7 @@ def test_band_limit_removes_aliasing_of_random_phase():
 
 
 def test_sampling_guard_refuses_undersampled_lens():
-    lens = L.hyperbolic(532e-9, 100e-6, 200e-6, 395e-9)       # NA 0.71: 1.33 > 1.27 cycles/µm
+    lens = L.hyperbolic(532e-9, 100e-6, 200e-6, 395e-9)  # NA 0.71: 1.33 > 1.27 cycles/µm
     with pytest.raises(SamplingError, match="expected a pitch ≤"):
         compute_psf(lens, [532e-9], [math.inf], 5, 1e-6)
     with pytest.raises(SamplingError, match="expected a pitch ≤"):  # a source 50 µm away: chirp
@@ -165,8 +175,7 @@ def test_gradients_reach_theta():
 
     def central_power(theta):
         lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
-        psf = compute_psf(lens, [532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6,
-                          dtype=torch.float64).psf
+        psf = compute_psf(lens, [532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6, dtype=torch.float64).psf
         return psf[..., 1, :]
 
     theta = base.theta.clone().requires_grad_(True)
@@ -176,16 +185,16 @@ def test_gradients_reach_theta():
 def test_gradients_reach_theta_2d_asm():
     """Through the checkpointed path: 2 λ × 2 depths, so the backward pass rebuilds each PSF and
     its transfer function (cache of one) in reverse order."""
-    base = L.hyperbolic(532e-9, 20e-6, 4e-6, 0.4e-6, radial=False)    # 11 × 11 sites
+    base = L.hyperbolic(532e-9, 20e-6, 4e-6, 0.4e-6, radial=False)  # 11 × 11 sites
 
     def central_power(theta):
         lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
-        return compute_psf(lens, [532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6, propagator="asm",
-                           dtype=torch.float64).psf
+        return compute_psf(
+            lens, [532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6, propagator="asm", dtype=torch.float64
+        ).psf
 
     theta = base.theta.clone().requires_grad_(True)
-    assert torch.autograd.gradcheck(central_power, (theta,), eps=1e-6, atol=1e-7, rtol=1e-4,
-                                    fast_mode=True)
+    assert torch.autograd.gradcheck(central_power, (theta,), eps=1e-6, atol=1e-7, rtol=1e-4, fast_mode=True)
 
 
 def test_output_rows_grow_by_their_missing_rows_and_match_the_bessel_series():
@@ -195,7 +204,7 @@ def test_output_rows_grow_by_their_missing_rows_and_match_the_bessel_series():
     kernel = prop.hankel_kernel(200, 2e-4, 1e-4, 256)
     step = 3e-7
     few = prop.hankel_output_rows(kernel, step, 40)
-    assert prop.hankel_output_rows(kernel, step, 25).data_ptr() == few.data_ptr()   # a prefix: no new matrix
+    assert prop.hankel_output_rows(kernel, step, 25).data_ptr() == few.data_ptr()  # a prefix: no new matrix
     many = prop.hankel_output_rows(kernel, step, 90)
     assert many.shape == (90, 200) and torch.equal(many[:40], few)
     nu = kernel.nu.numpy()
@@ -216,7 +225,7 @@ def test_transfer_cache_keeps_only_the_most_recent():
     assert len(cache.store) == 2 and [k[0] for k in cache.store] == [600e-9, 700e-9]
 
 
-@pytest.mark.parametrize("block_bytes", [None, 2048])      # 2 kB: a few rows per block
+@pytest.mark.parametrize("block_bytes", [None, 2048])  # 2 kB: a few rows per block
 def test_asm_adjoint_identity(monkeypatch, block_bytes):
     """⟨A x, y⟩ = ⟨x, Aᴴ y⟩ to rounding (float64), whole arrays or row blocks; the gradient of
     a 2-D PSF is this adjoint."""
@@ -228,11 +237,14 @@ def test_asm_adjoint_identity(monkeypatch, block_bytes):
     x = torch.randn(41, 41, dtype=torch.complex128, generator=g)
     y = torch.randn(35, 35, dtype=torch.complex128, generator=g)
     ax = prop.asm_propagate(x, grid, lambda: transfer)
-    lhs, rhs = torch.vdot(ax.flatten(), y.flatten()), torch.vdot(x.flatten(), prop.asm_propagate_adjoint(y, grid, lambda: transfer).flatten())
+    lhs, rhs = (
+        torch.vdot(ax.flatten(), y.flatten()),
+        torch.vdot(x.flatten(), prop.asm_propagate_adjoint(y, grid, lambda: transfer).flatten()),
+    )
     assert abs(lhs - rhs) < 1e-12 * abs(lhs), (lhs, rhs)
     # the forward pass against the plain band-limited ASM on the same padded grid, at the window's
     # points that fall on input samples (odd indices); at 60 µm the band limit is below Nyquist
     padded = torch.zeros(96, 96, dtype=torch.complex128)
     padded[:41, :41] = x
-    plain = prop.asm_propagate_plain(padded, 0.4e-6, 500e-9, 60e-6)[12:29, 12:29]   # axis at 20, ±8 samples
+    plain = prop.asm_propagate_plain(padded, 0.4e-6, 500e-9, 60e-6)[12:29, 12:29]  # axis at 20, ±8 samples
     assert torch.allclose(ax[1::2, 1::2], plain, rtol=0, atol=1e-12)

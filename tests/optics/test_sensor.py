@@ -15,8 +15,10 @@ PITCH = 1.85e-6
 
 def gaussian_pixels(n, sigma):
     """Exact pixel integrals of exp(−ρ²/2σ²) over the N × N window (axis at pixel N//2)."""
+
     def cdf(x):
         return 0.5 * erf(x / (math.sqrt(2) * sigma)) * math.sqrt(2 * math.pi) * sigma
+
     c = S.pixel_centres(n, PITCH)
     px = cdf(c + PITCH / 2) - cdf(c - PITCH / 2)
     return px[:, None] * px[None, :]
@@ -28,7 +30,7 @@ def test_radial_operator_integrates_gaussian(n, sigma):
     step = 0.05e-6
     sensor = S.radial_sensor(step, n, PITCH)
     rho = torch.arange(sensor.n_radii, dtype=torch.float64) * step
-    got = sensor.apply(torch.exp(-rho**2 / (2 * sigma**2))[:, None])[0].numpy()
+    got = sensor.apply(torch.exp(-(rho**2) / (2 * sigma**2))[:, None])[0].numpy()
     want = gaussian_pixels(n, sigma)
     # Catmull-Rom interpolation error ~ (δ/σ)³ ≈ 5e-3 of the curvature term at σ = 0.3 µm,
     # integrated over the core: 2e-4 of the peak pixel (a 2 % error would fail).
@@ -41,16 +43,16 @@ def test_grid_operator_integrates_gaussian():
     mat = S.grid_pixel_matrix(g, n, PITCH)
     got = mat @ np.exp(-(g[:, None] ** 2 + g[None, :] ** 2) / (2 * sigma**2)) @ mat.T
     want = gaussian_pixels(n, sigma)
-    assert_allclose(got, want, rtol=0, atol=1e-4 * want.max())   # cubic error, δ/σ = 1/4
+    assert_allclose(got, want, rtol=0, atol=1e-4 * want.max())  # cubic error, δ/σ = 1/4
 
 
 def test_axis_is_centre_of_pixel_n_half_for_odd_and_even():
     for n in (5, 6):
         sensor = S.radial_sensor(0.1e-6, n, PITCH)
         rho = torch.arange(sensor.n_radii, dtype=torch.float64) * 0.1e-6
-        img = sensor.apply(torch.exp(-rho**2 / (2 * (0.5e-6) ** 2))[:, None])[0]
+        img = sensor.apply(torch.exp(-(rho**2) / (2 * (0.5e-6) ** 2))[:, None])[0]
         assert divmod(int(img.argmax()), n) == (n // 2, n // 2)
-        assert torch.allclose(img, img.T)   # 8-fold symmetry around the axis pixel
+        assert torch.allclose(img, img.T)  # 8-fold symmetry around the axis pixel
         assert torch.allclose(img[n // 2 - 1], img[n // 2 + 1])
 
 

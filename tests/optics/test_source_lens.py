@@ -11,7 +11,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.optics import lens as L
 from metalens_cli.optics.source import source_amplitude, source_phase
 
-R = torch.linspace(0, 1.258e-3, 2001)   # the paper's pupil radius
+R = torch.linspace(0, 1.258e-3, 2001)  # the paper's pupil radius
 
 
 @pytest.mark.parametrize("depth", [20.0, 1000.0])
@@ -47,7 +47,9 @@ def test_plane_wave_and_amplitude():
     assert torch.all(source_phase(R, 500e-9, math.inf) == 0)
     assert torch.all(source_amplitude(R, math.inf) == 1)
     # amplitude z/R: exact closed form at r = z
-    assert_allclose(source_amplitude(torch.tensor([1e-3], dtype=torch.float64), 1e-3).item(), 1 / math.sqrt(2), rtol=1e-12)
+    assert_allclose(
+        source_amplitude(torch.tensor([1e-3], dtype=torch.float64), 1e-3).item(), 1 / math.sqrt(2), rtol=1e-12
+    )
 
 
 def test_hyperbolic_phase_has_no_cancellation():
@@ -55,9 +57,9 @@ def test_hyperbolic_phase_has_no_cancellation():
     f, lam = 4e-3, 532e-9
     # exact value from the identity √(r²+f²) − f = r²/(√(r²+f²)+f) in extended precision
     exact = -(2 * math.pi / lam) * np.array(
-        [float((np.longdouble(x) ** 2 + np.longdouble(f) ** 2) ** np.longdouble(0.5) - np.longdouble(f))
-         for x in r])
-    assert_allclose(L.hyperbolic_phase(r, lam, f), exact, rtol=1e-9)   # long double: ~1e-10 here
+        [float((np.longdouble(x) ** 2 + np.longdouble(f) ** 2) ** np.longdouble(0.5) - np.longdouble(f)) for x in r]
+    )
+    assert_allclose(L.hyperbolic_phase(r, lam, f), exact, rtol=1e-9)  # long double: ~1e-10 here
 
 
 def test_radial_profile_interpolates_linearly_and_is_differentiable():
@@ -65,7 +67,7 @@ def test_radial_profile_interpolates_linearly_and_is_differentiable():
     theta = lens.theta.clone().requires_grad_(True)
     lens = L.Metalens(theta, 1e-6, 3e-6)
     phase = lens.phase_at_radius(torch.tensor([0.5e-6, 1.5e-6], dtype=torch.float64))
-    assert_allclose(phase.detach().numpy(), [1.0, 4.0], rtol=1e-12)   # φ = 2θ, linear
+    assert_allclose(phase.detach().numpy(), [1.0, 4.0], rtol=1e-12)  # φ = 2θ, linear
     phase.sum().backward()
     assert_allclose(theta.grad.numpy(), [1.0, 2.0, 1.0], rtol=1e-12)
 
@@ -81,8 +83,9 @@ def test_grid_has_axis_on_centre_site():
     assert_allclose(radial.grid_phase()[0].numpy()[pupil], phase.numpy()[pupil], rtol=0, atol=2e-3)
 
 
-@pytest.mark.parametrize("theta", [np.zeros(5), np.zeros((7, 8)), np.zeros((5, 5)),
-                                   np.zeros((2, 2, 2)), np.array([0.0, np.nan] * 10)])
+@pytest.mark.parametrize(
+    "theta", [np.zeros(5), np.zeros((7, 8)), np.zeros((5, 5)), np.zeros((2, 2, 2)), np.array([0.0, np.nan] * 10)]
+)
 def test_from_array_rejects_bad_shapes(theta):
     with pytest.raises(InputError):
         L.from_array(theta, pitch_m=1e-6, aperture_m=10e-6)

@@ -44,7 +44,9 @@ def half_maximum_crossings(grid, values):
     above = values >= values.max() / 2
     edges = np.flatnonzero(np.diff(above.astype(int)))
     half = values.max() / 2
-    return np.array([grid[i] + (half - values[i]) / (values[i + 1] - values[i]) * (grid[i + 1] - grid[i]) for i in edges])
+    return np.array(
+        [grid[i] + (half - values[i]) / (values[i + 1] - values[i]) * (grid[i + 1] - grid[i]) for i in edges]
+    )
 
 
 # ---------------------------------------------------------------------------- import hygiene
@@ -63,7 +65,9 @@ def test_module_imports_neither_torch_nor_colour():
 @pytest.mark.parametrize("peak", [1.0, 0.9])
 def test_filter_band_has_the_requested_fwhm_and_peak(edge_nm, peak):
     grid = np.arange(420, 680, 0.001) * NM
-    transmission = spectra.bandpass_transmission(grid, PAPER_CENTRES, PAPER_WIDTHS, edge_width_m=edge_nm * NM, peak=peak)
+    transmission = spectra.bandpass_transmission(
+        grid, PAPER_CENTRES, PAPER_WIDTHS, edge_width_m=edge_nm * NM, peak=peak
+    )
     for centre, width in zip(PAPER_CENTRES, PAPER_WIDTHS):
         band = np.abs(grid - centre) < width
         low, high = half_maximum_crossings(grid[band], transmission[band])
@@ -71,7 +75,11 @@ def test_filter_band_has_the_requested_fwhm_and_peak(edge_nm, peak):
         # the crossing is off by far less than 1e-3 nm; the model makes it exact in theory.
         assert_allclose([low, high], [centre - width / 2, centre + width / 2], atol=1e-3 * NM)
         # T(centre) = peak by construction; the other bands' tails add < e^-20 there.
-        assert_allclose(spectra.bandpass_transmission(centre, PAPER_CENTRES, PAPER_WIDTHS, edge_width_m=edge_nm * NM, peak=peak), peak, rtol=1e-9)
+        assert_allclose(
+            spectra.bandpass_transmission(centre, PAPER_CENTRES, PAPER_WIDTHS, edge_width_m=edge_nm * NM, peak=peak),
+            peak,
+            rtol=1e-9,
+        )
 
 
 def test_filter_edge_width_is_the_10_to_90_percent_rise():
@@ -159,6 +167,7 @@ def test_quadrature_reports_the_covered_fraction():
     sensitivity, centres, sigmas = gaussian_sensitivity()
     nodes = np.arange(430, 621, 5) * NM  # ends at R's centre: half of R, nearly all of G and B
     quadrature = spectra.quadrature_weights(sensitivity, nodes)
+
     def mass(a, b):
         return 0.5 * (erf((b - centres) / (sigmas * math.sqrt(2))) - erf((a - centres) / (sigmas * math.sqrt(2))))
 
@@ -254,7 +263,7 @@ def test_midpoint_quadrature_is_fixed_and_lies_at_the_strata_centres():
     u = (np.arange(4) + 0.5) / 4
     for c in range(3):
         exact = centres[c] + sigmas[c] * math.sqrt(2) * erfinv(2 * u - 1)
-        np.testing.assert_allclose(a.wavelengths_m[4 * c:4 * c + 4], exact, rtol=0, atol=1e-3 * NM)
+        np.testing.assert_allclose(a.wavelengths_m[4 * c : 4 * c + 4], exact, rtol=0, atol=1e-3 * NM)
 
 
 # ---------------------------------------------------------------------------- the filter in torch
@@ -276,7 +285,7 @@ def test_torch_filter_meets_its_definition(edge_nm):
     for c, w in zip((457.0, 530.0, 628.0), (22.0, 20.0, 28.0)):
         at = torch.tensor([c, c - w / 2, c + w / 2], dtype=torch.float64) * NM
         assert_allclose(transmission(at).detach().numpy(), [0.9, 0.45, 0.45], rtol=1e-9)
-    grid = torch.linspace(600, 628, 280001, dtype=torch.float64) * NM   # R's rising edge, 0.1 pm steps
+    grid = torch.linspace(600, 628, 280001, dtype=torch.float64) * NM  # R's rising edge, 0.1 pm steps
     t = transmission(grid).detach().numpy() / 0.9
     rise = grid.numpy()[np.searchsorted(t, 0.9)] - grid.numpy()[np.searchsorted(t, 0.1)]
     assert rise == pytest.approx(edge_nm * NM, abs=2e-13 + 0.01 * edge_nm * NM if edge_nm > 5 else 2e-13)
