@@ -72,7 +72,9 @@ def _design_and_geometry(aperture: str):
     from metalens_cli.io.layout import FinGeometry
     from metalens_cli.io.units import parse_length
 
-    design = resolve_design("hyperbolic:532nm", None, 4e-3, parse_length(aperture, "aperture"), 395e-9)
+    design = resolve_design(
+        "hyperbolic:532nm", None, f_m=4e-3, aperture_m=parse_length(aperture, "aperture"), pitch_m=395e-9
+    )
     return design, FinGeometry(395e-9, 305e-9, 125e-9)
 
 

@@ -55,10 +55,10 @@ def main() -> None:
     cube = PsfCube(psf, None, WAVELENGTHS, DEPTHS, {"pixel_pitch_m": PITCH, "na": 0.3})
     grid = radial_grid(N, PITCH)
     cases = {
-        "`cube_mtf` (all: grid, 88 MTFs, MTF50, diffraction references)": lambda: cube_mtf(cube, [50.0, 100.0]),
+        "`cube_mtf` (all: grid, 88 MTFs, MTF50, diffraction references)": lambda: cube_mtf(cube, at_lpmm=[50.0, 100.0]),
         "`radial_grid(512)` (ring operator)": lambda: radial_grid(N, PITCH),
         "`psf_mtf` (one batched rfft2 + sparse ring average)": lambda: psf_mtf(psf, grid),
-        "`psf_mtf(remove_pixel_mtf=True)`": lambda: psf_mtf(psf, grid, True),
+        "`psf_mtf(remove_pixel_mtf=True)`": lambda: psf_mtf(psf, grid, remove_pixel_mtf=True),
         "`diffraction_limited_mtf` (44 wavelengths)": lambda: diffraction_limited_mtf(grid, 0.3, WAVELENGTHS),
     }
     with tempfile.TemporaryDirectory() as folder:

@@ -204,7 +204,7 @@ def core_energy(spec: str, preset_path: Path) -> dict:
         [math.inf, NEAR_M],
         5,
         preset.sensor.pixel_pitch_m,
-        design.focal_length_m,
+        distance_m=design.focal_length_m,
         dtype=torch.float64,
     ).psf
     far, near = psf[0].sum(dim=(-2, -1)).numpy(), psf[1].sum(dim=(-2, -1)).numpy()
@@ -362,7 +362,7 @@ def band_energy(run: str) -> dict:
                 [math.inf, NEAR_M],
                 5,
                 design.preset.sensor.pixel_pitch_m,
-                design.focal_length_m,
+                distance_m=design.focal_length_m,
                 dtype=torch.float64,
             )
             .psf.sum(dim=(-2, -1))

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from metalens_cli.analysis.symmetry import shift_factor
+from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io.tables import TRANSMISSION_TABLE, as_fractions, read_table_csv
 
@@ -260,7 +261,8 @@ def check_bands(
     bands: tuple[Band, ...],
     f_m: float,
     z_near_m: tuple[float, float],
-    sensor_range_m: tuple[float, float] = (400e-9, 700e-9),
+    *,
+    sensor_range_m: tuple[float, float] = SENSOR_RANGE_M,
     incidence: float = 1.0,
 ) -> BandsReport:
     """Evaluate the split-spectrum conditions for ``bands`` at focal length ``f_m``.

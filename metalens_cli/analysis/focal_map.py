@@ -67,6 +67,7 @@ def on_axis_intensity(
     lambda_d_m: float,
     f_m: float,
     aperture_m: float,
+    *,
     distance_m: float | None = None,
     samples: int | None = None,
     chunk: int = 1 << 22,

@@ -128,7 +128,7 @@ def radial_grid(n: int, pixel_pitch_m: float) -> RadialGrid:
     return RadialGrid(n, float(pixel_pitch_m), (interpolation @ binning).tocsr(), radius / pixel_pitch_m, pixel)
 
 
-def psf_mtf(psf: np.ndarray, grid: RadialGrid, remove_pixel_mtf: bool = False, field: str = "psf") -> np.ndarray:
+def psf_mtf(psf: np.ndarray, grid: RadialGrid, *, remove_pixel_mtf: bool = False, field: str = "psf") -> np.ndarray:
     """Radially averaged MTF (..., K) of PSFs (..., N, N) on ``grid``'s rings (1 at k = 0).
 
     One batched real FFT over all PSFs; each OTF is normalised by its zero-frequency value
@@ -169,7 +169,7 @@ def diffraction_mtf(frequency_per_m: np.ndarray, na: float, wavelength_m: np.nda
 
 
 def diffraction_limited_mtf(
-    grid: RadialGrid, na: float, wavelengths_m: np.ndarray, include_pixel: bool = True
+    grid: RadialGrid, na: float, wavelengths_m: np.ndarray, *, include_pixel: bool = True
 ) -> np.ndarray:
     """(W, K) ring averages of the diffraction MTF at NA and each wavelength, on ``grid``.
 
@@ -189,7 +189,7 @@ def diffraction_limited_mtf(
     return np.asarray((per_radius @ values.T).T)
 
 
-def mtf50(frequencies: np.ndarray, mtf: np.ndarray, level: float = MTF50_LEVEL) -> np.ndarray:
+def mtf50(frequencies: np.ndarray, mtf: np.ndarray, *, level: float = MTF50_LEVEL) -> np.ndarray:
     """(...,) frequency where each curve (..., K) first drops below ``level``, linearly
     interpolated between the samples on each side; NaN where it never does."""
     mtf = np.asarray(mtf, dtype=float)
@@ -288,7 +288,7 @@ def _record(depth: float, key: str, value, mtf: np.ndarray, mtf50_value: float, 
     return record
 
 
-def cube_mtf(cube, at_lpmm=(), na: float | None = None, remove_pixel_mtf: bool = False) -> CubeMtf:
+def cube_mtf(cube, *, at_lpmm=(), na: float | None = None, remove_pixel_mtf: bool = False) -> CubeMtf:
     """MTFs of every (depth, wavelength) PSF and every R, G, B channel PSF of a ``PsfCube``.
 
     ``na`` overrides the cube's ``na`` metadata; with neither, no diffraction reference.
@@ -297,10 +297,18 @@ def cube_mtf(cube, at_lpmm=(), na: float | None = None, remove_pixel_mtf: bool =
     grid = radial_grid(cube.psf.shape[-1], cube.pixel_pitch_m)
     freqs = grid.frequencies_lpmm
     at = np.asarray(at_lpmm, dtype=float)
-    mtf = psf_mtf(cube.psf, grid, remove_pixel_mtf, "psf (depth index, wavelength index)")
-    rgb = None if cube.rgb is None else psf_mtf(cube.rgb, grid, remove_pixel_mtf, "rgb (depth index, channel index)")
+    mtf = psf_mtf(cube.psf, grid, remove_pixel_mtf=remove_pixel_mtf, field="psf (depth index, wavelength index)")
+    rgb = (
+        None
+        if cube.rgb is None
+        else psf_mtf(cube.rgb, grid, remove_pixel_mtf=remove_pixel_mtf, field="rgb (depth index, channel index)")
+    )
     na = _numerical_aperture(cube.metadata.get("na") if na is None else na)
-    diffraction = None if na is None else diffraction_limited_mtf(grid, na, cube.wavelengths_m, not remove_pixel_mtf)
+    diffraction = (
+        None
+        if na is None
+        else diffraction_limited_mtf(grid, na, cube.wavelengths_m, include_pixel=not remove_pixel_mtf)
+    )
     return CubeMtf(
         frequencies_lpmm=freqs,
         nyquist_lpmm=grid.nyquist_lpmm,

@@ -46,6 +46,7 @@ from metalens_cli.analysis.psf_metrics import fwhm_pixels
 from metalens_cli.analysis.subpixel import fourier_shift, parabola_vertex
 from metalens_cli.errors import InputError
 from metalens_cli.io.units import format_length
+from metalens_cli.optics.window import crop_window
 
 WAVELENGTH_TOLERANCE_M = 1e-12
 DEPTH_TOLERANCE = 1e-6
@@ -83,8 +84,8 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
     n = min(measured.psf.shape[-1], sim_psf.shape[-1])
     if n < MIN_COMMON_PIXELS:
         raise InputError(*_small_window(measured, simulated, n, sim_psf.shape[-1]))
-    meas_psf = _crop(measured.psf, n)
-    sim_psf = _crop(sim_psf, n)
+    meas_psf = crop_window(measured.psf, n)
+    sim_psf = crop_window(sim_psf, n)
     kept = _light_kept(measured.psf, meas_psf)
     warnings += _light_warning("measured", measured, np.where(kept < LIGHT_REQUIRED, 1.0, kept), n)
     warnings += _light_warning("simulated", simulated, _light_kept(simulated.psf, sim_psf), n)
@@ -297,12 +298,6 @@ def _on_pitch(psf: np.ndarray, pitch_m: float, target_m: float, target_n: int) -
         c = map_coordinates(integral, [yy, xx], order=3, mode="nearest")
         out.append(c[1:, 1:] - c[:-1, 1:] - c[1:, :-1] + c[:-1, :-1])
     return np.stack(out).reshape(*psf.shape[:-2], 2 * half + 1, 2 * half + 1), True
-
-
-def _crop(psf: np.ndarray, n: int) -> np.ndarray:
-    """The central n × n window (axis at N//2 stays at n//2)."""
-    start = psf.shape[-1] // 2 - n // 2
-    return psf[..., start : start + n, start : start + n]
 
 
 def _compare_pair(

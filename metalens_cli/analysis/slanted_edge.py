@@ -40,7 +40,7 @@ import numpy as np
 
 from metalens_cli.analysis.mtf import PER_MM, mtf50
 from metalens_cli.errors import InputError
-from metalens_cli.io.image_files import read_image_file
+from metalens_cli.io.image_files import read_image_file, srgb_to_linear
 
 OVERSAMPLING = 4  # ESF bins per pixel
 ANGLE_MARGIN_DEG = 1.0  # refuse edges this near 0° (or 90°) and 45°
@@ -98,16 +98,11 @@ def read_edge_image(path: str | Path, srgb: bool = False) -> tuple[np.ndarray, l
     if names[-1] == "A":
         pixels, names = pixels[:, :, :3], names[:3]
     image = pixels.astype(float)
-    return (_srgb_to_linear(image) if srgb else image), names
-
-
-def _srgb_to_linear(value: np.ndarray) -> np.ndarray:
-    """The sRGB decoding (IEC 61966-2-1) of values in 0..1."""
-    return np.where(value <= 0.04045, value / 12.92, ((value + 0.055) / 1.055) ** 2.4)
+    return (srgb_to_linear(image, dtype=np.float64) if srgb else image), names
 
 
 def slanted_edge_sfr(
-    image: np.ndarray, channel_names: list[str], roi: tuple[int, int, int, int] | None = None
+    image: np.ndarray, channel_names: list[str], *, roi: tuple[int, int, int, int] | None = None
 ) -> EdgeAnalysis:
     """The SFR of each channel of ``image`` (H, W, C) (or (H, W)) over ``roi`` = (x, y, w, h).
 

@@ -19,10 +19,10 @@ from metalens_cli.cli.options import (
     json_option,
     overwrite_option,
 )
+from metalens_cli.constants import REFINEMENTS
 from metalens_cli.errors import InputError
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
-REFINES = ("flow", "tps", "none")  # imaging.registration's (not imported here: it loads OpenCV)
 OUTPUT_SUFFIXES = (".png", ".tif", ".tiff", ".exr")
 WARP_SUFFIX = ".warp.npz"
 
@@ -51,7 +51,7 @@ class FileOrFolder(OutputFile):
 )
 @click.option(
     "--refine",
-    type=click.Choice(REFINES),
+    type=click.Choice(REFINEMENTS),
     default="flow",
     show_default=True,
     help="After the homography: flow (dense optical flow), tps (thin-plate spline through the matches) or none.",

@@ -20,6 +20,7 @@ from metalens_cli.cli.options import (
     plot_option,
     preset_option,
 )
+from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io.units import INTERVAL_FORM, LENGTH_FORM, format_length
 
@@ -198,8 +199,10 @@ def check(
     filter_bands = _filter_bands(preset, band_specs, filter_csv, threshold)
     f_m = pick(f_m, preset, lambda p: p.lens.focal_length_m, "--f", LENGTH_FORM)
     z_near = pick(z_near, preset, lambda p: p.scene.z_near_m, "--z-near", INTERVAL_FORM)
-    sensor_range = sensor_range or (preset.sensor.wavelength_range_m if preset else (400e-9, 700e-9))
-    report = model.check_bands(filter_bands, f_m, z_near, sensor_range, _incidence(preset, max_incidence, n_eff))
+    sensor_range = sensor_range or (preset.sensor.wavelength_range_m if preset else SENSOR_RANGE_M)
+    report = model.check_bands(
+        filter_bands, f_m, z_near, sensor_range_m=sensor_range, incidence=_incidence(preset, max_incidence, n_eff)
+    )
     efficiency = None
     if preset is not None:
         from metalens_cli.cli.progress import efficiency_used

@@ -18,13 +18,13 @@ from metalens_cli.cli.options import (
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
 from metalens_cli.cli.simulate import capture_options, setup
+from metalens_cli.constants import REFINEMENTS
 
 MATCH_METHODS = (
     "lstsq",
     "luminance",
 )  # imaging.metrics.MATCH_METHODS, the first the default (not imported: it pulls in torch)
 ALIGN_MODES = ("unobstructed", "each", "none")  # imaging.captured_pairs.ALIGN_MODES
-REFINEMENTS = ("flow", "tps", "none")  # imaging.registration.REFINEMENTS
 LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 
 
@@ -229,7 +229,7 @@ def evaluate(
             s["pixel_pitch_m"],
             s["pixels"],
             count,
-            psf_pixels,
+            window=psf_pixels,
         )
         for design in s["designs"]
     ]

@@ -108,7 +108,7 @@ def export_gds(
     from metalens_cli.io.resources import Estimate
 
     preset = load_preset_option(preset_path)
-    design = resolve_design(spec, preset, f_m, aperture_m, pitch_m)
+    design = resolve_design(spec, preset, f_m=f_m, aperture_m=aperture_m, pitch_m=pitch_m)
     in_force = design.preset
     geometry = FinGeometry(
         pitch_m=design.lens.pitch_m,
@@ -124,7 +124,7 @@ def export_gds(
     if verify:
         require_klayout()
     with progress_bar("export-gds", quiet) as update:
-        report = export_layout(design, geometry, output, fmt, angles, update)
+        report = export_layout(design, geometry, output, fmt=fmt, angles=angles, progress=update)
     checked = None
     if verify:
         from metalens_cli.io.layout_verify import verify_layout

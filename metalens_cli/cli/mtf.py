@@ -115,7 +115,7 @@ def _cube(path, at_lpmm, na, remove_pixel_mtf, csv_path, as_json, plot_path) -> 
     from metalens_cli.analysis.mtf import cube_mtf
     from metalens_cli.io.exr import read_psf_cube
 
-    result = cube_mtf(read_psf_cube(path), at_lpmm, na, remove_pixel_mtf)
+    result = cube_mtf(read_psf_cube(path), at_lpmm=at_lpmm, na=na, remove_pixel_mtf=remove_pixel_mtf)
     curves = result.curves()
     if csv_path:
         rows = [
@@ -193,7 +193,7 @@ def _edge(path, roi, pixel_pitch_m, srgb, csv_path, as_json, plot_path) -> None:
     from metalens_cli.analysis.slanted_edge import read_edge_image, slanted_edge_sfr
 
     image, names = read_edge_image(path, srgb)
-    analysis = slanted_edge_sfr(image, names, roi)
+    analysis = slanted_edge_sfr(image, names, roi=roi)
     entries = [_edge_entry(sfr, pixel_pitch_m) for sfr in analysis.channels]
     if csv_path:
         lpmm = ["frequency_lpmm"] if pixel_pitch_m else []

@@ -24,12 +24,12 @@ from metalens_cli.cli.options import (
     torch_device,
 )
 from metalens_cli.cli.progress import progress_bar
+from metalens_cli.constants import PAPER_BANDS_M, PAPER_FIN_HEIGHT_M, PAPER_PITCH_M
 from metalens_cli.errors import InputError
 from metalens_cli.optics.nanofin import FIRST_HARMONICS
 
 MAX_HARMONICS = 41
 LEAST_MAX_HARMONICS = FIRST_HARMONICS + 4
-PAPER_BANDS = ((457e-9, 22e-9), (530e-9, 20e-9), (628e-9, 28e-9))  # the tri-band filter (presets/split-spectrum.toml)
 MAX_FINS = 10_000
 TYPICAL_HARMONICS = 25  # what auto picks for the paper's fin (docs/benchmarks.md)
 SOLVERS = {
@@ -190,12 +190,12 @@ def efficiency(
                 n_fin,
                 n_sub,
                 wavelengths_m,
-                FIRST_HARMONICS,
-                max_harmonics,
-                tolerance,
-                torch_device(device),
-                solver,
-                update,
+                start=FIRST_HARMONICS,
+                stop=max_harmonics,
+                tolerance=tolerance,
+                device=torch_device(device),
+                solver=solver,
+                on_progress=update,
             )
             if chosen is None:
                 chosen = table[-1]["harmonics"]
@@ -204,7 +204,9 @@ def efficiency(
                     f"--tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)"
                 )
         else:
-            r = fin_response(fin, n_fin, n_sub, wavelengths_m, chosen, update, torch_device(device), solver)
+            r = fin_response(
+                fin, n_fin, n_sub, wavelengths_m, chosen, on_progress=update, device=torch_device(device), solver=solver
+            )
     if plot_path:
         from metalens_cli.plotting.nanofin import plot_efficiency
 
@@ -368,8 +370,8 @@ def sweep(
     check_output_unused(output, overwrite)
     preset = load_preset_option(preset_path)
     fin0 = preset.nanofin if preset is not None else None
-    period_m = period_m if period_m is not None else (fin0.pitch_m if fin0 else 395e-9)
-    height_m = height_m if height_m is not None else (fin0.height_m if fin0 else 700e-9)
+    period_m = period_m if period_m is not None else (fin0.pitch_m if fin0 else PAPER_PITCH_M)
+    height_m = height_m if height_m is not None else (fin0.height_m if fin0 else PAPER_FIN_HEIGHT_M)
     material, substrate = (
         material or (fin0.material if fin0 else "sinx"),
         substrate or (fin0.substrate if fin0 else "fused-silica"),
@@ -383,7 +385,7 @@ def sweep(
     if len(widths_m) * len(lengths_m) > MAX_FINS:
         raise InputError("--width", f"{len(widths_m)} × {len(lengths_m)} fins", f"at most {MAX_FINS} fins")
     _check_bands(bands)
-    bands_m = list(bands) or preset_bands or list(PAPER_BANDS)
+    bands_m = list(bands) or preset_bands or list(PAPER_BANDS_M)
     waves = band_wavelengths(bands_m, samples_per_band).ravel()
     fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
 
@@ -421,12 +423,12 @@ def sweep(
         n_fin,
         n_sub,
         harmonics,
-        samples_per_band,
-        tolerance_m,
-        keep,
-        max_harmonics,
-        torch_device(device),
-        lambda stage: progress_bar(stage, quiet),
+        samples_per_band=samples_per_band,
+        tolerance_m=tolerance_m,
+        keep=keep,
+        max_harmonics=max_harmonics,
+        device=torch_device(device),
+        progress=lambda stage: progress_bar(stage, quiet),
     )
     m, choice, warnings = result.map, result.choice, result.warnings
     render.say(warnings)

@@ -15,9 +15,10 @@ from metalens_cli.cli.options import (
     load_preset_option,
     preset_option,
 )
+from metalens_cli.constants import OBSTRUCTION_KINDS, PAPER_FOCAL_LENGTH_M
 from metalens_cli.errors import InputError
 
-DEFAULT_KINDS = "dirt,fence,drops,rain"
+DEFAULT_KINDS = ",".join(OBSTRUCTION_KINDS)
 
 
 MAX_ROWS = 16  # depths on one preview sheet
@@ -60,7 +61,7 @@ def preview(preset_path, kinds, depths, f_m, pixels, pixel_pitch_m, seed, output
     from metalens_cli.plotting.imaging import obstruction_sheet
 
     preset = load_preset_option(preset_path)
-    f_m = f_m or (preset.lens.focal_length_m if preset else 4e-3)
+    f_m = f_m or (preset.lens.focal_length_m if preset else PAPER_FOCAL_LENGTH_M)
     pixels = pixels or (preset.sensor.pixels if preset else 512)
     pixel_pitch_m = pixel_pitch_m or (preset.sensor.pixel_pitch_m if preset else 1.85e-6)
     depths_m = flatten(depths) or (sorted(set(preset.scene.z_near_m)) if preset else [0.045])
@@ -73,7 +74,7 @@ def preview(preset_path, kinds, depths, f_m, pixels, pixel_pitch_m, seed, output
     rows = []
     for depth in depths_m:
         made = [
-            make_obstruction(kind, (pixels, pixels), depth, f_m, pixel_pitch_m, seed, params, clean=clean)
+            make_obstruction(kind, (pixels, pixels), depth, f_m, pixel_pitch_m, seed, params=params, clean=clean)
             for kind in parse_obstructions(kinds)
         ]
         rows.append((format_length(depth), made))

@@ -102,7 +102,7 @@ def psf_scan(
     from metalens_cli.optics.psf import estimate_psf
 
     preset = load_preset_option(preset_path)
-    design = resolve_design(spec, preset, f_m, aperture_m, pitch_m)
+    design = resolve_design(spec, preset, f_m=f_m, aperture_m=aperture_m, pitch_m=pitch_m)
     sensor = design.preset.sensor if design.preset is not None else None
     pixels = pixels or (sensor.pixels if sensor else DEFAULT_PIXELS)
     pixel_pitch_m = pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M)
@@ -122,10 +122,10 @@ def psf_scan(
         depths_m,
         pixels,
         pixel_pitch_m,
-        design.focal_length_m,
-        propagator,
-        getattr(torch, dtype),
-        force,
+        distance_m=design.focal_length_m,
+        propagator=propagator,
+        dtype=getattr(torch, dtype),
+        force=force,
     )
     announce(
         Estimate(
@@ -146,12 +146,12 @@ def psf_scan(
             depths_m,
             pixels,
             pixel_pitch_m,
-            propagator,
-            getattr(torch, dtype),
-            torch_device(device),
-            force,
-            check_accuracy,
-            update,
+            propagator=propagator,
+            dtype=getattr(torch, dtype),
+            device=torch_device(device),
+            force=force,
+            check_accuracy=check_accuracy,
+            progress=update,
         )
     lens = design.lens
     half = lens.aperture_m / 2

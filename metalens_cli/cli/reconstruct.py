@@ -220,10 +220,10 @@ def apply(run, inputs, output, overwrite, device, memory_mib, quiet, as_json):
     """
 
     from metalens_cli.cli.progress import progress_bar
-    from metalens_cli.imaging.images import linear_to_srgb, read_linear
+    from metalens_cli.imaging.images import read_linear
     from metalens_cli.imaging.restore import load_reconstructor
     from metalens_cli.io.atomic import atomic_folder
-    from metalens_cli.io.image_files import write_exr_rgb, write_png
+    from metalens_cli.io.image_files import linear_to_srgb, write_exr_rgb, write_png
     from metalens_cli.io.input_files import check_image_size
 
     files = _inputs(inputs)

@@ -124,7 +124,7 @@ def setup(
 
     preset = load_preset_option(preset_path)
     try:
-        designs = [resolve_design(spec, preset, f_m, aperture_m, pitch_m) for spec in spec_list]
+        designs = [resolve_design(spec, preset, f_m=f_m, aperture_m=aperture_m, pitch_m=pitch_m) for spec in spec_list]
     except InputError as exc:
         if exc.field != "--design":
             raise
@@ -210,7 +210,7 @@ def simulate(
         s["pixel_pitch_m"],
         s["pixels"],
         image_count(images, limit),
-        psf_pixels,
+        window=psf_pixels,
     )
     announce(
         Estimate(
@@ -333,8 +333,7 @@ def write_captures(out: Path, captures) -> list[str]:
     Returns the file names written in ``out``."""
     import numpy as np
 
-    from metalens_cli.imaging.images import linear_to_srgb
-    from metalens_cli.io.image_files import write_exr_rgb, write_png
+    from metalens_cli.io.image_files import linear_to_srgb, write_exr_rgb, write_png
 
     files = []
     for c in captures:

@@ -265,7 +265,11 @@ def check_filter(config, preset, incidence: float | None = None) -> BandsReport:
     incidence = preset_incidence_factor(dataclasses.replace(preset, filter=config)) if incidence is None else incidence
     bands = bands_from_centers(list(config.centers_m), list(config.widths_m), field="filter.centers")
     return check_bands(
-        bands, preset.lens.focal_length_m, preset.scene.z_near_m, preset.sensor.wavelength_range_m, incidence
+        bands,
+        preset.lens.focal_length_m,
+        preset.scene.z_near_m,
+        sensor_range_m=preset.sensor.wavelength_range_m,
+        incidence=incidence,
     )
 
 

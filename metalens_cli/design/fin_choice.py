@@ -69,6 +69,7 @@ def fin_map(
     fin_index: Callable,
     substrate_index: Callable,
     harmonics: int,
+    *,
     on_progress: Callable[[int, int], None] | None = None,
     samples_per_band: int = BAND_SAMPLES,
     device=None,
@@ -123,6 +124,7 @@ def refine(
     fin_index: Callable,
     substrate_index: Callable,
     harmonics: int,
+    *,
     device=None,
 ) -> dict:
     """The recommended fin (``choice`` from :func:`recommend`) and every grid fin of its
@@ -208,6 +210,7 @@ def sweep_fins(
     fin_index: Callable,
     substrate_index: Callable,
     harmonics: int,
+    *,
     samples_per_band: int = BAND_SAMPLES,
     tolerance_m: float = 10e-9,
     keep: float = 0.95,
@@ -248,9 +251,9 @@ def sweep_fins(
                 fin_index,
                 substrate_index,
                 harmonics,
-                update,
-                samples_per_band,
-                device,
+                on_progress=update,
+                samples_per_band=samples_per_band,
+                device=device,
             )
         return {"eta": m.eta, "seconds": np.array(m.seconds)}
 
@@ -276,10 +279,10 @@ def sweep_fins(
                 fin_index(flat),
                 substrate_index(flat),
                 flat,
-                FIRST_HARMONICS,
-                max_harmonics,
-                1e-3,
-                device,
+                start=FIRST_HARMONICS,
+                stop=max_harmonics,
+                tolerance=1e-3,
+                device=device,
                 on_progress=update,
             )
         converged = {
@@ -288,7 +291,7 @@ def sweep_fins(
             "converged": chosen is not None,
         }
         converged.update(
-            refine(m, choice, period_m, height_m, fin_index, substrate_index, converged["harmonics"], device)
+            refine(m, choice, period_m, height_m, fin_index, substrate_index, converged["harmonics"], device=device)
         )
         return {"report": np.array(json.dumps(converged))}
 

@@ -124,6 +124,7 @@ def initial_parameterization(
     focal_length_m: float,
     aperture_m: float,
     pitch_m: float,
+    *,
     design_grid: int = 0,
     seed: int = 0,
     basis: str = "samples",

@@ -164,7 +164,7 @@ def simulate_pool(
             design.focal_length_m,
             camera.pixel_pitch_m,
             [seed, generation, index, 31],
-            camera.obstruction_params,
+            params=camera.obstruction_params,
             clean=clean,
             margin=margin,
         )
@@ -177,8 +177,12 @@ def simulate_pool(
             obstructed, unobstructed = capture.obstructed, capture.unobstructed
             if data.photons or data.read_noise:
                 noise_seed = int(rng.integers(2**62))
-                obstructed = add_noise(obstructed, data.photons or None, data.read_noise, noise_seed)
-                unobstructed = add_noise(unobstructed, data.photons or None, data.read_noise, noise_seed + 1)
+                obstructed = add_noise(
+                    obstructed, data.photons or None, read_noise=data.read_noise, generator=noise_seed
+                )
+                unobstructed = add_noise(
+                    unobstructed, data.photons or None, read_noise=data.read_noise, generator=noise_seed + 1
+                )
         return (
             clean[:, margin : margin + s, margin : margin + s],
             obstructed.cpu().numpy(),
@@ -283,7 +287,7 @@ def batch(
         window = (slice(None), slice(top, top + crop), slice(left, left + crop))
         x = torch.from_numpy(np.ascontiguousarray(source[p][window]))
         y = torch.from_numpy(np.ascontiguousarray(pool.clean[p][window]))
-        u = pixel_positions(crop, crop, top, left, (s, s), position_scale)
+        u = pixel_positions(crop, crop, top=top, left=left, full=(s, s), scale=position_scale)
         turns, flip = int(rng.integers(4)), bool(rng.integers(2))
         x, y, u = (_orient(t, turns, flip) for t in (x, y, u))  # each pixel keeps its sensor position
         gain = 1 + rng.uniform(-data.brightness, data.brightness)

@@ -405,9 +405,8 @@ def _lpips(t, directory) -> tuple[object, list[str]]:
 def _validate(net, data: _Data, step: int, run: RunDirectory, ctx) -> dict:
     """Mean PSNR/SSIM (photometric match, sRGB) of raw and reconstructed validation captures,
     obstructed and clear; a preview image of the first pairs."""
-    from metalens_cli.imaging.images import linear_to_srgb
     from metalens_cli.imaging.pipeline import score
-    from metalens_cli.io.image_files import write_png
+    from metalens_cli.io.image_files import linear_to_srgb, write_png
 
     recon = Reconstructor(
         copy.deepcopy(net).eval(), device=ctx.device

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from metalens_cli.imaging.dead_leaves import srgb_decode
 from metalens_cli.imaging.noise import fractal_noise
+from metalens_cli.io.image_files import srgb_to_linear
 
 SHAPES_PER_256_SQUARE = 250  # shapes per 256² pixels (density, not count: scenes are alike at every size)
 RADIUS_PX = (2.0, 0.4)  # shape radii: 2 px to 0.4 × the field's longer side
@@ -98,7 +98,7 @@ def _colour(rng: np.random.Generator) -> np.ndarray:
     """A linear RGB colour: hue uniform, HSV saturation Beta(2, 1.5) × 0.95, value Beta(2, 2), sRGB-decoded."""
     import colorsys
 
-    return srgb_decode(np.array(colorsys.hsv_to_rgb(rng.uniform(), 0.95 * rng.beta(2.0, 1.5), rng.beta(2.0, 2.0))))
+    return srgb_to_linear(np.array(colorsys.hsv_to_rgb(rng.uniform(), 0.95 * rng.beta(2.0, 1.5), rng.beta(2.0, 2.0))))
 
 
 def random_crop(image: np.ndarray, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:

@@ -51,7 +51,6 @@ from metalens_cli.errors import InputError, MetalensError, SamplingError, Termin
 from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
-from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
 from metalens_cli.io.presets import WAVELENGTH_MODES, to_toml
 from metalens_cli.optics.blur import psf_window
@@ -59,6 +58,7 @@ from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, c
 from metalens_cli.optics.sampling import check_lens_sampling
 from metalens_cli.optics.sensor import larger_window
 from metalens_cli.optics.spectra import sample_wavelengths
+from metalens_cli.optics.window import crop_window
 
 DEFAULT_LAMBDA_D_M = 532e-9
 PLAN_HEADROOM = 1.25
@@ -139,9 +139,9 @@ def build_model(preset):
         preset.lens.focal_length_m,
         preset.lens.aperture_m,
         preset.nanofin.pitch_m,
-        o.design_grid,
-        o.seed,
-        o.theta_basis,
+        design_grid=o.design_grid,
+        seed=o.seed,
+        basis=o.theta_basis,
     )
 
 
@@ -236,7 +236,7 @@ def estimate_training(preset) -> tuple[int, float | None]:
         [preset.scene.z_near_m[0], preset.scene.z_far_m[0]],
         max(windows.near, windows.far),
         preset.sensor.pixel_pitch_m,
-        preset.lens.focal_length_m,
+        distance_m=preset.lens.focal_length_m,
     )
     canvas = preset.sensor.pixels + 2 * windows.margin
     captures = o.batch_size * 20 * 3 * canvas**2 * 4
@@ -308,7 +308,7 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
             preset.lens.focal_length_m,
             preset.sensor.pixel_pitch_m,
             [seed, step, index, 17],
-            preset.obstruction,
+            params=preset.obstruction,
             clean=clean,
             margin=margin,
         )
@@ -573,7 +573,10 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     if o.photons or o.read_noise:
         light = draw.throughput if draw.throughput is not None else session.throughput
         capture = add_noise(
-            capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, shard)
+            capture,
+            _photons(preset, capture.device, light),
+            read_noise=o.read_noise,
+            generator=_noise_seed(o.seed, step, shard),
         )
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
@@ -711,7 +714,10 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
         if o.photons or o.read_noise:
             light = draw.throughput if draw.throughput is not None else fixed
             capture = add_noise(
-                capture, _photons(preset, capture.device, light), o.read_noise, _noise_seed(o.seed, step, [0])
+                capture,
+                _photons(preset, capture.device, light),
+                read_noise=o.read_noise,
+                generator=_noise_seed(o.seed, step, [0]),
             )
         yield training_loss(
             capture,
@@ -791,8 +797,7 @@ def _image_pool(preset, margin: int):
 
 def _write_sample(run: RunDirectory, sample: torch.Tensor, step: int) -> None:
     """clean | obstruction over grey | capture of the step's first scene, sRGB PNG."""
-    from metalens_cli.imaging.images import linear_to_srgb
-    from metalens_cli.io.image_files import write_png
+    from metalens_cli.io.image_files import linear_to_srgb, write_png
 
     (run.path / "samples").mkdir(exist_ok=True)  # a resumed run killed while its folder was being made
     write_png(run.path / "samples" / f"step_{step + 1:06d}.png", linear_to_srgb(np.clip(sample.cpu().numpy(), 0, 1)))

@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from metalens_cli.errors import InputError
+from metalens_cli.io.image_files import srgb_to_linear
 
 SRGB_LEVELS = (38, 242)  # disk colours: 8-bit sRGB levels, uniform per channel (0.15..0.95)
 OPAQUE = 1e-3  # transmittance below which a pixel counts as covered (< 8-bit step)
@@ -35,12 +36,7 @@ MIN_CELL_PX = 64  # cell side max(r_max, this): few random streams on large canv
 TILE = 16  # pixels per side of the tiles that cull disks far from uncovered pixels
 
 
-def srgb_decode(x: np.ndarray) -> np.ndarray:
-    """sRGB EOTF (IEC 61966-2-1): encoded 0..1 → linear."""
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
-LINEAR_LEVELS = srgb_decode(np.arange(256) / 255)  # lookup: the same bits for every canvas
+LINEAR_LEVELS = srgb_to_linear(np.arange(256) / 255, dtype=np.float64)  # lookup: the same bits for every canvas
 BACKGROUND = LINEAR_LEVELS[128]  # mid grey, only where MAX_CHUNKS runs out
 
 

@@ -91,6 +91,7 @@ def evaluate(
     kinds: list[str],
     seeds: list[int],
     settings: EvaluationSettings,
+    *,
     lpips_model=None,
     on_progress: Callable[[int, int], None] | None = None,
     reconstructors: list | None = None,
@@ -147,12 +148,12 @@ def evaluate(
                     design.focal_length_m,
                     settings.pixel_pitch_m,
                     seed,
-                    settings.obstruction_params,
-                    settings.formation,
-                    settings.alpha_gain,
-                    photons[d],
-                    settings.read_noise,
-                    obstructions,
+                    params=settings.obstruction_params,
+                    formation=settings.formation,
+                    alpha_gain=settings.alpha_gain,
+                    photons=photons[d],
+                    read_noise=settings.read_noise,
+                    obstructions=obstructions,
                 )
                 for index, c in enumerate(captures):
                     estimates = {"raw": (c.unobstructed, c.obstructed)}

@@ -160,6 +160,7 @@ def form_image(
     psf_near,
     psf_far,
     margin: int,
+    *,
     formation: str = "physical",
     alpha_gain: float | None = None,
 ) -> Capture:
@@ -191,6 +192,7 @@ def form_image(
 def add_noise(
     image: torch.Tensor,
     photons: float | torch.Tensor | None = None,
+    *,
     read_noise: float = 0.0,
     generator: torch.Generator | int | None = None,
 ) -> torch.Tensor:

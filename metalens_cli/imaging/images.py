@@ -23,7 +23,7 @@ import numpy as np
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
-from metalens_cli.io.image_files import read_image_file
+from metalens_cli.io.image_files import read_image_file, srgb_to_linear
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 SETS = ("photos", "charts", "all")
@@ -129,20 +129,6 @@ class CleanImage:
     def sensor(self) -> np.ndarray:
         """The sensor's field (3, H, W)."""
         return sensor_crop(self.linear, self.margin)
-
-
-def srgb_to_linear(values: np.ndarray) -> np.ndarray:
-    """sRGB-encoded 0..1 → linear (colour-science's ``cctf_decoding``)."""
-    import colour
-
-    return np.asarray(colour.cctf_decoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=np.float32)
-
-
-def linear_to_srgb(values: np.ndarray) -> np.ndarray:
-    """Linear → sRGB-encoded 0..1, clipped (colour-science's ``cctf_encoding``), for display."""
-    import colour
-
-    return np.asarray(colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=np.float32)
 
 
 def luminance(image: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ DEFAULT_MATCH = "lstsq"
 PSNR_CEILING_DB = 100.0  # an exact match: MSE 0 (see reported_psnr)
 
 
-def psnr(estimate: torch.Tensor, reference: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
+def psnr(estimate: torch.Tensor, reference: torch.Tensor, *, data_range: float = 1.0) -> torch.Tensor:
     """10·log10(range² / MSE) in dB, per leading batch entry (over the last three axes)."""
     mse = ((estimate - reference) ** 2).mean(dim=(-3, -2, -1))
     return 10 * torch.log10(data_range**2 / mse)
@@ -58,6 +58,7 @@ def _filter(x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
 def ssim(
     estimate: torch.Tensor,
     reference: torch.Tensor,
+    *,
     data_range: float = 1.0,
     window: int = SSIM_WINDOW,
     sigma: float = SSIM_SIGMA,

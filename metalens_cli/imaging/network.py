@@ -76,6 +76,7 @@ class NetworkShape:
 def pixel_positions(
     height: int,
     width: int,
+    *,
     top: int = 0,
     left: int = 0,
     full: tuple[int, int] | None = None,

@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from metalens_cli.constants import OBSTRUCTION_KINDS
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
 from metalens_cli.imaging.noise import fractal_noise
 from metalens_cli.io.presets import ObstructionConfig
 
-KINDS = ("dirt", "fence", "drops", "rain")
 FORM = "dirt, fence, drops, rain or file:PATH.png"
 
 
@@ -161,7 +161,8 @@ def from_file(path: str, shape, margin: int) -> tuple[np.ndarray, np.ndarray, di
     """An RGBA PNG as the obstruction: sRGB colour decoded to linear, alpha as the mask
     (no alpha channel: mask = 1 wherever a pixel is not black); scaled to cover the sensor, on
     the canvas as a scene file is (``imaging.canvas.fit_to_canvas``)."""
-    from metalens_cli.imaging.images import read_image, srgb_to_linear
+    from metalens_cli.imaging.images import read_image
+    from metalens_cli.io.image_files import srgb_to_linear
 
     image, has_alpha = read_image(Path(path), keep_alpha=True)
     image = fit_to_canvas(image, shape, margin)
@@ -177,6 +178,7 @@ def make_obstruction(
     focal_length_m: float,
     pixel_pitch_m: float,
     seed: int | np.random.Generator,
+    *,
     params: ObstructionConfig | None = None,
     clean: np.ndarray | None = None,
     margin: int = 0,
@@ -236,9 +238,9 @@ def parse_obstructions(text: str) -> list[str]:
                 raise InputError(
                     "--obstruction", f"no such file {spec[5:]!r}", "file:PATH.png with an existing RGBA image"
                 )
-        elif spec not in KINDS:
+        elif spec not in OBSTRUCTION_KINDS:
             raise InputError("--obstruction", f"unknown obstruction {spec!r}", FORM)
     return specs
 
 
-__all__ = ["KINDS", "Obstruction", "make_obstruction", "parse_obstructions", "pixels_from_metres"]
+__all__ = ["Obstruction", "make_obstruction", "parse_obstructions", "pixels_from_metres"]

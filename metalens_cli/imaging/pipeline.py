@@ -13,15 +13,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from metalens_cli.constants import PAPER_Z_FAR_M, PAPER_Z_NEAR_M
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
 from metalens_cli.io.presets import ObstructionConfig
-from metalens_cli.optics.channel_psf import crop_window  # noqa: F401  (re-exported: callers crop here)
 
-DEFAULT_Z_NEAR_M = (0.040, 0.050)  # PHYSICS.md, Suppl. Note 4
-DEFAULT_Z_FAR_M = (1.0, 20.0)
+DEFAULT_Z_NEAR_M = PAPER_Z_NEAR_M  # Suppl. Note 4
+DEFAULT_Z_FAR_M = PAPER_Z_FAR_M
 DEFAULT_WAVELENGTHS = "400:700:5nm"
 
 
@@ -97,6 +97,7 @@ def channel_psfs(
     z_far_m: float,
     wavelengths_m,
     pixel_pitch_m: float,
+    *,
     dtype=torch.float32,
     device="cpu",
     window: int | None = None,
@@ -117,7 +118,15 @@ def channel_psfs(
     d = design.focal_length_m
     if window:
         result = compute_psf(
-            design.lens, list(wavelengths_m), [z_near_m, z_far_m], window, pixel_pitch_m, d, "auto", dtype, device
+            design.lens,
+            list(wavelengths_m),
+            [z_near_m, z_far_m],
+            window,
+            pixel_pitch_m,
+            distance_m=d,
+            propagator="auto",
+            dtype=dtype,
+            device=device,
         )
         near, far = mix_channels(result.psf, weights.weights)
         kept = [kept_fraction(p).cpu().tolist() for p in (near, far)]
@@ -171,6 +180,7 @@ def estimate_captures(
     pixel_pitch_m: float,
     pixels: int,
     images: int,
+    *,
     window: int | None = None,
 ) -> tuple[int, float, float]:
     """(peak bytes, seconds of :func:`channel_psfs`, seconds of :func:`simulate_captures`) for
@@ -186,7 +196,7 @@ def estimate_captures(
     windows = [
         window or psf_window(design.lens, list(wavelengths_m), [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)
     ]
-    psf = estimate_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, d)
+    psf = estimate_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, distance_m=d)
     canvas = pixels + 2 * canvas_margin(*windows)
     planes = 12 * 3 * canvas**2 * 8
     kept = 6 * 3 * pixels**2 * 4 * images
@@ -218,6 +228,7 @@ def simulate_captures(
     focal_length_m: float,
     pixel_pitch_m: float,
     seed: int,
+    *,
     params: ObstructionConfig | None = None,
     formation: str = "physical",
     alpha_gain: float | None = None,
@@ -251,7 +262,7 @@ def simulate_captures(
             focal_length_m,
             pixel_pitch_m,
             [seed, index],
-            params,
+            params=params,
             clean=image.linear,
             margin=image.margin,
         )
@@ -266,13 +277,15 @@ def simulate_captures(
                 torch.as_tensor(obstruction.mask, dtype=dt, device=dev),
                 *transforms,
                 image.margin,
-                formation,
-                alpha_gain,
+                formation=formation,
+                alpha_gain=alpha_gain,
             )
             obstructed, unobstructed = capture.obstructed, capture.unobstructed
             if np.any(photons) or read_noise:
-                obstructed = add_noise(obstructed, counts, read_noise, seed * 1000 + 2 * index)
-                unobstructed = add_noise(unobstructed, counts, read_noise, seed * 1000 + 2 * index + 1)
+                obstructed = add_noise(obstructed, counts, read_noise=read_noise, generator=seed * 1000 + 2 * index)
+                unobstructed = add_noise(
+                    unobstructed, counts, read_noise=read_noise, generator=seed * 1000 + 2 * index + 1
+                )
         alpha = capture.alpha.cpu().numpy().astype(np.float32)
         captures.append(
             SimulatedCapture(
@@ -296,8 +309,8 @@ def score(estimate_linear: np.ndarray, clean_linear: np.ndarray, lpips_model=Non
     computed on sRGB-encoded images clipped to 0..1 (display values), PSNR capped at 100 dB for
     an exact match (``metrics.reported_psnr``); also ``lpips`` on the same images when
     ``lpips_model`` (:class:`~metalens_cli.imaging.lpips.Lpips`) is given."""
-    from metalens_cli.imaging.images import linear_to_srgb
     from metalens_cli.imaging.metrics import photometric_match, psnr, reported_psnr, ssim
+    from metalens_cli.io.image_files import linear_to_srgb
 
     estimate = torch.as_tensor(estimate_linear, dtype=torch.float64)
     clean = torch.as_tensor(clean_linear, dtype=torch.float64)

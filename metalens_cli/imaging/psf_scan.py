@@ -76,6 +76,7 @@ def run_scan(
     depths_m: list[float],
     pixels: int,
     pixel_pitch_m: float,
+    *,
     propagator: str = "auto",
     dtype: torch.dtype = torch.float32,
     device: str = "cpu",
@@ -95,7 +96,16 @@ def run_scan(
     parts, result = [], None
     for done, group in enumerate(groups, start=1):
         result = compute_psf(
-            design.lens, group, depths_m, pixels, pixel_pitch_m, design.focal_length_m, propagator, dtype, device, force
+            design.lens,
+            group,
+            depths_m,
+            pixels,
+            pixel_pitch_m,
+            distance_m=design.focal_length_m,
+            propagator=propagator,
+            dtype=dtype,
+            device=device,
+            force=force,
         )
         parts.append(result.psf.detach().to("cpu", torch.float32))
         for stage, seconds in result.timing_s.items():
@@ -155,11 +165,11 @@ def accuracy_report(design: Design, scan: ScanResult, dtype, device, force: bool
         [z],
         n,
         scan.pixel_pitch_m,
-        design.focal_length_m,
-        scan.propagator,
-        dtype,
-        device,
-        force,
+        distance_m=design.focal_length_m,
+        propagator=scan.propagator,
+        dtype=dtype,
+        device=device,
+        force=force,
         oversample=2.0,
     )
     report["doubled_sampling_rel_l2"] = relative_l2(reference, doubled.psf[0, 0].detach().cpu().numpy())
@@ -169,7 +179,16 @@ def accuracy_report(design: Design, scan: ScanResult, dtype, device, force: bool
         c, h = n // 2, m // 2
         start = time.perf_counter()
         exact = compute_psf(
-            design.lens, [w], [z], m, scan.pixel_pitch_m, design.focal_length_m, "rs", torch.float64, device, force
+            design.lens,
+            [w],
+            [z],
+            m,
+            scan.pixel_pitch_m,
+            distance_m=design.focal_length_m,
+            propagator="rs",
+            dtype=torch.float64,
+            device=device,
+            force=force,
         )
         crop = reference[c - h : c + h + 1, c - h : c + h + 1]
         report["rs_rel_l2"] = relative_l2(crop, exact.psf[0, 0].detach().cpu().numpy())

@@ -31,9 +31,10 @@ from functools import cached_property
 import cv2
 import numpy as np
 
+from metalens_cli.constants import REFINEMENTS
 from metalens_cli.errors import InputError, ResultFailed
 from metalens_cli.imaging.images import LUMA_709
-from metalens_cli.io.warp_files import MAX_SIDE, REFINES, node_positions, read_warp_file, write_warp_file
+from metalens_cli.io.warp_files import MAX_SIDE, node_positions, read_warp_file, write_warp_file
 
 FEATURE_SIDE = 1024  # features on images downscaled to at most this many pixels a side
 MAX_FEATURES = 4000  # strongest SIFT keypoints kept per image
@@ -185,8 +186,8 @@ def register(
     trusted, :class:`InputError` for arrays that are not images or an unknown ``refine``; a
     reference that is not an image or is uniform is named ``reference_field`` (its file in
     `align`'s folder mode)."""
-    if refine not in REFINES:
-        raise InputError("refine", f"unknown refinement {refine!r}", ", ".join(REFINES))
+    if refine not in REFINEMENTS:
+        raise InputError("refine", f"unknown refinement {refine!r}", ", ".join(REFINEMENTS))
     reference_y = _stretch(_luminance(reference, reference_field), reference_field)
     target_y = _stretch(_luminance(target, field), field)
     reference_small, reference_scale = _downscale(reference_y, FEATURE_SIDE)
@@ -257,13 +258,13 @@ def save_warp(path: str | os.PathLike[str], registration: Registration) -> None:
         r.homography,
         r.reference_shape,
         r.target_shape,
-        r.flow_step,
-        nodes,
-        r.matches,
-        r.inliers,
-        r.residual_px,
-        r.refined_residual_px,
-        r.refine,
+        flow_step=r.flow_step,
+        flow_nodes=nodes,
+        matches=r.matches,
+        inliers=r.inliers,
+        residual_px=r.residual_px,
+        refined_residual_px=r.refined_residual_px,
+        refine=r.refine,
     )
 
 

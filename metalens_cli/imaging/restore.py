@@ -98,7 +98,7 @@ class Reconstructor:
         for top in _starts(h, side, self.overlap):
             for left in _starts(w, side, self.overlap):
                 th, tw = min(side, h - top), min(side, w - left)
-                positions = pixel_positions(th, tw, top, left, (h, w), scale, device=x.device)
+                positions = pixel_positions(th, tw, top=top, left=left, full=(h, w), scale=scale, device=x.device)
                 tile = self.net(_fast(x[None, :, top : top + th, left : left + tw]), positions[None])[0]
                 ramp = _ramp(th, top, h, self.overlap, x)[:, None] * _ramp(tw, left, w, self.overlap, x)[None, :]
                 total[:, top : top + th, left : left + tw] += tile * ramp

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from metalens_cli.imaging.images import linear_to_srgb, luminance
+from metalens_cli.imaging.images import luminance
+from metalens_cli.io.image_files import linear_to_srgb
 
 STATISTICS = ("spectrum_slope", "luminance_median", "log_luminance_std", "saturation", "edge_density")
 DARK = 1e-3  # linear luminance floor of the log statistics

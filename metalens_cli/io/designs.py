@@ -18,13 +18,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from metalens_cli.constants import PAPER_PITCH_M
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
 from metalens_cli.io.input_files import read_npy
 from metalens_cli.io.presets import Preset, load_preset
 from metalens_cli.io.tables import check_wavelengths
 
-PAPER_PITCH_M = 395e-9
 SPEC_FORM = "hyperbolic:WAVELENGTH (e.g. hyperbolic:532nm), a θ .npy file, a preset .toml or a run directory"
 
 
@@ -100,6 +100,7 @@ def _hyperbolic_preset_design(
 def resolve_design(
     spec: str,
     preset: Preset | None = None,
+    *,
     f_m: float | None = None,
     aperture_m: float | None = None,
     pitch_m: float | None = None,

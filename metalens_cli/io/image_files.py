@@ -1,5 +1,6 @@
 """Image files: linear RGB written as EXR (float32, ZIP, atomic) and display images as 8-bit PNG
-(atomic); :func:`read_image_file`, the one reader of every image the tool takes as input.
+(atomic); :func:`read_image_file`, the one reader of every image the tool takes as input; the
+sRGB transfer functions (colour-science's) between encoded files and linear light.
 
 Written arrays are (3, H, W) or (1, H, W) float, channel order R, G, B.
 """
@@ -14,6 +15,20 @@ import numpy as np
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.input_files import check_image_size, library_output, open_exr, regular_file
+
+
+def srgb_to_linear(values: np.ndarray, dtype=np.float32) -> np.ndarray:
+    """sRGB-encoded 0..1 (clipped) → linear (IEC 61966-2-1; colour-science's ``cctf_decoding``)."""
+    import colour
+
+    return np.asarray(colour.cctf_decoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=dtype)
+
+
+def linear_to_srgb(values: np.ndarray, dtype=np.float32) -> np.ndarray:
+    """Linear 0..1 (clipped) → sRGB-encoded, for display (colour-science's ``cctf_encoding``)."""
+    import colour
+
+    return np.asarray(colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=dtype)
 
 
 def write_exr_rgb(path: str | os.PathLike[str], image: np.ndarray) -> None:

@@ -469,6 +469,7 @@ def export_layout(
     design,
     geometry: FinGeometry,
     path: str | os.PathLike,
+    *,
     fmt: str = "gds",
     angles: int | None = None,
     progress: Callable[[int, int], None] | None = None,

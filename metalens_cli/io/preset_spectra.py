@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from metalens_cli.constants import PAPER_BANDS_M
 from metalens_cli.io import cache
 from metalens_cli.io.spectra_files import camera_from_csv, efficiency_from_csv, filter_from_csv
 from metalens_cli.optics.spectra import (
@@ -213,7 +214,9 @@ def efficiency_report(
     ``bands_m`` ([lo, hi] pairs), η's mean over each band (``band_mean``)."""
     efficiency = efficiency or preset_efficiency(preset.nanofin, preset.sensor.wavelength_range_m)
     centres = (
-        preset.filter.centers_m if preset.filter is not None and preset.filter.centers_m else (457e-9, 530e-9, 628e-9)
+        preset.filter.centers_m
+        if preset.filter is not None and preset.filter.centers_m
+        else tuple(c for c, _ in PAPER_BANDS_M)
     )
     report = {**efficiency.report, "at_m": list(centres), "conversion": [float(v) for v in efficiency.at(centres)]}
     if bands_m is not None:

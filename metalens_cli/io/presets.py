@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
 from metalens_cli.io.input_files import read_text
@@ -112,7 +113,7 @@ class SensorConfig:
     pixel_pitch_m: float = toml_key("pixel_pitch", "length")
     pixels: int = toml_key("pixels", "int", lo=1, hi=8192)
     camera_response: str = toml_key("camera_response", "string", default="Nikon 5100 (NPL)")  # name or CSV path
-    wavelength_range_m: tuple[float, float] = toml_key("wavelength_range", "interval", default=(400e-9, 700e-9))
+    wavelength_range_m: tuple[float, float] = toml_key("wavelength_range", "interval", default=SENSOR_RANGE_M)
 
 
 @dataclass(frozen=True)
@@ -430,7 +431,10 @@ def _check_consistency(p: Preset) -> None:
         if p.filter.centers_m:
             try:
                 check_bands(
-                    list(p.filter.centers_m), list(p.filter.widths_m), p.filter.edge_width_m, p.filter.peak_transmission
+                    list(p.filter.centers_m),
+                    list(p.filter.widths_m),
+                    p.filter.edge_width_m,
+                    p.filter.peak_transmission,
                 )
             except InputError as exc:
                 raise InputError("filter.widths", exc.message, exc.expected) from None

@@ -20,11 +20,11 @@ import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from metalens_cli.constants import OBSTRUCTION_KINDS
 from metalens_cli.errors import InputError
 from metalens_cli.io.presets import as_str, build_section, check_name, read_toml, toml_field, toml_key
 from metalens_cli.io.tables import check_wavelengths
 
-OBSTRUCTION_KINDS = ("dirt", "fence", "drops", "rain")
 SCENES = ("mixed", "procedural", "dead-leaves")
 
 

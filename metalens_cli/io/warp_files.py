@@ -27,12 +27,12 @@ import numpy as np
 from numpy.lib import format as npy_format
 
 import metalens_cli
+from metalens_cli.constants import REFINEMENTS
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.input_files import MAX_IMAGE_PIXELS, regular_file
 
 FORMAT = "metalens-warp/1"
-REFINES = ("flow", "tps", "none")
 MAX_SIDE = 32767  # OpenCV's remap limit
 _EXPECTED = "a WARP.npz written by metalens align --warp-out"
 _SCALARS = {"matches": "iu", "inliers": "iu", "residual_px": "f", "refined_residual_px": "f", "flow_step": "iu"}
@@ -50,6 +50,7 @@ def write_warp_file(
     homography: np.ndarray,
     reference_shape: tuple[int, int],
     target_shape: tuple[int, int],
+    *,
     flow_step: int,
     flow_nodes: np.ndarray | None,
     matches: int,
@@ -151,7 +152,7 @@ def _validated(raw: dict[str, np.ndarray], path: Path, field: str) -> dict:
     if str(raw["format"]) != FORMAT:
         raise bad(f"format {str(raw['format'])[:40]!r}, not {FORMAT!r}")
     refine = str(raw["refine"])
-    if refine not in REFINES:
+    if refine not in REFINEMENTS:
         raise bad(f"unknown refine {refine[:20]!r}")
     shapes = {}
     for key in ("reference_shape", "target_shape"):

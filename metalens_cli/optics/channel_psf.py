@@ -42,6 +42,7 @@ from metalens_cli.optics.blur import window_pixels
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.psf import compute_psf, pupil_field, validate_psf_arguments
 from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
+from metalens_cli.optics.window import crop_window
 
 ENCIRCLED_ENERGY = 0.999  # of the power reaching the sensor plane, per depth and channel
 
@@ -253,10 +254,10 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
         zs,
         max(caps),
         pitch,
-        d,
-        "auto",
-        dtype,
-        device,
+        distance_m=d,
+        propagator="auto",
+        dtype=dtype,
+        device=device,
         plan_wavelengths_m=plan_l,
         plan_depths_m=plan_z,
         plan_frequency=plan_f,
@@ -290,13 +291,6 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
         dict(result.timing_s),
         cores,
     )
-
-
-def crop_window(psf: torch.Tensor, n: int) -> torch.Tensor:
-    """The n × n pixels (n ≤ N) of (..., N, N) PSFs around the axis pixel N//2, which becomes
-    pixel n//2 (the window convention of ``optics.sensor``)."""
-    lo = psf.shape[-1] // 2 - n // 2
-    return psf[..., lo : lo + n, lo : lo + n]
 
 
 def _square_energy(psf: np.ndarray) -> np.ndarray:

@@ -100,7 +100,7 @@ MAX_GRID_SIDE = 32768  # sites per side of a 2-D map (8.6 GB of float64 θ)
 
 
 def hyperbolic(
-    lambda_d_m: float, focal_length_m: float, aperture_m: float, pitch_m: float, radial: bool = True
+    lambda_d_m: float, focal_length_m: float, aperture_m: float, pitch_m: float, *, radial: bool = True
 ) -> Metalens:
     """Hyperbolic lens focusing a plane wave of wavelength λd at distance f (all in m).
 

@@ -473,6 +473,7 @@ def rayleigh_sommerfeld(
     wavelength_m: float,
     distance_m: float,
     out_xy: torch.Tensor,
+    *,
     chunk: int = 1 << 22,
 ) -> torch.Tensor:
     """First Rayleigh-Sommerfeld solution by direct summation (exact kernel).

@@ -10,7 +10,7 @@ from metalens_cli.plotting.common import new_figure, save_figure
 
 
 def _show(ax, image, title):
-    from metalens_cli.imaging.images import linear_to_srgb
+    from metalens_cli.io.image_files import linear_to_srgb
 
     ax.imshow(
         np.transpose(linear_to_srgb(image), (1, 2, 0)) if image.shape[0] == 3 else np.clip(image[0], 0, 1),

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from metalens_cli.analysis.symmetry import depth_for_wavelength
+from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.plotting.common import new_figure, save_figure
 
 
@@ -12,7 +13,7 @@ def plot_symmetry(
     path: str | Path,
     f_m: float,
     lambda_d_m: float,
-    wavelength_range_m: tuple[float, float] = (400e-9, 700e-9),
+    wavelength_range_m: tuple[float, float] = SENSOR_RANGE_M,
     z_near_m: float | None = None,
 ) -> Path:
     """Depth z(λ) = λd·f/(λ − λd) on a log axis, the λd asymptote and the z_near line."""

@@ -11,7 +11,7 @@ from scipy.ndimage import gaussian_filter
 from synthetic import save_png, texture, warp
 
 from metalens_cli.cli.main import run
-from metalens_cli.imaging.images import linear_to_srgb
+from metalens_cli.io.image_files import linear_to_srgb
 
 SIDE = 256
 HOMOGRAPHY = np.array([[1.02, 0.03, -6.0], [-0.02, 0.99, 4.0], [2e-5, -1e-5, 1.0]])

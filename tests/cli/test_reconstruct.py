@@ -37,9 +37,8 @@ def test_train_writes_a_run_directory(trained):
 def test_apply_writes_exr_and_png_equal_to_the_core(trained, tmp_path, capsys):
     import cv2
 
-    from metalens_cli.imaging.images import srgb_to_linear
     from metalens_cli.imaging.restore import load_reconstructor
-    from metalens_cli.io.image_files import read_exr_rgb, write_exr_rgb
+    from metalens_cli.io.image_files import read_exr_rgb, srgb_to_linear, write_exr_rgb
 
     inputs = tmp_path / "in"
     inputs.mkdir()

@@ -196,8 +196,7 @@ def _learned_like(path):
 def test_grey_wall_is_grey_and_an_opaque_cover_hides_it(capsys, tmp_path, grey_wall, design):
     """Through the paper's lens (near blur ≈ 120-330 px on a 48-px sensor): a grey wall images as
     the same grey at every pixel, behind a clear cover too; an opaque cover leaves only its colour."""
-    from metalens_cli.imaging.images import srgb_to_linear
-    from metalens_cli.io.image_files import read_exr_rgb
+    from metalens_cli.io.image_files import read_exr_rgb, srgb_to_linear
 
     spec = "hyperbolic:532nm" if design == "hyperbolic" else str(_learned_like(tmp_path / "theta.npy"))
     grey = float(srgb_to_linear(np.array(128 / 255)))

@@ -331,7 +331,7 @@ def test_per_channel_photons_set_each_channels_shot_noise():
 
     image = torch.full((2, 3, 128, 128), 0.5)
     photons = torch.tensor([100.0, 400.0, 1600.0]).reshape(3, 1, 1)
-    noisy = add_noise(image, photons, 0.0, 0)
+    noisy = add_noise(image, photons, read_noise=0.0, generator=0)
     std = (noisy - image).std(dim=(0, 2, 3))
     np.testing.assert_allclose(std.numpy(), np.sqrt(0.5 / np.array([100, 400, 1600])), rtol=0.03)
 

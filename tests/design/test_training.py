@@ -112,8 +112,8 @@ def test_validation_loss_is_deterministic(tiny):
 
 def test_gradient_reaches_every_ring_inside_the_pupil(tiny):
     from metalens_cli.design.training import draw_step, plan_windows, step_psfs
-    from metalens_cli.imaging.pipeline import crop_window
     from metalens_cli.io.preset_spectra import preset_sensitivity
+    from metalens_cli.optics.window import crop_window
 
     model = build_model(tiny)
     sensitivity = preset_sensitivity(tiny)

@@ -14,7 +14,7 @@ def test_an_obstruction_never_raises_the_expected_score(images):
     hyperbolic lens at 128² (on 64² a near blur of ~300 px is a uniform veil that the match
     removes). With the paper's luminance match this failed for the fence on photographs (Δ > 0
     on 30 % of units): see imaging.metrics."""
-    design = resolve_design("hyperbolic:532nm", None, 4e-3, 2.516e-3, None)
+    design = resolve_design("hyperbolic:532nm", None, f_m=4e-3, aperture_m=2.516e-3, pitch_m=None)
     settings = EvaluationSettings(
         128, 1.85e-6, (0.04, 0.05), (1.0, 20.0), list(np.arange(420e-9, 681e-9, 40e-9)), images=images, limit=7
     )
@@ -26,7 +26,7 @@ def test_an_obstruction_never_raises_the_expected_score(images):
 
 
 def test_few_units_are_warned_about():
-    design = resolve_design("hyperbolic:532nm", None, 4e-3, 2.516e-3, None)
+    design = resolve_design("hyperbolic:532nm", None, f_m=4e-3, aperture_m=2.516e-3, pitch_m=None)
     settings = EvaluationSettings(64, 1.85e-6, (0.04, 0.05), (1.0, 20.0), [500e-9, 560e-9], images="charts", limit=2)
     result = evaluate([design], ["dirt"], [0], settings)
     assert any("2 units per cell" in w for w in result.warnings), result.warnings

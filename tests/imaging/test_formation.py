@@ -64,7 +64,7 @@ def test_uniform_wall_behind_uniform_cover(formation, coverage):
     shape = (3, 16 + 2 * margin, 12 + 2 * margin)
     grey, colour = torch.full(shape, 0.25, dtype=torch.float64), torch.full(shape, 0.05, dtype=torch.float64)
     mask = torch.full((1, *shape[1:]), coverage, dtype=torch.float64)
-    capture = form_image(grey, colour, mask, near, far, margin, formation)
+    capture = form_image(grey, colour, mask, near, far, margin, formation=formation)
     np.testing.assert_allclose(capture.alpha.numpy(), coverage, atol=1e-12)
     np.testing.assert_allclose(capture.unobstructed.numpy(), 0.25, rtol=1e-12)
     np.testing.assert_allclose(capture.obstructed.numpy(), coverage * 0.05 + (1 - coverage) * 0.25, rtol=1e-12)
@@ -90,7 +90,7 @@ def test_delta_psfs_composite_the_scene_and_obstruction():
     delta = np.zeros((3, 7, 7))
     delta[:, 3, 3] = 2.0
     for formation in ("physical", "paper"):
-        capture = form_image(t(clean), t(obs), t(mask), t(delta), t(delta), 4, formation)
+        capture = form_image(t(clean), t(obs), t(mask), t(delta), t(delta), 4, formation=formation)
         crop = np.s_[..., 4:-4, 4:-4]
         np.testing.assert_allclose(capture.unobstructed.numpy(), clean[crop], atol=1e-12)
         np.testing.assert_allclose(capture.obstructed.numpy(), (mask * obs + (1 - mask) * clean)[crop], atol=1e-12)
@@ -132,7 +132,7 @@ def test_paper_form_dims_partial_coverage():
     colour = 0.5 * wires.expand(3, -1, -1)
     for formation, expected in (("physical", 0.25 * 0.5), ("paper", 0.25**2 * 0.5)):
         light = form_image(
-            torch.zeros(3, size, size, dtype=torch.float64), colour, wires, near, near, margin, formation
+            torch.zeros(3, size, size, dtype=torch.float64), colour, wires, near, near, margin, formation=formation
         ).obstruction_light
         np.testing.assert_allclose(light.numpy(), expected, rtol=1e-12)
 

@@ -122,8 +122,8 @@ def test_a_grey_wall_imaged_as_grey_scores_the_psnr_ceiling():
 def test_dirt_in_front_of_a_grey_wall_is_not_matched_away(method):
     """A flat reference leaves only the exposure to match (a = μ_ref/μ_est, b = 0): a free gain
     would be 0 and turn a capture with an obstruction into the wall itself, a perfect score."""
-    from metalens_cli.imaging.images import linear_to_srgb
     from metalens_cli.imaging.pipeline import score
+    from metalens_cli.io.image_files import linear_to_srgb
 
     wall = np.full((3, 64, 64), 0.18)
     yy, xx = np.mgrid[:64, :64]

@@ -12,7 +12,7 @@ SHAPE, F, PITCH = (128, 128), 4e-3, 1.85e-6
 
 def make(kind, seed=0, depth=0.045, **kw):
     clean = np.random.default_rng(1).random((3, *SHAPE))
-    return make_obstruction(kind, SHAPE, depth, F, PITCH, seed, ObstructionConfig(**kw), clean=clean)
+    return make_obstruction(kind, SHAPE, depth, F, PITCH, seed, params=ObstructionConfig(**kw), clean=clean)
 
 
 def test_pixels_from_metres():

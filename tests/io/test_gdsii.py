@@ -23,7 +23,9 @@ def gdstk():
 
 
 def small_design(aperture="20um"):
-    return resolve_design("hyperbolic:532nm", None, 4e-3, float(aperture.rstrip("um")) * 1e-6, PITCH)
+    return resolve_design(
+        "hyperbolic:532nm", None, f_m=4e-3, aperture_m=float(aperture.rstrip("um")) * 1e-6, pitch_m=PITCH
+    )
 
 
 def records(data: bytes) -> list[tuple[int, bytes]]:
@@ -117,7 +119,7 @@ def test_two_d_map_orientation(tmp_path, gdstk):
     theta = np.add.outer(0.01 * cols, 0.001 * cols)  # θ = 0.01·j + 0.001·i for site (i, j): tells rows from columns
     npy = tmp_path / "theta.npy"
     np.save(npy, theta)
-    design = resolve_design(str(npy), None, 4e-3, 20e-6, PITCH)
+    design = resolve_design(str(npy), None, f_m=4e-3, aperture_m=20e-6, pitch_m=PITCH)
     path = tmp_path / "map.gds"
     export_layout(design, GEOMETRY, path)
     (top,) = gdstk.read_gds(str(path), unit=1e-9).top_level()
@@ -167,7 +169,7 @@ def test_refuses_map_contradicting_pitch(tmp_path, pitch, field):
     npy = tmp_path / "theta.npy"
     np.save(npy, np.zeros((51, 51)))  # holds a 20 µm pupil at 395 nm: 2·25 + 1 sites
     with pytest.raises(InputError) as info:
-        design = resolve_design(str(npy), None, 4e-3, 20e-6, pitch)
+        design = resolve_design(str(npy), None, f_m=4e-3, aperture_m=20e-6, pitch_m=pitch)
         export_layout(design, FinGeometry(pitch, 150e-9, 60e-9), tmp_path / "x.gds")
     assert info.value.field == field
     assert [p.name for p in tmp_path.iterdir()] == ["theta.npy"]  # nothing written
@@ -187,5 +189,5 @@ def test_oasis_converter_failure_leaves_nothing(tmp_path, monkeypatch):
 
     monkeypatch.setattr(layout, "CONVERTER", "import sys; sys.exit('converter broke')")
     with pytest.raises(MetalensError, match="converter broke"):
-        export_layout(small_design(), GEOMETRY, tmp_path / "x.oas", "oas")
+        export_layout(small_design(), GEOMETRY, tmp_path / "x.oas", fmt="oas")
     assert list(tmp_path.iterdir()) == []

@@ -55,10 +55,11 @@ def test_windows_hold_99_percent_of_the_paper_lens_light():
 def test_kept_fraction_matches_a_direct_sum_of_a_larger_window():
     """The pipeline's kept report equals the share of a 1.6× larger window's light inside the
     chosen window (the Hankel plans differ between window sizes: 1e-4)."""
-    from metalens_cli.imaging.pipeline import channel_psfs, crop_window
+    from metalens_cli.imaging.pipeline import channel_psfs
     from metalens_cli.io.designs import resolve_design
+    from metalens_cli.optics.window import crop_window
 
-    design = resolve_design("hyperbolic:532nm", None, 4e-3, 2.516e-3, None)
+    design = resolve_design("hyperbolic:532nm", None, f_m=4e-3, aperture_m=2.516e-3, pitch_m=None)
     waves = list(np.arange(420e-9, 681e-9, 40e-9))
     psfs = channel_psfs(design, 0.045, 2.0, waves, 1.85e-6)
     big = channel_psfs(design, 0.045, 2.0, waves, 1.85e-6, window=int(1.6 * psfs.near.shape[-1]) | 1)

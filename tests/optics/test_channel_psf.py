@@ -7,12 +7,12 @@ import pytest
 import torch
 
 from metalens_cli.errors import InputError
-from metalens_cli.imaging.pipeline import crop_window
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, channel_psf_stack
 from metalens_cli.optics.lens import hyperbolic
 from metalens_cli.optics.psf import compute_psf
 from metalens_cli.optics.sensor import build_radial_sensor
 from metalens_cli.optics.spectra import mix_channels
+from metalens_cli.optics.window import crop_window
 
 # A small lens (D = 0.3 mm, f = 1 mm, NA ≈ 0.15) keeps the radial plan small; its near depth
 # (20 mm) defocuses every wavelength, its far depth is sharp near the design wavelength.

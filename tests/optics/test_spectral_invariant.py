@@ -25,7 +25,9 @@ def axial_integral(lens: Metalens, waves: np.ndarray) -> tuple[float, float]:
     """(∫ I(0, λ) dλ, max I) with I the axis pixel's energy / pixel area, over ``waves`` (m)."""
     energy = np.concatenate(
         [
-            compute_psf(lens, list(chunk), [math.inf], 1, PIXEL, F, dtype=torch.float64).psf[0, :, 0, 0].numpy()
+            compute_psf(lens, list(chunk), [math.inf], 1, PIXEL, distance_m=F, dtype=torch.float64)
+            .psf[0, :, 0, 0]
+            .numpy()
             for chunk in np.array_split(waves, 4)
         ]
     )

@@ -1,0 +1,37 @@
+"""The facts and enumerations several layers share, in one place, importable without torch.
+
+The paper's lens, filter and sensor (Suppl. Notes 1-4 of the paper; presets/split-spectrum.toml
+holds the same values as a preset): SI metres throughout. The enumerations are the accepted
+values of options and preset keys; the modules that act on them check against these.
+"""
+
+from __future__ import annotations
+
+# The paper's lens and meta-atom
+PAPER_FOCAL_LENGTH_M = 4e-3
+PAPER_PITCH_M = 395e-9  # meta-atom lattice period
+PAPER_FIN_HEIGHT_M = 700e-9  # SiNx nanofin height
+
+# The paper's tri-band filter: (centre, FWHM) per band, blue to red
+PAPER_BANDS_M = ((457e-9, 22e-9), (530e-9, 20e-9), (628e-9, 28e-9))
+
+# The sensor's spectral range and the paper's depth ranges (near: the cover glass, far: the scene)
+SENSOR_RANGE_M = (400e-9, 700e-9)
+PAPER_Z_NEAR_M = (0.040, 0.050)
+PAPER_Z_FAR_M = (1.0, 20.0)
+
+# Enumerations
+OBSTRUCTION_KINDS = ("dirt", "fence", "drops", "rain")  # built-in procedural obstructions
+REFINEMENTS = ("flow", "tps", "none")  # align: refinement after the homography
+
+__all__ = [
+    "OBSTRUCTION_KINDS",
+    "PAPER_BANDS_M",
+    "PAPER_FIN_HEIGHT_M",
+    "PAPER_FOCAL_LENGTH_M",
+    "PAPER_PITCH_M",
+    "PAPER_Z_FAR_M",
+    "PAPER_Z_NEAR_M",
+    "REFINEMENTS",
+    "SENSOR_RANGE_M",
+]
