@@ -34,7 +34,8 @@ PSNR_CEILING_DB = 100.0  # an exact match: MSE 0 (see reported_psnr)
 
 
 def psnr(estimate: torch.Tensor, reference: torch.Tensor, *, data_range: float = 1.0) -> torch.Tensor:
-    """10·log10(range² / MSE) in dB, per leading batch entry (over the last three axes)."""
+    """10·log10(range² / MSE) in dB, per leading batch entry (the MSE over the last three axes,
+    never pooled over the batch): scikit-image's ``peak_signal_noise_ratio`` of each image."""
     mse = ((estimate - reference) ** 2).mean(dim=(-3, -2, -1))
     return 10 * torch.log10(data_range**2 / mse)
 
@@ -63,8 +64,11 @@ def ssim(
     window: int = SSIM_WINDOW,
     sigma: float = SSIM_SIGMA,
 ) -> torch.Tensor:
-    """Mean SSIM (Wang et al. 2004: Gaussian window 11 taps, σ 1.5, K1 0.01, K2 0.03), over
-    'valid' window positions (no padding) and channels; one value per leading batch entry."""
+    """Mean SSIM (Wang et al. 2004: Gaussian window 11 taps, σ 1.5, K1 0.01, K2 0.03, population
+    covariances), over 'valid' window positions (no padding) and channels; one value per leading
+    batch entry. With the default window it equals scikit-image's ``structural_similarity(x, y,
+    gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=data_range,
+    channel_axis=0)`` to round-off (tests/imaging/test_metrics.py)."""
     if estimate.shape != reference.shape or estimate.ndim < 3:
         raise InputError(
             "images", f"shapes {tuple(estimate.shape)} and {tuple(reference.shape)}", "equal (..., C, H, W) shapes"

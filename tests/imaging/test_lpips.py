@@ -1,12 +1,17 @@
 """LPIPS from local weight files: discovery, metric properties, bad files, an independent
-layer-1 reference, and `evaluate --lpips-weights` end to end. The weight files are random but
-laid out like torchvision's AlexNet state dict and the lpips package's v0.1 alex.pth."""
+layer-1 reference, the lpips package's own distances (a stored fixture), and `evaluate
+--lpips-weights` end to end. The weight files are random but laid out like torchvision's AlexNet
+state dict and the lpips package's v0.1 alex.pth."""
 
+import hashlib
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from metric_references import alexnet_features, lpips_pair, state_sha256
 
 from metalens_cli.cli.main import run
 from metalens_cli.errors import InputError
@@ -156,6 +161,32 @@ def test_layer1_against_independent_reference(tmp_path):
     reference = total / (height * width)
     assert reference > 0
     assert float(lpips_distance(model, x, y)[0]) == pytest.approx(reference, rel=1e-5)
+
+
+def test_matches_the_lpips_package(tmp_path):
+    """Against lpips 0.1.4 itself (data/lpips_alex_reference.json, written by
+    data/make_lpips_fixture.py): its shipped v0.1 alex.pth calibration (data/lpips_v0.1_alex.pth)
+    with seeded AlexNet weights, regenerated here with numpy, on nine 64 × 64 pairs (noise, blur,
+    a shift, colour, brightness, unrelated). Measured: ≤ 1.5e-8 apart (float32 round-off)."""
+    data = Path(__file__).parent / "data"
+    reference = json.loads((data / "lpips_alex_reference.json").read_text())
+    lin = data / "lpips_v0.1_alex.pth"
+    assert hashlib.sha256(lin.read_bytes()).hexdigest() == reference["lin_file_sha256"]
+    features = alexnet_features(reference["alexnet_seed"])
+    assert state_sha256(features) == reference["alexnet_sha256"], "numpy no longer draws the same AlexNet weights"
+    torch.save({k: torch.from_numpy(v) for k, v in features.items()}, tmp_path / ALEXNET_FILE)
+    shutil.copyfile(lin, tmp_path / LIN_FILE)
+    model = Lpips.load(tmp_path)
+    rows = reference["pairs"]
+    x, y = (torch.as_tensor(np.stack(a), dtype=torch.float32) for a in zip(*(lpips_pair(row) for row in rows)))
+    for i, row in enumerate(rows):  # the pairs regenerated as they were drawn
+        assert float(x[i].double().mean()) == pytest.approx(row["x_mean"], rel=1e-9)
+        assert float(y[i].double().mean()) == pytest.approx(row["y_mean"], rel=1e-9)
+    with torch.no_grad():
+        ours = lpips_distance(model, x, y).double().numpy()
+    expected = np.array([row["lpips"] for row in rows])  # 0.0055 … 0.14
+    np.testing.assert_allclose(ours, expected, rtol=0, atol=1e-3)
+    np.testing.assert_allclose(ours, expected, rtol=1e-4)  # the smallest is 0.0055: 1e-3 alone is loose
 
 
 def test_evaluate_reports_lpips(capsys, weights_dir, tmp_path):

@@ -1,10 +1,16 @@
-"""Metrics: PSNR of known noise, SSIM against an independent implementation, gain/bias match
-(luminance and least squares) against known affine changes and numpy closed forms."""
+"""Metrics: PSNR of known noise, SSIM against an independent implementation and against the
+reference packages (scikit-image directly; torchmetrics through a stored fixture), gain/bias
+match (luminance and least squares) against known affine changes and numpy closed forms."""
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.signal
+import skimage.metrics
 import torch
+from metric_references import ssim_pairs
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.metrics import MATCH_METHODS, photometric_match, psnr, ssim
@@ -41,6 +47,68 @@ def test_ssim_matches_independent_implementation():
     ours = float(ssim(torch.as_tensor(x), torch.as_tensor(y)))
     np.testing.assert_allclose(ours, _ssim_reference(x, y), atol=1e-9)  # float64, different filtering order
     assert float(ssim(torch.as_tensor(x), torch.as_tensor(x))) == pytest.approx(1.0, abs=1e-12)
+
+
+@pytest.fixture(scope="module")
+def pairs():
+    return ssim_pairs()
+
+
+# scikit-image's arguments for this package's SSIM: 11 × 11 Gaussian window (σ 1.5, truncate 3.5),
+# population covariances, K1 0.01, K2 0.03, the range given; skimage filters with mirrored
+# borders and then drops the 5-pixel border strip, which leaves the same 'valid' window positions
+SKIMAGE_SSIM = dict(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, K1=0.01, K2=0.03, data_range=1.0)
+PAIR_NAMES = ("photo-noise", "photo-blur", "photo-shift", "photo-colour", "noise-vs-noise", "texture-blur")
+
+
+@pytest.mark.parametrize("name", PAIR_NAMES)
+def test_ssim_and_psnr_match_scikit_image(pairs, name):
+    """Channels are averaged (each has the same number of window positions, so the mean over
+    channels and positions is skimage's mean of per-channel means)."""
+    x, y = pairs[name]
+    reference = skimage.metrics.structural_similarity(x, y, channel_axis=0, **SKIMAGE_SSIM)
+    ours = float(ssim(torch.as_tensor(y), torch.as_tensor(x)))
+    assert ours == pytest.approx(reference, abs=1e-12)  # float64: round-off (measured ≤ 1.3e-15)
+    ours32 = float(ssim(torch.as_tensor(y, dtype=torch.float32), torch.as_tensor(x, dtype=torch.float32)))
+    assert ours32 == pytest.approx(reference, abs=1e-4)  # float32 (measured ≤ 1.9e-6)
+    psnr_reference = skimage.metrics.peak_signal_noise_ratio(x, y, data_range=1.0)
+    assert float(psnr(torch.as_tensor(y), torch.as_tensor(x))) == pytest.approx(psnr_reference, abs=1e-10)
+
+
+def test_ssim_matches_scikit_image_grey_and_non_square():
+    rng = np.random.default_rng(21)
+    x = rng.random((1, 40, 57))
+    y = np.clip(0.7 * x + 0.2 + 0.05 * rng.standard_normal(x.shape), 0, 1)
+    reference = skimage.metrics.structural_similarity(x[0], y[0], **SKIMAGE_SSIM)
+    assert float(ssim(torch.as_tensor(x), torch.as_tensor(y))) == pytest.approx(reference, abs=1e-12)
+    reference = skimage.metrics.structural_similarity(x[0], y[0], **{**SKIMAGE_SSIM, "data_range": 2.0})
+    assert float(ssim(torch.as_tensor(x), torch.as_tensor(y), data_range=2.0)) == pytest.approx(reference, abs=1e-12)
+
+
+def test_scikit_image_defaults_are_another_ssim(pairs):
+    """Without those arguments skimage computes another SSIM: its defaults are a uniform 7 × 7
+    window with sample covariances (×49/48); with the Gaussian window, sample covariances
+    (×121/120) alone move the photograph's score by 3e-4."""
+    x, y = pairs["photo-noise"]
+    ours = float(ssim(torch.as_tensor(y), torch.as_tensor(x)))
+    defaults = skimage.metrics.structural_similarity(x, y, channel_axis=0, data_range=1.0)
+    sample = skimage.metrics.structural_similarity(x, y, channel_axis=0, gaussian_weights=True, data_range=1.0)
+    assert abs(ours - defaults) > 1e-2 and abs(ours - sample) > 1e-4
+
+
+def test_ssim_and_psnr_match_torchmetrics_fixture(pairs):
+    """torchmetrics 1.9 (data/torchmetrics_ssim_psnr.json, make_torchmetrics_fixture.py): its
+    Gaussian 11 × 11 SSIM map averaged over the valid positions equals ours to round-off; its
+    own mean also counts the 5-pixel border computed on reflect-padded images (here up to
+    0.0095 higher or lower), which this package leaves out like scikit-image. PSNR per image
+    (its ``dim=(1, 2, 3)``); torchmetrics' 10/ln 10 is a float32 constant, so ~1e-6 dB apart."""
+    reference = json.loads((Path(__file__).parent / "data" / "torchmetrics_ssim_psnr.json").read_text())
+    rows = reference["pairs"]
+    assert [row["name"] for row in rows] == list(pairs) == list(PAIR_NAMES)
+    x = torch.as_tensor(np.stack([pairs[row["name"]][0] for row in rows]))
+    y = torch.as_tensor(np.stack([pairs[row["name"]][1] for row in rows]))
+    np.testing.assert_allclose(ssim(y, x).numpy(), [row["ssim_valid"] for row in rows], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(psnr(y, x).numpy(), [row["psnr_db"] for row in rows], rtol=0, atol=1e-5)
 
 
 def test_ssim_batched_and_differentiable():
