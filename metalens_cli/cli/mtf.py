@@ -1,4 +1,4 @@
-"""`metalens mtf`: MTFs of a PSF cube (EXR), or the slanted-edge SFR of an image."""
+"""`metalens mtf`: MTFs of a PSF cube (EXR, .npz, .mat or TIFF), or the slanted-edge SFR of an image."""
 
 from __future__ import annotations
 
@@ -81,10 +81,11 @@ def _roi(ctx, param, text: str | None) -> tuple[int, int, int, int] | None:
 def mtf(cube, edge_path, at_lpmm, na, remove_pixel_mtf, roi, pixel_pitch_m, srgb, csv_path, as_json, plot_path):
     """MTFs of a PSF cube, or the slanted-edge SFR of an image (--edge).
 
-    CUBE (docs/formats.md): for every (depth, wavelength) PSF and every R, G, B channel PSF, the
-    OTF modulus, normalised at zero frequency and radially averaged from 0 to the sampling
-    Nyquist 1/(2·pitch), in lp/mm; MTF50; the diffraction limit of the NA. The pixel aperture
-    is part of the curves unless --remove-pixel-mtf.
+    CUBE (.exr, .npz, .mat or .tif/.tiff, as psf-scan writes them; docs/formats.md): for every
+    (depth, wavelength) PSF and every R, G, B channel PSF, the OTF modulus, normalised at zero
+    frequency and radially averaged from 0 to the sampling Nyquist 1/(2·pitch), in lp/mm; MTF50;
+    the diffraction limit of the NA. The pixel aperture is part of the curves unless
+    --remove-pixel-mtf.
 
     --edge IMAGE: ISO 12233-style slanted-edge SFR per channel (4× oversampled ESF, Tukey
     window), 0 to 1 cycle/pixel, for edges tilted 2°-10° from the pixel grid.
@@ -113,9 +114,9 @@ def mtf(cube, edge_path, at_lpmm, na, remove_pixel_mtf, roi, pixel_pitch_m, srgb
 
 def _cube(path, at_lpmm, na, remove_pixel_mtf, csv_path, as_json, plot_path) -> None:
     from metalens_cli.analysis.mtf import cube_mtf
-    from metalens_cli.io.exr import read_psf_cube
+    from metalens_cli.io.psf_cube_files import read_cube_file
 
-    result = cube_mtf(read_psf_cube(path), at_lpmm=at_lpmm, na=na, remove_pixel_mtf=remove_pixel_mtf)
+    result = cube_mtf(read_cube_file(path), at_lpmm=at_lpmm, na=na, remove_pixel_mtf=remove_pixel_mtf)
     curves = result.curves()
     if csv_path:
         rows = [

@@ -1,4 +1,4 @@
-"""`metalens psf-scan`: PSF cubes over wavelength and depth, written as EXR."""
+"""`metalens psf-scan`: PSF cubes over wavelength and depth, written as EXR, .npz, .mat or TIFF."""
 
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ from metalens_cli.cli.options import (
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
 from metalens_cli.errors import InputError
+from metalens_cli.io.psf_cube_files import CUBE_SUFFIXES
 
 PROPAGATORS = ("auto", "asm", "radial", "rs")
 DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
@@ -59,7 +60,12 @@ DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
     help="Recompute the sharpest PSF with doubled sampling and with the rs reference; report relative L2.",
 )
 @click.option(
-    "-o", "--output", type=OutputFile((".exr",)), required=True, help="Output EXR file (see docs/formats.md)."
+    "-o",
+    "--output",
+    type=OutputFile(CUBE_SUFFIXES),
+    required=True,
+    help="Output cube, format by suffix: .exr, .npz (numpy), .mat (MATLAB v5) or .tif/.tiff (float32 stack, one page "
+    "per PSF); see docs/formats.md.",
 )
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
@@ -86,7 +92,8 @@ def psf_scan(
     as_json,
     plot_path,
 ):
-    """PSF cube over wavelength × depth of a design, with cost and accuracy, written as EXR.
+    """PSF cube over wavelength × depth of a design, with cost and accuracy, written as EXR,
+    .npz, .mat or TIFF (by the suffix of -o).
 
     Each PSF is the fraction of the power through the aperture landing on each pixel of an
     N × N window centred on the axis (pixel N//2, N//2). With a preset (given or carried by the
@@ -96,7 +103,8 @@ def psf_scan(
 
     from metalens_cli.imaging.psf_scan import run_scan
     from metalens_cli.io.designs import resolve_design
-    from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS, write_psf_cube
+    from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS
+    from metalens_cli.io.psf_cube_files import check_cube_size, write_cube_file
     from metalens_cli.io.resources import Estimate
     from metalens_cli.io.units import parse_length_list
     from metalens_cli.optics.psf import estimate_psf
@@ -116,6 +124,7 @@ def psf_scan(
             raise InputError(
                 option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values"
             )
+    check_cube_size(output, "--output", len(depths_m), len(wavelengths_m), pixels)
     cost = estimate_psf(
         design.lens,
         wavelengths_m,
@@ -167,7 +176,7 @@ def psf_scan(
         "spectra": scan.spectra,
         "efficiency": efficiency,
     }
-    write_psf_cube(
+    write_cube_file(
         output,
         scan.psf,
         wavelengths_m,

@@ -5,6 +5,10 @@ A cube holds D depths × W wavelengths of N × N float32 PSFs, one EXR channel e
 string header attribute ``metalens`` with the JSON metadata. Pixel [i, j] of a channel is
 array row i (EXR y), column j (EXR x); the optical axis is at the centre of pixel
 (N//2, N//2). Files are written ZIP-compressed (lossless), atomically.
+
+The contract's metadata and checks (:func:`prepare_cube`, :func:`parse_metadata`,
+:func:`cube_from_channels`) are shared by the ``.npz``, ``.mat`` and ``.tif`` cubes of
+``metalens_cli.io.psf_cube_files``, which also picks the format by suffix.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ _EXPECTED = "a PSF cube as described in docs/formats.md"
 
 @dataclass(frozen=True)
 class PsfCube:
-    """A PSF cube as read from an EXR file.
+    """A PSF cube as read from a cube file (EXR, or a format of ``psf_cube_files``).
 
     ``psf``: (D, W, N, N) float32. ``rgb``: (D, 3, N, N) float32, channels R, G, B, or None.
     ``wavelengths_m``: (W,) metres. ``depths_m``: (D,) metres, ``inf`` for a source at
@@ -79,14 +83,37 @@ def write_psf_cube(
     normalization: str = DEFAULT_NORMALIZATION,
     extra: dict[str, Any] | None = None,
 ) -> None:
-    """Write a PSF cube to ``path`` atomically (temporary file beside it, then ``os.replace``).
+    """Write a PSF cube to ``path`` as EXR, atomically (temporary file beside it, then ``os.replace``).
+
+    Arguments as :func:`prepare_cube`, which validates them exactly as ``read_psf_cube`` would,
+    so an invalid cube raises InputError and writes nothing. ``metalens_cli.io.psf_cube_files``
+    writes the same cube as ``.npz``, ``.mat`` or ``.tif``.
+    """
+    cube, text = prepare_cube(
+        path, psf, wavelengths_m, depths_m, pixel_pitch_m, design, rgb=rgb, normalization=normalization, extra=extra
+    )
+    _write_exr(Path(path), text, channel_planes(str(path), cube.psf, cube.rgb))
+
+
+def prepare_cube(
+    path: str | os.PathLike[str],
+    psf: np.ndarray,
+    wavelengths_m: np.ndarray,
+    depths_m: np.ndarray,
+    pixel_pitch_m: float,
+    design: str | dict[str, Any],
+    *,
+    rgb: np.ndarray | None = None,
+    normalization: str = DEFAULT_NORMALIZATION,
+    extra: dict[str, Any] | None = None,
+) -> tuple[PsfCube, str]:
+    """The validated cube every format's writer stores, and its metadata as strict JSON text.
 
     ``psf`` (D, W, N, N) and ``rgb`` (D, 3, N, N) or None are stored as float32 (exactly, if
     already float32); ``depths_m`` may hold ``inf`` (written as JSON null). ``design`` is a
     design spec string or a JSON-able object; ``extra`` adds JSON keys (e.g. ``na``, ``f_m``,
-    ``aperture_m``, ``accuracy``) and may not override the keys the writer sets. The file is
-    validated exactly as ``read_psf_cube`` would, so an invalid cube raises InputError and
-    writes nothing.
+    ``aperture_m``, ``accuracy``) and may not override the keys the writer sets. Whatever a
+    reader would refuse is an InputError naming ``path``.
     """
     field = str(path)
     clash = sorted(set(extra or {}) & set(WRITTEN_KEYS))
@@ -105,26 +132,28 @@ def write_psf_cube(
         **(extra or {}),
     }
     psf = np.asarray(psf, dtype=np.float32)
+    rgb = None if rgb is None else np.asarray(rgb, dtype=np.float32)
     counts = (len(metadata["depths_m"]), len(metadata["wavelengths_m"]))
     if psf.ndim != 4 or psf.shape[:2] != counts:
         raise InputError(
             field, f"psf of shape {psf.shape} for {counts[0]} depths × {counts[1]} wavelengths", "psf (D, W, N, N)"
         )
-    channels = _channels(psf, None if rgb is None else np.asarray(rgb, dtype=np.float32))
-    _check_cube(field, metadata, channels)
+    _check_cube(field, metadata, channel_planes(field, psf, rgb))
     try:
-        header_text = json.dumps(metadata, allow_nan=False)
+        text = json.dumps(metadata, allow_nan=False)
     except (TypeError, ValueError) as error:
         raise InputError(field, f"metadata is not strict JSON: {error}", "JSON-able values, no NaN or inf") from error
-    _write_exr(Path(path), header_text, channels)
+    return PsfCube(psf, rgb, *_axes(metadata), metadata), text
 
 
-def _channels(psf: np.ndarray, rgb: np.ndarray | None) -> dict[str, np.ndarray]:
-    """Channel name -> contiguous (N, N) float32 array, from psf (D, W, N, N) and rgb (D, 3, N, N)."""
+def channel_planes(field: str, psf: np.ndarray, rgb: np.ndarray | None) -> dict[str, np.ndarray]:
+    """Channel name -> contiguous (N, N) plane (views of contiguous arrays), from psf (D, W, N, N)
+    and rgb (D, 3, N, N) or None: the EXR channels, and the names under which every format's
+    PSFs are checked."""
     channels = {psf_channel_name(i, j): psf[i, j] for i in range(psf.shape[0]) for j in range(psf.shape[1])}
     if rgb is not None:
-        if rgb.shape[:2] != (psf.shape[0], 3):
-            raise InputError("rgb", f"shape {rgb.shape} beside psf {psf.shape}", "rgb (D, 3, N, N)")
+        if rgb.ndim != 4 or rgb.shape[:2] != (psf.shape[0], 3):
+            raise InputError(field, f"rgb of shape {rgb.shape} beside psf {psf.shape}", "rgb (D, 3, N, N)")
         channels.update(
             {rgb_channel_name(i, c): rgb[i, k] for i in range(rgb.shape[0]) for k, c in enumerate(RGB_CHANNELS)}
         )
@@ -150,46 +179,56 @@ def read_psf_cube(path: str | os.PathLike[str]) -> PsfCube:
         raise InputError(
             field, f"compression {compression} is lossy or not supported", ", ".join(LOSSLESS_COMPRESSIONS)
         )
-    metadata = _parse_header(field, header.get(HEADER_ATTRIBUTE))
+    metadata = parse_metadata(field, header.get(HEADER_ATTRIBUTE), f"'{HEADER_ATTRIBUTE}' header attribute")
     channels = {name: channel.pixels for name, channel in exr.channels().items()}
-    _check_cube(field, metadata, channels)
-    return _assemble(metadata, channels)
+    return cube_from_channels(field, metadata, channels)
 
 
-def _parse_header(field: str, text: Any) -> dict[str, Any]:
-    """The ``metalens`` attribute's JSON object with its format string checked."""
+def parse_metadata(field: str, text: Any, where: str) -> dict[str, Any]:
+    """The JSON object in ``text``, read from ``where`` (e.g. "'metalens' header attribute"; None:
+    the file has none), with its format string checked."""
     if text is None:
-        raise InputError(field, f"no '{HEADER_ATTRIBUTE}' header attribute (not a metalens PSF cube)", _EXPECTED)
+        raise InputError(field, f"no {where} (not a metalens PSF cube)", _EXPECTED)
     if not isinstance(text, str):
-        raise InputError(
-            field, f"header attribute '{HEADER_ATTRIBUTE}' is not a string", "a string attribute holding JSON"
-        )
+        raise InputError(field, f"{where} is not a string", "a string holding JSON")
     try:
         metadata = json.loads(text)
     except json.JSONDecodeError as error:
-        raise InputError(
-            field, f"header '{HEADER_ATTRIBUTE}' is not valid JSON ({error.msg})", "a JSON object"
-        ) from None
+        raise InputError(field, f"{where} is not valid JSON ({error.msg})", "a JSON object") from None
     except RecursionError:
-        raise InputError(field, f"header '{HEADER_ATTRIBUTE}' nests too deeply", "a flat JSON object") from None
+        raise InputError(field, f"{where} nests too deeply", "a flat JSON object") from None
     if not isinstance(metadata, dict):
-        raise InputError(field, f"header '{HEADER_ATTRIBUTE}' is not a JSON object", "a JSON object")
+        raise InputError(field, f"{where} is not a JSON object", "a JSON object")
     if metadata.get("format") != FORMAT:
         raise InputError(field, f"format is {metadata.get('format')!r}", repr(FORMAT))
     return metadata
 
 
+def cube_from_channels(field: str, metadata: dict[str, Any], channels: dict[str, np.ndarray]) -> PsfCube:
+    """The cube of parsed ``metadata`` and planes named as the EXR channels (:func:`channel_planes`),
+    after every check of the contract: the one validation all formats' readers share."""
+    _check_cube(field, metadata, channels)
+    return _assemble(metadata, channels)
+
+
 def _check_cube(field: str, metadata: dict[str, Any], channels: dict[str, np.ndarray]) -> None:
-    """Refuse metadata or channels that break the contract (shared by writing and reading);
-    ``design`` and ``version`` are optional (a measured cube from another program may lack them)."""
+    """Refuse metadata or channels that break the contract (shared by writing and reading)."""
+    depth_count, wavelength_count = check_metadata(field, metadata)
+    _check_channel_names(field, channels, depth_count, wavelength_count)
+    _check_pixels(field, channels)
+
+
+def check_metadata(field: str, metadata: dict[str, Any]) -> tuple[int, int]:
+    """Refuse metadata that breaks the contract; return (D, W), the counts of depths and
+    wavelengths. ``design`` and ``version`` are optional (a measured cube from another program
+    may lack them)."""
     missing = [key for key in REQUIRED_KEYS if key not in metadata]
     if missing:
-        raise InputError(field, f"header JSON lacks {', '.join(missing)}", _EXPECTED)
+        raise InputError(field, f"metadata JSON lacks {', '.join(missing)}", _EXPECTED)
     wavelengths = _positive_list(field, metadata, "wavelengths_m", allow_null=False, limit=MAX_WAVELENGTHS)
     depths = _positive_list(field, metadata, "depths_m", allow_null=True, limit=MAX_DEPTHS)
     _check_scalars(field, metadata)
-    _check_channel_names(field, channels, len(depths), len(wavelengths))
-    _check_pixels(field, channels)
+    return len(depths), len(wavelengths)
 
 
 def _positive_list(
@@ -270,10 +309,16 @@ def _check_pixels(field: str, channels: dict[str, np.ndarray]) -> None:
             raise InputError(field, f"channel {name} holds NaN or infinity", "finite values")
 
 
-def _assemble(metadata: dict[str, Any], channels: dict[str, np.ndarray]) -> PsfCube:
-    """Stack the validated channels into arrays."""
+def _axes(metadata: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """(wavelengths_m, depths_m) as float64 arrays from validated metadata, null depths as ``inf``."""
     wavelengths = np.array(metadata["wavelengths_m"], dtype=float)
     depths = np.array([math.inf if depth is None else depth for depth in metadata["depths_m"]], dtype=float)
+    return wavelengths, depths
+
+
+def _assemble(metadata: dict[str, Any], channels: dict[str, np.ndarray]) -> PsfCube:
+    """Stack the validated channels into arrays."""
+    wavelengths, depths = _axes(metadata)
     psf = np.stack(
         [np.stack([channels[psf_channel_name(i, j)] for j in range(wavelengths.size)]) for i in range(depths.size)]
     )
