@@ -40,7 +40,7 @@ def test_low_na_follows_paraxial_model():
 
 
 def test_paper_na_deviates_by_a_few_percent():
-    # NA 0.3: the exact best-focus depth lies 1-3 % beyond the paraxial depth (PHYSICS.md).
+    # NA 0.3: the exact best-focus depth lies 1-3 % beyond the paraxial depth (the non-paraxial focal shift).
     v = validate_symmetry([490e-9], 450e-9, 4e-3, 2.516e-3)
     (row,) = v.rows
     assert_allclose(row.model_depth_m, 0.045, rtol=1e-12)
