@@ -1,4 +1,5 @@
-"""Time `register` + `apply` of a synthetic 2048² RGB capture onto its reference: writes its section of docs/benchmarks.md.
+"""Time `register` + `apply` of a synthetic 2048² RGB capture onto its reference: writes its section of
+docs/benchmarks.md.
 
 Run: python benchmarks/bench_align.py [--repeat 3] [--side 2048]
 The reference is a multi-scale texture (smoothed noise, σ 2-64 px, random colours); the capture
@@ -88,7 +89,7 @@ def timed(reference, capture, blurred, refine: str, repeat: int) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--side", type=int, default=2048)
     args = parser.parse_args()
@@ -100,13 +101,13 @@ def main() -> None:
         "",
         f"Command: `python benchmarks/bench_align.py --repeat {args.repeat} --side {args.side}`; {os.cpu_count()} CPUs "
         f"(1-min load average {load:.1f} when started: other work shares them), Python {platform.python_version()}, "
-        f"OpenCV {cv2.__version__}, numpy {np.__version__}. A {args.side} × {args.side} RGB float32 pair: known homography "
-        f"+ {RIPPLE_PX:g}-px sinusoidal ripple, capture blurred (σ {BLUR_PX:g} px) with per-channel gain and bias. "
-        "Target: register + apply ≤ 3 s with `--refine flow`.",
+        f"OpenCV {cv2.__version__}, numpy {np.__version__}. A {args.side} × {args.side} RGB float32 pair: known "
+        f"homography + {RIPPLE_PX:g}-px sinusoidal ripple, capture blurred (σ {BLUR_PX:g} px) with per-channel gain "
+        "and bias. Target: register + apply ≤ 3 s with `--refine flow`.",
         "PSNR: aligned capture (gain and bias undone) against the equally blurred reference, over the valid region.",
         "",
-        "| refine | register wall median (s) | apply wall median (s) | total wall median (s) | total wall min (s) | CPU median (s) "
-        "| matches / inliers | valid % | PSNR (dB) |",
+        "| refine | register wall median (s) | apply wall median (s) | total wall median (s) | total wall min (s) "
+        "| CPU median (s) | matches / inliers | valid % | PSNR (dB) |",
         "|---|---|---|---|---|---|---|---|---|",
         *[
             f"| {refine} | {statistics.median(r['register']):.2f} | {statistics.median(r['apply']):.2f} | "

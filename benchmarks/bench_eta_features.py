@@ -89,9 +89,10 @@ def measure(path: Path) -> list[str]:
             f"{np.trapezoid(gap, w) * 1e9:.4f} |"
         )
     return [
-        f"Preset `{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}` (material {preset.nanofin.material}, "
-        f"N = {preset.nanofin.harmonics}): {sampled.report['samples']} samples, {len(sampled.report['unresolved_m'])} unresolved "
-        f"intervals in {len(windows)} clusters; resolving them took {sum(w.size for w, _, _ in fine)} RCWA solves, {seconds:.0f} s.",
+        f"Preset `{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}` (material "
+        f"{preset.nanofin.material}, N = {preset.nanofin.harmonics}): {sampled.report['samples']} samples, "
+        f"{len(sampled.report['unresolved_m'])} unresolved intervals in {len(windows)} clusters; resolving them took "
+        f"{sum(w.size for w, _, _ in fine)} RCWA solves, {seconds:.0f} s.",
         "",
         "| window (nm) | samples | still unresolved at 0.002 nm | largest η difference | ∫|Δη| dλ (nm) |",
         "|---|---|---|---|---|",
@@ -109,9 +110,9 @@ def main() -> None:
     lines = [
         '## η(λ) features narrower than 0.5 nm, and S^c (`efficiency = "rcwa"`)',
         "",
-        f"Command: `python benchmarks/bench_eta_features.py`; {os.cpu_count()} CPUs. Each cluster of the features the preset's "
-        "sampling lists as unresolved is sampled again from 0.05 nm down to 0.002 nm (same rule: refine where the midpoint's η "
-        "differs from the interpolation by > 1e-3); S^c is integrated with both.",
+        f"Command: `python benchmarks/bench_eta_features.py`; {os.cpu_count()} CPUs. Each cluster of the features the "
+        "preset's sampling lists as unresolved is sampled again from 0.05 nm down to 0.002 nm (same rule: refine where "
+        "the midpoint's η differs from the interpolation by > 1e-3); S^c is integrated with both.",
         "",
     ]
     for path in paths:

@@ -103,14 +103,16 @@ def main() -> None:
     rows = [
         "## Image formation (`python benchmarks/bench_imaging.py`)",
         "",
-        f"One obstructed {args.size} × {args.size} RGB capture on the canvas its PSF windows need (sensor + N//2 of the "
-        f"larger window on every side), PSF transforms precomputed once, float32, {args.threads} threads. Windows: the "
-        "hyperbolic 532 nm paper lens at z_near 40 mm and z_far 1 m, over 400-700 nm (first row pair) and over the "
-        f"tri-band filter's pass bands (second), from `optics.blur.psf_window`. Each line: {args.processes} fresh processes × "
-        f"{args.repeats} calls; the median and the worst of the per-process medians, and minor page faults per call. "
-        "`retained`: `metalens_cli.runtime.retain_freed_memory()` applied, as `metalens` does at start-up. Target ≤ 80 ms.",
+        f"One obstructed {args.size} × {args.size} RGB capture on the canvas its PSF windows need (sensor + N//2 of "
+        f"the larger window on every side), PSF transforms precomputed once, float32, {args.threads} threads. Windows: "
+        "the hyperbolic 532 nm paper lens at z_near 40 mm and z_far 1 m, over 400-700 nm (first row pair) and over the "
+        f"tri-band filter's pass bands (second), from `optics.blur.psf_window`. Each line: {args.processes} fresh "
+        f"processes × {args.repeats} calls; the median and the worst of the per-process medians, and minor page faults "
+        "per call. `retained`: `metalens_cli.runtime.retain_freed_memory()` applied, as `metalens` does at start-up. "
+        "Target ≤ 80 ms.",
         "",
-        "| PSF windows near / far | FFT sizes near / far | allocator | median ms | worst process ms | page faults / call | transforms once (ms) |",
+        "| PSF windows near / far | FFT sizes near / far | allocator | median ms | worst process ms "
+        "| page faults / call | transforms once (ms) |",
         "|---|---|---|---|---|---|---|",
     ]
     for near_n, far_n in windows:

@@ -58,7 +58,8 @@ def harmonics_table() -> list[str]:
         else:
             meent = "— | —"
         rows.append(
-            f"| {n} | {error[10]:.1e} | {error.max():.1e} | {seconds:.2f} | {estimate_seconds(n, w.size):.2f} | {meent} |"
+            f"| {n} | {error[10]:.1e} | {error.max():.1e} | {seconds:.2f} | {estimate_seconds(n, w.size):.2f} | "
+            f"{meent} |"
         )
     return rows
 
@@ -69,10 +70,12 @@ def target_rows() -> list[str]:
     (chosen, table, r), seconds = timed(converge, FIN, SINX.index(w), FUSED_SILICA.index(w), w)
     fixed, fixed_seconds = timed(eta, w, 25)
     return [
-        f"- `--harmonics auto` (N = 5, 7, … until η moves < 1e-3 at every wavelength from N − 2 and N − 4): chose N = {chosen} "
-        f"in {seconds:.1f} s for all of it (estimated {convergence_seconds(chosen, w.size):.1f} s); largest η error over the 24 wavelengths against N = {REFERENCE}: "
+        "- `--harmonics auto` (N = 5, 7, … until η moves < 1e-3 at every wavelength from N − 2 and N − 4): chose N = "
+        f"{chosen} in {seconds:.1f} s for all of it (estimated {convergence_seconds(chosen, w.size):.1f} s); largest η "
+        f"error over the 24 wavelengths against N = {REFERENCE}: "
         f"{np.abs(r.conversion - reference.conversion).max():.1e}.",
-        f"- `--harmonics 25`: {fixed_seconds:.1f} s; largest error {np.abs(fixed.conversion - reference.conversion).max():.1e}.",
+        f"- `--harmonics 25`: {fixed_seconds:.1f} s; largest error "
+        f"{np.abs(fixed.conversion - reference.conversion).max():.1e}.",
     ]
 
 
@@ -110,11 +113,12 @@ def sweep_rows() -> list[str]:
     c = report["recommended"]
     f = c["converged"]
     return [
-        f"- `metalens {' '.join(command[:-4])} -o DIR` (31 × 31 fins × 24 wavelengths, 8 per band, map at N = 9): {wall:.0f} s wall "
-        f"(target ≤ 20 min): map {report['seconds']:.0f} s, the chosen fin converged (N = {f['harmonics']}) with its "
-        f"{f['fins']} neighbours {f['seconds']:.0f} s; the command's estimate said {estimate}. Again, the map and the refinement read from the cache: {cached_wall:.0f} s.",
-        f"- Recommended: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.3f} at N = 9, converged "
-        f"{f['score']:.3f} (per band "
+        f"- `metalens {' '.join(command[:-4])} -o DIR` (31 × 31 fins × 24 wavelengths, 8 per band, map at N = 9): "
+        f"{wall:.0f} s wall (target ≤ 20 min): map {report['seconds']:.0f} s, the chosen fin converged (N = "
+        f"{f['harmonics']}) with its {f['fins']} neighbours {f['seconds']:.0f} s; the command's estimate said "
+        f"{estimate}. Again, the map and the refinement read from the cache: {cached_wall:.0f} s.",
+        f"- Recommended: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.3f} at N = 9, "
+        f"converged {f['score']:.3f} (per band "
         + " / ".join(f"{v:.3f}" for v in f["eta_per_band"])
         + f"), worst neighbour {f['worst_neighbour']:.3f}"
         f" ({'keeps' if f['robust'] else 'does not keep'} 95 %).",
@@ -144,12 +148,14 @@ def main() -> None:
     lines = [
         "## Nanofin conversion efficiency (`metalens nanofin efficiency`, `nanofin sweep`)",
         "",
-        f"Command: `python benchmarks/bench_nanofin.py`; {os.cpu_count()} CPUs (1-min load average {load:.1f} when started), "
-        f"Python {platform.python_version()}, torch {torch.__version__}, numpy {np.__version__}. Fin 305 × 125 × 700 nm, period 395 nm, "
-        f"Si3N4 (Luke 2015) on fused silica (Malitson 1965), 24 wavelengths 430:660:10nm. Reference: fin_modes at N = {REFERENCE}. "
-        "fin_modes batches the 24 wavelengths in one call; meent solves one wavelength (530 nm) per call.",
+        f"Command: `python benchmarks/bench_nanofin.py`; {os.cpu_count()} CPUs (1-min load average {load:.1f} when "
+        f"started), Python {platform.python_version()}, torch {torch.__version__}, numpy {np.__version__}. Fin 305 × "
+        "125 × 700 nm, period 395 nm, Si3N4 (Luke 2015) on fused silica (Malitson 1965), 24 wavelengths 430:660:10nm. "
+        f"Reference: fin_modes at N = {REFERENCE}. fin_modes batches the 24 wavelengths in one call; meent solves one "
+        "wavelength (530 nm) per call.",
         "",
-        "| N | fin_modes: η error at 530 nm | fin_modes: largest error, 24 λ | fin_modes: seconds, 24 λ | estimated seconds | meent: η error at 530 nm | meent: seconds, 1 λ |",
+        "| N | fin_modes: η error at 530 nm | fin_modes: largest error, 24 λ | fin_modes: seconds, 24 λ "
+        "| estimated seconds | meent: η error at 530 nm | meent: seconds, 1 λ |",
         "|---|---|---|---|---|---|---|",
         *table,
         "",

@@ -4,8 +4,8 @@ radial θ(r) (one parameter per meta-atom ring) and 2-D θ(x, y) (one per site, 
 paper).
 
 Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4] [--steps-quick 40]
-[--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR [--baseline-label NAME]] [--presets DIR]. Rewrites its
-section of docs/benchmarks.md (one per device type). Every row runs in a fresh process (its own
+[--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR [--baseline-label NAME]] [--presets DIR]. Rewrites
+its section of docs/benchmarks.md (one per device type). Every row runs in a fresh process (its own
 peak memory). ``--baseline DIR`` (a checkout of an earlier commit, e.g. from ``git worktree add
 DIR HEAD``) measures each row again with DIR's package right after, on the same presets, so that
 the before/after ratios come from one sitting. Each step's PSF windows follow its light
@@ -96,8 +96,8 @@ def row(r: dict, label: str) -> str:
     window_text = f"{windows['near']} / {windows['far']}" if windows and windows["near"] else "fixed"
     mean = r["mean_seconds_per_step"]
     return (
-        f"| {label} | {r['parameters']:,} | {'2-D ASM' if r['kind'] == '2d' else 'radial (Hankel)'} | {steps} | {window_text} | "
-        f"{r['seconds_per_step']:.2f} | {mean:.2f} | {r['first_step_s']:.2f} | "
+        f"| {label} | {r['parameters']:,} | {'2-D ASM' if r['kind'] == '2d' else 'radial (Hankel)'} | {steps} | "
+        f"{window_text} | {r['seconds_per_step']:.2f} | {mean:.2f} | {r['first_step_s']:.2f} | "
         f"{stages.get('psf_kernels', 0):.1f} | {stages.get('psf', 0) / steps:.2f} | "
         f"{stages.get('backward', 0) / steps:.2f} | {r['peak_bytes'] / 2**30:.1f} GiB ({memory}) |"
     )
@@ -170,11 +170,12 @@ def main() -> None:
         + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2; `quick-joint-filter.toml` learns the "
         f"filter with θ, 4 wavelengths per band): {args.steps_quick} steps from θ_init, "
         f"long enough for the light to spread and the plan to grow; `split-spectrum.toml` (512² sensor, 3 wavelengths "
-        f"per channel, batch 1): {args.steps} steps (radial), {args.steps_2d} (2-D); on {name}, each row a fresh process. "
-        "Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their total "
-        "seconds (Hankel kernel and output rows). Windows: what the last step's light needed (near / far, px)."
+        f"per channel, batch 1): {args.steps} steps (radial), {args.steps_2d} (2-D); on {name}, each row a fresh "
+        "process. Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their "
+        "total seconds (Hankel kernel and output rows). Windows: what the last step's light needed (near / far, px)."
         + (
-            f" Baseline rows: commit {commit} (the same presets), each measured right after the row above it, on the same machine."
+            f" Baseline rows: commit {commit} (the same presets), each measured right after the row above it, on the "
+            "same machine."
             if args.baseline
             else ""
         ),

@@ -101,10 +101,11 @@ def main() -> None:
     lines = [
         "## Import of measured PSF frames (`metalens psf import`)",
         "",
-        f"Command: `python benchmarks/bench_psf_import.py --repeat {args.repeat} --format {args.format}`; {os.cpu_count()} CPUs "
-        f"(1-min load average {load:.1f} when started), Python {platform.python_version()}, numpy {np.__version__}, OpenCV "
-        f"{cv2.__version__}. 88 frames (2 depths × 44 wavelengths) of {SIDE} × {SIDE} 16-bit {args.format.upper()} "
-        f"({size:.0f} MiB on disk), read in one thread while 2 threads process. Target: ≤ 10 s.",
+        f"Command: `python benchmarks/bench_psf_import.py --repeat {args.repeat} --format {args.format}`; "
+        f"{os.cpu_count()} CPUs (1-min load average {load:.1f} when started), Python {platform.python_version()}, "
+        f"numpy {np.__version__}, OpenCV {cv2.__version__}. 88 frames (2 depths × 44 wavelengths) of {SIDE} × {SIDE} "
+        f"16-bit {args.format.upper()} ({size:.0f} MiB on disk), read in one thread while 2 threads process. "
+        "Target: ≤ 10 s.",
         "",
         "| step | wall median (s) | wall min (s) | per frame (ms) |",
         "|---|---|---|---|",

@@ -108,8 +108,9 @@ def main() -> None:
         "",
         f"Network {first['shape']} ({first['parameters']} parameters; weights: {args.run or 'untrained'}), "
         f"{args.threads} threads, median of {args.repeats} "
-        "after 2 warm-up runs, each configuration in a fresh process. Peak: resident set above the loaded process (CPU) "
-        "or `torch.cuda.max_memory_allocated` (GPU); estimate: `imaging.restore.inference_bytes`, which sets the tile size.",
+        "after 2 warm-up runs, each configuration in a fresh process. Peak: resident set above the loaded process "
+        "(CPU) or `torch.cuda.max_memory_allocated` (GPU); estimate: `imaging.restore.inference_bytes`, which sets the "
+        "tile size.",
         "",
         "| path | median s | min s | peak MiB | estimate MiB | PSNR vs whole (dB) |",
         "|---|---|---|---|---|---|",

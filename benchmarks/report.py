@@ -10,7 +10,10 @@ import re
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
-TITLE = "# Benchmarks\n\nMeasured on this project's machines (2 CPU cores). Each section names the command that produced it.\n"
+TITLE = (
+    "# Benchmarks\n\nMeasured on this project's machines (2 CPU cores). Each section names the command that "
+    "produced it.\n"
+)
 
 
 def write_section(name: str, markdown: str, path: Path = RESULTS) -> Path:

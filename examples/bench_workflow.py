@@ -9,8 +9,9 @@ It fabricates what a bench would give, with known answers, in the layout the com
   so 1.85 µm in the lens' sensor plane): the simulated PSFs at a random whole-pixel position
   (the in-focus PSF is undersampled at 1.85 µm, and a sub-pixel shift of an undersampled PSF
   cannot be made from its samples; sub-pixel centring is tested on well-sampled spots in
-  tests/analysis/test_measured_psf.py), exposed to fill 60 % of the 16-bit range, Poisson photons, a background, a dark offset with read noise, five hot pixels; a stack of
-  dark frames; one over-exposed frame (``psf_530nm_inf_long.png``); the manifest ``psf.csv``.
+  tests/analysis/test_measured_psf.py), exposed to fill 60 % of the 16-bit range, Poisson photons, a background, a dark
+  offset with read noise, five hot pixels; a stack of dark frames; one over-exposed frame (``psf_530nm_inf_long.png``);
+  the manifest ``psf.csv``.
 - ``OUT/pairs/``: photographs of printed dead-leaves charts through two lenses (``metalens simulate --images charts``),
   as a second camera that is not quite where the reference was would record them: warped by
   a homography and a smooth distortion of a few pixels (``gt/``, ``DESIGN/unobstructed/``,
@@ -219,7 +220,8 @@ def main() -> None:
         print(f"  MTF50 at {c['wavelength_m'] * 1e9:.0f} nm, {depth}: {c['mtf50_lpmm'] or float('nan'):.1f} lp/mm")
     for p in comparison["pairs"]:
         print(
-            f"psf compare {p['wavelength_m'] * 1e9:.0f} nm: peak ratio {p['peak_ratio']:.3f}, relative L2 {p['relative_l2']:.3f}"
+            f"psf compare {p['wavelength_m'] * 1e9:.0f} nm: peak ratio {p['peak_ratio']:.3f}, relative L2 "
+            f"{p['relative_l2']:.3f}"
         )
     report = aligned["pairs"][0]["registration"]
     print(f"align {first}: {report.get('inliers')} inliers, residual {report.get('residual_px', float('nan')):.2f} px")

@@ -16,8 +16,9 @@ same θ budget, the same band-following spectral quadrature and shot noise for a
 Each pair is then scored by ``metalens evaluate JOINT FIXED --pixels 512 --seed 0:2 --obstruction
 dirt,fence`` without noise and with ``--photons N --photons-before-filter`` for N = 2000 (the
 training light) and 250 (the held-out photographs, raw captures, each design's channels with its
-own filter's share of the light) and ``metalens bands check --preset RUN/preset.toml``; the filters' throughput comes from each run's run.json. ``--reuse`` keeps
-finished run directories. Every number in the written file comes from those outputs.
+own filter's share of the light) and ``metalens bands check --preset RUN/preset.toml``; the filters' throughput comes
+from each run's run.json. ``--reuse`` keeps finished run directories. Every number in the written file comes from those
+outputs.
 """
 
 from __future__ import annotations
@@ -163,7 +164,8 @@ def evaluation_lines(out: Path, learned: tuple[str, ...], fixed: str, z_near: st
         f"`metalens evaluate {' '.join(base)} [LIGHT]`, LIGHT one of: none (no noise), "
         + ", ".join(f"`--photons {n} --photons-before-filter`" for n in LIGHTS if n)
         + ". 9 photographs × 3 seeds = 27 "
-        f"units per cell, PSNR (dB) after the least-squares match, mean [95 % CI]; paired: learned − {fixed} on the same units.",
+        f"units per cell, PSNR (dB) after the least-squares match, mean [95 % CI]; paired: learned − {fixed} on the "
+        "same units.",
         "",
         "| light (e⁻ before the filter) | design | unobstructed | dirt | fence |",
         "|---|---|---|---|---|",
@@ -220,8 +222,8 @@ def write_doc(out: Path) -> None:
         "`metalens optimize` from `presets/quick-joint-filter.toml`, 300 steps each on 2 CPU cores, seed 0: the same θ "
         f"budget, the same band-following spectral quadrature (4 wavelengths per band) and shot noise ({PHOTONS} e⁻ at "
         "full scale before the filter, so each channel gets its filter's share) for all. `light-*` learn the filter "
-        "with θ and the light term (`filter.light_weight` 1, or 0.3 where named), `joint-*` without it, `fixed-*` keep the "
-        "paper's tri-band filter (457/530/628 nm, FWHM 22/20/28 nm, 2 nm edges).",
+        "with θ and the light term (`filter.light_weight` 1, or 0.3 where named), `joint-*` without it, `fixed-*` keep "
+        "the paper's tri-band filter (457/530/628 nm, FWHM 22/20/28 nm, 2 nm edges).",
         "",
         "## The filters",
         "",

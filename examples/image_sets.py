@@ -82,7 +82,8 @@ def evaluate(*args: str) -> dict:
 
 def fence_rows(pixels: int, seeds: int) -> list[str]:
     rows = [
-        "| images | match | obstruction | Δ PSNR (dB) [95 % CI] | units improved | gain of the match, unobstructed: median (range) |",
+        "| images | match | obstruction | Δ PSNR (dB) [95 % CI] | units improved "
+        "| gain of the match, unobstructed: median (range) |",
         "|---|---|---|---|---|---|",
     ]
     for images in ("photos", "charts"):
@@ -165,7 +166,8 @@ def ab_rows(runs: list[str], seeds: int) -> list[str]:
         + " and ".join(f"{v:.2f} rad ({k})" for k, v in shift.items())
         + " (θ reaches ≈ 1140 rad at the rim): the lenses are set by the PSF terms of the loss, whose gradient is "
         "10²-10³ × the image terms' at θ_init (docs/training.md), so the scenes the image terms see hardly steer "
-        "them. The reconstruction networks, which learn from images alone, draw the same scenes (`data.scenes`); their A/B is not measured here.",
+        "them. The reconstruction networks, which learn from images alone, draw the same scenes (`data.scenes`); their "
+        "A/B is not measured here.",
     ]
     return rows
 

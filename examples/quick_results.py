@@ -164,9 +164,10 @@ def medium_section(run: dict, quick: dict, report: dict) -> tuple[list[str], lis
         "",
         "## (a2) A medium run: how far the quick run is from convergence",
         "",
-        f"`metalens optimize presets/{MEDIUM}.toml` ({run['settings']['steps']} steps on a 256 × 256 crop, against the quick "
-        f"preset's {quick['settings']['steps']} on 128 × 128; same lens, losses and learning rate), scored with the quick split "
-        f"run on the same units (photographs, 512 × 512, seeds 0-{len(report['seeds']) - 1}; PSNR in dB, mean [95 % CI]).",
+        f"`metalens optimize presets/{MEDIUM}.toml` ({run['settings']['steps']} steps on a 256 × 256 crop, against the "
+        f"quick preset's {quick['settings']['steps']} on 128 × 128; same lens, losses and learning rate), scored with "
+        f"the quick split run on the same units (photographs, 512 × 512, seeds 0-{len(report['seeds']) - 1}; PSNR in "
+        "dB, mean [95 % CI]).",
         "",
         "| run | steps | s/step (median) | training time | validation loss before → after | Unobs. | "
         + " | ".join(f"{k} Obs." for k in kinds)
@@ -194,15 +195,16 @@ def medium_section(run: dict, quick: dict, report: dict) -> tuple[list[str], lis
         "",
         "Paired difference, medium − quick (dB, 95 % CI): "
         + "; ".join(
-            f"{'unobstructed' if c == 'unobstructed' else f'{k} obstructed'} {_cell(pairs[k, c]['difference'], pairs[k, c]['ci'], 2, True)}"
+            f"{'unobstructed' if c == 'unobstructed' else f'{k} obstructed'} "
+            f"{_cell(pairs[k, c]['difference'], pairs[k, c]['ci'], 2, True)}"
             for k, c in cells
         )
         + ".",
     ]
     worst = max(abs(pairs[k, c]["difference"]) for k, c in cells)
     verdicts = [
-        f"- (a2) the quick split run scores within {worst:.2f} dB of the medium run ({run['settings']['steps']} steps) on every "
-        f"photograph cell at 512²: target within 0.5 dB {'met' if worst <= 0.5 else 'NOT met'}."
+        f"- (a2) the quick split run scores within {worst:.2f} dB of the medium run ({run['settings']['steps']} steps) "
+        f"on every photograph cell at 512²: target within 0.5 dB {'met' if worst <= 0.5 else 'NOT met'}."
     ]
     return lines, verdicts
 
@@ -240,10 +242,10 @@ def evaluation_section(images: str, pixels: int, report: dict, seeds: int) -> tu
         "",
         f"## (a) {title} of the {what}, {pixels} × {pixels} sensor",
         "",
-        f"`metalens evaluate --images {images}`: {len(report['images'])} {what} × seeds 0-{seeds - 1} = {n} units per cell "
-        "(each seed draws z_near in 40-50 mm, z_far in 1-20 m, the obstructions and their placement); every design sees the "
-        "same units. PSNR (dB) and SSIM after the least-squares gain/bias match (docs/images.md says why not the "
-        "paper's luminance match); mean [95 % bootstrap CI]; Δ = Obs. − Unobs. per unit.",
+        f"`metalens evaluate --images {images}`: {len(report['images'])} {what} × seeds 0-{seeds - 1} = {n} units per "
+        "cell (each seed draws z_near in 40-50 mm, z_far in 1-20 m, the obstructions and their placement); every "
+        "design sees the same units. PSNR (dB) and SSIM after the least-squares gain/bias match (docs/images.md says "
+        "why not the paper's luminance match); mean [95 % bootstrap CI]; Δ = Obs. − Unobs. per unit.",
         "",
         "| design | capture | condition | " + " | ".join(f"{k} PSNR | {k} SSIM" for k in kinds) + " |",
         "|---|---|---|" + "---|---|" * len(kinds),
@@ -264,7 +266,8 @@ def evaluation_section(images: str, pixels: int, report: dict, seeds: int) -> tu
                         cells += [_cell(r["psnr_db"], r["psnr_db_ci"], 2), _cell(r["ssim"], r["ssim_ci"], 3)]
                 first = condition == "unobstructed"
                 lines.append(
-                    f"| {LABELS[design] if first and capture == 'raw' else ''} | {capture.capitalize() if first else ''} | "
+                    f"| {LABELS[design] if first and capture == 'raw' else ''} | "
+                    f"{capture.capitalize() if first else ''} | "
                     f"{label} | " + " | ".join(cells) + " |"
                 )
     pairs = {
@@ -480,10 +483,10 @@ def visible_section(scan: dict) -> tuple[list[str], list[str]]:
         "",
         f"## (b2) Far core energy across {lo}-{hi} nm, and per channel",
         "",
-        f"`metalens psf-scan --wavelengths 400:700:5nm --depths {NEAR_DEPTH},inf --pixels 64`: the central 5 × 5 energy of "
-        f"the far (∞) PSF at each wavelength in {lo}-{hi} nm (5 nm steps): mean, maximum and the share of wavelengths at "
-        "≥ ½ the maximum; and of the channel PSFs (the wavelengths weighted by filter × camera response; the broadband "
-        "and hyperbolic presets have no filter), far and near.",
+        f"`metalens psf-scan --wavelengths 400:700:5nm --depths {NEAR_DEPTH},inf --pixels 64`: the central 5 × 5 "
+        f"energy of the far (∞) PSF at each wavelength in {lo}-{hi} nm (5 nm steps): mean, maximum and the share of "
+        "wavelengths at ≥ ½ the maximum; and of the channel PSFs (the wavelengths weighted by filter × camera "
+        "response; the broadband and hyperbolic presets have no filter), far and near.",
         "",
         "| design | far mean | far max | share ≥ ½ max | far R / G / B (channel) | near R / G / B (channel) |",
         "|---|---|---|---|---|---|",
@@ -505,10 +508,10 @@ def visible_section(scan: dict) -> tuple[list[str], list[str]]:
     broad, hyper = stats["quick-broadband"], stats["hyperbolic-532"]
     ratio = broad[0] / hyper[0]
     verdicts = [
-        f"- (b2) learned broadband far 5 × 5 mean over {lo}-{hi} nm {broad[0]:.4f} = {ratio:.2f} × the hyperbolic lens's "
-        f"{hyper[0]:.4f}: target ≥ 2 × " + ("met." if ratio >= 2 else "NOT met."),
-        f"- (b2) learned broadband at ≥ ½ its own maximum at {100 * broad[1]:.0f} % of those wavelengths: target ≥ 60 % "
-        + ("met." if broad[1] >= 0.6 else "NOT met."),
+        f"- (b2) learned broadband far 5 × 5 mean over {lo}-{hi} nm {broad[0]:.4f} = {ratio:.2f} × the hyperbolic "
+        f"lens's {hyper[0]:.4f}: target ≥ 2 × " + ("met." if ratio >= 2 else "NOT met."),
+        f"- (b2) learned broadband at ≥ ½ its own maximum at {100 * broad[1]:.0f} % of those wavelengths: "
+        "target ≥ 60 % " + ("met." if broad[1] >= 0.6 else "NOT met."),
     ]
     return lines, verdicts
 
@@ -519,12 +522,12 @@ def recon_section(reports: dict[str, dict]) -> list[str]:
         "",
         "## Reconstruction networks",
         "",
-        "`metalens reconstruct train runs/NAME --preset presets/quick-reconstruct.toml -o runs/recon-NAME`: one network per "
-        "design on pairs simulated through it (dirt and fence). Validation: the run's held-out simulated pairs, PSNR after "
-        "the least-squares match, raw capture → network output.",
+        "`metalens reconstruct train runs/NAME --preset presets/quick-reconstruct.toml -o runs/recon-NAME`: one "
+        "network per design on pairs simulated through it (dirt and fence). Validation: the run's held-out simulated "
+        "pairs, PSNR after the least-squares match, raw capture → network output.",
         "",
-        "| design | steps | s/step (median) | training time | setup (PSF bank + pools) | validation obstructed PSNR raw → recon "
-        "| validation unobstructed PSNR raw → recon | loss terms |",
+        "| design | steps | s/step (median) | training time | setup (PSF bank + pools) "
+        "| validation obstructed PSNR raw → recon | validation unobstructed PSNR raw → recon | loss terms |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for name in DESIGNS:
@@ -535,7 +538,8 @@ def recon_section(reports: dict[str, dict]) -> list[str]:
             f"| {LABELS[name]} | {r['settings']['train']['steps']} | {cost['seconds_per_step_median']:.3f} | "
             f"{cost['training_seconds'] / 60:.1f} min | {setup:.0f} s | "
             f"{final['raw_obstructed_psnr_db']:.2f} → {final['recon_obstructed_psnr_db']:.2f} | "
-            f"{final['raw_unobstructed_psnr_db']:.2f} → {final['recon_unobstructed_psnr_db']:.2f} | {', '.join(r['loss_terms'])} |"
+            f"{final['raw_unobstructed_psnr_db']:.2f} → {final['recon_unobstructed_psnr_db']:.2f} | "
+            f"{', '.join(r['loss_terms'])} |"
         )
     return lines
 
@@ -631,8 +635,9 @@ def write(path: Path, reports, recon_reports, walls, tables, energies, bands, se
         "",
         "## Training",
         "",
-        "| design | steps | torch threads | s/step (median) | training time | validation loss before → after (4 fixed draws) "
-        "| a step's PSF windows near / far (px, mean and max) | least light a step's windows kept |",
+        "| design | steps | torch threads | s/step (median) | training time "
+        "| validation loss before → after (4 fixed draws) | a step's PSF windows near / far (px, mean and max) "
+        "| least light a step's windows kept |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for name in DESIGNS:
@@ -718,8 +723,8 @@ def write(path: Path, reports, recon_reports, walls, tables, energies, bands, se
     for band, far_ok, near_ok, near_ratio in verdict_b:
         lines.append(
             f"- (b) {band}: far core energy {'higher' if far_ok else 'NOT higher'} and near core energy "
-            f"{'lower' if near_ok else 'NOT lower'} than the broadband baseline's; near = {near_ratio:.2f} × broadband's "
-            f"(target ≤ 1/5: {'met' if near_ratio <= 0.2 else 'NOT met'})."
+            f"{'lower' if near_ok else 'NOT lower'} than the broadband baseline's; near = {near_ratio:.2f} × "
+            f"broadband's (target ≤ 1/5: {'met' if near_ratio <= 0.2 else 'NOT met'})."
         )
     lines += verdict_b2
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -265,14 +265,15 @@ def write(results: list[dict], reference: dict, steps: int, final: list[str]) ->
     lines = [
         "# Training: what makes the lens learn",
         "",
-        f"Written by `python examples/training_study.py --steps {steps}` (re-running it rewrites this file). Each row is "
-        f"a quick preset with the keys named changed, trained {steps} steps (seed 0, 2 CPU cores) by `metalens optimize`, then "
-        "scored on the held-out photographs (`metalens evaluate RUN --pixels 128 --seed 0 --obstruction dirt,fence`, raw "
-        "captures, seed 0, 9 units; PSNR in dB after the least-squares match) and on its far PSF: the energy in the central 5 × 5 pixels "
-        "(fraction of the power through the aperture) per wavelength over 430-650 nm at 5 nm, its mean and the fraction of "
-        "those wavelengths at ≥ half its maximum; the near (45 mm) mean beside it. Gradient norms: ‖∂(w·L)/∂c‖ of each "
-        "weighted term over the optimiser's parameters c, mean of 2 fixed draws, at θ_init and after training "
-        "(run.json `validation_loss.gradient_norms`); PSF/image is ‖(sharp, bright)‖ / ‖(L1, SSIM)‖.",
+        f"Written by `python examples/training_study.py --steps {steps}` (re-running it rewrites this file). Each row "
+        f"is a quick preset with the keys named changed, trained {steps} steps (seed 0, 2 CPU cores) by `metalens "
+        "optimize`, then scored on the held-out photographs (`metalens evaluate RUN --pixels 128 --seed 0 "
+        "--obstruction dirt,fence`, raw captures, seed 0, 9 units; PSNR in dB after the least-squares match) and on "
+        "its far PSF: the energy in the central 5 × 5 pixels (fraction of the power through the aperture) per "
+        "wavelength over 430-650 nm at 5 nm, its mean and the fraction of those wavelengths at ≥ half its maximum; the "
+        "near (45 mm) mean beside it. Gradient norms: ‖∂(w·L)/∂c‖ of each weighted term over the optimiser's "
+        "parameters c, mean of 2 fixed draws, at θ_init and after training (run.json "
+        "`validation_loss.gradient_norms`); PSF/image is ‖(sharp, bright)‖ / ‖(L1, SSIM)‖.",
         "",
         "| variant | what it tests | unobs. PSNR | dirt obs. | fence obs. | far 5×5 mean | ≥ ½ max | near 5×5 mean | "
         "PSF/image gradient, start → end | far window px (mean / max) | least kept | s/step |",
@@ -289,9 +290,11 @@ def write(results: list[dict], reference: dict, steps: int, final: list[str]) ->
         kept = min((v["min"] for v in res["kept"].values()), default=float("nan"))
         lines.append(
             f"| {res['name']} | {res['what']} | {res['scores']['unobstructed']:.2f} | {res['scores']['dirt']:.2f} | "
-            f"{res['scores']['fence']:.2f} | {res['core']['far_mean']:.4f} | {res['core']['far_half_max_fraction']:.2f} | "
-            f"{res['core']['near_mean']:.4f} | {ratio_text(g.get('initial', {}))} → {ratio_text(g.get('final', {}))} | "
-            f"{w.get('mean', float('nan')):.0f} / {w.get('max', float('nan')):.0f} | {kept:.4f} | {res['seconds_per_step']:.2f} |"
+            f"{res['scores']['fence']:.2f} | {res['core']['far_mean']:.4f} | "
+            f"{res['core']['far_half_max_fraction']:.2f} | {res['core']['near_mean']:.4f} | "
+            f"{ratio_text(g.get('initial', {}))} → {ratio_text(g.get('final', {}))} | "
+            f"{w.get('mean', float('nan')):.0f} / {w.get('max', float('nan')):.0f} | {kept:.4f} | "
+            f"{res['seconds_per_step']:.2f} |"
         )
     lines += [
         "",
@@ -384,7 +387,8 @@ def final_section(runs: list[str]) -> list[str]:
         "",
         "`metalens evaluate " + " ".join(f"runs/study/{Path(r).name}" for r in runs) + " --pixels 512 --seed 0:2 "
         "--obstruction dirt,fence` (9 held-out photographs × 3 seeds = 27 units per cell; raw captures; "
-        "PSNR in dB after the least-squares match, mean [95 % bootstrap CI]). `-3x`: the same preset trained 3× as many steps.",
+        "PSNR in dB after the least-squares match, mean [95 % bootstrap CI]). `-3x`: the same preset trained 3× as "
+        "many steps.",
         "",
         "| design | steps | training min | unobstructed | dirt obstructed | fence obstructed | dirt Δ | fence Δ |",
         "|---|---|---|---|---|---|---|---|",

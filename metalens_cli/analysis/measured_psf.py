@@ -544,8 +544,8 @@ def _dark_warnings(frames: list[_Frame]) -> list[str]:
     worst = max(darker, key=lambda f: -f.report["background"] / f.noise)
     return [
         f"the dark frame is brighter than the background of {len(darker)} of {len(frames)} frame(s) (by up to "
-        f"{-worst.report['background'] / worst.noise:.0f}σ, {worst.entry.where}): was it taken at another exposure or gain? "
-        "Its excess is removed with the background, its pattern may not match the frames'"
+        f"{-worst.report['background'] / worst.noise:.0f}σ, {worst.entry.where}): was it taken at another exposure or "
+        "gain? Its excess is removed with the background, its pattern may not match the frames'"
     ]
 
 
@@ -561,14 +561,14 @@ def _frame_warnings(frame: _Frame, settings: ImportSettings) -> list[str]:
         out.append(f"{frame.entry.where}: the light reaches the frame's edge; the PSF is clipped")
     elif r["border_bulge_sigma"] > BORDER_BULGE_SIGMA:
         out.append(
-            f"{frame.entry.where}: the border strip bulges {r['border_bulge_sigma']:.1f}σ between its corners: the PSF's "
-            "wings reach it and are taken for background (use a larger frame)"
+            f"{frame.entry.where}: the border strip bulges {r['border_bulge_sigma']:.1f}σ between its corners: the "
+            "PSF's wings reach it and are taken for background (use a larger frame)"
         )
     if r["other_spots"]:
         first = max(r["other_spots"], key=lambda spot: spot["share"])
         out.append(
-            f"{frame.entry.where}: {1 + len(r['other_spots'])} separate spots of light (one at row {first['at_px'][0]:.0f}, "
-            f"column {first['at_px'][1]:.0f} with {first['share']:.0%} of the brightest's light): the PSF takes them "
-            "together; crop the frame to one spot (a ghost or a second source)"
+            f"{frame.entry.where}: {1 + len(r['other_spots'])} separate spots of light (one at row "
+            f"{first['at_px'][0]:.0f}, column {first['at_px'][1]:.0f} with {first['share']:.0%} of the brightest's "
+            "light): the PSF takes them together; crop the frame to one spot (a ghost or a second source)"
         )
     return out

@@ -17,8 +17,8 @@ registration need more than a few samples (3 × 3 gave peak ratios of 1.0 and en
 of 1.000 whatever the PSFs). A measured PSF of which the common window holds under
 ``LIGHT_REQUIRED`` of the light (its power in its own window: a blur disc wider than a cropped
 simulation) is refused, and reported as such; under ``LIGHT_KEPT`` of either cube's light is
-warned about: the figures describe the window's part of the PSFs. A simulation coarser than the measurement by over ``COARSE_SIMULATION``× is
-interpolated, not resolved, on the measured grid: warned about.
+warned about: the figures describe the window's part of the PSFs. A simulation coarser than the measurement by over
+``COARSE_SIMULATION``× is interpolated, not resolved, on the measured grid: warned about.
 
 Registration. The measured PSF is moved onto the simulated one by the sub-pixel shift at the
 maximum of their cross-correlation (a parabola through the peak and its neighbours on each
@@ -114,8 +114,9 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
                     {
                         "depth_m": _json_depth(depth),
                         "wavelength_m": float(wavelength),
-                        "reason": f"the compared window ({n} × {n} pixels of {format_length(pitch)}) holds {_percent(kept[i, j])} "
-                        "of its light (a simulated window as wide as the measured PSF's light is needed)",
+                        "reason": f"the compared window ({n} × {n} pixels of {format_length(pitch)}) holds "
+                        f"{_percent(kept[i, j])} of its light (a simulated window as wide as the measured PSF's "
+                        "light is needed)",
                     }
                 )
                 continue
@@ -173,9 +174,9 @@ def _check_pitches(measured, simulated) -> list[str]:
         )
     if ratio > COARSE_SIMULATION:
         return [
-            f"the simulated pixels ({simulated_pitch}) are {ratio:.3g}× the measured ({measured_pitch}): the simulation is "
-            f"interpolated onto the measured grid, not resolved on it (psf-scan --pixel-pitch {measured.pixel_pitch_m * 1e6:.3g}um "
-            "simulates at the measured pitch)"
+            f"the simulated pixels ({simulated_pitch}) are {ratio:.3g}× the measured ({measured_pitch}): the "
+            "simulation is interpolated onto the measured grid, not resolved on it (psf-scan --pixel-pitch "
+            f"{measured.pixel_pitch_m * 1e6:.3g}um simulates at the measured pitch)"
         ]
     return []
 
@@ -194,9 +195,10 @@ def _small_window(measured, simulated, n: int, resampled_n: int) -> tuple[str, s
     return (
         "SIMULATED",
         f"its window ({own} × {own} pixels of {format_length(simulated.pixel_pitch_m)}, "
-        f"{format_length(own * simulated.pixel_pitch_m)} across) covers {n} × {n} measured pixels of {pitch}: too small to compare PSFs",
-        f"a simulated window at least {MIN_COMMON_PIXELS} measured pixels ({format_length(MIN_COMMON_PIXELS * measured.pixel_pitch_m)}) "
-        "wide (check both cubes' pixel_pitch_m)",
+        f"{format_length(own * simulated.pixel_pitch_m)} across) covers {n} × {n} measured pixels of {pitch}: too "
+        "small to compare PSFs",
+        f"a simulated window at least {MIN_COMMON_PIXELS} measured pixels "
+        f"({format_length(MIN_COMMON_PIXELS * measured.pixel_pitch_m)}) wide (check both cubes' pixel_pitch_m)",
     )
 
 
@@ -216,8 +218,9 @@ def _light_warning(which: str, cube, kept: np.ndarray, n: int) -> list[str]:
         return []
     return [
         f"the compared window ({n} × {n} pixels) holds only {_percent(kept[k, j])} of the {which} PSF's light at "
-        f"{cube.wavelengths_m[j] * 1e9:g} nm, {format_length(float(cube.depths_m[k]))} ({int(np.sum(kept < LIGHT_KEPT))} of "
-        f"{kept.size} PSFs under {LIGHT_KEPT:.0%}): the figures describe the window's part of the PSFs"
+        f"{cube.wavelengths_m[j] * 1e9:g} nm, {format_length(float(cube.depths_m[k]))} "
+        f"({int(np.sum(kept < LIGHT_KEPT))} of {kept.size} PSFs under {LIGHT_KEPT:.0%}): the figures describe the "
+        "window's part of the PSFs"
     ]
 
 

@@ -108,8 +108,8 @@ def slanted_edge_sfr(
 
     Without ``roi`` the image must hold one dominant straight edge: it is located on the
     channel mean and the ROI is the band of rows in which the edge stays ``AUTO_HALF_WIDTH_PX``
-    (32) pixels from both sides (fewer in a narrow image), cut to those pixels around it. Refused (InputError): an ROI outside the
-    image or too small, no edge, a curved edge, a tilt within 1° of 0°/90° or of 45°.
+    (32) pixels from both sides (fewer in a narrow image), cut to those pixels around it. Refused (InputError): an ROI
+    outside the image or too small, no edge, a curved edge, a tilt within 1° of 0°/90° or of 45°.
     """
     image = np.asarray(image, dtype=float)
     image = image[..., None] if image.ndim == 2 else image
@@ -286,7 +286,8 @@ def _binned_esf(plane: np.ndarray, a: float, b: float, name: str) -> tuple[np.nd
     if filled.mean() < 1 - MAX_EMPTY_BINS:
         raise InputError(
             name,
-            f"the edge tilt leaves {100 * (1 - filled.mean()):.0f} % of the ¼-pixel ESF bins empty (tan θ near 1/2 or 1/3?)",
+            f"the edge tilt leaves {100 * (1 - filled.mean()):.0f} % of the ¼-pixel ESF bins empty (tan θ near 1/2 or "
+            "1/3?)",
             "an edge tilted 2° to 10°",
         )
     centres = np.arange(hi - lo)

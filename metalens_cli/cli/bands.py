@@ -98,7 +98,8 @@ def _render(report: model.BandsReport, efficiency: dict | None) -> None:
     )
     if report.incidence_factor < 1:
         con.print(
-            f"Oblique rays move the bands blue by up to {100 * (1 - report.incidence_factor):.2f} %: the conditions use "
+            f"Oblique rays move the bands blue by up to {100 * (1 - report.incidence_factor):.2f} %: "
+            "the conditions use "
             + ", ".join(
                 f"{b.label} {render.nm(b.lo_m * report.incidence_factor, 1)}-{render.nm(b.hi_m, 1)} nm"
                 for b in report.bands

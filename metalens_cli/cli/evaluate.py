@@ -236,7 +236,8 @@ def evaluate(
     # PSFs once per design and seed (the depths are the seed's), captures per obstruction kind too
     announce(
         Estimate(
-            f"evaluate of {len(s['designs'])} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} obstruction(s)",
+            f"evaluate of {len(s['designs'])} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} "
+            "obstruction(s)",
             max(memory for memory, _, _ in costs),
             "--psf-pixels" if psf_pixels else "--pixels",
             len(seeds) * sum(psf + len(kinds) * captures for _, psf, captures in costs),

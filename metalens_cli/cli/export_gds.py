@@ -138,9 +138,9 @@ def export_gds(
         fin = in_force.nanofin
         if (geometry.width_m, geometry.length_m, geometry.pitch_m) != (fin.width_m, fin.length_m, fin.pitch_m):
             warnings.append(
-                f"the layout's fin ({geometry.width_m * 1e9:g} × {geometry.length_m * 1e9:g} nm at {geometry.pitch_m * 1e9:g} nm) "
-                f"is not the preset's ({fin.width_m * 1e9:g} × {fin.length_m * 1e9:g} nm at {fin.pitch_m * 1e9:g} nm), "
-                "whose η the optics used"
+                f"the layout's fin ({geometry.width_m * 1e9:g} × {geometry.length_m * 1e9:g} nm at "
+                f"{geometry.pitch_m * 1e9:g} nm) is not the preset's ({fin.width_m * 1e9:g} × {fin.length_m * 1e9:g} "
+                f"nm at {fin.pitch_m * 1e9:g} nm), whose η the optics used"
             )
     render.say(warnings)
     if as_json:
@@ -173,8 +173,8 @@ def _render(report, checked) -> None:
     w = checked.worst
     status = "[green]verified[/]" if checked.ok else "[red]MISMATCH[/]"
     con.print(
-        f"{status}: {checked.found_atoms:,} fins read (expected {checked.expected_atoms:,}); {checked.samples} sampled sites, worst "
-        f"centre {w.get('centre_m', 0) * 1e9:.2f} nm, width {w.get('width_m', 0) * 1e9:.2f} nm, length "
+        f"{status}: {checked.found_atoms:,} fins read (expected {checked.expected_atoms:,}); {checked.samples} sampled "
+        f"sites, worst centre {w.get('centre_m', 0) * 1e9:.2f} nm, width {w.get('width_m', 0) * 1e9:.2f} nm, length "
         f"{w.get('length_m', 0) * 1e9:.2f} nm, rotation {w.get('rotation_rad', 0):.4f} rad, phase vs design "
         f"{w.get('phase_vs_design_rad', 0):.4f} rad"
     )

@@ -154,7 +154,8 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     """Python and numpy warnings as one line each, like every other message."""
     with suppress(OSError):  # stderr itself gone: the exit code still tells
         click.echo(
-            f"metalens: warning: {category.__name__}: {str(message).strip().splitlines()[0] if str(message).strip() else ''}",
+            f"metalens: warning: {category.__name__}: "
+            f"{str(message).strip().splitlines()[0] if str(message).strip() else ''}",
             err=True,
         )
 

@@ -179,7 +179,8 @@ def _render_cube(result, curves, at_lpmm, path) -> None:
     con.print(render.table(f"MTF of {path}", columns, rows))
     pixel = "divided out" if result.pixel_mtf_removed else "included (--remove-pixel-mtf divides it out)"
     con.print(
-        f"{result.frequencies_lpmm.size} frequencies, 0-{result.frequencies_lpmm[-1]:.1f} lp/mm (Nyquist {result.nyquist_lpmm:.1f} lp/mm); pixel aperture {pixel}"
+        f"{result.frequencies_lpmm.size} frequencies, 0-{result.frequencies_lpmm[-1]:.1f} lp/mm (Nyquist "
+        f"{result.nyquist_lpmm:.1f} lp/mm); pixel aperture {pixel}"
     )
     if result.na is None:
         con.print("no diffraction-limited reference: the file has no na (give --na)")

@@ -89,7 +89,10 @@ def nanofin():
     "--material",
     default="sinx",
     show_default=True,
-    help="Fin: sinx, fused-silica, tio2, a-si, air; a number (2.0, 2.0+0.01j); cauchy:A,B[,C] (λ in µm); a CSV wavelength_nm,n[,k].",
+    help=(
+        "Fin: sinx, fused-silica, tio2, a-si, air; a number (2.0, 2.0+0.01j); cauchy:A,B[,C] (λ in µm); "
+        "a CSV wavelength_nm,n[,k]."
+    ),
 )
 @click.option(
     "--substrate",
@@ -103,7 +106,10 @@ def nanofin():
     default="auto",
     show_default=True,
     callback=_odd_harmonics(1, auto=True),
-    help="Fourier harmonics N per axis (odd), or auto: the first N whose η moves less than --tolerance from N − 2 and N − 4.",
+    help=(
+        "Fourier harmonics N per axis (odd), or auto: the first N whose η moves less than --tolerance "
+        "from N − 2 and N − 4."
+    ),
 )
 @max_harmonics_option
 @click.option(
@@ -200,8 +206,8 @@ def efficiency(
             if chosen is None:
                 chosen = table[-1]["harmonics"]
                 warnings.append(
-                    f"η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}, more than "
-                    f"--tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)"
+                    f"η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}, more "
+                    f"than --tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)"
                 )
         else:
             r = fin_response(
@@ -289,7 +295,10 @@ def _check_bands(bands: tuple[tuple[float, float], ...]) -> None:
     "bands",
     type=BandSpec(),
     multiple=True,
-    help="Pass band CENTER:FWHM, repeatable [the preset's filter bands, else the paper's 457nm:22nm, 530nm:20nm, 628nm:28nm].",
+    help=(
+        "Pass band CENTER:FWHM, repeatable [the preset's filter bands, else the paper's "
+        "457nm:22nm, 530nm:20nm, 628nm:28nm]."
+    ),
 )
 @click.option(
     "--harmonics",
@@ -406,7 +415,8 @@ def sweep(
     )
     announce(
         Estimate(
-            f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} harmonics",
+            f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} "
+            "harmonics",
             estimate_bytes(max(harmonics, max_harmonics)),
             "--harmonics",
             typical,
@@ -492,8 +502,9 @@ def sweep(
     c = choice
     con = render.console()
     con.print(
-        f"recommended fin: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.4f} at {harmonics} harmonics "
-        f"(worst within ±{tolerance_m * 1e9:g} nm: {c['worst_neighbour']:.4f}{'' if c['robust'] else '; no fin keeps ' + format(keep, 'g')})"
+        f"recommended fin: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.4f} at {harmonics} "
+        f"harmonics (worst within ±{tolerance_m * 1e9:g} nm: "
+        f"{c['worst_neighbour']:.4f}{'' if c['robust'] else '; no fin keeps ' + format(keep, 'g')})"
     )
     f = c["converged"]
     con.print(
@@ -502,7 +513,8 @@ def sweep(
         + f"; worst of {f['fins']} fins within ±{tolerance_m * 1e9:g} nm: {f['worst_neighbour']:.4f}"
     )
     con.print(
-        f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds + f['seconds']:.1f} s of RCWA), nanofin.toml "
-        "(the fin as a preset's [nanofin])" + (f", preset.toml ({preset.name} with that fin)" if preset else ""),
+        f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds + f['seconds']:.1f} s of RCWA), "
+        "nanofin.toml (the fin as a preset's [nanofin])"
+        + (f", preset.toml ({preset.name} with that fin)" if preset else ""),
         markup=False,
     )

@@ -69,7 +69,10 @@ def _hot_sigma(ctx, param, value: float) -> float:
 @click.option(
     "--magnification",
     type=Number(0, 1e4, min_open=True),
-    help="Magnification of the relay optics onto the camera; the cube's pitch is pitch / magnification [manifest's, else 1].",
+    help=(
+        "Magnification of the relay optics onto the camera; the cube's pitch is pitch / magnification "
+        "[manifest's, else 1]."
+    ),
 )
 @click.option(
     "--normalize", "normalization", type=click.Choice(NORMALIZATIONS), default="sum-to-one", show_default=True
@@ -306,8 +309,8 @@ def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plo
     pixel pitch is resampled onto the measured pixels (warned about when over 2× coarser);
     pitches no PSF can have (a window under half a wavelength, a measured window inside 3
     simulated pixels) and a common window under 8 × 8 pixels are refused; encircled energy at a
-    radius over half the common window is not reported (—, null), with a warning. --plot: the x-λ scans of both side by side per depth (the
-    paper's Fig. 4c). --csv and --plot are published together or not at all.
+    radius over half the common window is not reported (—, null), with a warning. --plot: the x-λ scans of both side by
+    side per depth (the paper's Fig. 4c). --csv and --plot are published together or not at all.
     """
     from metalens_cli.analysis.psf_compare import compare_cubes
     from metalens_cli.io.atomic import atomic_files
@@ -425,7 +428,8 @@ def _render_compare(result, measured, simulated) -> None:
     con = render.console()
     con.print(
         render.table(
-            f"{measured} (measured) against {simulated} (simulated), {result.pixels}² pixels of {result.pixel_pitch_m * 1e6:.4g} µm",
+            f"{measured} (measured) against {simulated} (simulated), {result.pixels}² pixels of "
+            f"{result.pixel_pitch_m * 1e6:.4g} µm",
             [
                 "depth",
                 "λ (nm)",

@@ -252,7 +252,10 @@ def _render(scan, design, output) -> None:
     )
     if scan.accuracy:
         a = scan.accuracy
-        text = f"accuracy at {render.nm(a['wavelength_m'], 1)} nm, {format_length(a['depth_m'])}: doubled sampling rel. L2 {a['doubled_sampling_rel_l2']:.2e}"
+        text = (
+            f"accuracy at {render.nm(a['wavelength_m'], 1)} nm, {format_length(a['depth_m'])}: doubled sampling "
+            f"rel. L2 {a['doubled_sampling_rel_l2']:.2e}"
+        )
         if "rs_rel_l2" in a:
             text += f", Rayleigh-Sommerfeld rel. L2 {a['rs_rel_l2']:.2e} (central {a['rs_window_pixels']}² pixels)"
         con.print(text)

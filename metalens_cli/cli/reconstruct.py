@@ -51,7 +51,9 @@ def reconstruct():
     "--camera",
     "camera_path",
     type=click.Path(dir_okay=False),
-    help="Preset giving the camera (lens geometry, filter, sensor, depths) [the design's own, else the paper's sensor].",
+    help=(
+        "Preset giving the camera (lens geometry, filter, sensor, depths) [the design's own, else the paper's sensor]."
+    ),
 )
 @click.option("--f", "f_m", type=Length(), help="Lens-to-sensor distance (focal length) [camera's].")
 @click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D [camera's].")
@@ -68,7 +70,9 @@ def reconstruct():
     "--lpips-weights",
     "lpips_weights",
     type=click.Path(exists=True, file_okay=False),
-    help="Directory with the LPIPS weights for the loss's LPIPS term (else looked up as evaluate does; none: left out).",
+    help=(
+        "Directory with the LPIPS weights for the loss's LPIPS term (else looked up as evaluate does; none: left out)."
+    ),
 )
 @training_options("train")
 def train(

@@ -174,8 +174,9 @@ def symmetry(
         )
     if delta is not None:
         con.print(
-            f"Δλ = λd·f·(1/z − 1/(z − Δz)) = {delta.delta_wavelength_m * 1e9:.4f} nm for z = {format_length(delta.at_depth_m)}, "
-            f"Δz = {format_length(delta.delta_z_m)} (λ: {render.nm(delta.wavelength_at_depth_m, 3)} → {render.nm(delta.wavelength_at_shifted_depth_m, 3)} nm)"
+            f"Δλ = λd·f·(1/z − 1/(z − Δz)) = {delta.delta_wavelength_m * 1e9:.4f} nm for z = "
+            f"{format_length(delta.at_depth_m)}, Δz = {format_length(delta.delta_z_m)} (λ: "
+            f"{render.nm(delta.wavelength_at_depth_m, 3)} → {render.nm(delta.wavelength_at_shifted_depth_m, 3)} nm)"
         )
     if validation is not None:
         _render_validation(con, validation)

@@ -374,12 +374,13 @@ def _warnings(m: FinMap, choice: dict) -> list[str]:
         )
     if choice["width_m"] in (m.widths_m[0], m.widths_m[-1]) or choice["length_m"] in (m.lengths_m[0], m.lengths_m[-1]):
         warnings.append(
-            f"the recommended fin ({choice['width_m'] * 1e9:g} × {choice['length_m'] * 1e9:g} nm) lies on the grid's edge: "
-            "a better one may lie beyond it; widen --width/--length"
+            f"the recommended fin ({choice['width_m'] * 1e9:g} × {choice['length_m'] * 1e9:g} nm) lies on the grid's "
+            "edge: a better one may lie beyond it; widen --width/--length"
         )
     if not fine["robust"] and choice["robust"]:
         warnings.append(
-            f"converged at N = {fine['harmonics']}, a neighbour of the chosen fin keeps less than {choice['keep']:g} of its η"
+            f"converged at N = {fine['harmonics']}, a neighbour of the chosen fin keeps less than {choice['keep']:g} "
+            "of its η"
         )
     return warnings
 

@@ -166,7 +166,8 @@ def write_results(
         },
         "notes": notes
         + [
-            f"the {name.replace('_', ' ')} PSF window kept as little as {v['min']:.3f} of the light in a step (< {KEPT_WARNING})"
+            f"the {name.replace('_', ' ')} PSF window kept as little as {v['min']:.3f} of the light in a step "
+            f"(< {KEPT_WARNING})"
             for name, v in kept.items()
             if v["min"] < KEPT_WARNING
         ],

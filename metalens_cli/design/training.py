@@ -428,8 +428,8 @@ def _filter_start(preset, incidence: float, notes: list[str]) -> LearnedFilter |
         start = make_feasible(band_filter, preset, incidence)
         if start["steps"]:
             notes.append(
-                f"the starting filter failed the split-spectrum conditions (penalty {start['penalty_before_nm2']:.3g} nm²): "
-                f"moved to {_bands_text(band_filter)} in {start['steps']} penalty-only steps (penalty "
+                f"the starting filter failed the split-spectrum conditions (penalty {start['penalty_before_nm2']:.3g} "
+                f"nm²): moved to {_bands_text(band_filter)} in {start['steps']} penalty-only steps (penalty "
                 f"{start['penalty_after_nm2']:.3g} nm²) before θ learned"
             )
     return band_filter

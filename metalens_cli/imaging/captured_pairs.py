@@ -43,7 +43,10 @@ SECONDS_PER_PIXEL = 2.5e-6  # per pixel of each capture: registration and scorin
 BASE_MEMORY = 300 << 20  # torch, OpenCV and the interpreter
 ALIGN_MODES = ("unobstructed", "each", "none")
 _FOLDER = re.compile(r"(recon-)?(unobstructed|obstructed(?:-([A-Za-z0-9_]+))?)")
-LAYOUT = "DIR/gt/NAME.png and DIR/DESIGN/{unobstructed,obstructed[-KIND],recon-unobstructed,recon-obstructed[-KIND]}/NAME.png"
+LAYOUT = (
+    "DIR/gt/NAME.png and "
+    "DIR/DESIGN/{unobstructed,obstructed[-KIND],recon-unobstructed,recon-obstructed[-KIND]}/NAME.png"
+)
 
 
 @dataclass(frozen=True)
@@ -206,8 +209,9 @@ def evaluate_pairs(
                 on_progress(d * len(layout.names) + index + 1, total)
     if grey_names:
         out.warnings.append(
-            f"{len(grey_names)} greyscale reference(s) ({', '.join(grey_names[:3])}{', …' if len(grey_names) > 3 else ''}): "
-            "their captures are compared in luminance (Rec. 709 Y of linear RGB)"
+            f"{len(grey_names)} greyscale reference(s) "
+            f"({', '.join(grey_names[:3])}{', …' if len(grey_names) > 3 else ''}): their captures are compared in "
+            "luminance (Rec. 709 Y of linear RGB)"
         )
     recon = [layout.has_recon(design) or None for design in layout.designs]
     summarise(out, layout.designs, recon, layout.kinds, [0], len(layout.names), metrics, scores)

@@ -215,7 +215,8 @@ def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_im
     exact = sum(1 for value in scores.values() if value["psnr_db"] >= PSNR_CEILING_DB)
     if exact:
         out.warnings.append(
-            f"{exact} score(s) match their reference exactly; their PSNR is reported as the {PSNR_CEILING_DB:g} dB ceiling"
+            f"{exact} score(s) match their reference exactly; their PSNR is reported as the {PSNR_CEILING_DB:g} dB "
+            "ceiling"
         )
     units = [(seed, index) for seed in seeds for index in range(n_images)]
     cells = [

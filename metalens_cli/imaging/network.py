@@ -36,7 +36,8 @@ from torch.nn import functional as F
 from metalens_cli.imaging.images import LUMA_709
 
 OVEREXPOSED = 0.95  # fraction of full scale where the over-exposure mask starts
-GAIN_SCALE = 30.0  # spectral gains are stored ÷ this, so that optimiser steps of the order of the learning rate move them visibly
+# spectral gains are stored ÷ this, so that optimiser steps of the order of the learning rate move them visibly
+GAIN_SCALE = 30.0
 
 
 @dataclass(frozen=True)

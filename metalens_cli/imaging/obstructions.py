@@ -2,12 +2,13 @@
 
 Every generator returns an :class:`Obstruction` on the canvas (``imaging.canvas``): ``rgb``
 (3, H + 2M, W + 2M) linear radiance (0 where nothing is), ``mask`` (1, H + 2M, W + 2M) coverage m
-in 0..1 (soft edges, semi-opaque drops), float32 numpy. Generators are seeded (the same seed gives the same obstruction) and depth-aware: a
-feature of ``s`` metres on the cover glass at depth ``z`` spans s·f/z/pitch pixels on the
+in 0..1 (soft edges, semi-opaque drops), float32 numpy. Generators are seeded (the same seed gives the same obstruction)
+and depth-aware: a feature of ``s`` metres on the cover glass at depth ``z`` spans s·f/z/pitch pixels on the
 sensor (:func:`pixels_from_metres`). Rain needs the clean image, which its drops refract.
 
-Parameters come from a preset's ``[obstruction]`` section (:class:`ObstructionConfig`, whose defaults are for the paper's camera (f = 4 mm, 1.85 µm pixels,
-z ≈ 45 mm: 1 mm on the glass ≈ 48 pixels, the 512-pixel sensor sees ≈ 10.7 mm of glass)).
+Parameters come from a preset's ``[obstruction]`` section (:class:`ObstructionConfig`, whose defaults are for the
+paper's camera (f = 4 mm, 1.85 µm pixels, z ≈ 45 mm: 1 mm on the glass ≈ 48 pixels, the 512-pixel sensor sees ≈ 10.7 mm
+of glass)).
 """
 
 from __future__ import annotations
@@ -204,7 +205,8 @@ def make_obstruction(
                 "--z-near",
                 f"a {size_m * 1e3:g} mm {spec} feature at {depth_m * 1e3:g} mm spans {size:.3g} pixels "
                 f"(f {focal_length_m * 1e3:g} mm, pitch {pixel_pitch_m * 1e6:g} µm)",
-                f"a geometry where obstruction features span {MIN_FEATURE_PX}-{MAX_FEATURE_CANVASES} canvases of pixels",
+                f"a geometry where obstruction features span {MIN_FEATURE_PX}-{MAX_FEATURE_CANVASES} canvases of "
+                "pixels",
             )
         return size
 

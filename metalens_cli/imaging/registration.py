@@ -133,7 +133,8 @@ class Registration:
         fraction = self.inliers / self.matches if self.matches else 0.0
         if fraction < WARN_INLIER_FRACTION:
             said.append(
-                f"only {100 * fraction:.0f} % of {self.matches} feature matches agree on the homography; check the alignment"
+                f"only {100 * fraction:.0f} % of {self.matches} feature matches agree on the homography; check the "
+                "alignment"
             )
         feature_scale = min(1.0, FEATURE_SIDE / max(self.target_shape))
         final = self.residual_px if self.refined_residual_px is None else self.refined_residual_px
@@ -142,7 +143,10 @@ class Registration:
                 f"the homography leaves {final:.2f} px RMS at its inliers: the images differ by more than a homography "
                 "(--refine flow corrects smooth differences)"
                 if self.refine == "none"
-                else f"the {self.refine} refinement leaves {final:.2f} px RMS at the consistent feature matches; check the alignment"
+                else (
+                    f"the {self.refine} refinement leaves {final:.2f} px RMS at the consistent feature matches; "
+                    "check the alignment"
+                )
             )
         overlap = float(self._map[2].mean())
         if overlap < WARN_OVERLAP:

@@ -25,7 +25,8 @@ MODEL_FILE = "model.pt"
 MODEL_FORMAT = "metalens-reconstruct/1"
 DEFAULT_MEMORY_BYTES = 1 << 30
 FLOAT_BYTES = 4
-ACTIVATION_PLANES = 20  # float32 planes per unit of width at the peak of a forward pass (17.4-18.2 measured: benchmarks/bench_reconstruct.py)
+# float32 planes per unit of width at the peak of a forward pass (17.4-18.2 measured: benchmarks/bench_reconstruct.py)
+ACTIVATION_PLANES = 20
 DEFAULT_OVERLAP = 64
 LOSS_TERMS = ("l1", "ssim", "lpips")  # a model file's loss_terms (design.reconstruct_training's loss)
 

@@ -125,9 +125,9 @@ def plan_radial(
 ) -> RadialPlan:
     """Sampling for ``radial_propagate`` from the geometry (see the module docstring).
 
-    The angle margin is doubled here (the radial path is cheap). R = (a + ρ_w + d·tan θ_lim)/2 keeps waves up to θ_lim from reflecting at R into the window of
-    radius ρ_w; n_freq = 2R·ν_max with ν_max = max_λ sin θ_lim(λ)/λ; Gauss nodes 3 per cycle of the
-    forward integrand; output step 1/(8·ν_max): the intensity, band-limited to 2·ν_max, is
+    The angle margin is doubled here (the radial path is cheap). R = (a + ρ_w + d·tan θ_lim)/2 keeps waves up to θ_lim
+    from reflecting at R into the window of radius ρ_w; n_freq = 2R·ν_max with ν_max = max_λ sin θ_lim(λ)/λ; Gauss nodes
+    3 per cycle of the forward integrand; output step 1/(8·ν_max): the intensity, band-limited to 2·ν_max, is
     sampled 4× above Nyquist for the cubic pixel integration.
     """
     a, rho_w = lens.radius_m, window_radius(n_pixels, pixel_pitch_m)

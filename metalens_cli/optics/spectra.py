@@ -8,8 +8,9 @@ every array of this module with a leading axis of length 3 is indexed R, G, B in
 - η: the meta-atoms' polarisation-conversion efficiency in 0..1 (a table).
 
 Wavelengths are SI metres at every interface. This module reads no files: measured spectra
-in CSV files are read by :mod:`metalens_cli.io.spectra_files`. S^c is tabulated on a wavelength grid and treated as linear between grid points.
-colour-science (slow to import) and torch are imported only inside the functions that need them.
+in CSV files are read by :mod:`metalens_cli.io.spectra_files`. S^c is tabulated on a wavelength grid and treated as
+linear between grid points. colour-science (slow to import) and torch are imported only inside the functions that need
+them.
 """
 
 from __future__ import annotations

@@ -41,7 +41,8 @@ def plot_bands(path: str | Path, report: BandsReport) -> Path:
     ax.set_ylabel("source depth z (m)")
     verdict = "all conditions hold" if report.ok else "conditions FAIL"
     ax.set_title(
-        f"Split-spectrum bands, f = {f * 1e3:g} mm: {verdict}\n(curves: band edges λe(1 + f/z); bars: shifted pass bands at z_near)",
+        f"Split-spectrum bands, f = {f * 1e3:g} mm: {verdict}\n(curves: band edges λe(1 + f/z); bars: shifted pass "
+        "bands at z_near)",
         fontsize=9,
     )
     ax.legend(fontsize=7, loc="upper right", ncol=2)

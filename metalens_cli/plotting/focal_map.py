@@ -42,7 +42,8 @@ def plot_focal_map(
     ax.set_ylabel("source depth z (m)")
     na = (aperture_m / 2) / np.hypot(aperture_m / 2, f_m)
     ax.set_title(
-        f"Hyperbolic lens λd = {lambda_d_m * 1e9:g} nm, f = {f_m * 1e3:g} mm, D = {aperture_m * 1e3:g} mm (NA {na:.2f})",
+        f"Hyperbolic lens λd = {lambda_d_m * 1e9:g} nm, f = {f_m * 1e3:g} mm, D = {aperture_m * 1e3:g} mm "
+        f"(NA {na:.2f})",
         fontsize=9,
     )
     ax.legend(fontsize=7, loc="upper right")

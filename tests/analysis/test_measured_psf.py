@@ -88,7 +88,8 @@ def test_a_noiseless_simulated_spot_is_the_spot_centred(tmp_path, frame):
         (
             np.full(SHAPE, 65535, np.uint16),
             {"allow_saturated": True},
-            f"blank.png has no light above the background noise ({SHAPE[0] * SHAPE[1]} of its {SHAPE[0] * SHAPE[1]} pixels saturated)",
+            f"blank.png has no light above the background noise ({SHAPE[0] * SHAPE[1]} of its {SHAPE[0] * SHAPE[1]} "
+            "pixels saturated)",
         ),
         (np.full(SHAPE, 0.25, np.float32), {}, "psf.csv line 3: blank.npy has no light above the background noise"),
     ],

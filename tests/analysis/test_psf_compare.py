@@ -129,8 +129,8 @@ def test_a_simulation_much_coarser_than_the_measurement_is_warned_about():
         (
             cube([spot(41, 2.0)], [530]),
             cube([spot(41, 2.0)[19:22, 19:22]], [530]),
-            "SIMULATED: its window (3 × 3 pixels of 2 µm, 6 µm across) covers 3 × 3 measured pixels of 2 µm: too small to compare PSFs "
-            "(expected a simulated window at least 8 measured pixels (16 µm) wide",
+            "SIMULATED: its window (3 × 3 pixels of 2 µm, 6 µm across) covers 3 × 3 measured pixels of 2 µm: too small "
+            "to compare PSFs (expected a simulated window at least 8 measured pixels (16 µm) wide",
         ),
         (
             cube([spot(41, 2.0)], [530]),

@@ -208,8 +208,9 @@ def test_an_unusable_folder_is_named_once_and_results_are_computed(folder, tmp_p
     with pytest.warns(cache.CacheWarning) as caught:
         entries = [cache.cached(kind, KEY, compute, three_fractions) for kind in (KIND, KIND, "other")]
     assert [str(w.message) for w in caught] == [
-        f"cache folder {str(place)!r} cannot be used ({'Permission denied' if which == 'read-only' else 'Not a directory'}): "
-        "results are computed on every run, not stored (set METALENS_CACHE to a writable folder)"
+        f"cache folder {str(place)!r} cannot be used "
+        f"({'Permission denied' if which == 'read-only' else 'Not a directory'}): results are computed on every run, "
+        "not stored (set METALENS_CACHE to a writable folder)"
     ]
     assert compute.calls == 3 and all(e.path is None and not e.hit for e in entries)
 
