@@ -165,6 +165,7 @@ def efficiency(
         fin_material.index(wavelengths_m, "--material"),
         substrate_material.index(wavelengths_m, "--substrate"),
     )
+    run_device = torch_device(device)
     worst = harmonics or max_harmonics
     typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)
     if harmonics:
@@ -180,6 +181,7 @@ def efficiency(
             seconds_max=longest,
         ),
         max_memory,
+        device=run_device if solver == "modes" else None,  # meent solves on the host
     )
     table, chosen = [], harmonics
     warnings = []
@@ -193,7 +195,7 @@ def efficiency(
                 FIRST_HARMONICS,
                 max_harmonics,
                 tolerance,
-                torch_device(device),
+                run_device,
                 solver,
                 update,
             )
@@ -204,7 +206,7 @@ def efficiency(
                     f"--tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)"
                 )
         else:
-            r = fin_response(fin, n_fin, n_sub, wavelengths_m, chosen, update, torch_device(device), solver)
+            r = fin_response(fin, n_fin, n_sub, wavelengths_m, chosen, update, run_device, solver)
     if plot_path:
         from metalens_cli.plotting.nanofin import plot_efficiency
 
@@ -402,6 +404,7 @@ def sweep(
         (coarse + convergence_seconds(n, waves.size) + estimate_seconds(n, waves.size * neighbours))
         for n in (min(TYPICAL_HARMONICS, max_harmonics), max_harmonics)
     )
+    run_device = torch_device(device)
     announce(
         Estimate(
             f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} harmonics",
@@ -411,6 +414,7 @@ def sweep(
             seconds_max=worst,
         ),
         max_memory,
+        device=run_device,
     )
     result = sweep_fins(
         period_m,
@@ -425,7 +429,7 @@ def sweep(
         tolerance_m,
         keep,
         max_harmonics,
-        torch_device(device),
+        run_device,
         lambda stage: progress_bar(stage, quiet),
     )
     m, choice, warnings = result.map, result.choice, result.warnings

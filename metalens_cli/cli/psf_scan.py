@@ -116,6 +116,7 @@ def psf_scan(
             raise InputError(
                 option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values"
             )
+    run_device = torch_device(device)  # resolved before the estimate: a CUDA job is checked against the GPU's memory
     cost = estimate_psf(
         design.lens,
         wavelengths_m,
@@ -137,6 +138,7 @@ def psf_scan(
         ),
         max_memory,
         output,
+        run_device,
     )
     efficiency = efficiency_used(design.preset, quiet)
     with progress_bar("psf-scan", quiet) as update:
@@ -148,7 +150,7 @@ def psf_scan(
             pixel_pitch_m,
             propagator,
             getattr(torch, dtype),
-            torch_device(device),
+            run_device,
             force,
             check_accuracy,
             update,
