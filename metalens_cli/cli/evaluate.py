@@ -77,8 +77,10 @@ PAIRS_OPTIONS = {
     "--lpips-weights",
     "lpips_weights",
     type=click.Path(exists=True, file_okay=False),
+    envvar="METALENS_LPIPS_WEIGHTS",
+    show_envvar=True,
     help="Directory with alexnet-owt-7be5be79.pth and lpips's v0.1 alex.pth "
-    "(without it: $METALENS_LPIPS_WEIGHTS, then torch hub's checkpoints with an installed lpips; "
+    "(without it or its environment variable: torch hub's checkpoints with an installed lpips; "
     "none found: LPIPS is skipped with a note; nothing is downloaded).",
 )
 @click.option(
@@ -243,6 +245,7 @@ def evaluate(
             len(seeds) * sum(psf + len(kinds) * captures for _, psf, captures in costs),
         ),
         max_memory,
+        device=s["device"],
     )
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s["designs"]}
     with progress_bar("evaluate", quiet) as update:

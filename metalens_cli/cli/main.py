@@ -40,9 +40,16 @@ BAD_PATH_ERRNOS = {
 class LazyGroup(click.Group):
     """A group whose subcommands live in modules imported only when invoked (or listed in help)."""
 
-    def __init__(self, *args, lazy: dict[str, tuple[str, str]] | None = None, **kwargs):
+    def __init__(
+        self,
+        *args,
+        lazy: dict[str, tuple[str, str]] | None = None,
+        environment: dict[str, str] | None = None,
+        **kwargs,
+    ):
         super().__init__(*args, **kwargs)
         self.lazy = lazy or {}
+        self.environment = environment or {}
 
     def list_commands(self, ctx):
         return sorted(set(super().list_commands(ctx)) | set(self.lazy))
@@ -59,6 +66,13 @@ class LazyGroup(click.Group):
         if rows:
             with formatter.section("Commands"):
                 formatter.write_dl(rows)
+
+    def format_epilog(self, ctx, formatter):
+        """The environment variables the app reads (``environment``: name → what it sets), then the epilog."""
+        if self.environment:
+            with formatter.section("Environment"):
+                formatter.write_dl(list(self.environment.items()))
+        super().format_epilog(ctx, formatter)
 
 
 COMMANDS = {
@@ -79,8 +93,28 @@ COMMANDS = {
 }
 
 
+# Environment variables that no option stands for (an option that reads one, such as
+# --lpips-weights and METALENS_LPIPS_WEIGHTS, shows it in its command's --help).
+ENVIRONMENT = {
+    "METALENS_CACHE": "folder of the on-disk cache of computed η(λ) [the platform's user cache folder, "
+    "e.g. ~/.cache/metalens]",
+    "METALENS_DEEPLAB_WEIGHTS": "DeepLabv3+ checkpoint for optimize's domain-adaptation loss "
+    "(the preset's loss.domain_adaptation_weights wins)",
+    "METALENS_TRACEBACK": "1: an internal error shows its traceback",
+}
+EPILOG = (
+    "Options that read an environment variable name it in their command's --help. Shell completion: "
+    'eval "$(_METALENS_COMPLETE=bash_source metalens)" (or zsh_source, fish_source); see README.md.'
+)
+
+
 @click.group(
-    cls=LazyGroup, lazy=COMMANDS, invoke_without_command=True, context_settings={"help_option_names": ["-h", "--help"]}
+    cls=LazyGroup,
+    lazy=COMMANDS,
+    environment=ENVIRONMENT,
+    invoke_without_command=True,
+    epilog=EPILOG,
+    context_settings={"help_option_names": ["-h", "--help"]},
 )
 @click.version_option(__version__, prog_name="metalens")
 @click.pass_context

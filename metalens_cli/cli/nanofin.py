@@ -171,6 +171,7 @@ def efficiency(
         fin_material.index(wavelengths_m, "--material"),
         substrate_material.index(wavelengths_m, "--substrate"),
     )
+    run_device = torch_device(device)
     worst = harmonics or max_harmonics
     typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)
     if harmonics:
@@ -186,6 +187,7 @@ def efficiency(
             seconds_max=longest,
         ),
         max_memory,
+        device=run_device if solver == "modes" else None,  # meent solves on the host
     )
     table, chosen = [], harmonics
     warnings = []
@@ -199,7 +201,7 @@ def efficiency(
                 start=FIRST_HARMONICS,
                 stop=max_harmonics,
                 tolerance=tolerance,
-                device=torch_device(device),
+                device=run_device,
                 solver=solver,
                 on_progress=update,
             )
@@ -211,7 +213,7 @@ def efficiency(
                 )
         else:
             r = fin_response(
-                fin, n_fin, n_sub, wavelengths_m, chosen, on_progress=update, device=torch_device(device), solver=solver
+                fin, n_fin, n_sub, wavelengths_m, chosen, on_progress=update, device=run_device, solver=solver
             )
     if plot_path:
         from metalens_cli.plotting.nanofin import plot_efficiency
@@ -413,6 +415,7 @@ def sweep(
         (coarse + convergence_seconds(n, waves.size) + estimate_seconds(n, waves.size * neighbours))
         for n in (min(TYPICAL_HARMONICS, max_harmonics), max_harmonics)
     )
+    run_device = torch_device(device)
     announce(
         Estimate(
             f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} "
@@ -423,6 +426,7 @@ def sweep(
             seconds_max=worst,
         ),
         max_memory,
+        device=run_device,
     )
     result = sweep_fins(
         period_m,
@@ -437,7 +441,7 @@ def sweep(
         tolerance_m=tolerance_m,
         keep=keep,
         max_harmonics=max_harmonics,
-        device=torch_device(device),
+        device=run_device,
         progress=lambda stage: progress_bar(stage, quiet),
     )
     m, choice, warnings = result.map, result.choice, result.warnings

@@ -56,6 +56,7 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
         ),
     )
     efficiency_used(planned, quiet)  # RCWA η, when the preset asks for it, before the estimate and the run
+    run_device = torch_device(device)  # auto resolved; a CUDA run's estimate is checked against the GPU's memory
     memory, seconds = estimate_training(planned)
     announce(
         Estimate(
@@ -65,13 +66,14 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
             seconds,
         ),
         max_memory,
+        device=run_device,
     )
     report = run_training(
         "optimize",
         quiet,
         f"metalens optimize {preset_path} -o {run_dir} --resume",
         lambda progress: train(
-            preset, run_dir, steps=steps, seed=seed, device=torch_device(device), resume=resume, on_step=progress.step
+            preset, run_dir, steps=steps, seed=seed, device=run_device, resume=resume, on_step=progress.step
         ),
     )
     if report is None:

@@ -159,19 +159,25 @@ class Number(click.FloatRange):
         return number
 
 
-DEVICE_FORM = "cpu, cuda, cuda:N or mps"
+DEVICE_FORM = "auto, cpu, cuda, cuda:N or mps"
+DEVICE_PATTERN = r"auto|cpu|cuda(:\d{1,3})?|mps"
 
 
 class Device(click.ParamType):
-    """A torch device name, checked for form without importing torch (:func:`torch_device`
-    checks that the machine has it)."""
+    """A torch device name or ``auto``, checked for form without importing torch
+    (:func:`torch_device` resolves ``auto`` and checks that the machine has the device)."""
 
     name = "device"
 
     def convert(self, value, param, ctx):
-        if not re.fullmatch(r"cpu|cuda(:\d{1,3})?|mps", str(value)):
+        if not re.fullmatch(DEVICE_PATTERN, str(value)):
             self.fail(f"unknown device {value!r} (expected {DEVICE_FORM})", param, ctx)
         return value
+
+    def shell_complete(self, ctx, param, incomplete):
+        from click.shell_completion import CompletionItem
+
+        return [CompletionItem(name) for name in ("auto", "cpu", "cuda", "mps") if name.startswith(incomplete)]
 
 
 class MemorySize(click.ParamType):
@@ -231,19 +237,21 @@ def max_memory_option(function):
     return click.option(
         "--max-memory",
         type=MemorySize(),
-        help="Refuse to start when the estimated memory exceeds this, e.g. 8GiB [90 % of the available memory].",
+        help="Refuse to start when the estimated memory exceeds this, e.g. 8GiB "
+        "[90 % of the free memory: a CUDA device's own, else the host's RAM].",
     )(function)
 
 
-def announce(estimate, max_memory: int | None, output=None) -> None:
-    """Check ``estimate`` (:func:`metalens_cli.io.resources.check`) against ``max_memory`` and the
-    command's ``--max-time`` and, for a long job, say it on stderr before starting (also under
-    --quiet: a pipeline's log should show why it waits)."""
+def announce(estimate, max_memory: int | None, output=None, device=None) -> None:
+    """Check ``estimate`` (:func:`metalens_cli.io.resources.check`) against ``max_memory``, the
+    free memory of ``device`` (a CUDA device's own, else the host's RAM) and the command's
+    ``--max-time`` and, for a long job, say it on stderr before starting (also under --quiet: a
+    pipeline's log should show why it waits)."""
     from metalens_cli.io import resources
 
     ctx = click.get_current_context(silent=True)
     max_time = ctx.meta.get("metalens.max_time", resources.MAX_SECONDS) if ctx is not None else resources.MAX_SECONDS
-    resources.check(estimate, max_memory, output, max_seconds=max_time)
+    resources.check(estimate, max_memory, output, max_seconds=max_time, device=device)
     if resources.is_long(estimate):
         click.echo(f"metalens: {estimate.describe()}", err=True)
 
@@ -409,7 +417,8 @@ def training_options(section: str):
                     type=Device(),
                     default="cpu",
                     show_default=True,
-                    help="torch device: cpu, cuda, cuda:1, mps (under torchrun: each rank's).",
+                    help="torch device: cpu, cuda, cuda:1, mps, or auto (cuda if available, then mps, then cpu; "
+                    "under torchrun: each rank's).",
                 ),
                 click.option(
                     "--resume",
@@ -466,7 +475,11 @@ plot_option = click.option(
     help="Write a figure (PNG, PDF or SVG, by the suffix) to this file.",
 )
 device_option = click.option(
-    "--device", type=Device(), default="cpu", show_default=True, help="torch device: cpu, cuda, cuda:1, mps."
+    "--device",
+    type=Device(),
+    default="cpu",
+    show_default=True,
+    help="torch device: cpu, cuda, cuda:1, mps, or auto (cuda if available, then mps, then cpu).",
 )
 
 
@@ -490,19 +503,35 @@ def pick(explicit, preset, getter, option: str, form: str):
     return value
 
 
-def torch_device(name: str):
-    """A torch.device, refusing devices this machine does not have."""
+def auto_device() -> str:
+    """The device ``--device auto`` means on this machine: cuda if torch sees a CUDA device, then
+    mps (Apple silicon), then cpu."""
     import torch
 
-    if not re.fullmatch(r"cpu|cuda(:\d{1,3})?|mps", name):
+    if torch.cuda.is_available():
+        return "cuda"
+    mps = getattr(torch.backends, "mps", None)
+    if mps is not None and mps.is_available():
+        return "mps"
+    return "cpu"
+
+
+def torch_device(name: str):
+    """A torch.device (``auto`` resolved by :func:`auto_device`), refusing devices this machine
+    does not have."""
+    import torch
+
+    if not re.fullmatch(DEVICE_PATTERN, str(name)):
         raise InputError("--device", f"unknown device {name!r}", DEVICE_FORM)
+    if name == "auto":
+        name = auto_device()
     device = torch.device(name)
     if device.type == "cuda" and not torch.cuda.is_available():
-        raise InputError("--device", "CUDA is not available on this machine", "cpu")
+        raise InputError("--device", "CUDA is not available on this machine", "cpu or auto")
     if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
         raise InputError(
             "--device", f"{name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)", "cuda:0 … cuda:N-1"
         )
     if device.type == "mps" and not torch.backends.mps.is_available():
-        raise InputError("--device", "MPS is not available on this machine", "cpu")
+        raise InputError("--device", "MPS is not available on this machine", "cpu or auto")
     return device

@@ -125,6 +125,7 @@ def psf_scan(
                 option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values"
             )
     check_cube_size(output, "--output", len(depths_m), len(wavelengths_m), pixels)
+    run_device = torch_device(device)  # resolved before the estimate: a CUDA job is checked against the GPU's memory
     cost = estimate_psf(
         design.lens,
         wavelengths_m,
@@ -146,6 +147,7 @@ def psf_scan(
         ),
         max_memory,
         output,
+        run_device,
     )
     efficiency = efficiency_used(design.preset, quiet)
     with progress_bar("psf-scan", quiet) as update:
@@ -157,7 +159,7 @@ def psf_scan(
             pixel_pitch_m,
             propagator=propagator,
             dtype=getattr(torch, dtype),
-            device=torch_device(device),
+            device=run_device,
             force=force,
             check_accuracy=check_accuracy,
             progress=update,

@@ -70,6 +70,8 @@ def reconstruct():
     "--lpips-weights",
     "lpips_weights",
     type=click.Path(exists=True, file_okay=False),
+    envvar="METALENS_LPIPS_WEIGHTS",
+    show_envvar=True,
     help=(
         "Directory with the LPIPS weights for the loss's LPIPS term (else looked up as evaluate does; none: left out)."
     ),

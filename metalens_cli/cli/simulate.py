@@ -27,7 +27,7 @@ from metalens_cli.cli.options import (
     overwrite_option,
     torch_device,
 )
-from metalens_cli.cli.progress import efficiency_used
+from metalens_cli.cli.progress import efficiency_used, progress_bar
 from metalens_cli.errors import InputError
 
 
@@ -156,6 +156,7 @@ def setup(
 @click.option("--obstruction", default="dirt", show_default=True, help="dirt, fence, drops, rain or file:PATH.png.")
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Output folder (created).")
 @overwrite_option
+@click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
 def simulate(
@@ -181,6 +182,7 @@ def simulate(
     obstruction,
     output,
     overwrite,
+    quiet,
     max_memory,
     as_json,
 ):
@@ -220,25 +222,28 @@ def simulate(
             psf_seconds + capture_seconds,
         ),
         max_memory,
+        device=s["device"],
     )
-    efficiency = efficiency_used(design.preset)
+    efficiency = efficiency_used(design.preset, quiet)
     psfs = channel_psfs(
         design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], device=s["device"], window=psf_pixels
     )
     clean = load_images(images, (s["pixels"], s["pixels"]), limit, psfs.margin)
-    captures = simulate_captures(
-        clean,
-        kind,
-        psfs,
-        design.focal_length_m,
-        s["pixel_pitch_m"],
-        seed,
-        params=s["obstruction_params"],
-        formation=formation,
-        alpha_gain=alpha_gain,
-        photons=photons,
-        read_noise=read_noise,
-    )
+    with progress_bar("simulate", quiet) as update:
+        captures = simulate_captures(
+            clean,
+            kind,
+            psfs,
+            design.focal_length_m,
+            s["pixel_pitch_m"],
+            seed,
+            params=s["obstruction_params"],
+            formation=formation,
+            alpha_gain=alpha_gain,
+            photons=photons,
+            read_noise=read_noise,
+            on_progress=update,
+        )
     import json
 
     from metalens_cli.io.atomic import atomic_folder
@@ -267,6 +272,7 @@ def simulate(
                 "alpha_gain": alpha_gain,
                 "photons": photons,
                 "read_noise": read_noise,
+                "device": str(s["device"]),
                 **psfs.report(),
                 "spectral_coverage": dict(zip("RGB", psfs.coverage)),
                 "efficiency": efficiency,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -235,6 +236,7 @@ def simulate_captures(
     photons=None,
     read_noise: float = 0.0,
     obstructions: dict | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
 ) -> list[SimulatedCapture]:
     """For each clean image (on a canvas whose margin covers ``psfs.margin``): an obstruction on
     the same canvas (seed + image index), the unobstructed capture P̂_far ∗ I_clean and the
@@ -242,8 +244,11 @@ def simulate_captures(
 
     ``obstructions``: a dict shared by calls that differ only in the design (same images, seed
     and depths), so each obstruction is generated once. ``photons``: full-well electrons, one
-    count or one per channel R, G, B (``imaging.formation.add_noise``)."""
+    count or one per channel R, G, B (``imaging.formation.add_noise``). ``on_progress(done,
+    total)`` is called before the first image and after each one."""
     captures = []
+    report = on_progress or (lambda done, total: None)
+    report(0, len(images))
     transforms = None
     dev, dt = psfs.near.device, psfs.near.dtype
     counts = (
@@ -299,6 +304,7 @@ def simulate_captures(
                 float(alpha.mean()),
             )
         )
+        report(index + 1, len(images))
     return captures
 
 

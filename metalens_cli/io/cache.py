@@ -1,10 +1,11 @@
 """An on-disk cache of computed arrays, keyed by a hash of everything that went into them.
 
-Entries are ``.npz`` files under ``$METALENS_CACHE``, else ``$XDG_CACHE_HOME/metalens``, else
-``~/.cache/metalens``, in one folder per kind (``nanofin``, ``nanofin-sweep``,
-``nanofin-refine``). The key is the SHA-256 of the inputs written as canonical JSON (sorted
-keys; arrays as lists), so a changed input (a geometry, an index at one wavelength, a solver
-version) is a different entry and a stale one is never read.
+Entries are ``.npz`` files under ``$METALENS_CACHE``, else the platform's user cache folder for
+``metalens`` (``platformdirs.user_cache_dir``: ``$XDG_CACHE_HOME/metalens``, else
+``~/.cache/metalens``, on Linux; ``~/Library/Caches/metalens`` on macOS), in one folder per kind
+(``nanofin``, ``nanofin-sweep``, ``nanofin-refine``). The key is the SHA-256 of the inputs
+written as canonical JSON (sorted keys; arrays as lists), so a changed input (a geometry, an
+index at one wavelength, a solver version) is a different entry and a stale one is never read.
 
 An entry is checked before it is used: besides its arrays it holds ``_meta``, a JSON text with
 the entry format (``FORMAT``), its kind, its key and the SHA-256 of its arrays (names, dtypes,
@@ -40,6 +41,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+import platformdirs
 
 from metalens_cli.io.atomic import atomic_write
 
@@ -67,11 +69,11 @@ _UNUSABLE_WARNED: set[str] = set()  # cache folders already named in a warning b
 
 
 def cache_folder() -> Path:
-    """The cache's root folder (not created)."""
+    """The cache's root folder (not created): ``$METALENS_CACHE``, else the platform's user cache
+    folder for metalens (platformdirs reads ``$XDG_CACHE_HOME`` on Linux)."""
     if os.environ.get("METALENS_CACHE"):
         return Path(os.environ["METALENS_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "metalens"
+    return Path(platformdirs.user_cache_dir("metalens", appauthor=False))
 
 
 def input_key(inputs: dict[str, Any]) -> str:

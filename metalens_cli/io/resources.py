@@ -1,6 +1,6 @@
-"""What a job will cost, checked before it starts: memory against what this machine (or its
-container) has free, disk against the output folder's free space, and time for jobs that can
-take hours.
+"""What a job will cost, checked before it starts: memory against what its device has free (a
+CUDA device's own memory, else this machine's, or its container's, RAM), disk against the output
+folder's free space, and time for jobs that can take hours.
 
 The estimates themselves come from the core (each knows its own arrays: ``optics.psf``,
 ``io.layout``, ...); this module reads the machine and decides. A job over the limit is refused
@@ -68,20 +68,36 @@ def available_memory() -> int | None:
     return min(values) if values else None
 
 
+def device_memory(device=None) -> tuple[int | None, str]:
+    """(bytes free, which memory that is) for a job on ``device`` (a torch.device, a device name
+    or None): a CUDA device's own free memory (``torch.cuda.mem_get_info``), else the host's
+    (:func:`available_memory`; mps shares it). torch is imported only for a CUDA device."""
+    if device is not None and str(device).startswith("cuda"):
+        import torch
+
+        device = torch.device(device)
+        if device.index is None:  # plain "cuda": the current device
+            device = torch.device("cuda", torch.cuda.current_device())
+        free, _total = torch.cuda.mem_get_info(device)
+        return int(free), f"the free memory of GPU {device}"
+    return available_memory(), "the host RAM available on this machine"
+
+
 def check(
     estimate: Estimate,
     max_memory: int | None = None,
     output: str | os.PathLike[str] | None = None,
     max_seconds: float = MAX_SECONDS,
+    device=None,
 ) -> None:
     """Refuse ``estimate`` (an :class:`InputError` naming its option, with the estimate) when its
-    memory exceeds ``max_memory`` or 90 % of the available memory, its disk bytes exceed the
-    free space of ``output``'s folder, or its longest run time exceeds ``max_seconds`` (inf: no
-    limit)."""
-    available = available_memory()
+    memory exceeds ``max_memory`` or 90 % of the free memory of ``device`` (:func:`device_memory`:
+    a CUDA device's own, else the host's RAM), its disk bytes exceed the free space of
+    ``output``'s folder, or its longest run time exceeds ``max_seconds`` (inf: no limit)."""
+    available, which = device_memory(device)
     limits = [(max_memory, "the --max-memory limit")] if max_memory is not None else []
     if available is not None:
-        limits.append((int(available * MEMORY_SHARE), "the memory available on this machine"))
+        limits.append((int(available * MEMORY_SHARE), which))
     for limit, name in limits:
         if estimate.memory_bytes > limit:
             raise InputError(

@@ -218,3 +218,30 @@ def test_preset_show_reads_reconstruction_presets(capsys):
     code, out, err = invoke(capsys, "preset", "show", PRESETS / "quick-reconstruct.toml", "--json")
     data = json.loads(out)
     assert code == 0 and err == "" and set(data) >= {"network", "train", "data"} and data["train"]["steps"] == 1200
+
+
+def test_help_names_the_environment_variables(capsys):
+    code, out, _ = invoke(capsys, "--help")
+    assert code == 0 and "Environment:" in out
+    for name in ("METALENS_CACHE", "METALENS_DEEPLAB_WEIGHTS", "METALENS_TRACEBACK", "_METALENS_COMPLETE"):
+        assert name in out
+    for command in (["evaluate"], ["reconstruct", "train"]):
+        code, out, _ = invoke(capsys, *command, "--help")
+        assert code == 0 and "[env var: METALENS_LPIPS_WEIGHTS]" in " ".join(out.split())
+
+
+def test_an_option_s_environment_variable_is_read_as_the_option(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("METALENS_LPIPS_WEIGHTS", str(tmp_path / "gone"))
+    code, out, err = invoke(capsys, "evaluate", "hyperbolic:532nm", "--pixels", "32")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "--lpips-weights" in err and "METALENS_LPIPS_WEIGHTS" in err and "does not exist" in err
+
+
+def test_shell_completion_lists_commands_and_devices():
+    env = {**os.environ, "_METALENS_COMPLETE": "bash_complete", "COMP_WORDS": "metalens sim", "COMP_CWORD": "1"}
+    code = "import sys; sys.argv[0] = 'metalens'; from metalens_cli.cli.main import cli; cli()"
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and proc.stdout.split() == ["plain,simulate"]
+    env.update(COMP_WORDS="metalens psf-scan --device ", COMP_CWORD="3")
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert proc.stdout.split() == ["plain,auto", "plain,cpu", "plain,cuda", "plain,mps"]

@@ -329,7 +329,7 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
             "{tmp}/big.exr",
         ],
         2,
-        "over the memory available",
+        "over the host RAM available",
     ),
     "psf-scan over --max-memory": ([*SCAN, "-o", "{tmp}/m.exr", "--max-memory", "1kB"], 2, "--max-memory"),
     "simulate --psf-pixels 8192": (
@@ -348,7 +348,7 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
             "{tmp}/s6",
         ],
         2,
-        "over the memory available",
+        "over the host RAM available",
     ),
     "symmetry --validate of a 1 m lens": (
         ["symmetry", "--f", "4mm", "--lambda-d", "450nm", "--validate", "--aperture", "1m"],

@@ -12,9 +12,10 @@ TINY = Path(__file__).parents[1] / "design" / "tiny.toml"
 
 def test_optimize_json_then_psf_scan_and_export_gds(tmp_path, capsys):
     out = tmp_path / "run"
-    assert run(["optimize", str(TINY), "-o", str(out), "--steps", "2", "--json", "--quiet"]) == 0
+    assert run(["optimize", str(TINY), "-o", str(out), "--steps", "2", "--device", "auto", "--json", "--quiet"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["run_dir"] == str(out) and report["settings"]["steps"] == 2
+    assert report["settings"]["device"] == "cpu"  # auto, resolved on a machine without a GPU
     assert (
         run(
             [

@@ -294,3 +294,41 @@ def test_evaluate_defaults_give_enough_units(capsys):
     )
     assert {row["n"] for row in report["rows"]} == {27} and report["photometric_match"] == "lstsq"
     assert not any("units per cell" in w for w in report["warnings"])
+
+
+def test_simulate_quiet_says_nothing_and_reports_the_resolved_device(capsys, tmp_path, photo_dir):
+    args = ["simulate", "hyperbolic:532nm", *SMALL, "--images", photo_dir, "--device", "auto", "--json"]
+    code, stdout, err = invoke(capsys, *args, "-o", tmp_path / "quiet", "--quiet")
+    assert code == 0 and err == ""
+    assert json.loads(stdout)["device"] == "cpu"  # auto, resolved on a machine without a GPU
+
+
+def test_simulate_reports_progress_per_image(capsys, tmp_path, photo_dir, monkeypatch):
+    """The core calls back before the first image and after each; the command draws the bar on
+    a terminal's stderr (here a captured stderr that says it is one) unless --quiet."""
+    from contextlib import contextmanager
+
+    from metalens_cli.cli import progress, simulate
+
+    calls, real = [], progress.progress_bar
+
+    @contextmanager
+    def recording(description, quiet=False):
+        with real(description, quiet) as update:
+
+            def both(done, total):
+                calls.append((description, quiet, done, total))
+                update(done, total)
+
+            yield both
+
+    monkeypatch.setattr(simulate, "progress_bar", recording)
+    monkeypatch.setattr(progress.sys.stderr, "isatty", lambda: True, raising=False)
+    args = ["simulate", "hyperbolic:532nm", *SMALL, "--images", photo_dir, "--json"]
+    code, stdout, err = invoke(capsys, *args, "-o", tmp_path / "shown")
+    assert code == 0 and json.loads(stdout)["images"]
+    assert calls == [("simulate", False, 0, 2), ("simulate", False, 1, 2), ("simulate", False, 2, 2)]
+    assert "simulate" in err  # the bar (rich, transient) was drawn on stderr
+    calls.clear()
+    code, _, err = invoke(capsys, *args, "-o", tmp_path / "quiet", "--quiet")
+    assert code == 0 and err == "" and [c[1] for c in calls] == [True] * 3

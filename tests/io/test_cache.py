@@ -330,3 +330,36 @@ def test_a_preset_s_eta_entry_that_lies_is_recomputed(folder):
             again = preset_spectra.preset_efficiency(nanofin, narrow)
         assert not again.report["cached"] and np.array_equal(again.values, first.values)
         assert (path.parent / f"{key}.npz.bad").exists()
+
+
+def test_the_folder_is_metalens_cache_when_set(tmp_path, monkeypatch):
+    monkeypatch.setenv("METALENS_CACHE", str(tmp_path / "mine"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache.cache_folder() == tmp_path / "mine"
+    assert cache.entry_path(KIND, KEY).parent == tmp_path / "mine" / KIND
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="XDG_CACHE_HOME is Linux's (platformdirs)")
+def test_without_metalens_cache_xdg_cache_home_then_home_on_linux(tmp_path, monkeypatch):
+    monkeypatch.delenv("METALENS_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache.cache_folder() == tmp_path / "xdg" / "metalens"
+    monkeypatch.setenv("METALENS_CACHE", "")  # blank counts as unset
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert cache.cache_folder() == tmp_path / "home" / ".cache" / "metalens"
+
+
+def test_without_metalens_cache_the_platform_s_user_cache_folder(tmp_path, monkeypatch):
+    import platformdirs
+
+    asked = []
+
+    def user_cache_dir(appname=None, appauthor=None, *args, **kwargs):
+        asked.append((appname, appauthor))
+        return str(tmp_path / "platform" / appname)
+
+    monkeypatch.delenv("METALENS_CACHE", raising=False)
+    monkeypatch.setattr(platformdirs, "user_cache_dir", user_cache_dir)
+    assert cache.cache_folder() == tmp_path / "platform" / "metalens"
+    assert asked == [("metalens", False)]

@@ -3,7 +3,8 @@
 import pytest
 
 from metalens_cli.errors import InputError
-from metalens_cli.io.resources import LONG_JOB_SECONDS, Estimate, check, is_long
+from metalens_cli.io import resources
+from metalens_cli.io.resources import LONG_JOB_SECONDS, Estimate, check, device_memory, is_long
 
 
 def test_a_range_is_said_only_when_the_longest_differs_and_counts_as_long():
@@ -32,3 +33,34 @@ def test_a_job_longer_than_max_time_is_refused_by_its_longest_estimate():
     with pytest.raises(InputError, match="--max-time"):  # the default refuses more than a day
         check(Estimate("days", 1, "--x", 1e7))
     check(Estimate("unknown", 1, "--x"), max_seconds=1.0)  # no estimate, nothing to refuse
+
+
+def test_a_cuda_job_is_checked_against_the_gpu_s_free_memory(monkeypatch):
+    """No GPU here: torch.cuda.mem_get_info is replaced by a device with 1 GiB free (of 80)."""
+    import torch
+
+    asked = []
+
+    def mem_get_info(device=None):
+        asked.append(device)
+        return 2**30, 80 * 2**30
+
+    monkeypatch.setattr(torch.cuda, "mem_get_info", mem_get_info)
+    monkeypatch.setattr(torch.cuda, "current_device", lambda: 0)
+    job = Estimate("psf-scan", 2 * 2**30, "--pixels", 1.0)
+    assert device_memory(torch.device("cuda", 1)) == (2**30, "the free memory of GPU cuda:1")
+    with pytest.raises(InputError, match=r"--pixels.*about 2 GiB of memory.*over the free memory of GPU cuda:0"):
+        check(job, device="cuda")  # plain cuda: the current device
+    assert asked[-1] == torch.device("cuda", 0)
+    check(Estimate("psf-scan", 2**29, "--pixels", 1.0), device=torch.device("cuda", 0))  # 0.5 GiB fits 90 % of 1
+    monkeypatch.setattr(resources, "available_memory", lambda: 64 * 2**30)
+    check(job, device="cpu")  # the host's 64 GiB of RAM, not the GPU's 1 GiB
+    assert len(asked) == 3
+
+
+def test_a_host_job_is_checked_against_the_host_ram_and_says_so(monkeypatch):
+    monkeypatch.setattr(resources, "available_memory", lambda: 2**30)
+    for device in (None, "cpu", "mps"):
+        assert device_memory(device) == (2**30, "the host RAM available on this machine")
+        with pytest.raises(InputError, match=r"over the host RAM available on this machine \(922 MiB\)"):
+            check(Estimate("simulate", 2**30, "--pixels", 1.0), device=device)
