@@ -249,7 +249,15 @@ def evaluate(
     )
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s["designs"]}
     with progress_bar("evaluate", quiet) as update:
-        result = run_evaluation(s["designs"], kinds, seeds, settings, lpips_model, update, reconstructors)
+        result = run_evaluation(
+            s["designs"],
+            kinds,
+            seeds,
+            settings,
+            lpips_model=lpips_model,
+            on_progress=update,
+            reconstructors=reconstructors,
+        )
     notes = [n for n in (lpips_skip,) if n]
     n = result.rows[0]["n"] if result.rows else 0
     what = "Raw and reconstructed captures" if any(reconstructors) else "Raw captures"

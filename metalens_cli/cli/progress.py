@@ -105,7 +105,7 @@ def run_training(
 
     import click
 
-    from metalens_cli.design.training import TrainingInterrupted
+    from metalens_cli.design.train_loop import TrainingInterrupted
     from metalens_cli.errors import Terminated
 
     rank0 = int(os.environ.get("RANK", "0")) == 0

@@ -42,8 +42,8 @@ from metalens_cli.design.reconstruct_data import (
     simulate_pool,
 )
 from metalens_cli.design.rundir import RunDirectory
-from metalens_cli.design.training import TrainingInterrupted
-from metalens_cli.errors import InputError, Terminated
+from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides, update
+from metalens_cli.errors import InputError
 from metalens_cli.imaging.metrics import ssim
 from metalens_cli.imaging.network import NetworkShape, ReconstructionNet
 from metalens_cli.imaging.restore import MODEL_FILE, Reconstructor, design_fingerprint, save_model
@@ -171,14 +171,8 @@ def _train(
     design, camera, preset, run: RunDirectory, steps, seed, ctx, resume, pairs, lpips_weights, on_step, on_stage
 ) -> ReconstructSummary:
     identity = _identity(design, camera, pairs)
-    checkpoint = None
     if resume:
-        if not run.preset_path.is_file():
-            raise InputError(
-                "--resume",
-                f"{str(run.path)!r} holds no run to resume",
-                "a run directory written by metalens reconstruct train",
-            )
+        run.check_resumable()
         preset = _resumed_preset(run, preset)
         made_for = _made_for(run, identity)
         if made_for.get("fingerprint") != identity["fingerprint"]:
@@ -189,13 +183,11 @@ def _train(
             )
         pairs = made_for.get("pairs")
         identity["pairs"] = pairs
-    overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
+    given = overrides(steps, seed)
     preset = preset or ReconstructPreset("reconstruct")
-    preset = replace(preset, train=replace(preset.train, **overrides))
+    preset = replace(preset, train=replace(preset.train, **given))
     t = preset.train
-    checkpoint = run.latest_checkpoint(t.steps, lists=("validations",)) if resume else None
-    if not resume:
-        run.check_fresh()
+    checkpoint = checkpoint_to_resume(run, resume, t.steps, lists=("validations",))
     lpips_model, notes = _lpips(t, lpips_weights)  # its files are checked before the data is built
     data = _Data(design, camera, preset, pairs, ctx.device, on_stage)
     torch.manual_seed(t.seed)
@@ -208,67 +200,52 @@ def _train(
     if ctx.is_main and not resume:  # only now: every check above has passed
         run.create(reconstruct_to_toml(preset), folders=("validation",))
         run.write_text("design.json", json.dumps(identity, indent=2) + "\n")
-    history, validations, start = [], [], 0
-    if checkpoint is not None:
-        checkpoint.restore(model=net, optimizer=optimizer, scheduler=scheduler)
-        history, validations, start = checkpoint.state["history"], checkpoint.state["validations"], checkpoint.step
-    if ctx.is_main and resume and overrides:
-        run.write_text(PRESET_FILE, reconstruct_to_toml(preset))
-    distributed.barrier(ctx)
+    validations: list[dict] = []  # one row per validation pass, kept in the checkpoints
+    loop = TrainLoop(
+        run,
+        ctx,
+        t.steps,
+        t.checkpoint_every,
+        {"model": net, "optimizer": optimizer, "scheduler": scheduler},
+        lambda: {"validations": validations},
+        lambda state: validations.extend(state["validations"]),
+    )
+    loop.resume(checkpoint, reconstruct_to_toml(preset) if resume and given else None)
     shard = ctx.shard(t.batch_size)
     share = len(shard) / t.batch_size
     if ctx.is_main and not validations:
         validations.append(_validate(net, data, 0, run, ctx))
-    on_stage("training")
-    try:
-        for step in range(start, t.steps):
-            t0 = time.perf_counter()
-            pool = data.pool_for(step)
-            b = batch(pool, preset.data, t.crop, data.position_scale, t.seed, step, shard, ctx.device)
-            t1 = time.perf_counter()
-            optimizer.zero_grad(set_to_none=True)
-            net.train()
-            terms = loss_terms(
-                net(b.inputs.contiguous(memory_format=torch.channels_last), b.positions), b.targets, t, lpips_model
-            )
-            (terms["total"] * share).backward()
-            reported = torch.stack([terms[k].detach() * share for k in sorted(terms)]).double()
-            if ctx.world > 1:
-                for p in net.parameters():
-                    distributed.all_reduce_sum(p.grad, ctx)
-                distributed.all_reduce_sum(reported, ctx)
-            optimizer.step()
-            scheduler.step()
-            row = {
-                "step": step + 1,
-                "lr": optimizer.param_groups[0]["lr"],
-                **dict(zip(sorted(terms), reported.tolist())),
-                "seconds": time.perf_counter() - t0,
-                "data_seconds": t1 - t0,
-            }
-            history.append(row)
-            if ctx.is_main:
-                on_step(step + 1, t.steps, row)
-                if (step + 1) % t.validate_every == 0 or step + 1 == t.steps:
-                    validations.append(_validate(net, data, step + 1, run, ctx))
-                if (step + 1) % t.checkpoint_every == 0:
-                    run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, step + 1))
-                    run.write_loss_csv(history)
-    except (KeyboardInterrupt, Terminated):
-        done = len(history)
-        path = (
-            run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, done)) if ctx.is_main else None
+
+    def one_step(step: int) -> dict:
+        t0 = time.perf_counter()
+        pool = data.pool_for(step)
+        b = batch(pool, preset.data, t.crop, data.position_scale, t.seed, step, shard, ctx.device)
+        t1 = time.perf_counter()
+        optimizer.zero_grad(set_to_none=True)
+        net.train()
+        terms = loss_terms(
+            net(b.inputs.contiguous(memory_format=torch.channels_last), b.positions), b.targets, t, lpips_model
         )
-        if ctx.is_main:
-            run.write_loss_csv(history)
-        raise TrainingInterrupted(done, path) from None
+        (terms["total"] * share).backward()
+        reported = torch.stack([terms[k].detach() * share for k in sorted(terms)]).double()
+        update(optimizer, scheduler, reported, ctx)
+        return {
+            "step": step + 1,
+            "lr": optimizer.param_groups[0]["lr"],
+            **dict(zip(sorted(terms), reported.tolist())),
+            "data_seconds": t1 - t0,
+        }
+
+    def after_step(done: int) -> None:
+        if done % t.validate_every == 0 or done == t.steps:
+            validations.append(_validate(net, data, done, run, ctx))
+
+    on_stage("training")
+    loop.train(one_step, on_step, after_step)
     report: dict = {}
     if ctx.is_main:
-        if t.steps > start:
-            run.save_checkpoint(_state(net, optimizer, scheduler, history, validations, t.steps))
-        report = _finish(
-            run, preset, net, identity, data, history, validations, start, notes + data.warnings, lpips_model, ctx
-        )
+        history, start, notes = loop.history, loop.start, notes + data.warnings
+        report = _finish(run, preset, net, identity, data, history, validations, start, notes, lpips_model, ctx)
     return ReconstructSummary(run.path, report)
 
 
@@ -433,18 +410,6 @@ def _validate(net, data: _Data, step: int, run: RunDirectory, ctx) -> dict:
         linear_to_srgb(np.clip(np.concatenate(previews, axis=-2), 0, 1)),
     )
     return row
-
-
-def _state(net, optimizer, scheduler, history, validations, step) -> dict:
-    return {
-        "step": step,
-        "model": net.state_dict(),
-        "optimizer": optimizer.state_dict(),
-        "scheduler": scheduler.state_dict(),
-        "history": history,
-        "validations": validations,
-        "rng": "stateless: every draw is a function of (seed, step)",
-    }
 
 
 def _finish(

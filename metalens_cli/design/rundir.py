@@ -91,6 +91,13 @@ class RunDirectory:
         if self.path.is_dir() and any(self.path.iterdir()):
             raise InputError("--output", f"{str(self.path)!r} is not empty", "a new or empty folder for the run")
 
+    def check_resumable(self) -> None:
+        """Refuse --resume of a folder without the run's preset file."""
+        if not self.preset_path.is_file():
+            raise InputError(
+                "--resume", f"{str(self.path)!r} holds no run to resume", f"a run directory written by {self.made_by}"
+            )
+
     def create(self, preset_text: str, folders: tuple[str, ...] = ("samples",)) -> None:
         """Start a fresh run with its preset file: refuse a folder that already holds one. The
         preset is written first: a run killed (SIGKILL) at any moment leaves a folder that is

@@ -13,8 +13,9 @@ uninterrupted one exactly and every data-parallel rank agrees on the shared draw
    formation of ``imaging.formation``;
 5. loss (``design.losses``), backward, gradient sum over ranks, AdamW and the LR schedule.
 
-The core never prints: progress goes to the ``on_step`` callback. Ctrl-C (KeyboardInterrupt)
-writes a checkpoint of the last completed step and raises :class:`TrainingInterrupted`.
+The core never prints: progress goes to the ``on_step`` callback. The loop around the steps
+(resume, checkpoints, Ctrl-C: a checkpoint of the last completed step, then
+``TrainingInterrupted``) is ``design.train_loop``'s.
 """
 
 from __future__ import annotations
@@ -47,7 +48,8 @@ from metalens_cli.design.losses import training_loss
 from metalens_cli.design.parameterization import initial_parameterization
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.scenes import training_scene
-from metalens_cli.errors import InputError, MetalensError, SamplingError, Terminated
+from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides, update
+from metalens_cli.errors import InputError, SamplingError
 from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
@@ -67,14 +69,6 @@ FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 
 THETA_GRID_COPIES = 12  # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
 LARGE_GRID_BYTES = 1 << 30  # a 2-D θ grid above this is estimated (and refused) before it is built
 MAX_PLAN_WINDOW = 4097  # planned windows stop growing here (pixels): the step then reports what it kept
-
-
-class TrainingInterrupted(MetalensError):
-    """Ctrl-C during training: a checkpoint of ``step`` completed steps was written."""
-
-    def __init__(self, step: int, checkpoint: Path | None):
-        self.step, self.checkpoint = step, checkpoint
-        super().__init__(f"interrupted after step {step}; checkpoint {checkpoint}")
 
 
 @dataclass
@@ -469,65 +463,49 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> di
 
 
 def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunSummary:
-    """The run; on --resume the checkpoint is checked (``RunDirectory.latest_checkpoint``,
-    ``Checkpoint.restore``) before preset.toml is rewritten, so a refused one changes no file."""
+    """The run (``design.train_loop``); on --resume the checkpoint is checked
+    (``RunDirectory.latest_checkpoint``, ``Checkpoint.restore``) before preset.toml is rewritten."""
     if resume:
-        if not run.preset_path.is_file():
-            raise InputError(
-                "--resume", f"{str(run.path)!r} holds no run to resume", "a run directory written by metalens optimize"
-            )
+        run.check_resumable()
         preset = run.load_preset()
-    overrides = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
-    preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **overrides))
+    given = overrides(steps, seed)
+    preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **given))
     o = preset.optimize
     if preset.filter is not None and preset.filter.learn:
         run.columns = run.columns + filter_columns(len(preset.filter.centers_m))
-    checkpoint = run.latest_checkpoint(o.steps) if resume else None
-    if not resume:
-        run.check_fresh()
+    checkpoint = checkpoint_to_resume(run, resume, o.steps)
     session = _session(preset, ctx)
     if ctx.is_main and not resume:
         run.create(to_toml(preset))
-    model, optimizer, scheduler = session.model, session.optimizer, session.scheduler
-    history: list[dict] = []
-    start = 0
-    if checkpoint is not None:
-        learned = {"filter": session.band_filter} if session.band_filter is not None else {}
-        checkpoint.restore(model=model, **learned, optimizer=optimizer, scheduler=scheduler)
-        history, start = checkpoint.state["history"], checkpoint.step
-        if "windows" in checkpoint.state:  # the windows the run had come to (older runs: capacities alone)
-            near, far, *plan = checkpoint.state["windows"]
-            session.windows = Windows(near, far, plan[0] if plan else max(near, far))
-    if ctx.is_main and resume and overrides:
-        run.write_text("preset.toml", to_toml(preset))
-    distributed.barrier(ctx)
+    model = session.model
+    loop = TrainLoop(
+        run,
+        ctx,
+        o.steps,
+        o.checkpoint_every,
+        _modules(session),
+        lambda: _windows_state(session),
+        lambda state: _load_windows(session, state),
+    )
+    loop.resume(checkpoint, to_toml(preset) if resume and given else None)
     timing: dict[str, float] = {}
     grid: dict = {}
-    step = start
-    try:
-        for step in range(start, o.steps):
-            t0 = time.perf_counter()
-            row, grid, sample = _one_step(session, preset, step, ctx, timing)
-            row["seconds"] = time.perf_counter() - t0
-            history.append(row)
-            if on_step is not None and ctx.is_main:
-                on_step(step + 1, o.steps, row)
-            if ctx.is_main and (step + 1) % o.checkpoint_every == 0:
-                run.save_checkpoint(_state(session, history, step + 1))
-                run.write_loss_csv(history)
-            if ctx.is_main and (step + 1) % o.sample_every == 0:
-                _write_sample(run, sample, step)
-    except (KeyboardInterrupt, Terminated):
-        done = len(history)
-        path = run.save_checkpoint(_state(session, history, done)) if ctx.is_main else None
-        if ctx.is_main:
-            run.write_loss_csv(history)
-        raise TrainingInterrupted(done, path) from None
+    sample = None
+
+    def one_step(step: int) -> dict:
+        nonlocal grid, sample
+        row, grid, sample = _one_step(session, preset, step, ctx, timing)
+        return row
+
+    def after_step(done: int) -> None:
+        if done % o.sample_every == 0:
+            _write_sample(run, sample, done - 1)
+
+    loop.train(one_step, on_step, after_step)
+    history, start = loop.history, loop.start
     theta = model.full_theta().detach().cpu().numpy()
     summary = RunSummary(run.path, o.steps, start, history, _seconds_per_step(history[start:]), theta)
     if ctx.is_main:
-        if o.steps > start:
-            run.save_checkpoint(_state(session, history, o.steps))
         learned, filter_report = preset, None
         if session.band_filter is not None:  # checked (and snapped) before anything is written with it
             learned, filter_report = learned_filter(run, preset, session.band_filter)
@@ -613,13 +591,7 @@ def _one_step(session: _Session, preset, step, ctx, timing):
     names = sorted(parts)
     image_terms = {"l1", "ssim", "domain_adaptation", "total"}
     reported = torch.stack([parts[k].detach() * (share if k in image_terms else 1 / ctx.world) for k in names]).double()
-    if ctx.world > 1:
-        for p in _parameters(session):
-            distributed.all_reduce_sum(p.grad, ctx)
-        distributed.all_reduce_sum(reported, ctx)
-        # 'total' mixes shares; recompute it from the reduced parts below
-    optimizer.step()
-    session.scheduler.step()
+    update(optimizer, session.scheduler, reported, ctx)  # 'total' mixes shares: recomputed from the parts below
     if session.band_filter is not None:
         session.band_filter.project(preset.filter, preset.sensor.wavelength_range_m)
     _lap(timing, "update", t, ctx.device)
@@ -681,12 +653,6 @@ def _noise_seed(seed: int, step: int, shard: list[int]) -> int:
 def _bands_text(band_filter: LearnedFilter) -> str:
     centres, widths, _ = band_filter.values()
     return ", ".join(f"{(c - w / 2) * 1e9:.1f}-{(c + w / 2) * 1e9:.1f} nm" for c, w in zip(centres, widths))
-
-
-def _parameters(session: _Session) -> list[torch.nn.Parameter]:
-    """θ's parameters and, when it is learned, the filter's."""
-    extra = list(session.band_filter.parameters()) if session.band_filter is not None else []
-    return list(session.model.parameters()) + extra
 
 
 VALIDATION_STEP = 10**9  # draws for the fixed validation loss start here, far from any training step
@@ -767,18 +733,22 @@ def _lap(timing: dict, name: str, t: float, device: torch.device) -> float:
     return now
 
 
-def _state(session: _Session, history, step) -> dict:
-    learned = {"filter": session.band_filter.state_dict()} if session.band_filter is not None else {}
-    return {
-        "step": step,
-        "model": session.model.state_dict(),
-        **learned,
-        "optimizer": session.optimizer.state_dict(),
-        "scheduler": session.scheduler.state_dict(),
-        "windows": [session.windows.near, session.windows.far, session.windows.plan],
-        "history": history,
-        "rng": "stateless: every draw is a function of (seed, step)",
-    }
+def _modules(session: _Session) -> dict:
+    """What a checkpoint holds the state dicts of: θ, the learned filter, optimiser and schedule."""
+    learned = {"filter": session.band_filter} if session.band_filter is not None else {}
+    return {"model": session.model, **learned, "optimizer": session.optimizer, "scheduler": session.scheduler}
+
+
+def _windows_state(session: _Session) -> dict:
+    """The windows the run has come to (px), kept in its checkpoints."""
+    return {"windows": [session.windows.near, session.windows.far, session.windows.plan]}
+
+
+def _load_windows(session: _Session, state: dict) -> None:
+    """The windows a checkpoint's ``state`` kept (older runs: the capacities alone; older still: none)."""
+    if "windows" in state:
+        near, far, *plan = state["windows"]
+        session.windows = Windows(near, far, plan[0] if plan else max(near, far))
 
 
 def _seconds_per_step(rows: list[dict]) -> float | None:

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
+from metalens_cli.design.train_loop import TrainingInterrupted
 from metalens_cli.design.training import (
-    TrainingInterrupted,
     build_model,
     step_batch,
     time_steps,
