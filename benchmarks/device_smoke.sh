@@ -3,7 +3,7 @@
 # Usage: DEV=cuda bash benchmarks/device_smoke.sh   (DEV=cpu to try it; STEPS: optimize steps, default 30;
 # OUT: where each command's JSON and stderr go, default a temporary folder). Needs the package importable
 # (pip install -e . or PYTHONPATH=.). Last run with DEV=cuda: NVIDIA H200, torch 2.11, 2026-11-26, every
-# command exit 0, optimize_joint included (README, "Speed").
+# command exit 0, optimize_joint included (docs/benchmarks.md, summary).
 DEV=${DEV:-cuda}; T=$(mktemp -d); O=${OUT:-$T}; mkdir -p "$O"
 M="python3 -m metalens_cli"
 run() {

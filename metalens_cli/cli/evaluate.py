@@ -191,26 +191,26 @@ def evaluate(
     metrics = metric_names(lpips_model)
     s = setup(
         list(specs),
-        preset_path,
-        f_m,
-        aperture_m,
-        pitch_m,
-        z_near_m,
-        z_far_m,
-        pixels,
-        pixel_pitch_m,
-        wavelengths,
-        device,
+        preset_path=preset_path,
+        f_m=f_m,
+        aperture_m=aperture_m,
+        pitch_m=pitch_m,
+        z_near_m=z_near_m,
+        z_far_m=z_far_m,
+        pixels=pixels,
+        pixel_pitch_m=pixel_pitch_m,
+        wavelengths=wavelengths,
+        device=device,
     )
     settings = EvaluationSettings(
-        s["pixels"],
-        s["pixel_pitch_m"],
-        tuple(s["z_near_interval_m"]),
-        tuple(s["z_far_interval_m"]),
-        s["wavelengths_m"],
+        s.pixels,
+        s.pixel_pitch_m,
+        s.z_near_interval_m,
+        s.z_far_interval_m,
+        s.wavelengths_m,
         images,
         limit,
-        s["obstruction_params"],
+        s.obstruction_params,
         formation,
         match,
         alpha_gain,
@@ -218,39 +218,39 @@ def evaluate(
         read_noise,
         photons_before_filter,
         psf_pixels,
-        s["device"],
+        s.device,
     )
-    reconstructors = _reconstructors(recon_runs, s["designs"], s["device"])
+    reconstructors = _reconstructors(recon_runs, s.designs, s.device)
     count = image_count(images, limit)
     costs = [
         estimate_captures(
             design,
-            s["z_near_interval_m"][0],
-            s["z_far_interval_m"][0],
-            s["wavelengths_m"],
-            s["pixel_pitch_m"],
-            s["pixels"],
+            s.z_near_interval_m[0],
+            s.z_far_interval_m[0],
+            s.wavelengths_m,
+            s.pixel_pitch_m,
+            s.pixels,
             count,
             window=psf_pixels,
         )
-        for design in s["designs"]
+        for design in s.designs
     ]
     # PSFs once per design and seed (the depths are the seed's), captures per obstruction kind too
     announce(
         Estimate(
-            f"evaluate of {len(s['designs'])} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} "
+            f"evaluate of {len(s.designs)} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} "
             "obstruction(s)",
             max(memory for memory, _, _ in costs),
             "--psf-pixels" if psf_pixels else "--pixels",
             len(seeds) * sum(psf + len(kinds) * captures for _, psf, captures in costs),
         ),
         max_memory,
-        device=s["device"],
+        device=s.device,
     )
-    efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s["designs"]}
+    efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s.designs}
     with progress_bar("evaluate", quiet) as update:
         result = run_evaluation(
-            s["designs"],
+            s.designs,
             kinds,
             seeds,
             settings,
@@ -263,7 +263,7 @@ def evaluate(
     what = "Raw and reconstructed captures" if any(reconstructors) else "Raw captures"
     _report(
         result,
-        [d.spec for d in s["designs"]],
+        [d.spec for d in s.designs],
         kinds,
         metrics,
         notes,

@@ -119,22 +119,32 @@ def train(
 
     preset = load_reconstruct_preset(preset_path) if preset_path else None
     ensure_folder(Path(output).parent, "--output")
-    s = setup([spec], camera_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, None, pixel_pitch_m, (), device)
-    camera = Camera(
-        s["pixel_pitch_m"], tuple(s["z_near_interval_m"]), tuple(s["z_far_interval_m"]), s["obstruction_params"]
+    s = setup(
+        [spec],
+        preset_path=camera_path,
+        f_m=f_m,
+        aperture_m=aperture_m,
+        pitch_m=pitch_m,
+        z_near_m=z_near_m,
+        z_far_m=z_far_m,
+        pixels=None,
+        pixel_pitch_m=pixel_pitch_m,
+        wavelengths=(),
+        device=device,
     )
+    camera = Camera(s.pixel_pitch_m, s.z_near_interval_m, s.z_far_interval_m, s.obstruction_params)
     report = run_training(
         "reconstruct",
         quiet,
         f"metalens reconstruct train {spec} -o {output} --resume",
         lambda progress: train_reconstruction(
-            s["designs"][0],
+            s.designs[0],
             camera,
             preset,
             output,
             steps=steps,
             seed=seed,
-            device=s["device"],
+            device=s.device,
             resume=resume,
             pairs=pairs,
             lpips_weights=lpips_weights,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -101,8 +102,25 @@ def capture_options(f):
     return geometry_options(apply_options(f, options))
 
 
+@dataclass(frozen=True)
+class CaptureSetup:
+    """What simulate, evaluate and reconstruct train capture with (SI metres): the designs, the
+    sensor crop, the depth intervals [lo, hi], the wavelengths integrated over, the torch device
+    and the obstruction parameters in force (None: the defaults)."""
+
+    designs: list
+    pixels: int
+    pixel_pitch_m: float
+    z_near_interval_m: tuple[float, float]
+    z_far_interval_m: tuple[float, float]
+    wavelengths_m: list[float]
+    device: object  # torch.device
+    obstruction_params: object | None  # io.presets.ObstructionConfig
+
+
 def setup(
     spec_list,
+    *,
     preset_path,
     f_m,
     aperture_m,
@@ -114,7 +132,7 @@ def setup(
     wavelengths,
     device,
     design_field="DESIGN",
-):
+) -> CaptureSetup:
     """Resolve designs, sensor, depth intervals and wavelengths (shared by simulate, evaluate and
     reconstruct train); a malformed design is refused naming ``design_field`` (their positional
     DESIGN argument), not resolve_design's ``--design``."""
@@ -135,16 +153,16 @@ def setup(
     z_near = z_near_m or (scene.z_near_m if scene else DEFAULT_Z_NEAR_M)
     z_far = z_far_m or (scene.z_far_m if scene else DEFAULT_Z_FAR_M)
     waves = flatten(wavelengths) or parse_length_list(DEFAULT_WAVELENGTHS, "--wavelengths")
-    return {
-        "designs": designs,
-        "pixels": pixels or (sensor.pixels if sensor else DEFAULT_PIXELS),
-        "pixel_pitch_m": pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M),
-        "z_near_interval_m": list(z_near),
-        "z_far_interval_m": list(z_far),
-        "wavelengths_m": waves,
-        "device": torch_device(device),
-        "obstruction_params": in_force.obstruction if in_force is not None else None,
-    }
+    return CaptureSetup(
+        designs=designs,
+        pixels=pixels or (sensor.pixels if sensor else DEFAULT_PIXELS),
+        pixel_pitch_m=pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M),
+        z_near_interval_m=tuple(z_near),
+        z_far_interval_m=tuple(z_far),
+        wavelengths_m=waves,
+        device=torch_device(device),
+        obstruction_params=in_force.obstruction if in_force is not None else None,
+    )
 
 
 @click.command("simulate", cls=MetalensCommand)
@@ -200,44 +218,52 @@ def simulate(
     check_output_unused(output, overwrite)
     (kind,) = _single(parse_obstructions(obstruction))
     s = setup(
-        [spec], preset_path, f_m, aperture_m, pitch_m, z_near_m, z_far_m, pixels, pixel_pitch_m, wavelengths, device
+        [spec],
+        preset_path=preset_path,
+        f_m=f_m,
+        aperture_m=aperture_m,
+        pitch_m=pitch_m,
+        z_near_m=z_near_m,
+        z_far_m=z_far_m,
+        pixels=pixels,
+        pixel_pitch_m=pixel_pitch_m,
+        wavelengths=wavelengths,
+        device=device,
     )
-    design = s["designs"][0]
-    z_near, z_far = draw_depths(s["z_near_interval_m"], s["z_far_interval_m"], seed)
+    design = s.designs[0]
+    z_near, z_far = draw_depths(s.z_near_interval_m, s.z_far_interval_m, seed)
     memory, psf_seconds, capture_seconds = estimate_captures(
         design,
         z_near,
         z_far,
-        s["wavelengths_m"],
-        s["pixel_pitch_m"],
-        s["pixels"],
+        s.wavelengths_m,
+        s.pixel_pitch_m,
+        s.pixels,
         image_count(images, limit),
         window=psf_pixels,
     )
     announce(
         Estimate(
-            f"simulate on {s['pixels']}² pixels",
+            f"simulate on {s.pixels}² pixels",
             memory,
             "--psf-pixels" if psf_pixels else "--pixels",
             psf_seconds + capture_seconds,
         ),
         max_memory,
-        device=s["device"],
+        device=s.device,
     )
     efficiency = efficiency_used(design.preset, quiet)
-    psfs = channel_psfs(
-        design, z_near, z_far, s["wavelengths_m"], s["pixel_pitch_m"], device=s["device"], window=psf_pixels
-    )
-    clean = load_images(images, (s["pixels"], s["pixels"]), limit, psfs.margin)
+    psfs = channel_psfs(design, z_near, z_far, s.wavelengths_m, s.pixel_pitch_m, device=s.device, window=psf_pixels)
+    clean = load_images(images, (s.pixels, s.pixels), limit, psfs.margin)
     with progress_bar("simulate", quiet) as update:
         captures = simulate_captures(
             clean,
             kind,
             psfs,
             design.focal_length_m,
-            s["pixel_pitch_m"],
+            s.pixel_pitch_m,
             seed,
-            params=s["obstruction_params"],
+            params=s.obstruction_params,
             formation=formation,
             alpha_gain=alpha_gain,
             photons=photons,
@@ -262,17 +288,17 @@ def simulate(
                 "seed": seed,
                 "z_near_m": z_near,
                 "z_far_m": z_far,
-                "z_near_interval_m": s["z_near_interval_m"],
-                "z_far_interval_m": s["z_far_interval_m"],
-                "pixels": s["pixels"],
-                "pixel_pitch_m": s["pixel_pitch_m"],
+                "z_near_interval_m": list(s.z_near_interval_m),
+                "z_far_interval_m": list(s.z_far_interval_m),
+                "pixels": s.pixels,
+                "pixel_pitch_m": s.pixel_pitch_m,
                 "canvas_margin_px": psfs.margin,
-                "wavelengths_m": s["wavelengths_m"],
+                "wavelengths_m": s.wavelengths_m,
                 "formation": formation,
                 "alpha_gain": alpha_gain,
                 "photons": photons,
                 "read_noise": read_noise,
-                "device": str(s["device"]),
+                "device": str(s.device),
                 **psfs.report(),
                 "spectral_coverage": dict(zip("RGB", psfs.coverage)),
                 "efficiency": efficiency,

@@ -47,6 +47,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.imaging.metrics import ssim
 from metalens_cli.imaging.network import NetworkShape, ReconstructionNet
 from metalens_cli.imaging.restore import MODEL_FILE, Reconstructor, design_fingerprint, save_model
+from metalens_cli.io.image_files import srgb_encode_tensor
 from metalens_cli.io.reconstruct_presets import (
     SECTIONS,
     ReconstructPreset,
@@ -74,14 +75,9 @@ def learning_rate_factor(step: int, t) -> float:
     return 0.5 * (1 + math.cos(math.pi * k / period))
 
 
-def display(x: torch.Tensor) -> torch.Tensor:
-    """Differentiable sRGB encoding of linear values (the linear toe continues below 0)."""
-    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
-
-
 def loss_terms(estimate: torch.Tensor, clean: torch.Tensor, weights, lpips_model=None) -> dict[str, torch.Tensor]:
     """Per-term batch means on sRGB-encoded images; ``total`` is the weighted sum."""
-    x, y = display(estimate), display(clean)
+    x, y = srgb_encode_tensor(estimate), srgb_encode_tensor(clean)
     terms = {"l1": (x - y).abs().mean(), "ssim": 1 - ssim(x, y).mean()}
     if lpips_model is not None:
         from metalens_cli.imaging.lpips import lpips_distance

@@ -31,6 +31,13 @@ def linear_to_srgb(values: np.ndarray, dtype=np.float32) -> np.ndarray:
     return np.asarray(colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=dtype)
 
 
+def srgb_encode_tensor(x):
+    """The sRGB encoding of a torch tensor of linear values, differentiable, unclipped (the
+    linear toe continues below 0): for losses on displayed values, where colour-science's
+    numpy ``cctf_encoding`` cannot carry gradients. Same formula (IEC 61966-2-1)."""
+    return (12.92 * x).where(x <= 0.0031308, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
+
+
 def write_exr_rgb(path: str | os.PathLike[str], image: np.ndarray) -> None:
     """Write a (C, H, W) float image (C = 3: R, G, B; C = 1: Y) as a float32 EXR, atomically."""
     import OpenEXR

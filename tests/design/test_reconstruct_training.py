@@ -14,9 +14,10 @@ import torch
 from launch import run_metalens
 
 from metalens_cli.design.reconstruct_data import Camera, Pool, batch, read_pairs, strata
-from metalens_cli.design.reconstruct_training import display, learning_rate_factor, train_reconstruction
+from metalens_cli.design.reconstruct_training import learning_rate_factor, train_reconstruction
 from metalens_cli.errors import InputError
 from metalens_cli.io.designs import resolve_design
+from metalens_cli.io.image_files import srgb_encode_tensor
 from metalens_cli.io.reconstruct_presets import load_reconstruct_preset
 
 TINY = Path(__file__).with_name("tiny_reconstruct.toml")
@@ -44,8 +45,8 @@ def test_display_encoding_is_srgb():
 
     x = np.linspace(0, 1, 1001)
     expected = colour.cctf_encoding(x, function="sRGB")
-    np.testing.assert_allclose(display(torch.from_numpy(x)).numpy(), expected, rtol=0, atol=1e-9)
-    assert display(torch.tensor(-0.01)).item() == pytest.approx(-0.1292)  # the toe continues linearly
+    np.testing.assert_allclose(srgb_encode_tensor(torch.from_numpy(x)).numpy(), expected, rtol=0, atol=1e-9)
+    assert srgb_encode_tensor(torch.tensor(-0.01)).item() == pytest.approx(-0.1292)  # the toe continues linearly
 
 
 def test_strata_midpoints():
