@@ -15,7 +15,7 @@ plane wave), lens phase −(2π/λd)(√(r² + f²) − f). Units: metres; inten
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -133,6 +133,21 @@ class FocalValidation:
     def max_abs_rel_deviation(self) -> float | None:
         values = [abs(r.rel_deviation) for r in self.rows if r.rel_deviation is not None]
         return max(values) if values else None
+
+
+def validation_report(v: FocalValidation, aperture_m: float) -> dict:
+    """JSON-able: the lens diameter, the method, the model and best depth per wavelength, the
+    largest deviation, the depth range, the quadrature and its convergence, the seconds."""
+    return {
+        "aperture_m": aperture_m,
+        "method": "on-axis Rayleigh-Sommerfeld integral, Simpson in r², Brent refinement in log z",
+        "rows": [asdict(r) for r in v.rows],
+        "max_abs_rel_deviation": v.max_abs_rel_deviation,
+        "depth_range_m": [float(v.depths_m[0]), float(v.depths_m[-1])],
+        "quadrature_samples": v.samples,
+        "convergence_rel": v.convergence,
+        "seconds": v.seconds,
+    }
 
 
 def _best_depth(wavelength, lambda_d, f, aperture, lo, hi, samples, fine_points: int = 81) -> float:

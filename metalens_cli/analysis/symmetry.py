@@ -16,7 +16,7 @@ depth. All values in metres. Pure Python so that the command answers instantly.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 from metalens_cli.errors import InputError
 
@@ -86,6 +86,48 @@ def delta_wavelength(delta_z_m: float, at_depth_m: float, lambda_d_m: float, f_m
         wavelength_at_depth_m=wavelength_for_depth(at_depth_m, lambda_d_m, f_m),
         wavelength_at_shifted_depth_m=wavelength_for_depth(shifted, lambda_d_m, f_m),
     )
+
+
+@dataclass(frozen=True)
+class SymmetryTable:
+    """The model for one lens (``f_m``, ``lambda_d_m``): the depth of each wavelength, the
+    wavelength focused from each depth as ``(depth_m, wavelength_m)``, and Δλ for a depth step
+    (None without one)."""
+
+    f_m: float
+    lambda_d_m: float
+    rows: list[DepthRow]
+    focused: list[tuple[float, float]]
+    delta: DeltaWavelength | None
+
+    def report(self) -> dict:
+        """JSON-able: ``f_m``, ``lambda_d_m``, ``rows``, ``focused_wavelengths`` and ``delta``
+        when there is one."""
+        out = {
+            "f_m": self.f_m,
+            "lambda_d_m": self.lambda_d_m,
+            "rows": [asdict(r) for r in self.rows],
+            "focused_wavelengths": [{"depth_m": z, "wavelength_m": w} for z, w in self.focused],
+        }
+        if self.delta is not None:
+            out["delta"] = asdict(self.delta)
+        return out
+
+
+def symmetry_table(
+    f_m: float,
+    lambda_d_m: float,
+    wavelengths_m=DEFAULT_WAVELENGTHS_M,
+    depths_m=(),
+    delta_z_m: float | None = None,
+    at_depth_m: float | None = None,
+) -> SymmetryTable:
+    """Depths of ``wavelengths_m``, wavelengths of ``depths_m`` and, given ``delta_z_m`` and
+    ``at_depth_m``, the Δλ of that step."""
+    rows = [depth_for_wavelength(w, lambda_d_m, f_m) for w in wavelengths_m]
+    focused = [(z, wavelength_for_depth(z, lambda_d_m, f_m)) for z in depths_m]
+    delta = None if delta_z_m is None else delta_wavelength(delta_z_m, at_depth_m, lambda_d_m, f_m)
+    return SymmetryTable(f_m, lambda_d_m, rows, focused, delta)
 
 
 def shift_factor(f_m: float, depth_m: float) -> float:

@@ -16,6 +16,7 @@ from metalens_cli.cli.options import (
     announce,
     check_output_unused,
     device_option,
+    flatten,
     json_option,
     load_preset_option,
     max_memory_option,
@@ -24,18 +25,13 @@ from metalens_cli.cli.options import (
     torch_device,
 )
 from metalens_cli.cli.progress import progress_bar
-from metalens_cli.constants import PAPER_BANDS_M, PAPER_FIN_HEIGHT_M, PAPER_PITCH_M
 from metalens_cli.errors import InputError
-from metalens_cli.optics.nanofin import FIRST_HARMONICS
+from metalens_cli.optics.nanofin import FIRST_HARMONICS, SOLVERS
 
 MAX_HARMONICS = 41
 LEAST_MAX_HARMONICS = FIRST_HARMONICS + 4
 MAX_FINS = 10_000
 TYPICAL_HARMONICS = 25  # what auto picks for the paper's fin (docs/benchmarks.md)
-SOLVERS = {
-    "modes": "fin_modes (this package's RCWA, mirror symmetries, Li's factorisation)",
-    "meent": "meent (RCWA, Li's factorisation; the reference)",
-}
 solver_option = click.option(
     "--solver",
     type=click.Choice(tuple(SOLVERS)),
@@ -151,97 +147,82 @@ def efficiency(
     report: the largest change of η and the seconds per N) until it moves less than
     --tolerance at every wavelength from both N − 2 and N − 4; the last N is the answer.
     """
-    from metalens_cli.io.materials import parse_material
-    from metalens_cli.io.resources import Estimate
+    from metalens_cli.design.fin_efficiency import efficiency_report, fin_efficiency
     from metalens_cli.io.units import parse_length_list
-    from metalens_cli.optics.nanofin import (
-        Fin,
-        converge,
-        convergence_seconds,
-        estimate_bytes,
-        estimate_seconds,
-        fin_response,
-    )
+    from metalens_cli.optics.nanofin import Fin
 
     fin = Fin(period_m, height_m, width_m, length_m)
     fin.check()
-    wavelengths_m = [w for group in wavelengths for w in group] or parse_length_list("430:660:10nm", "--wavelengths")
-    fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
+    wavelengths_m = flatten(wavelengths) or parse_length_list("430:660:10nm", "--wavelengths")
+    fin_material, substrate_material = _materials(material, substrate)
     n_fin, n_sub = (
         fin_material.index(wavelengths_m, "--material"),
         substrate_material.index(wavelengths_m, "--substrate"),
     )
     run_device = torch_device(device)
-    worst = harmonics or max_harmonics
-    typical = harmonics or min(TYPICAL_HARMONICS, max_harmonics)
-    if harmonics:
-        seconds = longest = estimate_seconds(harmonics, len(wavelengths_m), solver)
-    else:
-        seconds, longest = (convergence_seconds(n, len(wavelengths_m), solver) for n in (typical, worst))
     announce(
-        Estimate(
-            f"nanofin efficiency at {len(wavelengths_m)} wavelengths, up to {worst} × {worst} harmonics",
-            estimate_bytes(worst, solver),
-            "--harmonics",
-            seconds,
-            seconds_max=longest,
-        ),
+        _efficiency_estimate(len(wavelengths_m), harmonics, max_harmonics, solver),
         max_memory,
         device=run_device if solver == "modes" else None,  # meent solves on the host
     )
-    table, chosen = [], harmonics
-    warnings = []
     with progress_bar("nanofin efficiency", quiet) as update:
-        if harmonics is None:
-            chosen, table, r = converge(
-                fin,
-                n_fin,
-                n_sub,
-                wavelengths_m,
-                start=FIRST_HARMONICS,
-                stop=max_harmonics,
-                tolerance=tolerance,
-                device=run_device,
-                solver=solver,
-                on_progress=update,
-            )
-            if chosen is None:
-                chosen = table[-1]["harmonics"]
-                warnings.append(
-                    f"η moved up to {table[-1]['max_change']:.2g} from N = {table[-2]['harmonics']} to {chosen}, more "
-                    f"than --tolerance {tolerance:g}; using N = {chosen} (raise --max-harmonics)"
-                )
-        else:
-            r = fin_response(
-                fin, n_fin, n_sub, wavelengths_m, chosen, on_progress=update, device=run_device, solver=solver
-            )
+        result = fin_efficiency(
+            fin,
+            n_fin,
+            n_sub,
+            wavelengths_m,
+            harmonics,
+            max_harmonics=max_harmonics,
+            tolerance=tolerance,
+            device=run_device,
+            solver=solver,
+            on_progress=update,
+        )
     if plot_path:
         from metalens_cli.plotting.nanofin import plot_efficiency
 
-        plot_efficiency(plot_path, r, table)
-    render.say(warnings)
-    report = {
-        "fin": {"period_m": period_m, "height_m": height_m, "width_m": width_m, "length_m": length_m},
-        "material": fin_material.describe(),
-        "substrate": substrate_material.describe(),
-        "wavelengths_m": r.wavelengths_m.tolist(),
-        "conversion_efficiency": r.conversion.tolist(),
-        "co_polarized": r.co_polarized.tolist(),
-        "transmittance": r.transmittance.tolist(),
-        "reflectance": r.reflectance.tolist(),
-        "t_xx": [[z.real, z.imag] for z in r.t_xx.tolist()],
-        "t_yy": [[z.real, z.imag] for z in r.t_yy.tolist()],
-        "harmonics": chosen,
-        "convergence": table,
-        "tolerance": tolerance if harmonics is None else None,
-        "solver": SOLVERS[solver],
-        "seconds": float(r.seconds.sum() + sum(t["seconds"] for t in table[:-1])),
-        "warnings": warnings,
-        **({"plot": str(plot_path)} if plot_path else {}),
-    }
+        plot_efficiency(plot_path, result.response, result.convergence)
+    render.say(result.warnings)
+    report = efficiency_report(fin, fin_material, substrate_material, result, solver, plot_path)
     if as_json:
         render.emit_json(report)
         return
+    _render_efficiency(fin, fin_material.name, substrate_material.name, result)
+
+
+def _materials(material: str, substrate: str):
+    """The fin's and the substrate's :class:`~metalens_cli.optics.materials.Material`, errors
+    naming --material and --substrate."""
+    from metalens_cli.io.materials import parse_material
+
+    return parse_material(material, "--material"), parse_material(substrate, "--substrate")
+
+
+def _efficiency_estimate(wavelengths: int, harmonics: int | None, max_harmonics: int, solver: str):
+    """What nanofin efficiency costs at N = ``harmonics``, or converging (None): typically to
+    TYPICAL_HARMONICS, at most to ``max_harmonics``."""
+    from metalens_cli.io.resources import Estimate
+    from metalens_cli.optics.nanofin import convergence_seconds, estimate_bytes, estimate_seconds
+
+    worst = harmonics or max_harmonics
+    if harmonics:
+        seconds = longest = estimate_seconds(harmonics, wavelengths, solver)
+    else:
+        seconds, longest = (
+            convergence_seconds(n, wavelengths, solver) for n in (min(TYPICAL_HARMONICS, max_harmonics), worst)
+        )
+    return Estimate(
+        f"nanofin efficiency at {wavelengths} wavelengths, up to {worst} × {worst} harmonics",
+        estimate_bytes(worst, solver),
+        "--harmonics",
+        seconds,
+        seconds_max=longest,
+    )
+
+
+def _render_efficiency(fin, material: str, substrate: str, result) -> None:
+    """The table of η, co-polarised, T and R per wavelength, the convergence and the time."""
+    r, table = result.response, result.convergence
     con = render.console()
     rows = [
         [render.nm(w, 1), f"{e:.4f}", f"{c:.4f}", f"{t:.4f}", f"{rr:.4f}"]
@@ -249,8 +230,8 @@ def efficiency(
     ]
     con.print(
         render.table(
-            f"Nanofin {width_m * 1e9:g} × {length_m * 1e9:g} × {height_m * 1e9:g} nm at period {period_m * 1e9:g} nm, "
-            f"{fin_material.name} on {substrate_material.name}, {chosen} × {chosen} harmonics",
+            f"Nanofin {fin.width_m * 1e9:g} × {fin.length_m * 1e9:g} × {fin.height_m * 1e9:g} nm at period "
+            f"{fin.period_m * 1e9:g} nm, {material} on {substrate}, {result.harmonics} × {result.harmonics} harmonics",
             ["λ (nm)", "η conversion", "co-polarised", "T", "R"],
             rows,
         )
@@ -260,7 +241,7 @@ def efficiency(
             "convergence (largest change of η over the wavelengths from N − 2): "
             + ", ".join(f"N = {t['harmonics']}: {t['max_change']:.1e} ({t['seconds']:.2f} s)" for t in table[1:])
         )
-    con.print(f"{report['seconds']:.1f} s for {r.wavelengths_m.size} wavelengths")
+    con.print(f"{result.seconds:.1f} s for {r.wavelengths_m.size} wavelengths")
 
 
 def _check_bands(bands: tuple[tuple[float, float], ...]) -> None:
@@ -366,74 +347,36 @@ def sweep(
     OUTPUT/nanofin.toml is that fin as a preset's [nanofin] (η by RCWA at the converged
     harmonics); with --preset, OUTPUT/preset.toml is the preset with it, for every later command
     (psf-scan, optimize, simulate, export-gds) to use that fin."""
-    import json
+    from functools import partial
 
-    import numpy as np
-
-    from metalens_cli.analysis.bands import filter_bands
-    from metalens_cli.design.fin_choice import band_wavelengths, largest_neighbourhood, recommended_nanofin, sweep_fins
-    from metalens_cli.io.atomic import atomic_folder
-    from metalens_cli.io.materials import parse_material
-    from metalens_cli.io.presets import section_toml, to_toml
-    from metalens_cli.io.resources import Estimate
-    from metalens_cli.optics.nanofin import Fin, convergence_seconds, estimate_bytes, estimate_seconds
+    from metalens_cli.design.fin_choice import band_wavelengths, sweep_cell, sweep_fins
+    from metalens_cli.design.fin_files import sweep_report, write_sweep
+    from metalens_cli.optics.nanofin import Fin
 
     check_output_unused(output, overwrite)
     preset = load_preset_option(preset_path)
-    fin0 = preset.nanofin if preset is not None else None
-    period_m = period_m if period_m is not None else (fin0.pitch_m if fin0 else PAPER_PITCH_M)
-    height_m = height_m if height_m is not None else (fin0.height_m if fin0 else PAPER_FIN_HEIGHT_M)
-    material, substrate = (
-        material or (fin0.material if fin0 else "sinx"),
-        substrate or (fin0.substrate if fin0 else "fused-silica"),
-    )
-    preset_bands = (
-        []
-        if preset is None or preset.filter is None
-        else [((b.lo_m + b.hi_m) / 2, b.hi_m - b.lo_m) for b in filter_bands(preset.filter)]
+    cell = sweep_cell(
+        preset, period_m=period_m, height_m=height_m, material=material, substrate=substrate, bands_m=bands
     )
     widths_m, lengths_m = sorted(set(width_m)), sorted(set(length_m))
     if len(widths_m) * len(lengths_m) > MAX_FINS:
         raise InputError("--width", f"{len(widths_m)} × {len(lengths_m)} fins", f"at most {MAX_FINS} fins")
     _check_bands(bands)
-    bands_m = list(bands) or preset_bands or list(PAPER_BANDS_M)
-    waves = band_wavelengths(bands_m, samples_per_band).ravel()
-    fin_material, substrate_material = parse_material(material, "--material"), parse_material(substrate, "--substrate")
-
-    def n_fin(w):
-        return fin_material.index(w, "--material")
-
-    def n_sub(w):
-        return substrate_material.index(w, "--substrate")
-
+    waves = band_wavelengths(cell.bands_m, samples_per_band).ravel()
+    fin_material, substrate_material = _materials(cell.material, cell.substrate)
+    n_fin = partial(fin_material.index, field="--material")
+    n_sub = partial(substrate_material.index, field="--substrate")
     n_fin(waves), n_sub(waves)  # refuse wavelengths outside a material's table before any work
-    Fin(period_m, height_m, min(widths_m), min(lengths_m)).check()
-    neighbours = largest_neighbourhood(widths_m, lengths_m, tolerance_m)
-    coarse = estimate_seconds(harmonics, waves.size * len(widths_m) * len(lengths_m))
-    # the chosen fin converges (N = 5, 7, …), then its neighbourhood is recomputed at that N
-    typical, worst = (
-        (coarse + convergence_seconds(n, waves.size) + estimate_seconds(n, waves.size * neighbours))
-        for n in (min(TYPICAL_HARMONICS, max_harmonics), max_harmonics)
-    )
+    Fin(cell.period_m, cell.height_m, min(widths_m), min(lengths_m)).check()
+    estimate = _sweep_estimate(widths_m, lengths_m, waves.size, harmonics, max_harmonics, tolerance_m)
     run_device = torch_device(device)
-    announce(
-        Estimate(
-            f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {waves.size} wavelengths at {harmonics} "
-            "harmonics",
-            estimate_bytes(max(harmonics, max_harmonics)),
-            "--harmonics",
-            typical,
-            seconds_max=worst,
-        ),
-        max_memory,
-        device=run_device,
-    )
+    announce(estimate, max_memory, device=run_device)
     result = sweep_fins(
-        period_m,
-        height_m,
+        cell.period_m,
+        cell.height_m,
         widths_m,
         lengths_m,
-        bands_m,
+        cell.bands_m,
         n_fin,
         n_sub,
         harmonics,
@@ -444,77 +387,52 @@ def sweep(
         device=run_device,
         progress=lambda stage: progress_bar(stage, quiet),
     )
-    m, choice, warnings = result.map, result.choice, result.warnings
-    render.say(warnings)
-    report = {
-        "period_m": period_m,
-        "height_m": height_m,
-        "material": fin_material.describe(),
-        "substrate": substrate_material.describe(),
-        "bands_m": [list(b) for b in bands_m],
-        "wavelengths_m": m.wavelengths_m.tolist(),
-        "harmonics": harmonics,
-        "widths_m": widths_m,
-        "lengths_m": lengths_m,
-        "recommended": choice,
-        "seconds": m.seconds,
-        "cached": result.cached,
-        "converged_cached": result.converged_cached,
-        "solver": SOLVERS["modes"],
-        "warnings": warnings,
-        "files": ["sweep.npz", "sweep.csv", "sweep.png", "sweep.json", "nanofin.toml"]
-        + (["preset.toml"] if preset else []),
-        "output": str(output),
-        "preset": preset_path,
-    }
-    section = recommended_nanofin(period_m, height_m, material, substrate, choice)
-    from metalens_cli.io.json_files import jsonable
-    from metalens_cli.plotting.nanofin import plot_fin_map
-
-    with atomic_folder(output) as folder:
-        np.savez_compressed(
-            folder / "sweep.npz",
-            widths_m=m.widths_m,
-            lengths_m=m.lengths_m,
-            wavelengths_m=m.wavelengths_m,
-            bands_m=np.array(bands_m),
-            eta=m.eta,
-            score=m.score,
-        )
-        rows = ["width_nm,length_nm," + ",".join(f"eta_{c * 1e9:g}nm" for c, _ in bands_m) + ",eta_mean"]
-        for i, length in enumerate(m.lengths_m):
-            for j, width in enumerate(m.widths_m):
-                rows.append(
-                    f"{width * 1e9:g},{length * 1e9:g},"
-                    + ",".join(f"{v:.6f}" for v in m.eta[i, j])
-                    + f",{m.score[i, j]:.6f}"
-                )
-        (folder / "sweep.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
-        plot_fin_map(folder / "sweep.png", m, choice)
-        (folder / "sweep.json").write_text(
-            json.dumps(jsonable(report), allow_nan=False, indent=1) + "\n", encoding="utf-8"
-        )
-        (folder / "nanofin.toml").write_text(
-            "# the recommended fin of metalens nanofin sweep, for a preset\n" + section_toml("nanofin", section),
-            encoding="utf-8",
-        )
-        if preset is not None:
-            (folder / "preset.toml").write_text(to_toml(preset, nanofin=vars(section)), encoding="utf-8")
+    render.say(result.warnings)
+    report = sweep_report(cell, fin_material, substrate_material, result, output, preset_path)
+    write_sweep(output, cell, result, report, preset)
     if as_json:
         render.emit_json(report)
         return
-    c = choice
+    _render_sweep(result, output, preset)
+
+
+def _sweep_estimate(widths_m, lengths_m, wavelengths: int, harmonics: int, max_harmonics: int, tolerance_m: float):
+    """What nanofin sweep costs: the map at ``harmonics``, then the chosen fin converged (typically
+    to TYPICAL_HARMONICS, at most to ``max_harmonics``) and its neighbourhood recomputed at that N."""
+    from metalens_cli.design.fin_choice import largest_neighbourhood
+    from metalens_cli.io.resources import Estimate
+    from metalens_cli.optics.nanofin import convergence_seconds, estimate_bytes, estimate_seconds
+
+    neighbours = largest_neighbourhood(widths_m, lengths_m, tolerance_m)
+    coarse = estimate_seconds(harmonics, wavelengths * len(widths_m) * len(lengths_m))
+    typical, worst = (
+        (coarse + convergence_seconds(n, wavelengths) + estimate_seconds(n, wavelengths * neighbours))
+        for n in (min(TYPICAL_HARMONICS, max_harmonics), max_harmonics)
+    )
+    return Estimate(
+        f"nanofin sweep of {len(widths_m)} × {len(lengths_m)} fins × {wavelengths} wavelengths at {harmonics} "
+        "harmonics",
+        estimate_bytes(max(harmonics, max_harmonics)),
+        "--harmonics",
+        typical,
+        seconds_max=worst,
+    )
+
+
+def _render_sweep(result, output, preset) -> None:
+    """The recommended fin on the map and converged, and the files written."""
+    c, m = result.choice, result.map
+    f, tolerance_nm = c["converged"], c["tolerance_m"] * 1e9
     con = render.console()
     con.print(
-        f"recommended fin: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.4f} at {harmonics} "
-        f"harmonics (worst within ±{tolerance_m * 1e9:g} nm: "
-        f"{c['worst_neighbour']:.4f}{'' if c['robust'] else '; no fin keeps ' + format(keep, 'g')})"
+        f"recommended fin: {c['width_m'] * 1e9:g} × {c['length_m'] * 1e9:g} nm, mean η {c['score']:.4f} at "
+        f"{m.harmonics} harmonics (worst within ±{tolerance_nm:g} nm: "
+        f"{c['worst_neighbour']:.4f}{'' if c['robust'] else '; no fin keeps ' + format(c['keep'], 'g')})"
     )
-    f = c["converged"]
     con.print(
         f"converged ({f['harmonics']} harmonics): mean η {f['score']:.4f}, per band "
         + " / ".join(f"{v:.4f}" for v in f["eta_per_band"])
-        + f"; worst of {f['fins']} fins within ±{tolerance_m * 1e9:g} nm: {f['worst_neighbour']:.4f}"
+        + f"; worst of {f['fins']} fins within ±{tolerance_nm:g} nm: {f['worst_neighbour']:.4f}"
     )
     con.print(
         f"wrote {output}/sweep.npz, sweep.csv, sweep.png, sweep.json ({m.seconds + f['seconds']:.1f} s of RCWA), "

@@ -98,114 +98,107 @@ def symmetry(
     lambda_d_m = pick(lambda_d_m, preset, lambda p: p.lens.design_wavelength_m, "--lambda-d", LENGTH_FORM)
     if (delta_z_m is None) != (at_depth_m is None):
         raise click.UsageError("--delta-z and --at-depth go together (e.g. --delta-z 5mm --at-depth 45mm)")
-
-    rows = [
-        model.depth_for_wavelength(w, lambda_d_m, f_m) for w in (flatten(wavelengths) or model.DEFAULT_WAVELENGTHS_M)
-    ]
-    focused = [(z, model.wavelength_for_depth(z, lambda_d_m, f_m)) for z in flatten(depths)]
-    delta = None if delta_z_m is None else model.delta_wavelength(delta_z_m, at_depth_m, lambda_d_m, f_m)
+    table = model.symmetry_table(
+        f_m,
+        lambda_d_m,
+        flatten(wavelengths) or model.DEFAULT_WAVELENGTHS_M,
+        flatten(depths),
+        delta_z_m,
+        at_depth_m,
+    )
     validation = None
     if validate:
         aperture_m = pick(aperture_m, preset, lambda p: p.lens.aperture_m, "--aperture", LENGTH_FORM)
-        from metalens_cli.analysis.focal_map import estimate_validation, validate_symmetry
-        from metalens_cli.io.resources import Estimate
-
-        wavelengths_m = [r.wavelength_m for r in rows]
-        memory, seconds = estimate_validation(wavelengths_m, lambda_d_m, f_m, aperture_m)
-        announce(
-            Estimate(
-                f"symmetry --validate of {len(wavelengths_m)} wavelengths for D = {aperture_m * 1e3:g} mm",
-                memory,
-                "--aperture",
-                seconds,
-            ),
-            max_memory,
-        )
-
-        with progress_bar("focal-intensity map", quiet) as update:
-            validation = validate_symmetry(wavelengths_m, lambda_d_m, f_m, aperture_m, progress=update)
-
-    if plot_path and validation is not None:
-        from metalens_cli.plotting.focal_map import plot_focal_map
-
-        plot_focal_map(plot_path, validation, f_m, lambda_d_m, aperture_m)
-    elif plot_path:
-        from metalens_cli.plotting.symmetry import plot_symmetry
-
-        plot_symmetry(plot_path, f_m, lambda_d_m, z_near_m=z_near_m)
+        validation = _validate(table, aperture_m, quiet, max_memory)
+    if plot_path:
+        _plot(plot_path, table, validation, aperture_m, z_near_m)
     if as_json:
-        out = {
-            "f_m": f_m,
-            "lambda_d_m": lambda_d_m,
-            "rows": [{"wavelength_m": r.wavelength_m, "depth_m": r.depth_m, "kind": r.kind} for r in rows],
-            "focused_wavelengths": [{"depth_m": z, "wavelength_m": w} for z, w in focused],
-        }
-        if delta is not None:
-            out["delta"] = {
-                "at_depth_m": delta.at_depth_m,
-                "delta_z_m": delta.delta_z_m,
-                "delta_wavelength_m": delta.delta_wavelength_m,
-                "wavelength_at_depth_m": delta.wavelength_at_depth_m,
-                "wavelength_at_shifted_depth_m": delta.wavelength_at_shifted_depth_m,
-            }
-        if validation is not None:
-            out["validation"] = validation_json(validation, aperture_m)
-        if plot_path:
-            out["plot"] = str(plot_path)
-        render.emit_json(out)
+        render.emit_json(_report(table, validation, aperture_m, plot_path))
         return
-
     con = render.console()
-    title = f"Depth-wavelength symmetry: f = {format_length(f_m)}, λd = {format_length(lambda_d_m)}"
-    con.print(
-        render.table(
-            title,
-            ["λ (nm)", "depth z", "note"],
-            [[render.nm(r.wavelength_m), format_length(r.depth_m) if r.depth_m else "—", NOTES[r.kind]] for r in rows],
-        )
-    )
-    if focused:
-        con.print(
-            render.table(
-                "Wavelength focused from depth: λ = λd(1 + f/z)",
-                ["depth z", "λ (nm)"],
-                [[format_length(z), render.nm(w, 3)] for z, w in focused],
-            )
-        )
-    if delta is not None:
-        con.print(
-            f"Δλ = λd·f·(1/z − 1/(z − Δz)) = {delta.delta_wavelength_m * 1e9:.4f} nm for z = "
-            f"{format_length(delta.at_depth_m)}, Δz = {format_length(delta.delta_z_m)} (λ: "
-            f"{render.nm(delta.wavelength_at_depth_m, 3)} → {render.nm(delta.wavelength_at_shifted_depth_m, 3)} nm)"
-        )
+    _render_table(con, table)
     if validation is not None:
         _render_validation(con, validation)
     if plot_path:
         render.console(stderr=True).print(f"wrote {plot_path}")
 
 
-def validation_json(v, aperture_m: float) -> dict:
-    return {
-        "aperture_m": aperture_m,
-        "method": "on-axis Rayleigh-Sommerfeld integral, Simpson in r², Brent refinement in log z",
-        "rows": [
-            {
-                "wavelength_m": r.wavelength_m,
-                "model_depth_m": r.model_depth_m,
-                "best_depth_m": r.best_depth_m,
-                "rel_deviation": r.rel_deviation,
-            }
-            for r in v.rows
-        ],
-        "max_abs_rel_deviation": v.max_abs_rel_deviation,
-        "depth_range_m": [float(v.depths_m[0]), float(v.depths_m[-1])],
-        "quadrature_samples": v.samples,
-        "convergence_rel": v.convergence,
-        "seconds": v.seconds,
-    }
+def _validate(table: model.SymmetryTable, aperture_m: float, quiet: bool, max_memory):
+    """The model checked against the on-axis intensity of the hyperbolic lens of diameter
+    ``aperture_m`` at the table's wavelengths, after announcing what it costs."""
+    from metalens_cli.analysis.focal_map import estimate_validation, validate_symmetry
+    from metalens_cli.io.resources import Estimate
+
+    wavelengths_m = [r.wavelength_m for r in table.rows]
+    memory, seconds = estimate_validation(wavelengths_m, table.lambda_d_m, table.f_m, aperture_m)
+    announce(
+        Estimate(
+            f"symmetry --validate of {len(wavelengths_m)} wavelengths for D = {aperture_m * 1e3:g} mm",
+            memory,
+            "--aperture",
+            seconds,
+        ),
+        max_memory,
+    )
+    with progress_bar("focal-intensity map", quiet) as update:
+        return validate_symmetry(wavelengths_m, table.lambda_d_m, table.f_m, aperture_m, progress=update)
+
+
+def _plot(plot_path, table: model.SymmetryTable, validation, aperture_m, z_near_m) -> None:
+    """The focal-intensity map with the model's curve after --validate, else the model's curve."""
+    if validation is not None:
+        from metalens_cli.plotting.focal_map import plot_focal_map
+
+        plot_focal_map(plot_path, validation, table.f_m, table.lambda_d_m, aperture_m)
+    else:
+        from metalens_cli.plotting.symmetry import plot_symmetry
+
+        plot_symmetry(plot_path, table.f_m, table.lambda_d_m, z_near_m=z_near_m)
+
+
+def _report(table: model.SymmetryTable, validation, aperture_m, plot_path) -> dict:
+    """The --json object: the table's, with the validation and the plot when made."""
+    out = table.report()
+    if validation is not None:
+        from metalens_cli.analysis.focal_map import validation_report
+
+        out["validation"] = validation_report(validation, aperture_m)
+    if plot_path:
+        out["plot"] = str(plot_path)
+    return out
+
+
+def _render_table(con, table: model.SymmetryTable) -> None:
+    """The depth of each wavelength; the wavelength of each --depth; Δλ of a --delta-z."""
+    con.print(
+        render.table(
+            f"Depth-wavelength symmetry: f = {format_length(table.f_m)}, λd = {format_length(table.lambda_d_m)}",
+            ["λ (nm)", "depth z", "note"],
+            [
+                [render.nm(r.wavelength_m), format_length(r.depth_m) if r.depth_m else "—", NOTES[r.kind]]
+                for r in table.rows
+            ],
+        )
+    )
+    if table.focused:
+        con.print(
+            render.table(
+                "Wavelength focused from depth: λ = λd(1 + f/z)",
+                ["depth z", "λ (nm)"],
+                [[format_length(z), render.nm(w, 3)] for z, w in table.focused],
+            )
+        )
+    delta = table.delta
+    if delta is not None:
+        con.print(
+            f"Δλ = λd·f·(1/z − 1/(z − Δz)) = {delta.delta_wavelength_m * 1e9:.4f} nm for z = "
+            f"{format_length(delta.at_depth_m)}, Δz = {format_length(delta.delta_z_m)} (λ: "
+            f"{render.nm(delta.wavelength_at_depth_m, 3)} → {render.nm(delta.wavelength_at_shifted_depth_m, 3)} nm)"
+        )
 
 
 def _render_validation(con, v) -> None:
+    """The model and the best depth per wavelength, their largest deviation, the quadrature."""
     rows = []
     for r in v.rows:
         deviation = "—" if r.rel_deviation is None else f"{100 * r.rel_deviation:+.2f} %"

@@ -12,7 +12,8 @@ chosen fin and its neighbourhood with a converged one (coarse to fine); :func:`s
 all of it, the map and the refinement cached on disk (:mod:`metalens_cli.io.cache`; an entry
 that is not η in 0..1 of the grid's shape, or not a refinement's JSON, is set aside and redone);
 :func:`recommended_nanofin` makes the result a preset's ``[nanofin]``, so that the optics and
-the layout use the fin that was chosen.
+the layout use the fin that was chosen; :func:`sweep_cell` fills in the cell and bands a sweep
+was not given.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from metalens_cli.analysis.bands import filter_bands
+from metalens_cli.constants import PAPER_BANDS_M, PAPER_FIN_HEIGHT_M, PAPER_PITCH_M
 from metalens_cli.errors import InputError
 from metalens_cli.io import cache
 from metalens_cli.io.presets import NanofinConfig
@@ -51,6 +54,45 @@ class FinMap:
     @property
     def score(self) -> np.ndarray:
         return self.eta.mean(axis=-1)
+
+
+@dataclass(frozen=True)
+class SweepCell:
+    """The cell a sweep's fins stand in and the bands they are scored over: lattice ``period_m``,
+    fin ``height_m``, ``material`` and ``substrate`` (as ``--material`` takes them), ``bands_m``
+    (centre, FWHM), lengths in metres."""
+
+    period_m: float
+    height_m: float
+    material: str
+    substrate: str
+    bands_m: list[tuple[float, float]]
+
+
+def sweep_cell(
+    preset=None,
+    *,
+    period_m: float | None = None,
+    height_m: float | None = None,
+    material: str | None = None,
+    substrate: str | None = None,
+    bands_m=(),
+) -> SweepCell:
+    """Each value given, else the ``preset``'s ``[nanofin]`` and filter bands, else the paper's
+    (395 nm, 700 nm, sinx on fused-silica, its three bands)."""
+    fin = preset.nanofin if preset is not None else None
+    preset_bands = (
+        []
+        if preset is None or preset.filter is None
+        else [((b.lo_m + b.hi_m) / 2, b.hi_m - b.lo_m) for b in filter_bands(preset.filter)]
+    )
+    return SweepCell(
+        period_m=period_m if period_m is not None else (fin.pitch_m if fin else PAPER_PITCH_M),
+        height_m=height_m if height_m is not None else (fin.height_m if fin else PAPER_FIN_HEIGHT_M),
+        material=material or (fin.material if fin else "sinx"),
+        substrate=substrate or (fin.substrate if fin else "fused-silica"),
+        bands_m=list(bands_m) or preset_bands or list(PAPER_BANDS_M),
+    )
 
 
 def band_wavelengths(bands_m: list[tuple[float, float]], samples: int = BAND_SAMPLES) -> np.ndarray:

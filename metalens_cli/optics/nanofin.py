@@ -51,6 +51,10 @@ import numpy as np
 from metalens_cli.errors import InputError
 
 SOLVER = "fin_modes/1"  # names the numbers a cache entry holds: change it when they change
+SOLVERS = {  # the solvers fin_response takes, as reports name them
+    "modes": "fin_modes (this package's RCWA, mirror symmetries, Li's factorisation)",
+    "meent": "meent (RCWA, Li's factorisation; the reference)",
+}
 # fin_modes, one wavelength and fin, both polarisations, on 2 cores: SOLVE_SECONDS + SOLVE_SCALE·u^2.4
 # for u = (N² + 1)/2 unknowns (measured N = 5…35: 2.6 ms at N = 9, 0.18 s at N = 25, 0.94 s at
 # N = 35, each within 25 %; eig and LU scale below u³ at these sizes; a lossy fin ×1.7)
