@@ -17,7 +17,7 @@ from metalens_cli.cli.options import (
     refuse_overwriting,
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
-from metalens_cli.cli.simulate import capture_options, setup
+from metalens_cli.cli.simulate import capture_options, setup_from
 from metalens_cli.constants import REFINEMENTS
 
 MATCH_METHODS = (
@@ -180,73 +180,33 @@ def evaluate(
     from metalens_cli.imaging.evaluation import EvaluationSettings, metric_names
     from metalens_cli.imaging.evaluation import evaluate as run_evaluation
     from metalens_cli.imaging.images import image_count
-    from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
     from metalens_cli.imaging.obstructions import parse_obstructions
-    from metalens_cli.imaging.pipeline import estimate_captures
-    from metalens_cli.io.resources import Estimate
+    from metalens_cli.imaging.pipeline import estimate_capture_runs
 
     kinds = parse_obstructions(obstruction)
-    lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
-    lpips_model = Lpips.from_files(lpips_paths.alexnet, lpips_paths.lin) if lpips_paths else None
+    lpips_model, notes = _lpips(lpips_weights)
     metrics = metric_names(lpips_model)
-    s = setup(
-        list(specs),
-        preset_path=preset_path,
-        f_m=f_m,
-        aperture_m=aperture_m,
-        pitch_m=pitch_m,
-        z_near_m=z_near_m,
-        z_far_m=z_far_m,
-        pixels=pixels,
-        pixel_pitch_m=pixel_pitch_m,
-        wavelengths=wavelengths,
-        device=device,
-    )
-    settings = EvaluationSettings(
-        s.pixels,
-        s.pixel_pitch_m,
-        s.z_near_interval_m,
-        s.z_far_interval_m,
-        s.wavelengths_m,
-        images,
-        limit,
-        s.obstruction_params,
-        formation,
-        match,
-        alpha_gain,
-        photons,
-        read_noise,
-        photons_before_filter,
-        psf_pixels,
-        s.device,
+    s = setup_from(list(specs), ctx.params)
+    formation_options = dict(formation=formation, alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
+    settings = EvaluationSettings.from_setup(
+        s,
+        images=images,
+        limit=limit,
+        match=match,
+        photons_before_filter=photons_before_filter,
+        psf_window=psf_pixels,
+        **formation_options,
     )
     reconstructors = _reconstructors(recon_runs, s.designs, s.device)
     count = image_count(images, limit)
-    costs = [
-        estimate_captures(
-            design,
-            s.z_near_interval_m[0],
-            s.z_far_interval_m[0],
-            s.wavelengths_m,
-            s.pixel_pitch_m,
-            s.pixels,
-            count,
-            window=psf_pixels,
-        )
-        for design in s.designs
-    ]
-    # PSFs once per design and seed (the depths are the seed's), captures per obstruction kind too
-    announce(
-        Estimate(
-            f"evaluate of {len(s.designs)} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} "
-            "obstruction(s)",
-            max(memory for memory, _, _ in costs),
-            "--psf-pixels" if psf_pixels else "--pixels",
-            len(seeds) * sum(psf + len(kinds) * captures for _, psf, captures in costs),
-        ),
-        max_memory,
-        device=s.device,
+    what = (
+        f"evaluate of {len(s.designs)} design(s) × {count} image(s) × {len(seeds)} seed(s) × {len(kinds)} "
+        "obstruction(s)"
     )
+    # PSFs once per design and seed (the depths are the seed's), captures per obstruction kind too
+    depths = (s.z_near_interval_m[0], s.z_far_interval_m[0])
+    estimate = estimate_capture_runs(s, what, depths, count, window=psf_pixels, seeds=len(seeds), kinds=len(kinds))
+    announce(estimate, max_memory, device=s.device)
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s.designs}
     with progress_bar("evaluate", quiet) as update:
         result = run_evaluation(
@@ -258,56 +218,47 @@ def evaluate(
             on_progress=update,
             reconstructors=reconstructors,
         )
-    notes = [n for n in (lpips_skip,) if n]
+    extra = {
+        "photometric_match": match,
+        "psfs": result.psfs,
+        "seeds": seeds,
+        "formation": formation,
+        "recon": [None if r is None else r.source for r in reconstructors],
+        "efficiency": efficiency,
+    }
+    title = _title(result, seeds, reconstructors)
+    _report(result, [d.spec for d in s.designs], kinds, metrics, notes, csv_path, plot_path, as_json, extra, title)
+
+
+def _title(result, seeds, reconstructors) -> str:
+    """The title of the table of simulated captures."""
     n = result.rows[0]["n"] if result.rows else 0
     what = "Raw and reconstructed captures" if any(reconstructors) else "Raw captures"
-    _report(
-        result,
-        [d.spec for d in s.designs],
-        kinds,
-        metrics,
-        notes,
-        csv_path,
-        plot_path,
-        as_json,
-        {
-            "photometric_match": match,
-            "psfs": result.psfs,
-            "seeds": seeds,
-            "formation": formation,
-            "recon": [None if r is None else r.source for r in reconstructors],
-            "efficiency": efficiency,
-        },
-        f"{what} vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units",
-    )
+    return f"{what} vs clean: mean [95 % CI] over {len(result.images)} images × {len(seeds)} seeds = {n} units"
+
+
+def _lpips(weights) -> tuple[object, list[str]]:
+    """The LPIPS model of --lpips-weights (None when no weights are found) and the note saying so."""
+    from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
+
+    paths, skip = find_lpips_weights(weights)
+    return (Lpips.from_files(paths.alexnet, paths.lin) if paths else None), [n for n in (skip,) if n]
 
 
 def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, extra: dict, title: str) -> None:
     """Notes and warnings on stderr, the CSV and figure, then the JSON or the tables."""
+    from metalens_cli.imaging.evaluation import evaluation_report, write_rows_csv
+
     render.say(notes, "note")
     render.say(result.warnings)
     if csv_path:
-        _write_csv(csv_path, result.rows, metrics)
+        write_rows_csv(csv_path, result.rows, metrics)
     if plot_path:
         from metalens_cli.plotting.imaging import comparison_figure
 
         comparison_figure(plot_path, specs, result.panels)
     if as_json:
-        render.emit_json(
-            {
-                "rows": result.rows,
-                "deltas": result.deltas,
-                "comparisons": result.comparisons,
-                "units": result.units,
-                "images": result.images,
-                "confidence": 0.95,
-                **extra,
-                "notes": notes,
-                "warnings": result.warnings,
-                **({"csv": str(csv_path)} if csv_path else {}),
-                **({"plot": str(plot_path)} if plot_path else {}),
-            }
-        )
+        render.emit_json(evaluation_report(result, extra, notes, csv_path, plot_path))
         return
     con = render.console()
     con.print(
@@ -347,7 +298,6 @@ def _evaluate_pairs(
     from metalens_cli.errors import InputError
     from metalens_cli.imaging.captured_pairs import estimate_pairs, evaluate_pairs, read_layout
     from metalens_cli.imaging.evaluation import metric_names
-    from metalens_cli.imaging.lpips import Lpips, find_lpips_weights
     from metalens_cli.io.resources import Estimate
 
     given = [
@@ -386,12 +336,10 @@ def _evaluate_pairs(
         ),
         max_memory,
     )
-    lpips_paths, lpips_skip = find_lpips_weights(lpips_weights)
-    lpips_model = Lpips.from_files(lpips_paths.alexnet, lpips_paths.lin) if lpips_paths else None
+    lpips_model, notes = _lpips(lpips_weights)
     metrics = metric_names(lpips_model)
     with progress_bar("evaluate --pairs", quiet) as update:
         result = evaluate_pairs(layout, lpips_model, match, align, refine, update)
-    notes = [n for n in (lpips_skip,) if n]
     _report(
         result,
         layout.designs,
@@ -479,30 +427,3 @@ def _table_rows(result, kinds, metrics) -> list[list[str]]:
             first = condition == "unobstructed" and capture == "raw"
             table.append([design if first else "", f"{capture.capitalize()} {LABELS[condition]}", *cells])
     return table
-
-
-def _write_csv(path, rows, metrics=("psnr_db", "ssim")) -> None:
-    import csv
-    import io
-
-    from metalens_cli.io.atomic import atomic_write
-
-    columns = ["design", "capture", "obstruction", "condition", "n"] + [
-        c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")
-    ]
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow(
-            {
-                **{k: row[k] for k in ("design", "capture", "obstruction", "condition", "n")},
-                **{
-                    c: v
-                    for m in metrics
-                    for c, v in ((m, row[m]), (f"{m}_lo", row[f"{m}_ci"][0]), (f"{m}_hi", row[f"{m}_ci"][1]))
-                },
-            }
-        )
-    with atomic_write(path) as temporary:
-        temporary.write_text(buffer.getvalue(), encoding="utf-8")

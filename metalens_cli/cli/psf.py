@@ -22,14 +22,9 @@ from metalens_cli.cli.options import (
     refuse_overwriting,
 )
 from metalens_cli.cli.progress import progress_bar
-from metalens_cli.errors import InputError
 
 NORMALIZATIONS = ("sum-to-one", "peak-one")  # analysis.measured_psf.NORMALIZATIONS (numpy-free import)
 CENTRINGS = ("centroid", "peak")
-WORKERS = 2
-BYTES_PER_FRAME_PIXEL = 48  # float32 working copies of one frame (values, median, smoothed, masks)
-SECONDS_PER_FRAME_PIXEL = 2.5e-8  # measured 1.5e-8 (16-bit PNG, 2 cores: docs/benchmarks.md), with a margin
-CAMERA_PITCH_M = (0.1e-6, 100e-6)  # camera pixels: from a phone sensor's 0.56 µm to a large-format CCD's tens of µm
 
 
 @click.group("psf", cls=MetalensGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -138,113 +133,53 @@ def import_frames(
     border background subtracted; hot pixels replaced; the centroid (or peak) moved onto pixel
     (N//2, N//2) by a Fourier shift; cropped to N; repeats averaged; normalised.
     """
-    from pathlib import Path
-
-    from metalens_cli.analysis.measured_psf import ImportSettings, dark_frame, import_psfs
+    from metalens_cli.analysis.measured_psf import import_psfs
+    from metalens_cli.analysis.psf_import import (
+        WORKERS,
+        cube_metadata,
+        estimate_import,
+        import_report,
+        import_settings,
+        read_dark,
+        write_measured_cube,
+    )
     from metalens_cli.io.atomic import atomic_files
-    from metalens_cli.io.exr import write_psf_cube
-    from metalens_cli.io.psf_manifest import frame_shape, read_frame_file, read_manifest
-    from metalens_cli.io.resources import Estimate
+    from metalens_cli.io.psf_manifest import read_manifest
 
     m = read_manifest(manifest, pattern)
     refuse_overwriting(
         [("-o", output), ("--plot", plot_path)],
         [f.path for f in m.frames] + [p for p in (dark_path, m.settings.get("dark")) if p is not None],
     )
-    pitch = pixel_pitch_m or m.settings.get("pixel_pitch_m")
-    if pitch is None:
-        raise InputError(
-            "--pixel-pitch",
-            "the camera's pixel pitch is not given",
-            "--pixel-pitch 3.45um or pixel_pitch in a TOML manifest",
-        )
-    if not CAMERA_PITCH_M[0] <= pitch <= CAMERA_PITCH_M[1]:
-        from metalens_cli.io.units import format_length
-
-        raise InputError(
-            "--pixel-pitch" if pixel_pitch_m else f"{Path(manifest).name}: pixel_pitch",
-            f"{format_length(pitch)} is not a camera's pixel pitch",
-            "0.1 µm to 100 µm, e.g. 3.45um",
-        )
-    settings = ImportSettings(
-        pitch,
-        magnification or m.settings.get("magnification", 1.0),
-        pixels,
-        normalization,
-        centring,
-        saturation or m.settings.get("saturation"),
-        allow_saturated,
-        hot_pixel_sigma,
+    settings = import_settings(
+        m,
+        manifest,
+        pixel_pitch_m=pixel_pitch_m,
+        magnification=magnification,
+        pixels=pixels,
+        normalization=normalization,
+        centring=centring,
+        saturation=saturation,
+        allow_saturated=allow_saturated,
+        hot_pixel_sigma=hot_pixel_sigma,
     )
-    if not 1e-12 <= settings.pixel_pitch_m <= 1e-2:
-        raise InputError(
-            "--magnification" if magnification else f"{Path(manifest).name}: magnification",
-            f"the cube's pitch {settings.pixel_pitch_m:.3g} m (camera pitch / magnification) is not a pixel's",
-            "a camera pitch and magnification giving 1 pm to 1 cm",
-        )
-    dark_source = dark_path or m.settings.get("dark")
-    height, width = frame_shape(m.frames[0])
-    announce(
-        Estimate(
-            f"psf import of {len(m.frames)} frames of {width} × {height} pixels",
-            BYTES_PER_FRAME_PIXEL * WORKERS * height * width,
-            "--pixels",
-            SECONDS_PER_FRAME_PIXEL * len(m.frames) * height * width,
-            disk_bytes=len(m.depths_m) * len(m.wavelengths_m) * (pixels or 64) ** 2 * 4,
-        ),
-        max_memory,
-        output,
-    )
-    dark = None
-    if dark_source is not None:
-        values, _ = read_frame_file(Path(dark_source), None, "--dark" if dark_path else f"{Path(manifest).name}: dark")
-        dark = dark_frame(values, hot_pixel_sigma)
+    announce(estimate_import(m, pixels), max_memory, output)
+    dark_source, dark = read_dark(m, manifest, dark_path, hot_pixel_sigma)
     start = time.perf_counter()
     with progress_bar("psf import", quiet) as update:
         cube = import_psfs(m, settings, dark, update, WORKERS)
     seconds = time.perf_counter() - start
     name = design or m.settings.get("design") or f"measured: {click.format_filename(manifest)}"
-    extra = {
-        "source": "measured",
-        "camera_pixel_pitch_m": pitch,
-        "magnification": settings.magnification,
-        "centring": centring,
-        "hot_pixels": cube.hot_pixels,
-        "dark": None if dark_source is None else str(dark_source),
-        "frames": cube.frames,
-    }
+    metadata = cube_metadata(cube, settings, dark_source)
     with atomic_files(output, plot_path) as (cube_file, plot_file):  # both or neither
-        write_psf_cube(
-            cube_file,
-            cube.psf,
-            cube.wavelengths_m,
-            cube.depths_m,
-            cube.pixel_pitch_m,
-            name,
-            normalization=normalization,
-            extra=render.jsonable(extra),
-        )
+        write_measured_cube(cube_file, cube, name, normalization, metadata)
         if plot_file is not None:
             from metalens_cli.plotting.psf_scan import plot_psf_scan
 
             plot_psf_scan(plot_file, cube.psf, cube.wavelengths_m, cube.depths_m, cube.pixel_pitch_m)
     render.say(cube.warnings)
     if as_json:
-        render.emit_json(
-            {
-                "file": str(output),
-                "design": name,
-                "pixels": int(cube.psf.shape[-1]),
-                "pixel_pitch_m": cube.pixel_pitch_m,
-                "wavelengths_m": cube.wavelengths_m.tolist(),
-                "depths_m": [None if math.isinf(d) else float(d) for d in cube.depths_m],
-                "normalization": normalization,
-                **extra,
-                "seconds": seconds,
-                "warnings": cube.warnings,
-                **({"plot": str(plot_path)} if plot_path else {}),
-            }
-        )
+        render.emit_json(import_report(output, cube, name, normalization, metadata, seconds, plot_path))
         return
     _render_import(cube, output, seconds)
 

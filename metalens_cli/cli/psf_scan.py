@@ -24,7 +24,6 @@ from metalens_cli.cli.options import (
     torch_device,
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
-from metalens_cli.errors import InputError
 from metalens_cli.io.psf_cube_files import CUBE_SUFFIXES
 
 PROPAGATORS = ("auto", "asm", "radial", "rs")
@@ -101,13 +100,16 @@ def psf_scan(
     """
     import torch
 
-    from metalens_cli.imaging.psf_scan import run_scan
+    from metalens_cli.imaging.psf_scan import (
+        check_scan_size,
+        estimate_scan,
+        run_scan,
+        scan_metadata,
+        scan_report,
+        write_scan,
+    )
     from metalens_cli.io.designs import resolve_design
-    from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS
-    from metalens_cli.io.psf_cube_files import check_cube_size, write_cube_file
-    from metalens_cli.io.resources import Estimate
     from metalens_cli.io.units import parse_length_list
-    from metalens_cli.optics.psf import estimate_psf
 
     preset = load_preset_option(preset_path)
     design = resolve_design(spec, preset, f_m=f_m, aperture_m=aperture_m, pitch_m=pitch_m)
@@ -116,39 +118,11 @@ def psf_scan(
     pixel_pitch_m = pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M)
     wavelengths_m = flatten(wavelengths) or parse_length_list("430:645:5nm", "--wavelengths")
     depths_m = flatten(depths) or [0.045, math.inf]
-    for option, values, limit in (
-        ("--wavelengths", wavelengths_m, MAX_WAVELENGTHS),
-        ("--depths", depths_m, MAX_DEPTHS),
-    ):
-        if len(values) > limit:
-            raise InputError(
-                option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values"
-            )
-    check_cube_size(output, "--output", len(depths_m), len(wavelengths_m), pixels)
+    check_scan_size(output, wavelengths_m, depths_m, pixels)
     run_device = torch_device(device)  # resolved before the estimate: a CUDA job is checked against the GPU's memory
-    cost = estimate_psf(
-        design.lens,
-        wavelengths_m,
-        depths_m,
-        pixels,
-        pixel_pitch_m,
-        distance_m=design.focal_length_m,
-        propagator=propagator,
-        dtype=getattr(torch, dtype),
-        force=force,
-    )
-    announce(
-        Estimate(
-            f"psf-scan of {len(wavelengths_m) * len(depths_m)} PSFs of {pixels}² pixels",
-            cost.memory_bytes,
-            "--pixels",
-            cost.seconds,
-            disk_bytes=len(wavelengths_m) * len(depths_m) * pixels**2 * 4,
-        ),
-        max_memory,
-        output,
-        run_device,
-    )
+    psf_options = dict(propagator=propagator, dtype=getattr(torch, dtype), force=force)
+    estimate = estimate_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, **psf_options)
+    announce(estimate, max_memory, output, run_device)
     efficiency = efficiency_used(design.preset, quiet)
     with progress_bar("psf-scan", quiet) as update:
         scan = run_scan(
@@ -157,62 +131,20 @@ def psf_scan(
             depths_m,
             pixels,
             pixel_pitch_m,
-            propagator=propagator,
-            dtype=getattr(torch, dtype),
+            **psf_options,
             device=run_device,
-            force=force,
             check_accuracy=check_accuracy,
             progress=update,
         )
-    lens = design.lens
-    half = lens.aperture_m / 2
-    metadata = {
-        "f_m": design.focal_length_m,
-        "aperture_m": lens.aperture_m,
-        "na": half / math.hypot(half, design.focal_length_m),
-        "propagator": scan.propagator,
-        "dtype": dtype,
-        "grid": scan.grid,
-        "timing_s": scan.timing_s,
-        "accuracy": scan.accuracy,
-        "spectra": scan.spectra,
-        "efficiency": efficiency,
-    }
-    write_cube_file(
-        output,
-        scan.psf,
-        wavelengths_m,
-        depths_m,
-        pixel_pitch_m,
-        design.describe(),
-        rgb=scan.rgb,
-        extra=render.jsonable(metadata),
-    )
+    metadata = scan_metadata(design, scan, dtype, efficiency)
+    write_scan(output, design, scan, metadata)
     if plot_path:
-        from metalens_cli.plotting.psf_scan import plot_psf_scan
+        from metalens_cli.plotting.psf_scan import plot_scan
 
-        bands = None
-        if design.preset is not None and design.preset.filter is not None:
-            f = design.preset.filter
-            bands = [(c - w / 2, c + w / 2) for c, w in zip(f.centers_m, f.widths_m)]
-        plot_psf_scan(plot_path, scan.psf, wavelengths_m, depths_m, pixel_pitch_m, bands)
+        plot_scan(plot_path, scan, design.preset)
     render.say(scan.warnings)
     if as_json:
-        render.emit_json(
-            {
-                "file": str(output),
-                "design": design.describe(),
-                "wavelengths_m": wavelengths_m,
-                "depths_m": depths_m,
-                "pixels": pixels,
-                "pixel_pitch_m": pixel_pitch_m,
-                **metadata,
-                "psfs": scan.metrics,
-                "channel_psfs": scan.channel_metrics,
-                "warnings": scan.warnings,
-                **({"plot": str(plot_path)} if plot_path else {}),
-            }
-        )
+        render.emit_json(scan_report(design, scan, metadata, output, plot_path))
         return
     _render(scan, design, output)
 

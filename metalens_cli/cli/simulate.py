@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -30,6 +30,9 @@ from metalens_cli.cli.options import (
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
 from metalens_cli.errors import InputError
+
+if TYPE_CHECKING:
+    from metalens_cli.imaging.pipeline import CaptureSetup
 
 
 class Photons(Number):
@@ -102,22 +105,6 @@ def capture_options(f):
     return geometry_options(apply_options(f, options))
 
 
-@dataclass(frozen=True)
-class CaptureSetup:
-    """What simulate, evaluate and reconstruct train capture with (SI metres): the designs, the
-    sensor crop, the depth intervals [lo, hi], the wavelengths integrated over, the torch device
-    and the obstruction parameters in force (None: the defaults)."""
-
-    designs: list
-    pixels: int
-    pixel_pitch_m: float
-    z_near_interval_m: tuple[float, float]
-    z_far_interval_m: tuple[float, float]
-    wavelengths_m: list[float]
-    device: object  # torch.device
-    obstruction_params: object | None  # io.presets.ObstructionConfig
-
-
 def setup(
     spec_list,
     *,
@@ -136,7 +123,7 @@ def setup(
     """Resolve designs, sensor, depth intervals and wavelengths (shared by simulate, evaluate and
     reconstruct train); a malformed design is refused naming ``design_field`` (their positional
     DESIGN argument), not resolve_design's ``--design``."""
-    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, DEFAULT_Z_FAR_M, DEFAULT_Z_NEAR_M
+    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, DEFAULT_Z_FAR_M, DEFAULT_Z_NEAR_M, CaptureSetup
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.io.units import parse_length_list
 
@@ -163,6 +150,27 @@ def setup(
         device=torch_device(device),
         obstruction_params=in_force.obstruction if in_force is not None else None,
     )
+
+
+# the parameters of capture_options that setup() resolves
+SETUP_OPTIONS = (
+    "preset_path",
+    "f_m",
+    "aperture_m",
+    "pitch_m",
+    "z_near_m",
+    "z_far_m",
+    "pixels",
+    "pixel_pitch_m",
+    "wavelengths",
+    "device",
+)
+
+
+def setup_from(spec_list, params: dict) -> CaptureSetup:
+    """:func:`setup` of the designs ``spec_list`` with the values of a command's
+    :func:`capture_options` among its ``params`` (``click.Context.params``)."""
+    return setup(spec_list, **{name: params[name] for name in SETUP_OPTIONS})
 
 
 @click.command("simulate", cls=MetalensCommand)
@@ -211,50 +219,25 @@ def simulate(
     """
     from metalens_cli.imaging.images import image_count, load_images
     from metalens_cli.imaging.obstructions import parse_obstructions
-    from metalens_cli.imaging.pipeline import channel_psfs, draw_depths, estimate_captures, simulate_captures
-    from metalens_cli.io.resources import Estimate
+    from metalens_cli.imaging.pipeline import channel_psfs, draw_depths, estimate_capture_runs, simulate_captures
+    from metalens_cli.imaging.simulation_output import simulation_report, write_captures
+    from metalens_cli.io.atomic import atomic_folder
+    from metalens_cli.io.json_files import write_json
+    from metalens_cli.plotting.imaging import contact_sheet
 
     start = time.perf_counter()
     check_output_unused(output, overwrite)
     (kind,) = _single(parse_obstructions(obstruction))
-    s = setup(
-        [spec],
-        preset_path=preset_path,
-        f_m=f_m,
-        aperture_m=aperture_m,
-        pitch_m=pitch_m,
-        z_near_m=z_near_m,
-        z_far_m=z_far_m,
-        pixels=pixels,
-        pixel_pitch_m=pixel_pitch_m,
-        wavelengths=wavelengths,
-        device=device,
-    )
+    s = setup_from([spec], click.get_current_context().params)
     design = s.designs[0]
-    z_near, z_far = draw_depths(s.z_near_interval_m, s.z_far_interval_m, seed)
-    memory, psf_seconds, capture_seconds = estimate_captures(
-        design,
-        z_near,
-        z_far,
-        s.wavelengths_m,
-        s.pixel_pitch_m,
-        s.pixels,
-        image_count(images, limit),
-        window=psf_pixels,
-    )
-    announce(
-        Estimate(
-            f"simulate on {s.pixels}² pixels",
-            memory,
-            "--psf-pixels" if psf_pixels else "--pixels",
-            psf_seconds + capture_seconds,
-        ),
-        max_memory,
-        device=s.device,
-    )
+    depths = draw_depths(s.z_near_interval_m, s.z_far_interval_m, seed)
+    what = f"simulate on {s.pixels}² pixels"
+    estimate = estimate_capture_runs(s, what, depths, image_count(images, limit), window=psf_pixels)
+    announce(estimate, max_memory, device=s.device)
     efficiency = efficiency_used(design.preset, quiet)
-    psfs = channel_psfs(design, z_near, z_far, s.wavelengths_m, s.pixel_pitch_m, device=s.device, window=psf_pixels)
+    psfs = channel_psfs(design, *depths, s.wavelengths_m, s.pixel_pitch_m, device=s.device, window=psf_pixels)
     clean = load_images(images, (s.pixels, s.pixels), limit, psfs.margin)
+    formation_options = dict(formation=formation, alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
     with progress_bar("simulate", quiet) as update:
         captures = simulate_captures(
             clean,
@@ -264,68 +247,28 @@ def simulate(
             s.pixel_pitch_m,
             seed,
             params=s.obstruction_params,
-            formation=formation,
-            alpha_gain=alpha_gain,
-            photons=photons,
-            read_noise=read_noise,
+            **formation_options,
             on_progress=update,
         )
-    import json
-
-    from metalens_cli.io.atomic import atomic_folder
-    from metalens_cli.plotting.imaging import contact_sheet
-
     out = Path(output)
     with atomic_folder(out) as staging:  # the folder gets every file or none (failure, Ctrl-C, SIGTERM)
-        names = write_captures(staging, captures)
-        contact_sheet(staging / "contact_sheet.png", captures)
-        files = [str(out / name) for name in [*names, "contact_sheet.png"]]
-        warnings = psfs.warnings()
-        report = render.jsonable(
-            {
-                "design": design.describe(),
-                "obstruction": kind,
-                "seed": seed,
-                "z_near_m": z_near,
-                "z_far_m": z_far,
-                "z_near_interval_m": list(s.z_near_interval_m),
-                "z_far_interval_m": list(s.z_far_interval_m),
-                "pixels": s.pixels,
-                "pixel_pitch_m": s.pixel_pitch_m,
-                "canvas_margin_px": psfs.margin,
-                "wavelengths_m": s.wavelengths_m,
-                "formation": formation,
-                "alpha_gain": alpha_gain,
-                "photons": photons,
-                "read_noise": read_noise,
-                "device": str(s.device),
-                **psfs.report(),
-                "spectral_coverage": dict(zip("RGB", psfs.coverage)),
-                "efficiency": efficiency,
-                "images": [
-                    {
-                        "name": c.name,
-                        "obstruction_coverage": c.obstruction.coverage,
-                        "alpha_coverage": c.alpha_coverage,
-                        "obstruction_settings": c.obstruction.settings,
-                        "seconds": c.seconds,
-                    }
-                    for c in captures
-                ],
-                "timing_s": {
-                    "psf": psfs.seconds,
-                    "captures": sum(c.seconds for c in captures),
-                    "total": time.perf_counter() - start,
-                },
-                "warnings": warnings,
-                "files": files,
-            }
+        names = [*write_captures(staging, captures), "contact_sheet.png"]
+        contact_sheet(staging / names[-1], captures)
+        files = [str(out / name) for name in names]
+        total = time.perf_counter() - start
+        report = simulation_report(
+            s, kind, seed, psfs, captures, formation_options, efficiency=efficiency, files=files, seconds=total
         )
-        (staging / "simulate.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    render.say(warnings)
+        write_json(staging / "simulate.json", report)
+    render.say(report["warnings"])
     if as_json:
         render.emit_json(report)
         return
+    _render(report, design.spec, kind, psfs, out)
+
+
+def _render(report: dict, spec: str, kind: str, psfs, out: Path) -> None:
+    """The table of images (obstruction and α coverage, seconds), the PSF windows, the file count."""
     con = render.console()
     rows = [
         [i["name"], f"{100 * i['obstruction_coverage']:.1f}", f"{100 * i['alpha_coverage']:.1f}", f"{i['seconds']:.2f}"]
@@ -333,13 +276,13 @@ def simulate(
     ]
     con.print(
         render.table(
-            f"simulate {design.spec}: {kind} at {z_near * 1e3:.1f} mm, scene at {z_far:.2f} m",
+            f"simulate {spec}: {kind} at {psfs.z_near_m * 1e3:.1f} mm, scene at {psfs.z_far_m:.2f} m",
             ["image", "obstruction %", "α %", "s"],
             rows,
         )
     )
     con.print(kept_line(psfs))
-    con.print(f"wrote {len(files) + 1} files to {out}")
+    con.print(f"wrote {len(report['files']) + 1} files to {out}")
 
 
 def kept_line(psfs) -> str:
@@ -358,27 +301,3 @@ def _single(specs):
             "--obstruction", f"{len(specs)} obstructions", "one obstruction for simulate (evaluate takes a list)"
         )
     return specs
-
-
-def write_captures(out: Path, captures) -> list[str]:
-    """PNG (sRGB) and linear EXR of clean, unobstructed and obstructed; obstruction and α maps.
-    Returns the file names written in ``out``."""
-    import numpy as np
-
-    from metalens_cli.io.image_files import linear_to_srgb, write_exr_rgb, write_png
-
-    files = []
-    for c in captures:
-        grey = np.full_like(c.clean, 0.5)
-        mask = c.obstruction.sensor_mask
-        composite = c.obstruction.sensor_rgb * mask + grey * (1 - mask)
-        for label, image in (("clean", c.clean), ("unobstructed", c.unobstructed), ("obstructed", c.obstructed)):
-            write_png(out / f"{c.name}_{label}.png", linear_to_srgb(image))
-            write_exr_rgb(out / f"{c.name}_{label}.exr", image)
-            files += [f"{c.name}_{label}.png", f"{c.name}_{label}.exr"]
-        write_png(out / f"{c.name}_obstruction.png", linear_to_srgb(composite))
-        write_png(out / f"{c.name}_alpha.png", np.clip(c.alpha, 0, 1))
-        write_exr_rgb(out / f"{c.name}_obstruction_mask.exr", mask)
-        write_exr_rgb(out / f"{c.name}_alpha.exr", c.alpha)
-        files += [f"{c.name}_{x}" for x in ("obstruction.png", "alpha.png", "obstruction_mask.exr", "alpha.exr")]
-    return files

@@ -13,13 +13,24 @@ recon and raw captures.
 
 from __future__ import annotations
 
+import csv
+import io
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from metalens_cli.analysis.statistics import mean_ci, paired_difference_ci
 from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
-from metalens_cli.imaging.pipeline import ChannelPsfs, channel_psfs, draw_depths, score, simulate_captures
+from metalens_cli.imaging.pipeline import (
+    CaptureSetup,
+    ChannelPsfs,
+    channel_psfs,
+    draw_depths,
+    score,
+    simulate_captures,
+)
+from metalens_cli.io.atomic import atomic_write
 
 CONDITIONS = ("unobstructed", "obstructed")
 MIN_UNITS = 20  # fewer units per cell: a warning (bootstrap CIs of a handful of units are wide and unreliable)
@@ -46,6 +57,21 @@ class EvaluationSettings:
     photons_before_filter: bool = False  # photons count the light before each design's filter (its throughput passes)
     psf_window: int | None = None
     device: object = "cpu"
+
+    @classmethod
+    def from_setup(cls, setup: CaptureSetup, **options) -> EvaluationSettings:
+        """The sensor, depth intervals, wavelengths, obstruction parameters and device of
+        ``setup``, with the other fields from ``options``."""
+        return cls(
+            setup.pixels,
+            setup.pixel_pitch_m,
+            setup.z_near_interval_m,
+            setup.z_far_interval_m,
+            setup.wavelengths_m,
+            obstruction_params=setup.obstruction_params,
+            device=setup.device,
+            **options,
+        )
 
 
 @dataclass
@@ -284,3 +310,45 @@ def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_im
                             "n": stats["n"],
                         }
                     )
+
+
+def evaluation_report(result: Evaluation, extra: dict, notes: list[str], csv_path=None, plot_path=None) -> dict:
+    """The JSON report of an evaluation: rows, deltas, comparisons, units, images, the confidence
+    level, ``extra`` (what was evaluated and how), ``notes``, warnings and the files written."""
+    return {
+        "rows": result.rows,
+        "deltas": result.deltas,
+        "comparisons": result.comparisons,
+        "units": result.units,
+        "images": result.images,
+        "confidence": 0.95,
+        **extra,
+        "notes": notes,
+        "warnings": result.warnings,
+        **({"csv": str(csv_path)} if csv_path else {}),
+        **({"plot": str(plot_path)} if plot_path else {}),
+    }
+
+
+def write_rows_csv(path: str | os.PathLike[str], rows: list[dict], metrics=("psnr_db", "ssim")) -> None:
+    """The rows of an evaluation as CSV, atomically: design, capture, obstruction, condition, n,
+    then per metric its mean and the bounds of its confidence interval."""
+    columns = ["design", "capture", "obstruction", "condition", "n"] + [
+        c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")
+    ]
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow(
+            {
+                **{k: row[k] for k in ("design", "capture", "obstruction", "condition", "n")},
+                **{
+                    c: v
+                    for m in metrics
+                    for c, v in ((m, row[m]), (f"{m}_lo", row[f"{m}_ci"][0]), (f"{m}_hi", row[f"{m}_ci"][1]))
+                },
+            }
+        )
+    with atomic_write(path) as temporary:
+        temporary.write_text(buffer.getvalue(), encoding="utf-8")

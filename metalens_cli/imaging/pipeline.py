@@ -20,6 +20,7 @@ from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image,
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
 from metalens_cli.io.presets import ObstructionConfig
+from metalens_cli.io.resources import Estimate
 
 DEFAULT_Z_NEAR_M = PAPER_Z_NEAR_M  # Suppl. Note 4
 DEFAULT_Z_FAR_M = PAPER_Z_FAR_M
@@ -28,6 +29,22 @@ DEFAULT_WAVELENGTHS = "400:700:5nm"
 
 KEPT_WARNING = 0.99  # warn when a PSF window holds less of the light than this
 MAX_WINDOW = 4097  # PSF windows (pixels) stop growing here; the kept fractions then tell what they lose
+
+
+@dataclass(frozen=True)
+class CaptureSetup:
+    """What simulate, evaluate and reconstruct train capture with (SI metres): the designs, the
+    sensor crop, the depth intervals [lo, hi], the wavelengths integrated over, the torch device
+    and the obstruction parameters in force (None: the defaults)."""
+
+    designs: list
+    pixels: int
+    pixel_pitch_m: float
+    z_near_interval_m: tuple[float, float]
+    z_far_interval_m: tuple[float, float]
+    wavelengths_m: list[float]
+    device: object  # torch.device
+    obstruction_params: ObstructionConfig | None
 
 
 @dataclass
@@ -205,6 +222,34 @@ def estimate_captures(
         psf.memory_bytes + planes + kept,
         psf.seconds,
         images * 2 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE,
+    )
+
+
+def estimate_capture_runs(
+    setup: CaptureSetup,
+    what: str,
+    depths_m: tuple[float, float],
+    images: int,
+    *,
+    window: int | None = None,
+    seeds: int = 1,
+    kinds: int = 1,
+) -> Estimate:
+    """The cost of capturing ``images`` images through every design of ``setup`` at ``depths_m``
+    (near, far) for each of ``seeds`` seeds and ``kinds`` obstruction kinds (:func:`estimate_captures`):
+    the PSFs once per design and seed, the captures per kind too; the memory of the largest
+    design. ``what`` names the job; ``window``: :func:`channel_psfs`'s."""
+    costs = [
+        estimate_captures(
+            design, *depths_m, setup.wavelengths_m, setup.pixel_pitch_m, setup.pixels, images, window=window
+        )
+        for design in setup.designs
+    ]
+    return Estimate(
+        what,
+        max(memory for memory, _, _ in costs),
+        "--psf-pixels" if window else "--pixels",
+        seeds * sum(psf + kinds * captures for _, psf, captures in costs),
     )
 
 

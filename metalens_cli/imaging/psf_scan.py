@@ -6,11 +6,14 @@ quadrature on the scan wavelengths: filter × camera response, w summing to 1 pe
 summaries of every PSF and of every channel PSF (its centre 5 × 5 energy is the spectrally
 weighted mean of the wavelengths' own), and, on request, an accuracy report:
 the sharpest PSF recomputed with doubled sampling and, for radial designs, with the direct
-Rayleigh-Sommerfeld reference.
+Rayleigh-Sommerfeld reference. The scan's cost is estimated and its cube file checked before
+any work; the cube is written with the scan's metadata in its header.
 """
 
 from __future__ import annotations
 
+import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,8 +22,13 @@ import numpy as np
 import torch
 
 from metalens_cli.analysis.psf_metrics import summarize
+from metalens_cli.errors import InputError
 from metalens_cli.io.designs import Design
-from metalens_cli.optics.psf import compute_psf
+from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS
+from metalens_cli.io.json_files import jsonable
+from metalens_cli.io.psf_cube_files import check_cube_size, write_cube_file
+from metalens_cli.io.resources import Estimate
+from metalens_cli.optics.psf import compute_psf, estimate_psf
 
 COVERAGE_WARNING = 0.99
 RS_WINDOW = 9  # central pixels compared with the direct Rayleigh-Sommerfeld reference
@@ -68,6 +76,54 @@ def _channel_weights(design: Design, wavelengths_m, warnings: list[str]):
         "coverage": coverage,
     }
     return weights.weights, spectra
+
+
+def check_scan_size(path: str | os.PathLike[str], wavelengths_m, depths_m, pixels: int) -> None:
+    """Refuse, before any work, a scan whose cube ``path`` cannot hold: more wavelengths or depths
+    than a cube file holds, or a ``.mat`` variable over 2 GiB (``io.psf_cube_files``)."""
+    for option, values, limit in (
+        ("--wavelengths", wavelengths_m, MAX_WAVELENGTHS),
+        ("--depths", depths_m, MAX_DEPTHS),
+    ):
+        if len(values) > limit:
+            raise InputError(
+                option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values"
+            )
+    check_cube_size(path, "--output", len(depths_m), len(wavelengths_m), pixels)
+
+
+def estimate_scan(
+    design: Design,
+    wavelengths_m: list[float],
+    depths_m: list[float],
+    pixels: int,
+    pixel_pitch_m: float,
+    *,
+    propagator: str = "auto",
+    dtype: torch.dtype = torch.float32,
+    force: bool = False,
+) -> Estimate:
+    """Peak memory and time of :func:`run_scan` (``optics.psf.estimate_psf``, which also applies
+    the sampling guard) and the bytes of its float32 cube."""
+    cost = estimate_psf(
+        design.lens,
+        wavelengths_m,
+        depths_m,
+        pixels,
+        pixel_pitch_m,
+        distance_m=design.focal_length_m,
+        propagator=propagator,
+        dtype=dtype,
+        force=force,
+    )
+    count = len(wavelengths_m) * len(depths_m)
+    return Estimate(
+        f"psf-scan of {count} PSFs of {pixels}² pixels",
+        cost.memory_bytes,
+        "--pixels",
+        cost.seconds,
+        disk_bytes=count * pixels**2 * 4,
+    )
 
 
 def run_scan(
@@ -195,3 +251,53 @@ def accuracy_report(design: Design, scan: ScanResult, dtype, device, force: bool
         report["rs_window_pixels"] = m
         report["rs_seconds"] = time.perf_counter() - start
     return report
+
+
+def scan_metadata(design: Design, scan: ScanResult, dtype: str, efficiency: dict) -> dict:
+    """What the cube's header and the report say beyond the axes: f and D (m), NA, propagator,
+    ``dtype`` (its name), grid, timings (s), accuracy, spectra and the nanofin ``efficiency`` used."""
+    half = design.lens.aperture_m / 2
+    return {
+        "f_m": design.focal_length_m,
+        "aperture_m": design.lens.aperture_m,
+        "na": half / math.hypot(half, design.focal_length_m),
+        "propagator": scan.propagator,
+        "dtype": dtype,
+        "grid": scan.grid,
+        "timing_s": scan.timing_s,
+        "accuracy": scan.accuracy,
+        "spectra": scan.spectra,
+        "efficiency": efficiency,
+    }
+
+
+def write_scan(path: str | os.PathLike[str], design: Design, scan: ScanResult, metadata: dict) -> None:
+    """The scan's cube file, in the format of ``path``'s suffix, atomically, ``metadata`` in its header."""
+    write_cube_file(
+        path,
+        scan.psf,
+        scan.wavelengths_m,
+        scan.depths_m,
+        scan.pixel_pitch_m,
+        design.describe(),
+        rgb=scan.rgb,
+        extra=jsonable(metadata),
+    )
+
+
+def scan_report(design: Design, scan: ScanResult, metadata: dict, path: str | os.PathLike[str], plot_path=None) -> dict:
+    """The JSON report of a scan written to ``path`` (and plotted to ``plot_path``): axes (m),
+    window, ``metadata``, the summaries of every PSF and channel PSF, and the warnings."""
+    return {
+        "file": str(path),
+        "design": design.describe(),
+        "wavelengths_m": scan.wavelengths_m,
+        "depths_m": scan.depths_m,
+        "pixels": scan.psf.shape[-1],
+        "pixel_pitch_m": scan.pixel_pitch_m,
+        **metadata,
+        "psfs": scan.metrics,
+        "channel_psfs": scan.channel_metrics,
+        "warnings": scan.warnings,
+        **({"plot": str(plot_path)} if plot_path else {}),
+    }

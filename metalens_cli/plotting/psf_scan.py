@@ -70,3 +70,11 @@ def _row_edges(wl_nm: np.ndarray) -> tuple[float, float]:
     (1 nm for a single wavelength, whose row would otherwise have no height)."""
     step = (wl_nm[-1] - wl_nm[0]) / (wl_nm.size - 1) if wl_nm.size > 1 else 1.0
     return float(wl_nm[0] - step / 2), float(wl_nm[-1] + step / 2)
+
+
+def plot_scan(path: str | Path, scan, preset=None) -> Path:
+    """:func:`plot_psf_scan` of a scan (``imaging.psf_scan.ScanResult``), with the pass bands of
+    ``preset``'s filter (centre ± width/2) when it has one."""
+    f = preset.filter if preset is not None else None
+    bands = None if f is None else [(c - w / 2, c + w / 2) for c, w in zip(f.centers_m, f.widths_m)]
+    return plot_psf_scan(path, scan.psf, scan.wavelengths_m, scan.depths_m, scan.pixel_pitch_m, bands)
