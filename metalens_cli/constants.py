@@ -20,11 +20,15 @@ SENSOR_RANGE_M = (400e-9, 700e-9)
 PAPER_Z_NEAR_M = (0.040, 0.050)
 PAPER_Z_FAR_M = (1.0, 20.0)
 
+# Environment variable naming the folder of the LPIPS weight files (--lpips-weights reads it too)
+LPIPS_WEIGHTS_ENV = "METALENS_LPIPS_WEIGHTS"
+
 # Enumerations
 OBSTRUCTION_KINDS = ("dirt", "fence", "drops", "rain")  # built-in procedural obstructions
 REFINEMENTS = ("flow", "tps", "none")  # align: refinement after the homography
 
 __all__ = [
+    "LPIPS_WEIGHTS_ENV",
     "OBSTRUCTION_KINDS",
     "PAPER_BANDS_M",
     "PAPER_FIN_HEIGHT_M",

@@ -12,6 +12,7 @@ from metalens_cli.cli.options import (
     SeedList,
     announce,
     json_option,
+    lpips_weights_option,
     max_memory_option,
     plot_option,
     refuse_overwriting,
@@ -73,15 +74,10 @@ PAIRS_OPTIONS = {
     "(which can let an obstruction raise a blurred capture's score).",
 )
 @click.option("--csv", "csv_path", type=OutputFile(), help="Write the rows (means and CIs) as CSV.")
-@click.option(
-    "--lpips-weights",
-    "lpips_weights",
-    type=click.Path(exists=True, file_okay=False),
-    envvar="METALENS_LPIPS_WEIGHTS",
-    show_envvar=True,
-    help="Directory with alexnet-owt-7be5be79.pth and lpips's v0.1 alex.pth "
+@lpips_weights_option(
+    "Directory with alexnet-owt-7be5be79.pth and lpips's v0.1 alex.pth "
     "(without it or its environment variable: torch hub's checkpoints with an installed lpips; "
-    "none found: LPIPS is skipped with a note; nothing is downloaded).",
+    "none found: LPIPS is skipped with a note; nothing is downloaded)."
 )
 @click.option(
     "--recon",

@@ -15,6 +15,7 @@ import re
 
 import click
 
+from metalens_cli.constants import LPIPS_WEIGHTS_ENV
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
 from metalens_cli.io.atomic import check_folder_unused, check_output_file, check_output_folder, same_file
@@ -465,6 +466,18 @@ def check_output_unused(output: str, overwrite: bool, field: str = "--output") -
     unless ``overwrite``."""
     if not overwrite:
         check_folder_unused(output, field)
+
+
+def lpips_weights_option(help_text: str):
+    """``--lpips-weights DIR``, also read from ``$METALENS_LPIPS_WEIGHTS`` (shown in --help)."""
+    return click.option(
+        "--lpips-weights",
+        "lpips_weights",
+        type=click.Path(exists=True, file_okay=False),
+        envvar=LPIPS_WEIGHTS_ENV,
+        show_envvar=True,
+        help=help_text,
+    )
 
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else.")

@@ -19,6 +19,7 @@ from metalens_cli.cli.options import (
     check_output_unused,
     device_option,
     json_option,
+    lpips_weights_option,
     overwrite_option,
     torch_device,
     training_options,
@@ -66,15 +67,8 @@ def reconstruct():
 @click.option("--z-near", "z_near_m", type=Interval(), help="Obstruction depth interval [camera's, else 40mm:50mm].")
 @click.option("--z-far", "z_far_m", type=Interval(), help="Scene depth interval [camera's, else 1m:20m].")
 @click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [camera's, else 1.85um].")
-@click.option(
-    "--lpips-weights",
-    "lpips_weights",
-    type=click.Path(exists=True, file_okay=False),
-    envvar="METALENS_LPIPS_WEIGHTS",
-    show_envvar=True,
-    help=(
-        "Directory with the LPIPS weights for the loss's LPIPS term (else looked up as evaluate does; none: left out)."
-    ),
+@lpips_weights_option(
+    "Directory with the LPIPS weights for the loss's LPIPS term (else looked up as evaluate does; none: left out)."
 )
 @training_options("train")
 def train(

@@ -22,11 +22,12 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
+from metalens_cli.constants import LPIPS_WEIGHTS_ENV
 from metalens_cli.errors import InputError
 
 ALEXNET_FILE = "alexnet-owt-7be5be79.pth"  # torchvision's ImageNet AlexNet weights
 LIN_FILE = "alex.pth"  # lpips package, weights/v0.1/alex.pth
-ENV_VAR = "METALENS_LPIPS_WEIGHTS"
+ENV_VAR = LPIPS_WEIGHTS_ENV
 MIN_PIXELS = 31  # smallest H, W for which AlexNet's fifth ReLU is at least 1 × 1
 
 # (state-dict index, in channels, out channels, kernel, stride, padding) of AlexNet's convolutions;
