@@ -17,6 +17,7 @@ PAPER_BANDS_M = ((457e-9, 22e-9), (530e-9, 20e-9), (628e-9, 28e-9))
 
 # The sensor's spectral range and the paper's depth ranges (near: the cover glass, far: the scene)
 SENSOR_RANGE_M = (400e-9, 700e-9)
+SENSOR_PIXELS = 512  # the paper's sensor side (pixels of 1.85 µm); smaller captures are its centre
 PAPER_Z_NEAR_M = (0.040, 0.050)
 PAPER_Z_FAR_M = (1.0, 20.0)
 
@@ -37,5 +38,6 @@ __all__ = [
     "PAPER_Z_FAR_M",
     "PAPER_Z_NEAR_M",
     "REFINEMENTS",
+    "SENSOR_PIXELS",
     "SENSOR_RANGE_M",
 ]

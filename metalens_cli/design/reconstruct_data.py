@@ -52,13 +52,23 @@ class Camera:
 
 @dataclass
 class Pool:
-    """Linear (P, 3, S, S) float32 arrays: clean sensor images, obstructed and unobstructed captures."""
+    """Linear (P, 3, S, S) float32 arrays: clean sensor images, obstructed and unobstructed captures;
+    where each lies on a sensor of ``sensor`` pixels a side (``offsets`` (P, 2): top and left
+    pixel; None: each capture is the whole sensor)."""
 
     clean: np.ndarray
     obstructed: np.ndarray
     unobstructed: np.ndarray
     kinds: list[str]
     seconds: float = 0.0
+    offsets: np.ndarray | None = None
+    sensor: int | None = None
+
+    def __post_init__(self):
+        if self.sensor is None:
+            self.sensor = int(self.clean.shape[-1])
+        if self.offsets is None:
+            self.offsets = np.full((len(self.clean), 2), (self.sensor - self.clean.shape[-1]) // 2)
 
     def __len__(self) -> int:
         return len(self.clean)
@@ -193,12 +203,21 @@ def simulate_pool(
     with ThreadPoolExecutor(max_workers=max(1, threads)) as workers:
         entries = list(workers.map(entry, range(count)))
     clean, obstructed, unobstructed, kinds = zip(*entries)
+    # the formation is shift-invariant: each capture may lie anywhere on the sensor (its own stream)
+    offsets = np.array(
+        [
+            np.random.default_rng([seed, generation, k, 41]).integers(data.sensor_pixels - s + 1, size=2)
+            for k in range(count)
+        ]
+    )
     return Pool(
         np.stack(clean).astype(np.float32),
         np.stack(obstructed).astype(np.float32),
         np.stack(unobstructed).astype(np.float32),
         list(kinds),
         time.perf_counter() - start,
+        offsets,
+        data.sensor_pixels,
     )
 
 
@@ -263,22 +282,24 @@ def read_pairs(folder: str | Path) -> tuple[Pool, Pool]:
 
 @dataclass
 class Batch:
-    """Network input (B, 3, c, c), target (B, 3, c, c) and sensor positions (B, 2, c, c)."""
+    """Network input (B, 3, c, c), target (B, 3, c, c), sensor positions (B, 2, c, c) and the mean
+    of each input's whole capture (B, 3, 1, 1), which the network's contrast is relative to."""
 
     inputs: torch.Tensor
     targets: torch.Tensor
     positions: torch.Tensor
+    means: torch.Tensor
 
 
-def batch(
-    pool: Pool, data, crop: int, position_scale: float, seed: int, step: int, indices: list[int], device="cpu"
-) -> Batch:
+def batch(pool: Pool, data, crop: int, seed: int, step: int, indices: list[int], device="cpu") -> Batch:
     """Entries ``indices`` of step ``step``'s batch: a random pool entry (unobstructed with
-    probability ``data.clear_fraction``), a random ``crop``² window with its sensor positions,
-    one of the 8 flips/quarter turns applied to all three, then gain, contrast and Gaussian
-    noise on the input only."""
+    probability ``data.clear_fraction``), a random ``crop``² window with its positions on the
+    pool's sensor (units of half its side), one of the 8 flips/quarter turns applied to all three,
+    then gain, contrast and Gaussian noise on the input only (the capture's mean follows the gain
+    and contrast)."""
     s = pool.clean.shape[-1]
-    inputs, targets, positions = [], [], []
+    scale = pool.sensor / 2
+    inputs, targets, positions, means = [], [], [], []
     for index in indices:
         rng = np.random.default_rng([seed, step, index, 37])
         p = int(rng.integers(len(pool)))
@@ -287,20 +308,24 @@ def batch(
         window = (slice(None), slice(top, top + crop), slice(left, left + crop))
         x = torch.from_numpy(np.ascontiguousarray(source[p][window]))
         y = torch.from_numpy(np.ascontiguousarray(pool.clean[p][window]))
-        u = pixel_positions(crop, crop, top=top, left=left, full=(s, s), scale=position_scale)
+        oy, ox = (int(v) for v in pool.offsets[p])
+        u = pixel_positions(crop, crop, top=oy + top, left=ox + left, full=(pool.sensor,) * 2, scale=scale)
         turns, flip = int(rng.integers(4)), bool(rng.integers(2))
         x, y, u = (_orient(t, turns, flip) for t in (x, y, u))  # each pixel keeps its sensor position
         gain = 1 + rng.uniform(-data.brightness, data.brightness)
         contrast = 1 + rng.uniform(-data.contrast, data.contrast)
         mean = x.mean()
-        x = gain * ((x - mean) * contrast + mean)
+        # gain·((x − μ)·contrast + μ), written so that gain = contrast = 1 leaves x bit for bit
+        x = (gain * contrast) * x + (gain * (1 - contrast)) * mean
+        whole = torch.from_numpy(source[p].mean(axis=(1, 2), dtype=np.float64).astype(np.float32))[:, None, None]
+        means.append((gain * contrast) * whole + (gain * (1 - contrast)) * mean)
         if data.noise_sigma:
             noise = torch.randn(x.shape, generator=torch.Generator().manual_seed(int(rng.integers(2**62))))
             x = x + data.noise_sigma * noise
         inputs.append(x)
         targets.append(y)
         positions.append(u)
-    return Batch(*(torch.stack(t).to(device) for t in (inputs, targets, positions)))
+    return Batch(*(torch.stack(t).to(device) for t in (inputs, targets, positions, means)))
 
 
 def _orient(t: torch.Tensor, turns: int, flip: bool) -> torch.Tensor:

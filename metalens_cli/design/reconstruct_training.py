@@ -215,12 +215,15 @@ def _train(
     def one_step(step: int) -> dict:
         t0 = time.perf_counter()
         pool = data.pool_for(step)
-        b = batch(pool, preset.data, t.crop, data.position_scale, t.seed, step, shard, ctx.device)
+        b = batch(pool, preset.data, t.crop, t.seed, step, shard, ctx.device)
         t1 = time.perf_counter()
         optimizer.zero_grad(set_to_none=True)
         net.train()
         terms = loss_terms(
-            net(b.inputs.contiguous(memory_format=torch.channels_last), b.positions), b.targets, t, lpips_model
+            net(b.inputs.contiguous(memory_format=torch.channels_last), b.positions, b.means),
+            b.targets,
+            t,
+            lpips_model,
         )
         (terms["total"] * share).backward()
         reported = torch.stack([terms[k].detach() * share for k in sorted(terms)]).double()
@@ -308,7 +311,7 @@ class _Data:
             on_stage("validation pairs")
             self.validation = self._simulate(VALIDATION_GENERATION, d.validation_pairs)
             self.generation, self.pool = None, None
-        self.position_scale = self.validation.clean.shape[-1] / 2
+        self.position_scale = self.validation.sensor / 2  # positions in units of half the sensor's side
 
     def _simulate(self, generation: int, count: int) -> Pool:
         pool = simulate_pool(

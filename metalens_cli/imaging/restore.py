@@ -4,8 +4,9 @@ A trained network lives in ``RUN/model.pt`` (written by ``metalens reconstruct t
 network shape, its weights and the identity of the design it was trained for
 (``design_fingerprint``). Images larger than the memory budget allows are cut into tiles that
 overlap by ``overlap`` pixels and blended with linear ramps across the overlaps; each tile is
-told where on the sensor it lies (positional encoding), so tiling changes only what the
-network's global (CBAM channel) pooling sees.
+told where on the sensor it lies (positional encoding) and the whole capture's mean (what the
+network's contrast is relative to), so tiling changes only what the network's image-wide pooling
+(CBAM's channel attention) and its spectral filter see.
 """
 
 from __future__ import annotations
@@ -19,10 +20,11 @@ import numpy as np
 import torch
 
 from metalens_cli.errors import InputError
-from metalens_cli.imaging.network import NetworkShape, ReconstructionNet, pixel_positions
+from metalens_cli.imaging.network import NetworkShape, ReconstructionNet, capture_mean, pixel_positions
 
 MODEL_FILE = "model.pt"
-MODEL_FORMAT = "metalens-reconstruct/1"
+MODEL_FORMAT = "metalens-reconstruct/2"
+OLD_FORMATS = ("metalens-reconstruct/1",)  # networks before the grey-wall invariant (biases, a free DC gain)
 DEFAULT_MEMORY_BYTES = 1 << 30
 FLOAT_BYTES = 4
 # float32 planes per unit of width at the peak of a forward pass (17.4-18.2 measured: benchmarks/bench_reconstruct.py)
@@ -46,7 +48,7 @@ def design_fingerprint(design) -> str:
 
 def inference_bytes(shape: NetworkShape, pixels: int) -> int:
     """Estimated peak memory (bytes) of one forward pass over ``pixels`` pixels (float32)."""
-    return pixels * FLOAT_BYTES * (shape.input_channels + ACTIVATION_PLANES * shape.width)
+    return pixels * FLOAT_BYTES * (shape.signal_channels + shape.context_channels + ACTIVATION_PLANES * shape.width)
 
 
 @dataclass
@@ -92,15 +94,16 @@ class Reconstructor:
         h, w = x.shape[-2:]
         side = self.tile_side(h, w)
         scale = self.shape.position_scale
+        mean = capture_mean(x[None])
         if side is None:
-            return self.net(_fast(x[None]), pixel_positions(h, w, scale=scale, device=x.device)[None])[0]
+            return self.net(_fast(x[None]), pixel_positions(h, w, scale=scale, device=x.device)[None], mean)[0]
         total = torch.zeros_like(x)
         weight = torch.zeros((1, h, w), dtype=x.dtype, device=x.device)
         for top in _starts(h, side, self.overlap):
             for left in _starts(w, side, self.overlap):
                 th, tw = min(side, h - top), min(side, w - left)
                 positions = pixel_positions(th, tw, top=top, left=left, full=(h, w), scale=scale, device=x.device)
-                tile = self.net(_fast(x[None, :, top : top + th, left : left + tw]), positions[None])[0]
+                tile = self.net(_fast(x[None, :, top : top + th, left : left + tw]), positions[None], mean)[0]
                 ramp = _ramp(th, top, h, self.overlap, x)[:, None] * _ramp(tw, left, w, self.overlap, x)[None, :]
                 total[:, top : top + th, left : left + tw] += tile * ramp
                 weight[:, top : top + th, left : left + tw] += ramp
@@ -173,12 +176,17 @@ def load_reconstructor(
         raise InputError(
             field_name, f"cannot read {str(path)!r}: it is truncated, damaged or not a torch file", expected
         ) from None
-    if (
-        not isinstance(state, dict)
-        or state.get("format") != MODEL_FORMAT
-        or not isinstance(state.get("design", {}), dict)
-    ):
+    if not isinstance(state, dict) or not isinstance(state.get("design", {}), dict):
         raise InputError(field_name, f"{str(path)!r} is not a metalens reconstruction model", expected)
+    if state.get("format") != MODEL_FORMAT:
+        older = state.get("format") in OLD_FORMATS
+        raise InputError(
+            field_name,
+            f"{str(path)!r} is a {state['format']} model, made before the network kept a grey wall grey"
+            if older
+            else f"{str(path)!r} is not a metalens reconstruction model",
+            f"a {MODEL_FORMAT} model: train the network again with metalens reconstruct train" if older else expected,
+        )
     problem = _metadata_problem(state)
     if problem:
         raise InputError(field_name, f"{str(path)!r}: {problem}", expected)

@@ -9,7 +9,7 @@ for (its own preset, or the defaults of ``simulate``). Same TOML conventions and
     [network]   width, depth, frequencies, reduction, spectral_bins
     [train]     steps, batch_size, crop, learning_rate, weight_decay, warmup_steps, restart_period,
                 restart_growth, seed, checkpoint_every, validate_every, l1, ssim, lpips
-    [data]      obstructions, scenes, images, pool_size, pool_pixels, pool_refresh, clear_fraction,
+    [data]      obstructions, scenes, images, pool_size, pool_pixels, sensor_pixels, pool_refresh, clear_fraction,
                 near_depths, far_depths, wavelengths, photons, read_noise, noise_sigma,
                 brightness, contrast, validation_pairs
 """
@@ -20,7 +20,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from metalens_cli.constants import OBSTRUCTION_KINDS
+from metalens_cli.constants import OBSTRUCTION_KINDS, SENSOR_PIXELS
 from metalens_cli.errors import InputError
 from metalens_cli.io.presets import as_str, build_section, check_name, read_toml, toml_field, toml_key
 from metalens_cli.io.tables import check_wavelengths
@@ -67,7 +67,9 @@ class TrainConfig:
 class DataConfig:
     """Simulated training pairs: a pool of ``pool_size`` captures of ``pool_pixels``² sensor
     pixels, regenerated every ``pool_refresh`` steps (0: never), from which each step crops;
-    ``clear_fraction`` of the inputs are unobstructed captures. PSFs from a bank of
+    ``clear_fraction`` of the inputs are unobstructed captures. Each capture lies at a random place
+    on a sensor of ``sensor_pixels``² (the image formation is shift-invariant), so the training
+    crops carry positions over the whole sensor. PSFs from a bank of
     ``near_depths`` × ``far_depths`` depths (stratum midpoints of the camera's intervals), mixed
     over ``wavelengths``. Sensor noise (``photons``, ``read_noise``) in the pool; per step
     Gaussian noise σ ``noise_sigma``, gain 1 ± ``brightness`` and contrast 1 ± ``contrast`` on the
@@ -78,6 +80,7 @@ class DataConfig:
     images: str | None = toml_key("images", "folder", default=None)  # replaces the generated scenes
     pool_size: int = toml_key("pool_size", "int", lo=1, hi=100_000, default=64)
     pool_pixels: int = toml_key("pool_pixels", "int", lo=16, hi=4096, default=256)
+    sensor_pixels: int = toml_key("sensor_pixels", "int", lo=16, hi=65536, default=SENSOR_PIXELS)
     pool_refresh: int = toml_key("pool_refresh", "int", lo=0, hi=10_000_000, default=0)
     clear_fraction: float = toml_key("clear_fraction", "float", lo=0.0, hi=1.0, default=0.2)
     near_depths: int = toml_key("near_depths", "int", lo=1, hi=64, default=4)
@@ -125,6 +128,12 @@ def reconstruct_preset_from_dict(data: dict, name: str = "reconstruct", source: 
     for kind in preset.data.obstructions:
         if kind not in OBSTRUCTION_KINDS:
             raise InputError("data.obstructions", f"unknown obstruction {kind!r}", ", ".join(OBSTRUCTION_KINDS))
+    if preset.data.pool_pixels > preset.data.sensor_pixels:
+        raise InputError(
+            "data.pool_pixels",
+            f"{preset.data.pool_pixels} px exceeds data.sensor_pixels {preset.data.sensor_pixels}",
+            "simulated captures no larger than the sensor",
+        )
     if preset.train.crop > preset.data.pool_pixels:
         raise InputError(
             "train.crop",

@@ -45,17 +45,26 @@ def test_tiled_identity_network_returns_its_input_exactly():
     np.testing.assert_allclose(recon(image), image, rtol=0, atol=1e-6)  # blend weights sum to one everywhere
 
 
-def test_tiled_equals_whole_image_up_to_global_pooling():
-    net = _net()
-    image = np.random.default_rng(1).uniform(0, 1, size=(3, 96, 80)).astype(np.float32)
+@pytest.mark.parametrize("size, tile, overlap", [(96, 48, 16), (512, 320, 64)])
+def test_tiled_equals_whole_image_up_to_global_pooling(size, tile, overlap):
+    """Tiles see their positions and the whole capture's mean; what differs is only what the
+    network pools over the image (CBAM's channel attention) and the spectral filter's view: the
+    tiles differ from the whole image by under 12 % of what the network changes (measured 9.4 %
+    at 96 × 80 with 48 px tiles, 7.8 % at 512² with 320 px tiles; the trained quick networks:
+    benchmarks/bench_reconstruct.py)."""
+    torch.manual_seed(0)
+    shape = NetworkShape(width=4, depth=2, frequencies=2, position_scale=20.0) if size < 512 else NetworkShape()
+    net = ReconstructionNet(shape)
+    torch.nn.init.normal_(net.head.weight, std=0.05)
+    torch.nn.init.normal_(net.spectral.gain, std=0.01)
+    net.eval()
+    image = np.random.default_rng(1).uniform(0, 1, size=(3, size, size)).astype(np.float32)
     whole = Reconstructor(net)(image)
-    tiled = Reconstructor(net, memory_bytes=_budget_for(48, net), overlap=16)(image)
-    assert not np.array_equal(whole, image)
-    # tiles see the right positions; only CBAM's image-wide pooling differs: 48 px tiles of a 96 × 80
-    # image pool over a third of it (measured 31.3 dB; 32.4 dB for the trained quick network's 320 px tiles
-    # of 512², benchmarks/bench_reconstruct.py)
-    psnr = 10 * np.log10(1 / np.mean((whole - tiled) ** 2))
-    assert psnr > 28, psnr
+    recon = Reconstructor(net, memory_bytes=inference_bytes(shape, tile * tile), overlap=overlap)
+    assert recon.tile_side(size, size) == tile
+    tiled = recon(image)
+    change, difference = np.sqrt(np.mean((whole - image) ** 2)), np.sqrt(np.mean((whole - tiled) ** 2))
+    assert change > 0.1 and difference < 0.12 * change, (change, difference)
 
 
 def test_model_file_round_trip_and_refusals(tmp_path):
