@@ -6,8 +6,8 @@ why the default photometric match is least squares ("the fence that helps").
 
 1. The photographs of ``--images photos`` with their sources and licences
    (``metalens_cli.imaging.images.PHOTOGRAPHS``).
-2. ``metalens_cli.imaging.scene_statistics`` of the photographs, the dead-leaves charts and 16
-   of ``optimize``'s procedural training scenes, at 256².
+2. ``metalens_cli.imaging.scene_statistics`` of the photographs, the dead-leaves charts, 16
+   of ``optimize``'s procedural training scenes and 32 of ``reconstruct``'s natural ones, at 256².
 3. ``metalens evaluate hyperbolic:532nm`` (the paper's lens, f = 4 mm, aperture 2.516 mm) on the
    photographs and on the charts, dirt and fence, seeds 0..``--seeds``−1, under both photometric
    matches: Δ = obstructed − unobstructed and the fraction of units an obstruction improved,
@@ -34,6 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = 256
 SCENES = 16
+NATURAL_SCENES = 32  # their mean is noisier (tests/design/test_scenes.py)
 
 
 def statistics_rows() -> list[str]:
@@ -48,6 +49,10 @@ def statistics_rows() -> list[str]:
         "dead-leaves charts (24)": [image.linear for image in load_images("charts", (SIZE, SIZE))],
         f"procedural training scenes ({SCENES})": [
             procedural_scene((SIZE, SIZE), np.random.default_rng([0, k, 11])) for k in range(SCENES)
+        ],
+        f"natural training scenes ({NATURAL_SCENES})": [
+            procedural_scene((SIZE, SIZE), np.random.default_rng([0, k, 11]), structure=True)
+            for k in range(NATURAL_SCENES)
         ],
     }
     rows = ["| set | " + " | ".join(STATISTICS) + " |", "|---|" + "---|" * len(STATISTICS)]
@@ -207,9 +212,11 @@ def write(path: Path, pixels: int, seeds: int, ab: list[str] | None = None, ab_n
         "slope of linear luminance (4-64 cycles per width), the median linear luminance, the standard deviation of "
         "log10 luminance, the mean HSV saturation of the sRGB colours and the fraction of pixels whose sRGB "
         "luminance changes by more than 0.04 per pixel. `optimize` (without `optimize.images`) and "
-        '`reconstruct` (`data.scenes = "procedural"`) draw the procedural scenes; tests/design/test_scenes.py '
-        "requires each of their means within half a standard deviation of the photographs' (saturation: of the "
-        "colour photographs').",
+        '`reconstruct` (`data.scenes = "procedural"`) draw the procedural scenes; `reconstruct` with '
+        '`data.scenes = "natural"` (and half of `"mixed"`) draws them with text, tilings, flat surfaces and '
+        "smooth gradients added (`procedural_scene(..., structure=True)`). tests/design/test_scenes.py requires "
+        "each of their means within half a standard deviation of the photographs' (saturation: of the colour "
+        "photographs').",
         "",
     ]
     lines += statistics_rows()

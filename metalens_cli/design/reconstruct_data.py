@@ -132,9 +132,9 @@ def _scene(data, canvas: int, sensor: int, rng: np.random.Generator, photos: lis
 
     if photos:
         return random_crop(photos[rng.integers(len(photos))], (canvas, canvas), rng)
-    kind = data.scenes if data.scenes != "mixed" else ("procedural", "dead-leaves")[rng.integers(2)]
-    if kind == "procedural":
-        return procedural_scene((canvas, canvas), rng, (canvas - sensor) // 2)
+    kind = data.scenes if data.scenes != "mixed" else ("natural", "dead-leaves")[rng.integers(2)]
+    if kind in ("natural", "procedural"):
+        return procedural_scene((canvas, canvas), rng, (canvas - sensor) // 2, structure=kind == "natural")
     return dead_leaves((canvas, canvas), 1000 + int(rng.integers(2**31)), sensor_shape=(sensor, sensor))
 
 

@@ -25,7 +25,10 @@ from metalens_cli.errors import InputError
 from metalens_cli.io.presets import as_str, build_section, check_name, read_toml, toml_field, toml_key
 from metalens_cli.io.tables import check_wavelengths
 
-SCENES = ("mixed", "procedural", "dead-leaves")
+# generated training scenes (``design.reconstruct_data``): "natural" the procedural scenes with text, tilings, flat
+# surfaces and gradients (``procedural_scene(..., structure=True)``), "procedural" those without (the optimiser's),
+# "dead-leaves" charts (never the evaluation charts' seeds), "mixed" natural or dead-leaves, half each
+SCENES = ("mixed", "natural", "procedural", "dead-leaves")
 
 
 @dataclass(frozen=True)

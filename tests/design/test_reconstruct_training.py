@@ -54,6 +54,31 @@ def test_strata_midpoints():
     assert strata((1.0, math.inf), 2) == pytest.approx([1 / 0.75, 4.0])  # midpoints of 1/z in (0, 1]
 
 
+def test_generated_scenes_by_choice():
+    """``data.scenes``: "natural" and "procedural" are ``procedural_scene`` with and without
+    ``structure`` on the canvas (margin: half of canvas − sensor); "mixed" is natural or a
+    dead-leaves chart, as its first draw says."""
+    from metalens_cli.design.reconstruct_data import _scene
+    from metalens_cli.design.scenes import procedural_scene
+    from metalens_cli.imaging.dead_leaves import dead_leaves
+
+    data = load_reconstruct_preset(TINY).data
+    for choice, structure in (("natural", True), ("procedural", False)):
+        scene = _scene(dataclasses.replace(data, scenes=choice), 96, 32, np.random.default_rng(1), None)
+        np.testing.assert_array_equal(
+            scene, procedural_scene((96, 96), np.random.default_rng(1), 32, structure=structure)
+        )
+    for seed in range(4):
+        scene = _scene(dataclasses.replace(data, scenes="mixed"), 96, 32, np.random.default_rng(seed), None)
+        rng = np.random.default_rng(seed)
+        expected = (
+            procedural_scene((96, 96), rng, 32, structure=True)
+            if rng.integers(2) == 0
+            else dead_leaves((96, 96), 1000 + int(rng.integers(2**31)), sensor_shape=(32, 32))
+        )
+        np.testing.assert_array_equal(scene, expected)
+
+
 def test_batch_positions_follow_their_pixels_over_the_whole_sensor():
     s, crop, sensor = 24, 10, 64
     ys, xs = np.mgrid[0:s, 0:s].astype(np.float32)

@@ -1,11 +1,16 @@
 """Training scenes look like photographs by the numbers: their statistics against the photograph set."""
 
+import hashlib
+
+import cv2
 import numpy as np
 import pytest
 
-from metalens_cli.design.scenes import procedural_scene, training_scene
-from metalens_cli.imaging.images import PHOTOGRAPHS, load_images
+import metalens_cli.design.scenes as scenes_module
+from metalens_cli.design.scenes import GLYPH_PX, _alphabet, _glyph_rows, procedural_scene, training_scene
+from metalens_cli.imaging.images import PHOTOGRAPHS, load_images, luminance
 from metalens_cli.imaging.scene_statistics import STATISTICS, scene_statistics, spectrum_slope, summarise
+from metalens_cli.io.image_files import linear_to_srgb
 
 N = 256
 
@@ -15,16 +20,28 @@ def photographs():
     return {photo.name: image.linear for photo, image in zip(PHOTOGRAPHS, load_images("photos", (N, N)))}
 
 
-def test_procedural_scenes_match_the_photographs_statistics(photographs):
-    """Each statistic's mean over 16 scenes lies within half the photographs' spread (standard
+@pytest.fixture(scope="module")
+def scenes():
+    """16 procedural scenes (``structure=False``) and 32 natural ones (``structure=True``), N × N."""
+    return {
+        structure: [procedural_scene((N, N), np.random.default_rng([0, k, 11]), structure=structure) for k in range(n)]
+        for structure, n in ((False, 16), (True, 32))
+    }
+
+
+@pytest.mark.parametrize("structure", [False, True], ids=["procedural", "natural"])
+def test_procedural_scenes_match_the_photographs_statistics(photographs, scenes, structure):
+    """Each statistic's mean over the scenes lies within half the photographs' spread (standard
     deviation) of their mean; saturation against the colour photographs only (four are grey).
     The generator before issue 31 failed all five (median luminance 0.38 vs 0.17, edge
-    density 0.08 vs 0.33, log-luminance spread 0.15 vs 0.52, spectrum slope −2.9 vs −2.2, saturation 0.29 vs 0.50)."""
-    scenes = summarise(procedural_scene((N, N), np.random.default_rng([0, k, 11])) for k in range(16))
+    density 0.08 vs 0.33, log-luminance spread 0.15 vs 0.52, spectrum slope −2.9 vs −2.2, saturation 0.29 vs 0.50).
+    Natural scenes: 32, since a mean over 16 is noisy (median luminance: standard error ≈ 0.02
+    against a tolerance of ±0.043; the first 16 give 0.10, all 32 give 0.14, the photographs 0.17)."""
+    stats = summarise(scenes[structure])
     colour = [image for photo, image in zip(PHOTOGRAPHS, photographs.values()) if photo.colour]
     for name in STATISTICS:
         reference = summarise(colour if name == "saturation" else photographs.values())[name]
-        assert abs(scenes[name]["mean"] - reference["mean"]) <= 0.5 * reference["std"], (name, scenes[name], reference)
+        assert abs(stats[name]["mean"] - reference["mean"]) <= 0.5 * reference["std"], (name, stats[name], reference)
 
 
 def test_spectrum_slope_of_a_power_law_field():
@@ -59,3 +76,84 @@ def test_training_scenes_are_seeded():
     np.testing.assert_array_equal(a, training_scene((64, 64), 3, 10, 1))
     assert not np.array_equal(a, training_scene((64, 64), 3, 11, 1))
     assert a.dtype == np.float32 and a.shape == (3, 64, 64) and 0.002 <= a.min() and a.max() <= 1
+
+
+def test_procedural_scenes_unchanged():
+    """``structure=False`` (the optimiser's training scenes) draws exactly what it drew before
+    structured scenes existed: sha256 of the bytes, computed with that code."""
+    scene = procedural_scene((64, 64), np.random.default_rng(5), 8)
+    assert hashlib.sha256(scene.tobytes()).hexdigest() == (
+        "f55d46055145c2613ed76959a51542787e547f4b2f3e8124c6ebe26964b5c842"
+    )
+
+
+def flat_fraction(image: np.ndarray) -> float:
+    """The fraction of 8 × 8 blocks whose sRGB-encoded luminance varies by less than 0.01 (standard
+    deviation, ≈ 2.5 of 255 levels): flat surfaces, skies, smooth gradients."""
+    y = linear_to_srgb(luminance(image))
+    h, w = y.shape[0] // 8 * 8, y.shape[1] // 8 * 8
+    return float((y[:h, :w].reshape(h // 8, 8, w // 8, 8).std(axis=(1, 3)) < 0.01).mean())
+
+
+def test_natural_scenes_have_flat_regions(photographs, scenes):
+    """Flat blocks in natural scenes: within half the photographs' spread of their mean (measured:
+    0.18 vs 0.20 ± 0.22; procedural scenes 0.04, textured everywhere) and at least 3× the
+    procedural scenes' on the same seeds."""
+    reference = [flat_fraction(image) for image in photographs.values()]
+    procedural = np.mean([flat_fraction(image) for image in scenes[False]])
+    natural = np.mean([flat_fraction(image) for image in scenes[True][:16]])
+    assert abs(natural - np.mean(reference)) <= 0.5 * np.std(reference), (natural, reference)
+    assert natural >= 3 * procedural, (natural, procedural)
+
+
+def test_text_is_rows_of_glyph_strokes():
+    """Text blocks (r = 40 px: 200 px wide, up to 80 px tall, axis-aligned here) are sparse ink
+    (1-15 % of the block) in strokes (ink pixels a median 1 px from the paper: 1-2 px strokes),
+    forming at least 10 separate marks of a glyph's height (median ≤ glyph height + 2 px), on
+    several lines in most blocks (empty pixel rows between inked ones)."""
+    y, x = np.mgrid[-60:60, -120:120].astype(np.float32)
+    lines = []
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        ink, _, _, g = _glyph_rows(x, y, 40.0, _alphabet(rng), rng)
+        marks = (ink > 0.5).astype(np.uint8)
+        count, _, stats, _ = cv2.connectedComponentsWithStats(marks)
+        assert 0.01 <= ink.mean() <= 0.15 and GLYPH_PX[0] <= g <= GLYPH_PX[1]
+        assert np.median(cv2.distanceTransform(marks, cv2.DIST_L2, 5)[marks > 0]) <= 1
+        assert count - 1 >= 10 and np.median(stats[1:, 3]) <= g + 2, (seed, count, g)
+        rows = marks.any(axis=1)
+        lines.append(np.count_nonzero(rows[1:] & ~rows[:-1]) + rows[0])
+    assert np.mean(np.array(lines) >= 2) >= 0.5, lines
+
+
+def test_natural_scenes_draw_text_and_tilings(monkeypatch):
+    """Every natural scene holds text blocks and tilings (counted as drawn), also on a canvas
+    with a margin; procedural scenes hold none."""
+    drawn = []
+
+    def counted(name):
+        function = getattr(scenes_module, name)
+
+        def wrapper(*args):
+            drawn.append(name)
+            return function(*args)
+
+        return wrapper
+
+    for name in ("_text", "_tiling"):
+        monkeypatch.setattr(scenes_module, name, counted(name))
+    for seed in range(4):
+        for structure, margin in ((True, 0), (True, 100), (False, 0)):
+            drawn.clear()
+            procedural_scene((128 + 2 * margin,) * 2, np.random.default_rng([seed, 1]), margin, structure=structure)
+            assert (min(drawn.count("_text"), drawn.count("_tiling")) >= 1) == structure, (seed, margin, drawn)
+
+
+def test_natural_scenes_are_seeded():
+    """Same generator state, same natural scene, also on a canvas with a margin; float32 (3, H, W) in 0.002..1,
+    unlike the procedural scene of the same state."""
+    for shape, margin in (((64, 80), 0), ((96, 96), 16)):
+        a = procedural_scene(shape, np.random.default_rng(7), margin, structure=True)
+        np.testing.assert_array_equal(a, procedural_scene(shape, np.random.default_rng(7), margin, structure=True))
+        assert a.dtype == np.float32 and a.shape == (3, *shape) and 0.002 <= a.min() and a.max() <= 1
+        assert not np.array_equal(a, procedural_scene(shape, np.random.default_rng(7), margin))
