@@ -23,7 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def child(run: str | None, size: int, threads: int, repeats: int, device: str, tiles: bool) -> dict:
+def child(run: str | None, size: int, threads: int, repeats: int, device: str, tiles: bool, compile: bool) -> dict:
     import resource
     import statistics
 
@@ -36,7 +36,7 @@ def child(run: str | None, size: int, threads: int, repeats: int, device: str, t
 
     torch.set_num_threads(threads)
     if run:
-        recon = load_reconstructor(run, device)
+        recon = load_reconstructor(run, device, compile=compile)
     else:
         n = load_reconstruct_preset(ROOT / "presets" / "quick-reconstruct.toml").network
         torch.manual_seed(0)
@@ -45,6 +45,7 @@ def child(run: str | None, size: int, threads: int, repeats: int, device: str, t
             .eval()
             .to(device),
             device=torch.device(device),
+            compile=compile,
         )
     image = np.random.default_rng(0).uniform(0, 1, size=(3, size, size)).astype(np.float32)
     if tiles:
@@ -53,7 +54,7 @@ def child(run: str | None, size: int, threads: int, repeats: int, device: str, t
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats()
     out = None
-    for _ in range(2):
+    for _ in range(2):  # with torch.compile, the first call compiles
         out = recon(image)
     times = []
     for _ in range(repeats):
@@ -97,8 +98,13 @@ def main() -> None:
         print(json.dumps(child(*json.loads(args.child))))
         return
     results = {}
-    for label, tiles in (("whole image", False), ("4 tiles (forced)", True)):
-        spec = json.dumps([args.run, 512, args.threads, args.repeats, args.device, tiles])
+    configurations = (
+        ("whole image", False, False),
+        ("whole image, torch.compile", False, True),
+        ("4 tiles (forced)", True, False),
+    )
+    for label, tiles, compile in configurations:
+        spec = json.dumps([args.run, 512, args.threads, args.repeats, args.device, tiles, compile])
         done = subprocess.run(
             [sys.executable, __file__, "--child", spec], stdout=subprocess.PIPE, text=True, check=True
         )

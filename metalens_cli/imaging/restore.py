@@ -53,7 +53,9 @@ def inference_bytes(shape: NetworkShape, pixels: int) -> int:
 
 @dataclass
 class Reconstructor:
-    """A trained network on a device, applied to linear (3, H, W) images."""
+    """A trained network on a device, applied to linear (3, H, W) images. ``compile``: run it
+    through ``torch.compile`` (inductor fuses the elementwise work: about 0.8× the time per 512²
+    image on 2 CPU cores, after a first call of ~30 s, and again for each new image or tile size)."""
 
     net: ReconstructionNet
     design: dict = field(default_factory=dict)
@@ -61,9 +63,11 @@ class Reconstructor:
     memory_bytes: int = DEFAULT_MEMORY_BYTES
     overlap: int = DEFAULT_OVERLAP
     source: str = ""
+    compile: bool = False
 
     def __post_init__(self):
         self.net = self.net.to(memory_format=torch.channels_last)  # oneDNN's fast layout: 512² in 0.29 s, not 0.36 s
+        self._forward = torch.compile(self.net) if self.compile else self.net
 
     @property
     def shape(self) -> NetworkShape:
@@ -86,7 +90,8 @@ class Reconstructor:
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
         """The reconstruction (3, H, W) float32 of a linear (3, H, W) capture."""
-        x = torch.as_tensor(np.asarray(image, dtype=np.float32), device=self.device)
+        # contiguous: the mean (a reduction) must not depend on the layout the image came in
+        x = torch.as_tensor(np.ascontiguousarray(image, dtype=np.float32), device=self.device)
         with torch.inference_mode():
             return self._apply(x).contiguous().cpu().numpy()
 
@@ -96,14 +101,14 @@ class Reconstructor:
         scale = self.shape.position_scale
         mean = capture_mean(x[None])
         if side is None:
-            return self.net(_fast(x[None]), pixel_positions(h, w, scale=scale, device=x.device)[None], mean)[0]
+            return self._forward(_fast(x[None]), pixel_positions(h, w, scale=scale, device=x.device)[None], mean)[0]
         total = torch.zeros_like(x)
         weight = torch.zeros((1, h, w), dtype=x.dtype, device=x.device)
         for top in _starts(h, side, self.overlap):
             for left in _starts(w, side, self.overlap):
                 th, tw = min(side, h - top), min(side, w - left)
                 positions = pixel_positions(th, tw, top=top, left=left, full=(h, w), scale=scale, device=x.device)
-                tile = self.net(_fast(x[None, :, top : top + th, left : left + tw]), positions[None], mean)[0]
+                tile = self._forward(_fast(x[None, :, top : top + th, left : left + tw]), positions[None], mean)[0]
                 ramp = _ramp(th, top, h, self.overlap, x)[:, None] * _ramp(tw, left, w, self.overlap, x)[None, :]
                 total[:, top : top + th, left : left + tw] += tile * ramp
                 weight[:, top : top + th, left : left + tw] += ramp
@@ -159,7 +164,12 @@ def save_model(path: str | Path, net: ReconstructionNet, design: dict, extra: di
 
 
 def load_reconstructor(
-    run: str | Path, device="cpu", memory_bytes: int = DEFAULT_MEMORY_BYTES, field_name: str = "RUN"
+    run: str | Path,
+    device="cpu",
+    memory_bytes: int = DEFAULT_MEMORY_BYTES,
+    field_name: str = "RUN",
+    *,
+    compile: bool = False,
 ) -> Reconstructor:
     """The network of a reconstruction run directory (or its model.pt) on ``device``. A file that
     is not a readable ``MODEL_FORMAT`` dict whose shape, finite weights, positive finite position
@@ -204,7 +214,9 @@ def load_reconstructor(
     if not (0 < scale < math.inf and all(value.isfinite().all() for value in net.state_dict().values())):
         raise InputError(field_name, f"{str(path)!r} holds NaN or infinite weights or position scale", expected)
     net.eval().to(device)
-    return Reconstructor(net, state.get("design", {}), torch.device(device), memory_bytes, source=str(run))
+    return Reconstructor(
+        net, state.get("design", {}), torch.device(device), memory_bytes, source=str(run), compile=compile
+    )
 
 
 def _metadata_problem(state: dict) -> str | None:
