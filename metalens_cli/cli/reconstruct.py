@@ -224,7 +224,7 @@ def _inputs(paths) -> list[Path]:
     "--compile",
     "compile_net",
     is_flag=True,
-    help="torch.compile the network: ~30 s more for the first image (and each new size), then ~0.8× the time "
+    help="torch.compile the network: ~30 s more for the first image (and each new size), then 0.7-0.85× the time "
     "per image; for many captures.",
 )
 @click.option("--quiet", is_flag=True, help="No progress bar.")

@@ -75,6 +75,8 @@ class NetworkShape:
         for name, (value, least) in counts.items():
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
                 raise ValueError(f"{name} {value!r} is not an integer ≥ {least}")
+        if self.spectral_bins == 1:
+            raise ValueError("spectral_bins 1 leaves the filter only its fixed DC knot: 0 (no filter) or ≥ 2")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -137,6 +137,10 @@ def reconstruct_preset_from_dict(data: dict, name: str = "reconstruct", source: 
             f"{preset.data.pool_pixels} px exceeds data.sensor_pixels {preset.data.sensor_pixels}",
             "simulated captures no larger than the sensor",
         )
+    if preset.network.spectral_bins == 1:
+        raise InputError(
+            "network.spectral_bins", "1 leaves the filter only its fixed DC knot", "0 (no filter) or at least 2"
+        )
     if preset.train.crop > preset.data.pool_pixels:
         raise InputError(
             "train.crop",

@@ -217,7 +217,7 @@ def test_symmetry_validate_needs_aperture(capsys):
 def test_preset_show_reads_reconstruction_presets(capsys):
     code, out, err = invoke(capsys, "preset", "show", PRESETS / "quick-reconstruct.toml", "--json")
     data = json.loads(out)
-    assert code == 0 and err == "" and set(data) >= {"network", "train", "data"} and data["train"]["steps"] == 1200
+    assert code == 0 and err == "" and set(data) >= {"network", "train", "data"} and data["train"]["steps"] == 2000
 
 
 def test_help_names_the_environment_variables(capsys):

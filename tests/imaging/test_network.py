@@ -149,6 +149,16 @@ def test_window_positions_are_the_full_images_positions():
     assert torch.allclose(full.mean(dim=(1, 2)), torch.zeros(2), atol=1e-6)  # centred on the image
 
 
+def test_a_crops_encodings_are_the_full_frames_at_its_pixels():
+    """A 128² training crop placed on the 512² sensor sees the encodings the whole capture has there."""
+    capture = torch.rand(1, 3, 512, 512)
+    full = context_planes(capture, pixel_positions(512, 512, scale=256.0)[None], 4)
+    top, left = 301, 17
+    crop_positions = pixel_positions(128, 128, top=top, left=left, full=(512, 512), scale=256.0)[None]
+    crop = context_planes(capture[..., top : top + 128, left : left + 128], crop_positions, 4)
+    torch.testing.assert_close(crop, full[..., top : top + 128, left : left + 128], rtol=0, atol=0)
+
+
 def test_cbam_only_attenuates():
     torch.manual_seed(1)
     cbam = Cbam(8, reduction=2)

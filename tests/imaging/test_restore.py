@@ -85,6 +85,22 @@ def test_model_file_round_trip_and_refusals(tmp_path):
     torch.save({"something": 1}, tmp_path / "other.pt")
     with pytest.raises(InputError, match="not a metalens reconstruction model"):
         load_reconstructor(tmp_path / "other.pt")
+    older = torch.load(tmp_path / "model.pt", weights_only=True)
+    older["format"] = "metalens-reconstruct/1"  # a network from before the grey-wall invariant
+    torch.save(older, tmp_path / "older.pt")
+    with pytest.raises(InputError, match="metalens-reconstruct/1 model") as error:
+        load_reconstructor(tmp_path / "older.pt")
+    assert "train the network again" in error.value.expected
+
+
+@pytest.mark.slow
+def test_compiled_network_agrees_with_eager(tmp_path):
+    """``torch.compile`` (apply --compile) fuses the elementwise work; the result is the eager one to rounding."""
+    net = _net()
+    image = np.random.default_rng(3).uniform(0, 1, size=(3, 40, 56)).astype(np.float32)
+    eager = Reconstructor(net)(image)
+    compiled = Reconstructor(net, compile=True)(image)
+    np.testing.assert_allclose(compiled, eager, rtol=0, atol=1e-5)
 
 
 def test_fingerprint_names_the_lens_not_the_spec():

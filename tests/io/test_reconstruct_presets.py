@@ -31,6 +31,7 @@ def test_shipped_presets_load_and_round_trip(name, tmp_path):
         ({"train": {"steps": 1, "crop": 512}, "data": {"pool_pixels": 256}}, "train.crop"),
         ({"train": {"steps": 1}, "data": {"pool_pixels": 600}}, "data.pool_pixels"),  # beyond the 512² sensor
         ({"train": {"steps": 1}, "data": {"sensor_pixels": 8}}, "data.sensor_pixels"),
+        ({"train": {"steps": 1}, "network": {"spectral_bins": 1}}, "network.spectral_bins"),
         ({"train": {"steps": 1, "lr": 1}}, "train.lr"),
         ({"train": {"steps": -1}}, "train.steps"),
         ({"train": {"steps": 1}, "data": {"obstructions": ["mud"]}}, "data.obstructions"),
