@@ -826,6 +826,10 @@ def write(path: Path, reports, recon_reports, walls, tables, clear, energies, ba
         for n in DESIGNS
     ]
     lines += [
+        f"metalens reconstruct train runs/{DESIGNS[0]} --preset runs/quick-reconstruct-clear.toml -o runs/{CLEAR}"
+        "  # quick-reconstruct.toml with clear_fraction = 1.0"
+    ]
+    lines += [
         f"metalens evaluate runs/quick-split-spectrum runs/quick-broadband runs/hyperbolic-532 --images {images} "
         f"--obstruction {OBSTRUCTIONS} --pixels {pixels} --seed 0:{seeds - 1}"
         + (
@@ -835,6 +839,10 @@ def write(path: Path, reports, recon_reports, walls, tables, clear, energies, ba
         )
         + " --json"
         for (images, pixels), report in tables.items()
+    ]
+    lines += [
+        f"metalens evaluate runs/{DESIGNS[0]} --images photos --obstruction {OBSTRUCTIONS} --pixels 128 "
+        f"--seed 0:{seeds - 1} --recon runs/{CLEAR} --json"
     ]
     lines += [
         f"metalens evaluate runs/{MEDIUM} runs/{DESIGNS[0]} --images photos --obstruction {OBSTRUCTIONS} --pixels 512 "
