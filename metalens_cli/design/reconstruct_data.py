@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +64,16 @@ class Pool:
     seconds: float = 0.0
     offsets: np.ndarray | None = None
     sensor: int | None = None
+
+    @cached_property
+    def obstructed_means(self) -> np.ndarray:
+        """(P, 3) mean of each obstructed capture per channel (float64 sums)."""
+        return self.obstructed.mean(axis=(2, 3), dtype=np.float64).astype(np.float32)
+
+    @cached_property
+    def unobstructed_means(self) -> np.ndarray:
+        """(P, 3) mean of each unobstructed capture per channel (float64 sums)."""
+        return self.unobstructed.mean(axis=(2, 3), dtype=np.float64).astype(np.float32)
 
     def __post_init__(self):
         if self.sensor is None:
@@ -303,7 +314,8 @@ def batch(pool: Pool, data, crop: int, seed: int, step: int, indices: list[int],
     for index in indices:
         rng = np.random.default_rng([seed, step, index, 37])
         p = int(rng.integers(len(pool)))
-        source = pool.unobstructed if rng.random() < data.clear_fraction else pool.obstructed
+        clear = rng.random() < data.clear_fraction
+        source = pool.unobstructed if clear else pool.obstructed
         top, left = int(rng.integers(s - crop + 1)), int(rng.integers(s - crop + 1))
         window = (slice(None), slice(top, top + crop), slice(left, left + crop))
         x = torch.from_numpy(np.ascontiguousarray(source[p][window]))
@@ -317,7 +329,7 @@ def batch(pool: Pool, data, crop: int, seed: int, step: int, indices: list[int],
         mean = x.mean()
         # gain·((x − μ)·contrast + μ), written so that gain = contrast = 1 leaves x bit for bit
         x = (gain * contrast) * x + (gain * (1 - contrast)) * mean
-        whole = torch.from_numpy(source[p].mean(axis=(1, 2), dtype=np.float64).astype(np.float32))[:, None, None]
+        whole = torch.from_numpy((pool.unobstructed_means if clear else pool.obstructed_means)[p])[:, None, None]
         means.append((gain * contrast) * whole + (gain * (1 - contrast)) * mean)
         if data.noise_sigma:
             noise = torch.randn(x.shape, generator=torch.Generator().manual_seed(int(rng.integers(2**62))))
