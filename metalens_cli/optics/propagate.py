@@ -119,6 +119,43 @@ def asm_transfer(
     return mirror_quadrant(quadrant), k_max
 
 
+def asm_transfer_shifted(
+    grid: AsmGrid,
+    wavelength_m: float,
+    distance_m: float,
+    k_max: int,
+    carrier: tuple[float, float],
+    centre_m: tuple[float, float],
+    dtype: torch.dtype = torch.complex64,
+    device: str | torch.device = "cpu",
+):
+    """Transfer function of the shifted angular spectrum for a field g = U·exp(−i·2π(u0·x + v0·y))
+    whose carrier (u0, v0) = ``carrier`` (cycles/m) was taken out, onto the window centred at
+    ``centre_m`` = (xc, yc) (m) instead of the axis (Matsushima 2010, shifted-window form).
+
+    Returns (H, K): H[a, b] = exp(i·2π·d·w)·exp(i·2π·(u_b·xc + v_a·yc)), w = √(1/λ² − (u_b + u0)² −
+    (v_a + v0)²), at u_b = (b − K)/S, v_a = (a − K)/S (rows v, columns u, as ``_asm_apply`` lays out
+    the band): |U|² on the window is then |g propagated|², and window sample i sits at xc + its
+    on-axis position. Kept where the wave propagates and its lateral travel d·(u + u0)/w lies within
+    S/2 of xc (and likewise in y), the band limit of the recentred kernel: its sampling in
+    frequency then resolves it, and rays from the pupil to the window all pass (the grid's side S
+    is at least 2a + W). Built in float64.
+    """
+    u0, v0 = carrier
+    xc, yc = centre_m
+    f = torch.arange(-k_max, k_max + 1, dtype=torch.float64, device=device) / grid.extent_m
+    u, v = (f + u0)[None, :], (f + v0)[:, None]
+    arg = 1.0 / wavelength_m**2 - u**2 - v**2
+    w = torch.sqrt(arg.clamp(min=0))
+    half = grid.extent_m / 2
+    with torch.no_grad():
+        travel = distance_m / w.clamp(min=1e-300)
+        keep = (arg > 0) & ((travel * u - xc).abs() <= half) & ((travel * v - yc).abs() <= half)
+    phase = 2 * math.pi * (distance_m * w + f[None, :] * xc + f[:, None] * yc)
+    real_dtype = torch.float32 if dtype == torch.complex64 else torch.float64
+    return torch.polar(keep.to(real_dtype), torch.remainder(phase, 2 * math.pi).to(real_dtype)), k_max
+
+
 def mirror_quadrant(q: torch.Tensor) -> torch.Tensor:
     """Full (2n−1)² array, even in both axes, from its quadrant q[..., i, j] at offsets i, j ≥ 0."""
     q = torch.cat([q.flip(-1)[..., :-1], q], dim=-1)

@@ -1,0 +1,269 @@
+"""Sensor PSFs of off-axis sources: the field of view of a metalens.
+
+A field point (α, ψ) sends light that reaches the lens centre travelling at angle α from the axis,
+azimuth ψ counter-clockwise from the sensor's +x axis (``optics.source``). Its PSF is returned in an
+N × N window of sensor pixels centred on the pixel where the chief ray lands (``centre_px``, integer
+offsets (column, row) from the axis pixel): window pixel (i, j) is the sensor pixel centred at
+x = (j − N//2 + column)·p, y = (i − N//2 + row)·p. Values as in ``optics.psf``: the fraction of the
+power through the pupil landing on each pixel.
+
+The chief ray passes the lens centre; it leaves in the direction of the incoming light bent by the
+lens's own phase gradient there, s = sin α·(cos ψ, sin ψ) + (λ/2π)·∇φ(0), and lands at d·s/√(1 − |s|²)
+(d·tan α for a lens whose phase is flat at its centre, as every radial one).
+
+Method: off axis even a radial lens has only a mirror symmetry, so the pupil field is built on the
+whole meta-atom grid (radial lenses: one quadrant of the lens phase, mirrored), its carrier (the
+linear phase of the tilt) taken out, and propagated with the shifted band-limited angular spectrum
+onto the window around the chief ray (``propagate.asm_transfer_shifted``): the FFT grid is the
+on-axis one measured from the chief ray (``sampling.plan_field_asm``), so the cost barely grows with
+α. α = 0 is the on-axis PSF (``optics.psf.compute_psf``, bit for bit). ``propagator="rs"`` is the
+slow reference: the direct Rayleigh-Sommerfeld sum over the same sites of the full tilted field
+(carrier included), sharing none of the above but the pupil's sites.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from metalens_cli.errors import InputError, SamplingError
+from metalens_cli.optics import propagate as prop
+from metalens_cli.optics import sampling
+from metalens_cli.optics.lens import Metalens
+from metalens_cli.optics.psf import compute_psf, validate_psf_arguments
+from metalens_cli.optics.sensor import grid_pixel_matrix
+from metalens_cli.optics.source import (
+    field_direction,
+    tilted_source_amplitude,
+    tilted_source_phase,
+    tilted_source_residual,
+)
+
+FIELD_PROPAGATORS = ("asm", "rs")
+MAX_FIELD_ANGLE = math.radians(60.0)
+
+
+@dataclass
+class FieldPsf:
+    """PSFs (depths, wavelengths, N, N) of one field point, their window and the chief rays.
+
+    ``chief_ray_m``: (x, y) where the chief ray lands at the middle wavelength (m); ``chief_rays_m``:
+    one per wavelength (a 2-D lens with a phase gradient at its centre bends them differently);
+    ``centre_px``: (column, row) of the window's centre pixel from the axis pixel."""
+
+    psf: torch.Tensor
+    wavelengths_m: tuple[float, ...]
+    depths_m: tuple[float, ...]
+    pixel_pitch_m: float
+    distance_m: float
+    angle_rad: float
+    azimuth_rad: float
+    chief_ray_m: tuple[float, float]
+    chief_rays_m: tuple[tuple[float, float], ...]
+    centre_px: tuple[int, int]
+    propagator: str
+    grid: dict = field(default_factory=dict)
+    timing_s: dict = field(default_factory=dict)
+
+
+def field_angle(height_m: float, distance_m: float) -> float:
+    """Field angle (rad) whose chief ray lands at ``height_m`` from the axis on a sensor at
+    ``distance_m``, for a lens with a flat phase at its centre: atan(h/d)."""
+    return math.atan2(height_m, distance_m)
+
+
+def centre_gradient(lens: Metalens) -> tuple[float, float]:
+    """∇φ at the lens centre (rad/m), (∂x, ∂y): 0 for a radial lens; central differences of the
+    2-D map's phase 2θ (wrapped to (−π, π]) about the centre site (rows y, columns x)."""
+    if lens.radial:
+        return 0.0, 0.0
+    theta = lens.theta.detach().double().cpu().numpy()
+    c = theta.shape[0] // 2
+
+    def wrapped(step: float) -> float:
+        return float(np.remainder(2 * step + math.pi, 2 * math.pi) - math.pi)
+
+    return (
+        wrapped(theta[c, c + 1] - theta[c, c - 1]) / (2 * lens.pitch_m),
+        wrapped(theta[c + 1, c] - theta[c - 1, c]) / (2 * lens.pitch_m),
+    )
+
+
+def chief_ray(
+    lens: Metalens, wavelength_m: float, angle_rad: float, azimuth_rad: float, distance_m: float
+) -> tuple[float, float]:
+    """Where the ray through the lens centre lands on the sensor (m), from the lens's phase gradient
+    there (module docstring)."""
+    ux, uy = field_direction(angle_rad, azimuth_rad)
+    gx, gy = centre_gradient(lens)
+    sx, sy = ux + wavelength_m * gx / (2 * math.pi), uy + wavelength_m * gy / (2 * math.pi)
+    cos = math.sqrt(max(1 - sx**2 - sy**2, 1e-12))
+    return distance_m * sx / cos, distance_m * sy / cos
+
+
+def field_psf(
+    lens: Metalens,
+    wavelengths_m,
+    depths_m,
+    pixels: int,
+    pixel_pitch_m: float,
+    angle_rad: float,
+    *,
+    azimuth_rad: float = 0.0,
+    distance_m: float | None = None,
+    propagator: str = "asm",
+    dtype: torch.dtype = torch.float32,
+    device: str | torch.device = "cpu",
+    force: bool = False,
+    oversample: float = 1.0,
+) -> FieldPsf:
+    """PSFs of the field point (α = ``angle_rad``, ψ = ``azimuth_rad``) for every (depth,
+    wavelength), in an N = ``pixels`` window centred on the chief ray (module docstring).
+
+    propagator: "asm" (shifted angular spectrum) or "rs" (direct Rayleigh-Sommerfeld, float64,
+    small lenses and windows only). α = 0 returns ``compute_psf`` (radial path for a radial lens).
+    """
+    start = time.perf_counter()
+    lams = [float(x) for x in np.ravel(wavelengths_m)]
+    zs = [float(x) for x in np.ravel(depths_m)]
+    d = distance_m if distance_m is not None else lens.focal_length_m
+    validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, "auto", dtype, oversample)
+    if propagator not in FIELD_PROPAGATORS:
+        raise InputError("propagator", f"unknown off-axis propagator {propagator!r}", "|".join(FIELD_PROPAGATORS))
+    if not (math.isfinite(angle_rad) and 0 <= angle_rad <= MAX_FIELD_ANGLE):
+        raise InputError("field angle", f"{angle_rad!r} rad", f"an angle from 0 to {math.degrees(MAX_FIELD_ANGLE):g}°")
+    if not math.isfinite(azimuth_rad):
+        raise InputError("azimuth", f"{azimuth_rad!r} rad", "a finite angle")
+    rays = tuple(chief_ray(lens, lam, angle_rad, azimuth_rad, d) for lam in lams)
+    middle = rays[len(rays) // 2]
+    centre = (round(middle[0] / pixel_pitch_m), round(middle[1] / pixel_pitch_m))
+    common = (tuple(lams), tuple(zs), pixel_pitch_m, d, angle_rad, azimuth_rad, middle, rays, centre)
+    if angle_rad == 0 and centre == (0, 0) and propagator == "asm":
+        axis = compute_psf(
+            lens, lams, zs, pixels, pixel_pitch_m, distance_m=d, dtype=dtype, device=device, force=force,
+            oversample=oversample,
+        )  # fmt: skip
+        return FieldPsf(axis.psf, *common, axis.propagator, axis.grid, dict(axis.timing_s))
+    f_g = _carrier_free_frequency(lens, lams, zs, angle_rad, azimuth_rad, force)
+    run = _field_asm if propagator == "asm" else _field_rs
+    psf, grid, timing = run(lens, lams, zs, d, pixels, pixel_pitch_m, angle_rad, azimuth_rad, centre, f_g, dtype,
+                            torch.device(device), oversample)  # fmt: skip
+    timing["total"] = time.perf_counter() - start
+    return FieldPsf(psf, *common, propagator, grid, timing)
+
+
+def _carrier_free_frequency(lens, lams, zs, angle, azimuth, force) -> float:
+    """Largest local frequency (cycles/m) of the pupil field without its carrier: the lens phase's
+    (``sampling.lens_frequency``) plus the source residual's, whose gradient is largest at the rim
+    (evaluated there on 720 points); refused past the meta-atom grid's Nyquist like on axis."""
+    f_lens, _ = sampling.lens_frequency(lens)
+    phi = torch.linspace(0, 2 * math.pi, 721, dtype=torch.float64)[:-1]
+    x, y = lens.radius_m * torch.cos(phi), lens.radius_m * torch.sin(phi)
+    f_source = 0.0
+    for z in zs:
+        if math.isinf(z):
+            continue
+        t, r0 = z * math.tan(angle), z / math.cos(angle)
+        bx, by = t * math.cos(azimuth), t * math.sin(azimuth)
+        r = torch.sqrt((x + bx) ** 2 + (y + by) ** 2 + z**2)
+        gx, gy = (x + bx) / r - bx / r0, (y + by) / r - by / r0
+        f_source = max(f_source, float(torch.hypot(gx, gy).max()) / min(lams))
+    f_max = f_lens + f_source
+    nyquist = 1 / (2 * lens.pitch_m)
+    if f_max > nyquist and not force:
+        raise SamplingError(
+            "pitch",
+            f"off axis the field leaving the lens reaches {f_max * 1e-3:.4g} cycles/mm without its tilt, but the "
+            f"meta-atom pitch {lens.pitch_m:g} m resolves only {nyquist * 1e-3:.4g} cycles/mm",
+            "a finer pitch, a shallower lens phase or a more distant source",
+            forceable=True,
+        )
+    return 2.0 ** (math.ceil(16 * math.log2(max(f_max, 1.0))) / 16)
+
+
+def _site_grid(lens: Metalens, device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Lens phase (float64, rad) on the whole M × M site grid and the sites' x (columns), y (rows) (m)."""
+    if lens.radial:
+        quadrant, _ = lens.grid_phase(torch.float64, quadrant=True)
+        phase = prop.mirror_quadrant(quadrant)
+    else:
+        phase, _ = lens.grid_phase(torch.float64)
+    m = phase.shape[0]
+    c = (torch.arange(m, dtype=torch.float64) - m // 2) * lens.pitch_m
+    return phase.to(device), c[None, :].to(device), c[:, None].to(device)
+
+
+def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dtype, device, oversample):
+    clock, timing = time.perf_counter(), {}
+    phase_lens, x, y = _site_grid(lens, device)
+    pupil = torch.hypot(x, y) <= lens.radius_m
+    centre_m = (centre[0] * pitch, centre[1] * pitch)
+    complex_dtype = torch.complex64 if dtype == torch.float32 else torch.complex128
+    sin_a = math.sin(angle)
+    grids = {lam: sampling.plan_field_asm(lens, lam, d, pixels, pitch, f_g, sin_a, oversample) for lam in lams}
+    grid = grids[lams[0]][0]
+    mat = torch.from_numpy(grid_pixel_matrix(grid.window_coords().numpy(), pixels, pitch)).to(device, dtype)
+    timing["kernels"] = time.perf_counter() - clock
+    out = torch.empty(len(zs), len(lams), pixels, pixels, dtype=dtype, device=device)
+    for j, lam in enumerate(lams):
+        clock = time.perf_counter()
+        g, k_max = grids[lam]
+        carrier = tuple(c / lam for c in field_direction(angle, azimuth))
+        transfer = prop.asm_transfer_shifted(g, lam, d, k_max, carrier, centre_m, complex_dtype, device)
+        timing["kernels"] += time.perf_counter() - clock
+        clock = time.perf_counter()
+        for i, z in enumerate(zs):
+            residual = tilted_source_residual(x, y, lam, z, angle, azimuth)
+            amplitude = tilted_source_amplitude(x, y, z, angle, azimuth) * pupil
+            phase = torch.remainder(phase_lens + residual, 2 * math.pi)
+            field_g = torch.polar(amplitude.to(dtype), phase.to(dtype))
+            power = field_g.abs().pow(2).sum() * lens.pitch_m**2
+            window = prop.asm_propagate(field_g, g, lambda t=transfer: t)
+            out[i, j] = mat @ window.abs().pow(2) @ mat.T / power
+        timing["propagate"] = timing.get("propagate", 0.0) + time.perf_counter() - clock
+    info = {
+        "kind": "asm-shifted",
+        "fft_size": max(g.size for g, _ in grids.values()),
+        "band_halfwidth": max(k for _, k in grids.values()),
+        "pitch_m": grid.pitch_m,
+        "window_samples": grid.window_samples,
+        "window_step_m": grid.pitch_m / grid.upsample,
+        "carrier_free_frequency_per_m": f_g,
+    }
+    return out, info, timing
+
+
+def _field_rs(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dtype, device, oversample):
+    """Midpoint rule over the sites in the pupil (the field is one value per site), output on a grid
+    of step 1/(8·ν) around the window centre, ν the full field's highest frequency (tilt included),
+    pixel-integrated."""
+    clock, timing = time.perf_counter(), {}
+    phase_lens, x, y = _site_grid(lens, device)
+    xx, yy = torch.broadcast_tensors(x, y)
+    inside = torch.hypot(xx, yy) <= lens.radius_m
+    xs, ys, phase_lens = xx[inside], yy[inside], phase_lens[inside]
+    nodes = torch.stack([xs, ys], 1)
+    nu = max(sampling.sin_limit(f_g, [lam], 2 * oversample) / lam + math.sin(angle) / lam for lam in lams)
+    h = 1 / (8 * nu * oversample)  # finer than the asm window: the reference shares not its interpolation error
+    half = math.ceil((pixels // 2 + 0.5) * pitch / h) + 3
+    g = torch.arange(-half, half + 1, dtype=torch.float64) * h
+    gy, gx = torch.meshgrid(g, g, indexing="ij")
+    out_xy = torch.stack([gx.reshape(-1) + centre[0] * pitch, gy.reshape(-1) + centre[1] * pitch], 1).to(device)
+    mat = torch.from_numpy(grid_pixel_matrix(g.numpy(), pixels, pitch)).to(device)
+    timing["kernels"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    out = []
+    for z in zs:
+        for lam in lams:
+            phase = phase_lens + tilted_source_phase(xs, ys, lam, z, angle, azimuth)
+            u = torch.polar(tilted_source_amplitude(xs, ys, z, angle, azimuth), torch.remainder(phase, 2 * math.pi))
+            power = (u.abs() ** 2).sum() * lens.pitch_m**2
+            field_out = prop.rayleigh_sommerfeld(nodes, u * lens.pitch_m**2, lam, d, out_xy)
+            out.append(mat @ field_out.abs().pow(2).reshape(g.numel(), g.numel()) @ mat.T / power)
+    timing["propagate"] = time.perf_counter() - clock
+    grid = {"kind": "rs-grid", "sites": int(nodes.shape[0]), "output_step_m": h, "window_samples": g.numel()}
+    return torch.stack(out).reshape(len(zs), len(lams), pixels, pixels).to(dtype), grid, timing
