@@ -32,10 +32,21 @@ MTF (times the pixel MTF unless removed), ring-averaged on the same grid.
 
 Speed: ``scipy.fft.rfft2`` (float32 in, complex64 out, all cores; numpy.fft is ~4× slower here)
 and one precomputed sparse ring operator: 88 PSFs of 512² in ~0.5 s on 2 cores.
+
+Over the field (a field cube, ``io.exr``). For a field at azimuth ψ (counter-clockwise from the
+sensor's +x axis; x = column, y = row) the tangential (meridional) MTF is |OTF| along ν·(cos ψ,
+sin ψ), the radial direction of the sensor through the chief ray, and the sagittal MTF along
+ν·(−sin ψ, cos ψ), at ν = k·Δν, k = 0 … N//2: the radial curves' axis. Each point is the 2-D DFT
+of the PSF evaluated exactly there (:func:`line_mtf`: two matrix products, no interpolation of
+the FFT grid); along an axis of the pixel grid this is the DFT of the line spread function (for
+ψ = 0, tangential: the PSF summed over rows; sagittal: over columns). The pixel aperture is
+handled as in the radial curves (divided out, sample by sample, with ``remove_pixel_mtf``); the
+radial curves of a field cube are those of field 0.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,6 +56,8 @@ from metalens_cli.errors import InputError
 RGB_NAMES = ("R", "G", "B")
 MTF50_LEVEL = 0.5
 PER_MM = 1e-3  # cycles per metre → line pairs per mm
+DIRECTIONS = ("tangential", "sagittal")
+LINE_DFT_CHUNK = 2**23  # line_mtf's intermediate products hold at most this many values per step
 
 
 @dataclass(frozen=True)
@@ -142,6 +155,13 @@ def psf_mtf(psf: np.ndarray, grid: RadialGrid, *, remove_pixel_mtf: bool = False
         raise InputError(field, f"PSFs of shape {psf.shape[-2:]}", f"{grid.n} × {grid.n} pixels")
     otf = fft.rfft2(psf, workers=-1)
     dc = otf[..., 0, 0].real
+    _check_power(dc, field)
+    reweight = 1.0 / grid.pixel_mtf_2d if remove_pixel_mtf else None
+    return grid.average(np.abs(otf), reweight) / dc[..., None]
+
+
+def _check_power(dc: np.ndarray, field: str) -> None:
+    """Refuse PSFs whose sums ``dc`` (their OTFs at zero frequency) are not positive."""
     if np.any(dc <= 0):
         index = np.unravel_index(int(np.argmin(dc)), dc.shape)
         raise InputError(
@@ -149,8 +169,64 @@ def psf_mtf(psf: np.ndarray, grid: RadialGrid, *, remove_pixel_mtf: bool = False
             f"PSF at index {tuple(int(i) for i in index)} has no power (sum {float(dc[index]):.3g})",
             "PSFs with a positive sum",
         )
-    reweight = 1.0 / grid.pixel_mtf_2d if remove_pixel_mtf else None
-    return grid.average(np.abs(otf), reweight) / dc[..., None]
+
+
+def line_mtf(
+    psf: np.ndarray, grid: RadialGrid, angle_rad: float, *, remove_pixel_mtf: bool = False, field: str = "psf"
+) -> np.ndarray:
+    """MTF (..., K) of PSFs (..., N, N) along the frequency vectors ν·(cos θ, sin θ), θ =
+    ``angle_rad`` counter-clockwise from +x (x = column, y = row), at ν = k·Δν on ``grid``'s axis.
+
+    |Σ P[i, j]·exp(−2πi(νx·j + νy·i))| at exactly those points, over the PSF's sum (1 at ν = 0;
+    a PSF whose sum is not positive is refused as by :func:`psf_mtf`); with ``remove_pixel_mtf``
+    each point is divided by the pixel MTF |sinc(νx·p)·sinc(νy·p)| there (≥ 4/π² up to Nyquist).
+    float32 PSFs give float32 curves, computed in float32 (as the radial ones).
+    """
+    psf = np.asarray(psf)
+    n = grid.n
+    if psf.shape[-2:] != (n, n):
+        raise InputError(field, f"PSFs of shape {psf.shape[-2:]}", f"{n} × {n} pixels")
+    dtype = np.float64 if psf.dtype == np.float64 else np.float32
+    flat = psf.reshape(-1, n, n).astype(dtype, copy=False)
+    dc = flat.sum(axis=(-2, -1), dtype=np.float64)
+    _check_power(dc.reshape(psf.shape[:-2]), field)
+    nu = np.arange(grid.rings) / n  # cycles per pixel
+    fx, fy = nu * math.cos(angle_rad), nu * math.sin(angle_rad)
+    fx[np.abs(fx) < 1e-12], fy[np.abs(fy) < 1e-12] = 0.0, 0.0  # cos(π/2) = 6e-17: an axis is an axis
+    modulus = np.abs(_line_dft(flat, fx, fy, dtype)) / dc[:, None]
+    if remove_pixel_mtf:
+        modulus = modulus / np.abs(np.sinc(fx) * np.sinc(fy))
+    return modulus.astype(dtype).reshape(*psf.shape[:-2], grid.rings)
+
+
+def _line_dft(flat: np.ndarray, fx: np.ndarray, fy: np.ndarray, dtype) -> np.ndarray:
+    """(B, K) complex DFT of images (B, N, N) at the K points (fx, fy) cycles/pixel (fx along
+    columns j, fy along rows i). Along an axis: the DFT of the line spread function; otherwise
+    Σ_i e^{−2πi·fy·i} (Σ_j P[i, j]·e^{−2πi·fx·j}), in chunks of images."""
+    n = flat.shape[-1]
+
+    def phasors(frequencies):
+        phase = 2 * np.pi * np.outer(np.arange(n), frequencies)  # (N, K), float64 before rounding
+        return np.cos(phase).astype(dtype), np.sin(phase).astype(dtype)
+
+    if not fy.any() or not fx.any():
+        lsf = flat.sum(axis=1 if not fy.any() else 2)  # over rows: a function of x; over columns: of y
+        cos, sin = phasors(fx if not fy.any() else fy)
+        return lsf @ cos - 1j * (lsf @ sin)
+    cos_x, sin_x = phasors(fx)
+    cos_y, sin_y = phasors(fy)
+    out = np.empty((flat.shape[0], fx.size), dtype=np.complex128)
+    step = max(1, LINE_DFT_CHUNK // (n * fx.size))
+    for start in range(0, flat.shape[0], step):
+        rows = flat[start : start + step].reshape(-1, n)
+        real = (rows @ cos_x).reshape(-1, n, fx.size)  # Σ_j P[i, j]·e^{−2πi·fx·j} = real + i·imag
+        imag = -(rows @ sin_x).reshape(-1, n, fx.size)
+        out[start : start + step] = (
+            np.einsum("bik,ik->bk", real, cos_y)
+            + np.einsum("bik,ik->bk", imag, sin_y)
+            + 1j * (np.einsum("bik,ik->bk", imag, cos_y) - np.einsum("bik,ik->bk", real, sin_y))
+        )
+    return out
 
 
 def pixel_aperture_mtf(grid: RadialGrid) -> np.ndarray:
@@ -228,7 +304,8 @@ class CubeMtf:
     ``at_lpmm`` (A,); ``rgb_*`` the same for the R, G, B channel PSFs (D, 3, …) or None.
     ``pixel_mtf`` (K,): the ring-averaged pixel-aperture MTF; ``pixel_mtf_removed``: whether it
     was divided out of the curves. ``diffraction`` (W, K): the diffraction-limited reference at
-    ``na`` (times the pixel MTF unless removed), None without an NA.
+    ``na`` (times the pixel MTF unless removed), None without an NA. ``field``: the tangential
+    and sagittal MTFs of a field cube (whose radial curves are field 0's), None on axis.
     """
 
     frequencies_lpmm: np.ndarray
@@ -246,6 +323,7 @@ class CubeMtf:
     pixel_mtf_removed: bool
     na: float | None
     diffraction: np.ndarray | None
+    field: FieldMtf | None = None
 
     def curves(self) -> list[dict]:
         """One record per curve: ``depth_m``, ``wavelength_m`` or ``channel``, ``mtf`` (list),
@@ -275,13 +353,136 @@ class CubeMtf:
                     )
         return records
 
+    def _labels(self) -> list[tuple[str, object, int, int, bool]]:
+        """(key, value, depth index, wavelength or channel index, is channel) of each curve, in
+        the order of :meth:`curves`."""
+        labels = [
+            ("wavelength_m", float(w), i, j, False)
+            for i in range(self.depths_m.size)
+            for j, w in enumerate(self.wavelengths_m)
+        ]
+        if self.rgb_mtf is not None:
+            labels += [
+                ("channel", name, i, c, True) for i in range(self.depths_m.size) for c, name in enumerate(RGB_NAMES)
+            ]
+        return labels
+
+    def field_records(self) -> list[dict]:
+        """Per field of a field cube ([] on axis): ``field`` (index), ``angle_rad``, ``angle_deg``,
+        ``chief_ray_m`` [x, y], ``window_centre_px`` [column, row] and ``mtf50_lpmm``: one record
+        per curve (as :meth:`curves`: ``depth_m``, ``wavelength_m`` or ``channel``) with
+        ``tangential`` and ``sagittal`` MTF50 in lp/mm (None where never below 0.5)."""
+        if self.field is None:
+            return []
+        f = self.field
+        records = []
+        for k, angle in enumerate(f.angles_rad):
+            mtf50_records = []
+            for key, value, i, j, channel in self._labels():
+                values = {direction: _optional(f.mtf50(direction, channel)[k, i, j]) for direction in DIRECTIONS}
+                mtf50_records.append({"depth_m": float(self.depths_m[i]), key: value, **values})
+            records.append(
+                {
+                    "field": k,
+                    "angle_rad": float(angle),
+                    "angle_deg": math.degrees(float(angle)),
+                    "chief_ray_m": f.chief_ray_m[k].tolist(),
+                    "window_centre_px": f.window_centre_px[k].tolist(),
+                    "mtf50_lpmm": mtf50_records,
+                }
+            )
+        return records
+
+    def field_curves(self) -> list[dict]:
+        """Every tangential and sagittal curve of a field cube ([] on axis), field-major, then as
+        :meth:`curves`, tangential before sagittal: ``field``, ``angle_deg``, ``direction``,
+        ``depth_m``, ``wavelength_m`` or ``channel``, ``mtf`` (array, on ``frequencies_lpmm``)."""
+        if self.field is None:
+            return []
+        f = self.field
+        return [
+            {
+                "field": k,
+                "angle_deg": math.degrees(float(angle)),
+                "direction": direction,
+                "depth_m": float(self.depths_m[i]),
+                key: value,
+                "mtf": f.curve(direction, channel)[k, i, j],
+            }
+            for k, angle in enumerate(f.angles_rad)
+            for key, value, i, j, channel in self._labels()
+            for direction in DIRECTIONS
+        ]
+
+
+@dataclass(frozen=True)
+class FieldMtf:
+    """Tangential and sagittal MTFs over the field of a field cube, on ``CubeMtf``'s frequencies.
+
+    ``angles_rad`` (F,) field angles; ``azimuth_rad`` ψ; ``chief_ray_m`` (F, 2) [x, y] metres;
+    ``window_centre_px`` (F, 2) [column, row]. ``tangential`` and ``sagittal`` (F, D, W, K): |OTF|
+    along ν·(cos ψ, sin ψ) and ν·(−sin ψ, cos ψ); ``*_mtf50_lpmm`` (F, D, W) (NaN: never below
+    0.5); ``rgb_*`` the same for the R, G, B channel PSFs (F, D, 3, …), or None.
+    """
+
+    angles_rad: np.ndarray
+    azimuth_rad: float
+    chief_ray_m: np.ndarray
+    window_centre_px: np.ndarray
+    tangential: np.ndarray
+    sagittal: np.ndarray
+    tangential_mtf50_lpmm: np.ndarray
+    sagittal_mtf50_lpmm: np.ndarray
+    rgb_tangential: np.ndarray | None
+    rgb_sagittal: np.ndarray | None
+    rgb_tangential_mtf50_lpmm: np.ndarray | None
+    rgb_sagittal_mtf50_lpmm: np.ndarray | None
+
+    def curve(self, direction: str, channel: bool = False) -> np.ndarray:
+        """The curves (F, D, W or 3, K) of ``direction`` ("tangential" or "sagittal")."""
+        return getattr(self, f"{'rgb_' if channel else ''}{direction}")
+
+    def mtf50(self, direction: str, channel: bool = False) -> np.ndarray:
+        """The MTF50s (F, D, W or 3) in lp/mm of ``direction``."""
+        return getattr(self, f"{'rgb_' if channel else ''}{direction}_mtf50_lpmm")
+
+
+def field_mtf(cube, grid: RadialGrid, *, remove_pixel_mtf: bool = False) -> FieldMtf:
+    """Tangential and sagittal MTFs (:func:`line_mtf`) of every PSF and channel PSF of a field
+    cube (``io.exr.PsfCube``), at the azimuth ψ of its fields, and their MTF50s."""
+    psi = cube.field_azimuth_rad
+    freqs = grid.frequencies_lpmm
+    curves = {}
+    for key, stack, where in (
+        ("", cube.psf_by_field, "psf (field, depth, wavelength)"),
+        ("rgb_", cube.rgb_by_field, "rgb (field, depth, channel)"),
+    ):
+        for direction, angle in zip(DIRECTIONS, (psi, psi + math.pi / 2)):
+            curve = (
+                None if stack is None else line_mtf(stack, grid, angle, remove_pixel_mtf=remove_pixel_mtf, field=where)
+            )
+            curves[f"{key}{direction}"] = curve
+            curves[f"{key}{direction}_mtf50_lpmm"] = None if curve is None else mtf50(freqs, curve)
+    return FieldMtf(
+        angles_rad=cube.field_angles_rad,
+        azimuth_rad=psi,
+        chief_ray_m=cube.chief_ray_m,
+        window_centre_px=cube.window_centre_px,
+        **curves,
+    )
+
+
+def _optional(value: float) -> float | None:
+    """None for NaN (an MTF that never falls below the level), else the float."""
+    return None if np.isnan(value) else float(value)
+
 
 def _record(depth: float, key: str, value, mtf: np.ndarray, mtf50_value: float, at_values: np.ndarray) -> dict:
     record = {
         "depth_m": float(depth),
         key: value,
         "mtf": mtf.tolist(),
-        "mtf50_lpmm": None if np.isnan(mtf50_value) else float(mtf50_value),
+        "mtf50_lpmm": _optional(mtf50_value),
     }
     if at_values.size:
         record["mtf_at"] = at_values.tolist()
@@ -289,7 +490,9 @@ def _record(depth: float, key: str, value, mtf: np.ndarray, mtf50_value: float, 
 
 
 def cube_mtf(cube, *, at_lpmm=(), na: float | None = None, remove_pixel_mtf: bool = False) -> CubeMtf:
-    """MTFs of every (depth, wavelength) PSF and every R, G, B channel PSF of a ``PsfCube``.
+    """MTFs of every (depth, wavelength) PSF and every R, G, B channel PSF of a ``PsfCube``; of
+    a field cube, the radial curves of field 0 and the tangential and sagittal ones of every field
+    (:func:`field_mtf`).
 
     ``na`` overrides the cube's ``na`` metadata; with neither, no diffraction reference.
     ``at_lpmm``: frequencies (lp/mm, 0 … the last ring) at which to interpolate each curve.
@@ -325,6 +528,7 @@ def cube_mtf(cube, *, at_lpmm=(), na: float | None = None, remove_pixel_mtf: boo
         pixel_mtf_removed=remove_pixel_mtf,
         na=na,
         diffraction=diffraction,
+        field=field_mtf(cube, grid, remove_pixel_mtf=remove_pixel_mtf) if cube.is_field_cube else None,
     )
 
 

@@ -32,6 +32,15 @@ discs of the given radii around each PSF's own centroid (so each PSF's figures d
 the other), None (warned about) for a radius over half the common window's width, where the disc
 leaves the window; ``relative_l2`` = ‖measured − simulated‖₂/‖simulated‖₂ after registration; MTF50
 (lp/mm, ``analysis.mtf``) of each.
+
+Fields (field cubes, ``io.exr``). Two field cubes are compared field by field: each measured
+field with the simulated field at the same angle (within 1e-6 rad; a measured field without one
+is refused, and reported as such), their fields at the same azimuth (else refused). Each
+field's window is centred where its ``window_centre_px`` says, so the PSFs are compared window
+on window as above, and each pair also reports ``sensor_shift_px``: the registration's shift
+less the offset between the two windows' centres on the sensor (the simulated centre minus the
+measured, in measured pixels), i.e. how far the measured PSF lies from the simulated one on the
+sensor. A field cube against an on-axis cube: its field 0 is compared, with a warning.
 """
 
 from __future__ import annotations
@@ -50,6 +59,7 @@ from metalens_cli.optics.window import crop_window
 
 WAVELENGTH_TOLERANCE_M = 1e-12
 DEPTH_TOLERANCE = 1e-6
+FIELD_ANGLE_TOLERANCE_RAD = 1e-6
 REGISTRATION_ROUNDS = 4
 COARSE_SIMULATION = 2.0  # simulated pixels this many times the measured ones are warned about
 MIN_COMMON_PIXELS = 8  # a common window narrower than this has no FWHM, MTF or registration worth reporting
@@ -62,7 +72,9 @@ class CubeComparison:
     """``pairs``: one record per compared (depth, wavelength); ``refused``: the measured PSFs
     left out and why; ``scans``: per compared depth, (W_c, N) central rows of the measured and
     simulated PSFs (for the x-λ figure); ``pixels`` N and ``pixel_pitch_m`` of the common grid;
-    ``warnings``: one line each."""
+    ``warnings``: one line each. Comparing two field cubes, ``fields`` holds one record per
+    measured field (its simulated partner, angle, window centres and their offset), and pairs,
+    refusals and scans carry ``field`` and ``field_angle_deg`` (pairs also ``sensor_shift_px``)."""
 
     pairs: list[dict]
     refused: list[dict]
@@ -72,6 +84,7 @@ class CubeComparison:
     radii_m: list[float]
     scans: list[dict] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    fields: list[dict] = field(default_factory=list)
 
 
 def compare_cubes(measured, simulated, radii_m: list[float] | None = None, interpolate: bool = True) -> CubeComparison:
@@ -79,16 +92,29 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
     and 10 measured pixels. InputError when no pair is left."""
     pitch = measured.pixel_pitch_m
     radii = list(radii_m) if radii_m else [2 * pitch, 5 * pitch, 10 * pitch]
-    warnings = _check_pitches(measured, simulated)
-    sim_psf, resampled = _on_pitch(simulated.psf, simulated.pixel_pitch_m, pitch, measured.psf.shape[-1])
+    fields, warnings = _field_pairs(measured, simulated)
+    warnings += _check_pitches(measured, simulated)
+    partners = [f for f in fields if f["simulated_field"] is not None]
+    if fields:  # field by field: (F_c, D, W, N, N) stacks of the paired fields
+        own_m = measured.field_psf[[f["field"] for f in partners]]
+        own_s = simulated.field_psf[[f["simulated_field"] for f in partners]]
+    else:  # on axis, or field 0 of a field cube against an on-axis cube
+        own_m, own_s = measured.psf[None], simulated.psf[None]
+    sim_psf, resampled = _on_pitch(own_s, simulated.pixel_pitch_m, pitch, measured.psf.shape[-1])
     n = min(measured.psf.shape[-1], sim_psf.shape[-1])
     if n < MIN_COMMON_PIXELS:
         raise InputError(*_small_window(measured, simulated, n, sim_psf.shape[-1]))
-    meas_psf = crop_window(measured.psf, n)
+    meas_psf = crop_window(own_m, n)
     sim_psf = crop_window(sim_psf, n)
-    kept = _light_kept(measured.psf, meas_psf)
-    warnings += _light_warning("measured", measured, np.where(kept < LIGHT_REQUIRED, 1.0, kept), n)
-    warnings += _light_warning("simulated", simulated, _light_kept(simulated.psf, sim_psf), n)
+    kept = _light_kept(own_m, meas_psf)
+    kept_s = _light_kept(own_s, sim_psf)
+    angles = [f["angle_deg"] for f in partners] if fields else None
+    if not fields:
+        kept_m, kept_s = np.where(kept < LIGHT_REQUIRED, 1.0, kept)[0], kept_s[0]
+    else:
+        kept_m = np.where(kept < LIGHT_REQUIRED, 1.0, kept)
+    warnings += _light_warning("measured", measured, kept_m, n, angles)
+    warnings += _light_warning("simulated", simulated, kept_s, n, angles)
     radii_outside = [r for r in radii if r > n * pitch / 2]
     if radii_outside:
         warnings.append(
@@ -99,48 +125,76 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
         )
     grid = radial_grid(n, pitch)
     pairs, refused, scans = [], [], []
-    for i, depth in enumerate(measured.depths_m):
-        k = _depth_index(simulated.depths_m, depth)
-        if k is None:
+    for f in fields:
+        if f["simulated_field"] is None:
             refused += [
-                {"depth_m": _json_depth(depth), "wavelength_m": float(w), "reason": "no simulated PSF at this depth"}
+                {**_field_keys(f), "depth_m": _json_depth(depth), "wavelength_m": float(w), "reason": f["reason"]}
+                for depth in measured.depths_m
                 for w in measured.wavelengths_m
             ]
-            continue
-        rows_m, rows_s, waves = [], [], []
-        for j, wavelength in enumerate(measured.wavelengths_m):
-            if kept[i, j] < LIGHT_REQUIRED:
-                refused.append(
+    for c, f in enumerate(partners or [None]):
+        keys = {} if f is None else _field_keys(f)
+        for i, depth in enumerate(measured.depths_m):
+            k = _depth_index(simulated.depths_m, depth)
+            if k is None:
+                refused += [
                     {
+                        **keys,
+                        "depth_m": _json_depth(depth),
+                        "wavelength_m": float(w),
+                        "reason": "no simulated PSF at this depth",
+                    }
+                    for w in measured.wavelengths_m
+                ]
+                continue
+            rows_m, rows_s, waves = [], [], []
+            for j, wavelength in enumerate(measured.wavelengths_m):
+                if kept[c, i, j] < LIGHT_REQUIRED:
+                    refused.append(
+                        {
+                            **keys,
+                            "depth_m": _json_depth(depth),
+                            "wavelength_m": float(wavelength),
+                            "reason": f"the compared window ({n} × {n} pixels of {format_length(pitch)}) holds "
+                            f"{_percent(kept[c, i, j])} of its light (a simulated window as wide as the measured "
+                            "PSF's light is needed)",
+                        }
+                    )
+                    continue
+                mix, how = _wavelength_mix(simulated.wavelengths_m, float(wavelength), interpolate)
+                if mix is None:
+                    refused.append(
+                        {**keys, "depth_m": _json_depth(depth), "wavelength_m": float(wavelength), "reason": how}
+                    )
+                    continue
+                reference = sum(weight * sim_psf[c, k, index].astype(np.float64) for index, weight in mix)
+                record, aligned, reference = _compare_pair(
+                    meas_psf[c, i, j].astype(np.float64), reference, pitch, radii, grid, n * pitch / 2
+                )
+                if f is not None:
+                    record["sensor_shift_px"] = [s - o for s, o in zip(record["shift_px"], f["window_offset_px"])]
+                pairs.append(
+                    {
+                        **keys,
                         "depth_m": _json_depth(depth),
                         "wavelength_m": float(wavelength),
-                        "reason": f"the compared window ({n} × {n} pixels of {format_length(pitch)}) holds "
-                        f"{_percent(kept[i, j])} of its light (a simulated window as wide as the measured PSF's "
-                        "light is needed)",
+                        "simulated": how,
+                        **record,
                     }
                 )
-                continue
-            mix, how = _wavelength_mix(simulated.wavelengths_m, float(wavelength), interpolate)
-            if mix is None:
-                refused.append({"depth_m": _json_depth(depth), "wavelength_m": float(wavelength), "reason": how})
-                continue
-            reference = sum(weight * sim_psf[k, index].astype(np.float64) for index, weight in mix)
-            record, aligned, reference = _compare_pair(
-                meas_psf[i, j].astype(np.float64), reference, pitch, radii, grid, n * pitch / 2
-            )
-            pairs.append({"depth_m": _json_depth(depth), "wavelength_m": float(wavelength), "simulated": how, **record})
-            rows_m.append(aligned[n // 2])
-            rows_s.append(reference[n // 2])
-            waves.append(float(wavelength))
-        if waves:
-            scans.append(
-                {
-                    "depth_m": float(depth),
-                    "wavelengths_m": waves,
-                    "measured": np.array(rows_m),
-                    "simulated": np.array(rows_s),
-                }
-            )
+                rows_m.append(aligned[n // 2])
+                rows_s.append(reference[n // 2])
+                waves.append(float(wavelength))
+            if waves:
+                scans.append(
+                    {
+                        **keys,
+                        "depth_m": float(depth),
+                        "wavelengths_m": waves,
+                        "measured": np.array(rows_m),
+                        "simulated": np.array(rows_s),
+                    }
+                )
     if not pairs:
         reason = refused[0]["reason"] if refused else "no PSFs"
         raise InputError(
@@ -148,7 +202,73 @@ def compare_cubes(measured, simulated, radii_m: list[float] | None = None, inter
             f"no (depth, wavelength) of the measured cube can be compared: {reason}",
             "cubes sharing depths and overlapping in wavelength",
         )
-    return CubeComparison(pairs, refused, n, pitch, resampled, radii, scans, warnings)
+    return CubeComparison(pairs, refused, n, pitch, resampled, radii, scans, warnings, fields)
+
+
+def _field_pairs(measured, simulated) -> tuple[list[dict], list[str]]:
+    """The field records of two field cubes (each measured field, its simulated partner at the
+    same angle within FIELD_ANGLE_TOLERANCE_RAD or None and why, the window offset), or [] and a
+    warning when one cube is on axis (field 0 of the other is compared), or [] and none."""
+    if not measured.is_field_cube and not simulated.is_field_cube:
+        return [], []
+    if not (measured.is_field_cube and simulated.is_field_cube):
+        which, cube = ("measured", measured) if measured.is_field_cube else ("simulated", simulated)
+        other = "simulated" if which == "measured" else "measured"
+        return [], [
+            f"the {which} cube holds {cube.field_count} fields and the {other} cube is on axis: only the {which} "
+            f"cube's field 0 (at {math.degrees(float(cube.field_angles_rad[0])):.3g}°) is compared"
+        ]
+    azimuths = (measured.field_azimuth_rad, simulated.field_azimuth_rad)
+    if abs(math.remainder(azimuths[0] - azimuths[1], 2 * math.pi)) > FIELD_ANGLE_TOLERANCE_RAD:
+        raise InputError(
+            "SIMULATED",
+            f"its fields lie at azimuth {math.degrees(azimuths[1]):.4g}°, the measured cube's at "
+            f"{math.degrees(azimuths[0]):.4g}°: they are other points of the sensor",
+            "field cubes whose fields share field_azimuth_rad",
+        )
+    pitch_m, pitch_s = measured.pixel_pitch_m, simulated.pixel_pitch_m
+    records = []
+    for k, angle in enumerate(measured.field_angles_rad):
+        near = np.flatnonzero(np.abs(simulated.field_angles_rad - angle) <= FIELD_ANGLE_TOLERANCE_RAD)
+        record = {"field": k, "angle_rad": float(angle), "angle_deg": math.degrees(float(angle))}
+        if not near.size:
+            records.append({**record, "simulated_field": None, "reason": "no simulated field at this field angle"})
+            continue
+        partner = int(near[0])
+        centre_m, centre_s = measured.window_centre_px[k], simulated.window_centre_px[partner]
+        offset = centre_s * (pitch_s / pitch_m) - centre_m  # [column, row], measured pixels
+        records.append(
+            {
+                **record,
+                "simulated_field": partner,
+                "window_centre_px": {"measured": centre_m.tolist(), "simulated": centre_s.tolist()},
+                "window_offset_px": [float(offset[1]), float(offset[0])],  # (y, x) as shift_px
+                "chief_ray_m": {
+                    "measured": measured.chief_ray_m[k].tolist(),
+                    "simulated": simulated.chief_ray_m[partner].tolist(),
+                },
+            }
+        )
+    if all(r["simulated_field"] is None for r in records):
+        raise InputError(
+            "SIMULATED",
+            f"none of its field angles ({_degrees(simulated.field_angles_rad)}) is one of the measured cube's "
+            f"({_degrees(measured.field_angles_rad)})",
+            f"field cubes sharing field angles (within {FIELD_ANGLE_TOLERANCE_RAD:g} rad)",
+        )
+    return records, []
+
+
+def _field_keys(record: dict) -> dict:
+    """The keys that tie a pair, refusal or scan to its measured field."""
+    return {"field": record["field"], "field_angle_deg": record["angle_deg"]}
+
+
+def _degrees(angles_rad: np.ndarray) -> str:
+    """ "0°, 5° and 10°" (at most six, then a count)."""
+    texts = [f"{math.degrees(float(a)):.4g}°" for a in angles_rad[:6]]
+    more = f" and {angles_rad.size - 6} more" if angles_rad.size > 6 else ""
+    return ", ".join(texts) + more
 
 
 def _check_pitches(measured, simulated) -> list[str]:
@@ -210,15 +330,18 @@ def _light_kept(own: np.ndarray, cropped: np.ndarray) -> np.ndarray:
     return np.where(total > 0, kept / np.where(total > 0, total, 1.0), 1.0)
 
 
-def _light_warning(which: str, cube, kept: np.ndarray, n: int) -> list[str]:
+def _light_warning(which: str, cube, kept: np.ndarray, n: int, angles_deg: list[float] | None = None) -> list[str]:
     """A warning when the common window holds under LIGHT_KEPT of the light of some of
-    ``cube``'s PSFs (the least said)."""
-    k, j = np.unravel_index(int(np.argmin(kept)), kept.shape)
-    if kept[k, j] >= LIGHT_KEPT:
+    ``cube``'s PSFs (the least said): ``kept`` (D, W), or (F_c, D, W) for the compared fields
+    at ``angles_deg``."""
+    index = np.unravel_index(int(np.argmin(kept)), kept.shape)
+    k, j = index[-2:]
+    if kept[index] >= LIGHT_KEPT:
         return []
+    at_field = "" if angles_deg is None else f", field {angles_deg[index[0]]:.3g}°"
     return [
-        f"the compared window ({n} × {n} pixels) holds only {_percent(kept[k, j])} of the {which} PSF's light at "
-        f"{cube.wavelengths_m[j] * 1e9:g} nm, {format_length(float(cube.depths_m[k]))} "
+        f"the compared window ({n} × {n} pixels) holds only {_percent(kept[index])} of the {which} PSF's light at "
+        f"{cube.wavelengths_m[j] * 1e9:g} nm, {format_length(float(cube.depths_m[k]))}{at_field} "
         f"({int(np.sum(kept < LIGHT_KEPT))} of {kept.size} PSFs under {LIGHT_KEPT:.0%}): the figures describe the "
         "window's part of the PSFs"
     ]

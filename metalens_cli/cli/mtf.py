@@ -87,6 +87,10 @@ def mtf(cube, edge_path, at_lpmm, na, remove_pixel_mtf, roi, pixel_pitch_m, srgb
     the diffraction limit of the NA. The pixel aperture is part of the curves unless
     --remove-pixel-mtf.
 
+    A field cube (off-axis fields): the radial MTFs of field 0, and per field the tangential and
+    sagittal MTFs and their MTF50 (JSON "fields"; CSV rows with field, field_angle_deg and
+    direction); --plot draws MTF50 against field angle.
+
     --edge IMAGE: ISO 12233-style slanted-edge SFR per channel (4× oversampled ESF, Tukey
     window), 0 to 1 cycle/pixel, for edges tilted 2°-10° from the pixel grid.
     """
@@ -118,17 +122,13 @@ def _cube(path, at_lpmm, na, remove_pixel_mtf, csv_path, as_json, plot_path) -> 
 
     result = cube_mtf(read_cube_file(path), at_lpmm=at_lpmm, na=na, remove_pixel_mtf=remove_pixel_mtf)
     curves = result.curves()
+    fields = result.field_records()
     if csv_path:
-        rows = [
-            [c["depth_m"], c.get("wavelength_m", ""), c.get("channel", ""), f, m]
-            for c in curves
-            for f, m in zip(result.frequencies_lpmm.tolist(), c["mtf"])
-        ]
-        _write_csv(csv_path, ["depth_m", "wavelength_m", "channel", "frequency_lpmm", "mtf"], rows)
+        _write_csv(csv_path, *_cube_csv(result, curves))
     if plot_path:
-        from metalens_cli.plotting.mtf import plot_cube_mtf
+        from metalens_cli.plotting.mtf import plot_cube_mtf, plot_field_mtf50
 
-        plot_cube_mtf(plot_path, result)
+        (plot_cube_mtf if result.field is None else plot_field_mtf50)(plot_path, result)
     if as_json:
         diffraction = (
             None
@@ -146,6 +146,11 @@ def _cube(path, at_lpmm, na, remove_pixel_mtf, csv_path, as_json, plot_path) -> 
                 **({"at_lpmm": list(at_lpmm)} if at_lpmm else {}),
                 "frequencies_lpmm": result.frequencies_lpmm.tolist(),
                 "curves": curves,
+                **(
+                    {"field_azimuth_rad": result.field.azimuth_rad, "fields": fields}
+                    if result.field is not None
+                    else {}
+                ),
                 "pixel_aperture_mtf": result.pixel_mtf.tolist(),
                 "diffraction_limited": diffraction,
                 **({"csv": str(csv_path)} if csv_path else {}),
@@ -154,7 +159,61 @@ def _cube(path, at_lpmm, na, remove_pixel_mtf, csv_path, as_json, plot_path) -> 
         )
         return
     _render_cube(result, curves, at_lpmm, path)
+    if fields:
+        _render_fields(result, fields, path)
     _report_files(csv_path, plot_path)
+
+
+def _cube_csv(result, curves) -> tuple[list[str], list[list]]:
+    """Header and rows of the cube's CSV: one row per curve and frequency. A field cube's rows
+    add the columns field, field_angle_deg and direction: its radial curves (field 0's,
+    direction "radial") first, then every field's tangential and sagittal curves."""
+    frequencies = result.frequencies_lpmm.tolist()
+    header = ["depth_m", "wavelength_m", "channel", "frequency_lpmm", "mtf"]
+    rows = [
+        [c["depth_m"], c.get("wavelength_m", ""), c.get("channel", ""), f, m]
+        for c in curves
+        for f, m in zip(frequencies, c["mtf"])
+    ]
+    if result.field is None:
+        return header, rows
+    first = [0, math.degrees(float(result.field.angles_rad[0])), "radial"]
+    rows = [row + first for row in rows]
+    rows += [
+        [c["depth_m"], c.get("wavelength_m", ""), c.get("channel", ""), f, float(m)]
+        + [c["field"], c["angle_deg"], c["direction"]]
+        for c in result.field_curves()
+        for f, m in zip(frequencies, c["mtf"])
+    ]
+    return header + ["field", "field_angle_deg", "direction"], rows
+
+
+def _render_fields(result, fields, path) -> None:
+    """The MTF50s of a field cube, per field, tangential and sagittal."""
+    from metalens_cli.io.units import format_length
+
+    def lpmm(value):
+        return "—" if value is None else f"{value:.1f}"
+
+    rows = [
+        [
+            str(f["field"]),
+            f"{f['angle_deg']:.3g}",
+            format_length(r["depth_m"]),
+            render.nm(r["wavelength_m"], 1) if "wavelength_m" in r else r["channel"],
+            lpmm(r["tangential"]),
+            lpmm(r["sagittal"]),
+        ]
+        for f in fields
+        for r in f["mtf50_lpmm"]
+    ]
+    columns = ["field", "angle (°)", "depth", "λ (nm) / channel", "MTF50 T (lp/mm)", "MTF50 S (lp/mm)"]
+    con = render.console()
+    con.print(render.table(f"MTF50 over the field of {path}", columns, rows))
+    con.print(
+        f"{len(fields)} fields at azimuth {math.degrees(result.field.azimuth_rad):.3g}°: T tangential (radial on the "
+        "sensor), S sagittal; the radial MTFs above are field 0's"
+    )
 
 
 def _render_cube(result, curves, at_lpmm, path) -> None:

@@ -246,6 +246,10 @@ def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plo
     simulated pixels) and a common window under 8 × 8 pixels are refused; encircled energy at a
     radius over half the common window is not reported (—, null), with a warning. --plot: the x-λ scans of both side by
     side per depth (the paper's Fig. 4c). --csv and --plot are published together or not at all.
+
+    Field cubes (off-axis fields) are compared field by field, at matching field angles; the
+    shift on the sensor takes each field's window centre into account. A field cube against an
+    on-axis cube: its field 0, with a warning.
     """
     from metalens_cli.analysis.psf_compare import compare_cubes
     from metalens_cli.io.atomic import atomic_files
@@ -270,6 +274,7 @@ def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plo
                 "pixel_pitch_m": result.pixel_pitch_m,
                 "simulated_resampled": result.resampled,
                 "radii_m": result.radii_m,
+                **({"fields": result.fields} if result.fields else {}),
                 "pairs": result.pairs,
                 "refused": result.refused,
                 "warnings": result.warnings,
@@ -297,6 +302,9 @@ def _compare_rows(result) -> tuple[list[str], list[list]]:
         "shift_y_px",
         "shift_x_px",
     ]
+    fields = bool(result.fields)
+    if fields:
+        header += ["field", "field_angle_deg", "sensor_shift_y_px", "sensor_shift_x_px"]
     rows = []
     for p in result.pairs:
         ee = [
@@ -315,6 +323,7 @@ def _compare_rows(result) -> tuple[list[str], list[list]]:
                 p["mtf50_lpmm"]["simulated"],
                 *ee,
                 *p["shift_px"],
+                *([p["field"], p["field_angle_deg"], *p["sensor_shift_px"]] if fields else []),
             ]
         )
     return header, rows
@@ -350,6 +359,7 @@ def _render_compare(result, measured, simulated) -> None:
         ]
         rows.append(
             [
+                *([f"{p['field_angle_deg']:.3g}"] if result.fields else []),
                 format_length(math.inf if p["depth_m"] is None else p["depth_m"]),
                 render.nm(p["wavelength_m"], 1),
                 p["simulated"],
@@ -366,6 +376,7 @@ def _render_compare(result, measured, simulated) -> None:
             f"{measured} (measured) against {simulated} (simulated), {result.pixels}² pixels of "
             f"{result.pixel_pitch_m * 1e6:.4g} µm",
             [
+                *(["field (°)"] if result.fields else []),
                 "depth",
                 "λ (nm)",
                 "simulated",
@@ -382,4 +393,12 @@ def _render_compare(result, measured, simulated) -> None:
         con.print("the simulated cube was resampled onto the measured pixel pitch")
     for r in result.refused:
         depth = format_length(math.inf if r["depth_m"] is None else r["depth_m"])
-        con.print(f"refused: {render.nm(r['wavelength_m'], 1)} nm at {depth}: {r['reason']}")
+        at_field = f", field {r['field_angle_deg']:.3g}°" if "field" in r else ""
+        con.print(f"refused: {render.nm(r['wavelength_m'], 1)} nm at {depth}{at_field}: {r['reason']}")
+    for f in result.fields:
+        if f["simulated_field"] is not None and any(f["window_offset_px"]):
+            dy, dx = f["window_offset_px"]
+            con.print(
+                f"field {f['angle_deg']:.3g}°: the simulated window's centre lies ({dy:.3g}, {dx:.3g}) measured pixels "
+                "(y, x) from the measured one's; sensor_shift_px in --json and --csv takes it into account"
+            )

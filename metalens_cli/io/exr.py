@@ -6,6 +6,12 @@ string header attribute ``metalens`` with the JSON metadata. Pixel [i, j] of a c
 array row i (EXR y), column j (EXR x); the optical axis is at the centre of pixel
 (N//2, N//2). Files are written ZIP-compressed (lossless), atomically.
 
+A *field cube* (off-axis PSFs) holds F fields of such a cube: field 0 under the channel names
+above (so a reader that knows nothing of fields reads field 0), field K ≥ 1 under
+``psf.f{K:02d}.d{I:02d}.w{J:03d}`` and ``rgb.f{K:02d}.d{I:02d}.C``; the header adds
+``field_angles_rad``, ``field_azimuth_rad``, ``chief_ray_m``, ``window_centre_px`` and
+optionally ``field_kept`` (:data:`FIELD_KEYS`). Field cubes are written as EXR only.
+
 The contract's metadata and checks (:func:`prepare_cube`, :func:`parse_metadata`,
 :func:`cube_from_channels`) are shared by the ``.npz``, ``.mat`` and ``.tif`` cubes of
 ``metalens_cli.io.psf_cube_files``, which also picks the format by suffix.
@@ -37,6 +43,10 @@ RGB_CHANNELS = ("R", "G", "B")
 LOSSLESS_COMPRESSIONS = ("NO_COMPRESSION", "RLE_COMPRESSION", "ZIPS_COMPRESSION", "ZIP_COMPRESSION", "PIZ_COMPRESSION")
 MAX_DEPTHS = 100
 MAX_WAVELENGTHS = 1000
+FIELD_KEYS = ("field_angles_rad", "field_azimuth_rad", "chief_ray_m", "window_centre_px")  # a field cube's keys
+FIELD_KEPT = "field_kept"  # optional in a field cube: (F, D, W) fractions of the aperture power
+MAX_FIELDS = 100
+MAX_WINDOW_CENTRE_PX = 2**31 - 1
 _EXPECTED = "a PSF cube as described in docs/formats.md"
 
 
@@ -47,6 +57,8 @@ class PsfCube:
     ``psf``: (D, W, N, N) float32. ``rgb``: (D, 3, N, N) float32, channels R, G, B, or None.
     ``wavelengths_m``: (W,) metres. ``depths_m``: (D,) metres, ``inf`` for a source at
     infinity. ``metadata``: the whole header JSON (extra keys such as ``na`` included).
+    A field cube also has ``field_psf`` (F, D, W, N, N) and ``field_rgb`` (F, D, 3, N, N) or
+    None, of which ``psf`` and ``rgb`` are field 0; both None for an on-axis cube.
     """
 
     psf: np.ndarray
@@ -54,21 +66,72 @@ class PsfCube:
     wavelengths_m: np.ndarray
     depths_m: np.ndarray
     metadata: dict[str, Any]
+    field_psf: np.ndarray | None = None
+    field_rgb: np.ndarray | None = None
 
     @property
     def pixel_pitch_m(self) -> float:
         """Sensor pixel pitch in metres."""
         return float(self.metadata["pixel_pitch_m"])
 
+    @property
+    def is_field_cube(self) -> bool:
+        """Whether the cube holds fields (the field keys), even a single one."""
+        return self.field_psf is not None
 
-def psf_channel_name(depth_index: int, wavelength_index: int) -> str:
-    """EXR channel name of the PSF at depth index I and wavelength index J: ``psf.dII.wJJJ``."""
-    return f"psf.d{depth_index:02d}.w{wavelength_index:03d}"
+    @property
+    def field_count(self) -> int:
+        """F, the number of fields; 1 for an on-axis cube."""
+        return 1 if self.field_psf is None else self.field_psf.shape[0]
+
+    @property
+    def field_angles_rad(self) -> np.ndarray:
+        """(F,) field angles α in radians; [0] for an on-axis cube."""
+        return np.array(self.metadata["field_angles_rad"] if self.is_field_cube else [0.0], dtype=float)
+
+    @property
+    def field_azimuth_rad(self) -> float:
+        """Azimuth ψ of the fields in radians, counter-clockwise from the sensor's +x axis; 0 on axis."""
+        return float(self.metadata["field_azimuth_rad"]) if self.is_field_cube else 0.0
+
+    @property
+    def chief_ray_m(self) -> np.ndarray:
+        """(F, 2) sensor position [x, y] in metres where each field's chief ray lands; [[0, 0]] on axis."""
+        return np.array(self.metadata["chief_ray_m"] if self.is_field_cube else [[0.0, 0.0]], dtype=float)
+
+    @property
+    def window_centre_px(self) -> np.ndarray:
+        """(F, 2) int64 [column, row]: each field's window centre pixel (N//2, N//2) counted in sensor
+        pixels from the optical-axis pixel; [[0, 0]] on axis."""
+        return np.array(self.metadata["window_centre_px"] if self.is_field_cube else [[0, 0]], dtype=np.int64)
+
+    @property
+    def psf_by_field(self) -> np.ndarray:
+        """(F, D, W, N, N): ``field_psf``, or ``psf`` as one field."""
+        return self.psf[None] if self.field_psf is None else self.field_psf
+
+    @property
+    def rgb_by_field(self) -> np.ndarray | None:
+        """(F, D, 3, N, N) or None: ``field_rgb``, or ``rgb`` as one field."""
+        if self.rgb is None:
+            return None
+        return self.rgb[None] if self.field_rgb is None else self.field_rgb
 
 
-def rgb_channel_name(depth_index: int, channel: str) -> str:
-    """EXR channel name of colour channel ``channel`` (R, G or B) at depth index I: ``rgb.dII.C``."""
-    return f"rgb.d{depth_index:02d}.{channel}"
+def psf_channel_name(depth_index: int, wavelength_index: int, field_index: int = 0) -> str:
+    """EXR channel name of the PSF at depth index I and wavelength index J: ``psf.dII.wJJJ`` for
+    field 0 (and an on-axis cube), ``psf.fKK.dII.wJJJ`` for field K ≥ 1."""
+    return f"psf.{_field_part(field_index)}d{depth_index:02d}.w{wavelength_index:03d}"
+
+
+def rgb_channel_name(depth_index: int, channel: str, field_index: int = 0) -> str:
+    """EXR channel name of colour channel ``channel`` (R, G or B) at depth index I: ``rgb.dII.C``
+    for field 0 (and an on-axis cube), ``rgb.fKK.dII.C`` for field K ≥ 1."""
+    return f"rgb.{_field_part(field_index)}d{depth_index:02d}.{channel}"
+
+
+def _field_part(field_index: int) -> str:
+    return f"f{field_index:02d}." if field_index else ""
 
 
 def write_psf_cube(
@@ -87,12 +150,12 @@ def write_psf_cube(
 
     Arguments as :func:`prepare_cube`, which validates them exactly as ``read_psf_cube`` would,
     so an invalid cube raises InputError and writes nothing. ``metalens_cli.io.psf_cube_files``
-    writes the same cube as ``.npz``, ``.mat`` or ``.tif``.
+    writes the same cube as ``.npz``, ``.mat`` or ``.tif`` (an on-axis one: field cubes are EXR only).
     """
     cube, text = prepare_cube(
         path, psf, wavelengths_m, depths_m, pixel_pitch_m, design, rgb=rgb, normalization=normalization, extra=extra
     )
-    _write_exr(Path(path), text, channel_planes(str(path), cube.psf, cube.rgb))
+    _write_exr(Path(path), text, channel_planes(str(path), cube.psf_by_field, cube.rgb_by_field))
 
 
 def prepare_cube(
@@ -114,11 +177,21 @@ def prepare_cube(
     design spec string or a JSON-able object; ``extra`` adds JSON keys (e.g. ``na``, ``f_m``,
     ``aperture_m``, ``accuracy``) and may not override the keys the writer sets. Whatever a
     reader would refuse is an InputError naming ``path``.
+
+    A field cube: ``extra`` holds the :data:`FIELD_KEYS` (and optionally ``field_kept``) for F
+    fields (numpy arrays are taken as their lists), ``psf`` is (F, D, W, N, N) and ``rgb``
+    (F, D, 3, N, N) or None; (D, W, N, N) and (D, 3, N, N) are one field.
     """
     field = str(path)
     clash = sorted(set(extra or {}) & set(WRITTEN_KEYS))
     if clash:
         raise InputError(field, f"extra metadata overrides the keys {clash}", "other key names")
+    extra = {
+        key: value.tolist()
+        if key in (*FIELD_KEYS, FIELD_KEPT) and isinstance(value, np.ndarray | np.generic)
+        else value
+        for key, value in (extra or {}).items()
+    }
     metadata = {
         "format": FORMAT,
         "wavelengths_m": [float(value) for value in np.asarray(wavelengths_m, dtype=float).ravel()],
@@ -129,33 +202,57 @@ def prepare_cube(
         "normalization": normalization,
         "design": design,
         "version": metalens_cli.__version__,
-        **(extra or {}),
+        **extra,
     }
     psf = np.asarray(psf, dtype=np.float32)
     rgb = None if rgb is None else np.asarray(rgb, dtype=np.float32)
-    counts = (len(metadata["depths_m"]), len(metadata["wavelengths_m"]))
-    if psf.ndim != 4 or psf.shape[:2] != counts:
-        raise InputError(
-            field, f"psf of shape {psf.shape} for {counts[0]} depths × {counts[1]} wavelengths", "psf (D, W, N, N)"
+    depth_count, wavelength_count = check_metadata(field, metadata)
+    fields = field_count(metadata)
+    if fields is not None and psf.ndim == 4:  # one field
+        psf, rgb = psf[None], None if rgb is None else rgb[None]
+    counts = (depth_count, wavelength_count) if fields is None else (fields, depth_count, wavelength_count)
+    if psf.shape[:-2] != counts:
+        expected = (
+            "psf (D, W, N, N), or (F, D, W, N, N) with field_angles_rad and the other field keys in extra"
+            if fields is None
+            else "psf (F, D, W, N, N), or (D, W, N, N) for one field"
         )
+        cube = _cube_words(depth_count, wavelength_count, fields)
+        raise InputError(field, f"psf of shape {psf.shape} for {cube}", expected)
     _check_cube(field, metadata, channel_planes(field, psf, rgb))
     try:
         text = json.dumps(metadata, allow_nan=False)
     except (TypeError, ValueError) as error:
         raise InputError(field, f"metadata is not strict JSON: {error}", "JSON-able values, no NaN or inf") from error
-    return PsfCube(psf, rgb, *_axes(metadata), metadata), text
+    return _cube(metadata, psf, rgb), text
 
 
 def channel_planes(field: str, psf: np.ndarray, rgb: np.ndarray | None) -> dict[str, np.ndarray]:
     """Channel name -> contiguous (N, N) plane (views of contiguous arrays), from psf (D, W, N, N)
-    and rgb (D, 3, N, N) or None: the EXR channels, and the names under which every format's
-    PSFs are checked."""
-    channels = {psf_channel_name(i, j): psf[i, j] for i in range(psf.shape[0]) for j in range(psf.shape[1])}
+    and rgb (D, 3, N, N) or None, or a field cube's psf (F, D, W, N, N) and rgb (F, D, 3, N, N) or
+    None: the EXR channels, and the names under which every format's PSFs are checked."""
+    fields_psf = psf if psf.ndim == 5 else psf[None]
+    channels = {
+        psf_channel_name(i, j, k): fields_psf[k, i, j]
+        for k in range(fields_psf.shape[0])
+        for i in range(fields_psf.shape[1])
+        for j in range(fields_psf.shape[2])
+    }
     if rgb is not None:
-        if rgb.ndim != 4 or rgb.shape[:2] != (psf.shape[0], 3):
-            raise InputError(field, f"rgb of shape {rgb.shape} beside psf {psf.shape}", "rgb (D, 3, N, N)")
+        if rgb.ndim != psf.ndim or rgb.shape[:-3] != psf.shape[:-3] or rgb.shape[-3] != len(RGB_CHANNELS):
+            raise InputError(
+                field,
+                f"rgb of shape {rgb.shape} beside psf {psf.shape}",
+                "rgb (D, 3, N, N), or (F, D, 3, N, N) beside psf (F, D, W, N, N)",
+            )
+        fields_rgb = rgb if rgb.ndim == 5 else rgb[None]
         channels.update(
-            {rgb_channel_name(i, c): rgb[i, k] for i in range(rgb.shape[0]) for k, c in enumerate(RGB_CHANNELS)}
+            {
+                rgb_channel_name(i, c, k): fields_rgb[k, i, m]
+                for k in range(fields_rgb.shape[0])
+                for i in range(fields_rgb.shape[1])
+                for m, c in enumerate(RGB_CHANNELS)
+            }
         )
     return {name: np.ascontiguousarray(plane) for name, plane in channels.items()}
 
@@ -214,21 +311,93 @@ def cube_from_channels(field: str, metadata: dict[str, Any], channels: dict[str,
 def _check_cube(field: str, metadata: dict[str, Any], channels: dict[str, np.ndarray]) -> None:
     """Refuse metadata or channels that break the contract (shared by writing and reading)."""
     depth_count, wavelength_count = check_metadata(field, metadata)
-    _check_channel_names(field, channels, depth_count, wavelength_count)
+    _check_channel_names(field, channels, depth_count, wavelength_count, field_count(metadata))
     _check_pixels(field, channels)
 
 
 def check_metadata(field: str, metadata: dict[str, Any]) -> tuple[int, int]:
-    """Refuse metadata that breaks the contract; return (D, W), the counts of depths and
-    wavelengths. ``design`` and ``version`` are optional (a measured cube from another program
-    may lack them)."""
+    """Refuse metadata that breaks the contract (a field cube's keys included); return (D, W),
+    the counts of depths and wavelengths. ``design`` and ``version`` are optional (a measured cube
+    from another program may lack them)."""
     missing = [key for key in REQUIRED_KEYS if key not in metadata]
     if missing:
         raise InputError(field, f"metadata JSON lacks {', '.join(missing)}", _EXPECTED)
     wavelengths = _positive_list(field, metadata, "wavelengths_m", allow_null=False, limit=MAX_WAVELENGTHS)
     depths = _positive_list(field, metadata, "depths_m", allow_null=True, limit=MAX_DEPTHS)
     _check_scalars(field, metadata)
+    _check_fields(field, metadata, len(depths), len(wavelengths))
     return len(depths), len(wavelengths)
+
+
+def field_count(metadata: dict[str, Any]) -> int | None:
+    """F of checked metadata (:func:`check_metadata`) of a field cube; None for an on-axis cube."""
+    return len(metadata["field_angles_rad"]) if "field_angles_rad" in metadata else None
+
+
+def _check_fields(field: str, metadata: dict[str, Any], depth_count: int, wavelength_count: int) -> None:
+    """A field cube's keys (none, or all of FIELD_KEYS): angles in [0, π/2), distinct; a finite
+    azimuth; F chief rays [x, y] (finite metres) and F window centres [column, row] (integers);
+    field_kept, if present, F × D × W numbers ≥ 0."""
+    present = [key for key in (*FIELD_KEYS, FIELD_KEPT) if key in metadata]
+    if not present:
+        return
+    missing = [key for key in FIELD_KEYS if key not in metadata]
+    if missing:
+        raise InputError(
+            field, f"metadata JSON has {present[0]} but lacks {', '.join(missing)}", f"all of {', '.join(FIELD_KEYS)}"
+        )
+    angles = metadata["field_angles_rad"]
+    if not isinstance(angles, list) or not 1 <= len(angles) <= MAX_FIELDS:
+        raise InputError(field, f"field_angles_rad is not a list of 1 to {MAX_FIELDS} numbers", "a JSON list")
+    for value in angles:
+        if not _is_number(value) or not 0 <= value < math.pi / 2:
+            raise InputError(field, f"field_angles_rad holds {value!r}", "angles in radians, ≥ 0 and < π/2")
+    repeated = next((value for k, value in enumerate(angles) if value in angles[:k]), None)
+    if repeated is not None:
+        raise InputError(field, f"field_angles_rad holds {repeated!r} twice", "distinct values")
+    azimuth = metadata["field_azimuth_rad"]
+    if not _is_finite(azimuth):
+        raise InputError(field, f"field_azimuth_rad is {azimuth!r}", "a finite number of radians")
+    count = len(angles)
+    _check_pairs(field, metadata, "chief_ray_m", count, "[x, y] in finite metres")
+    _check_pairs(field, metadata, "window_centre_px", count, "[column, row] of integers")
+    if FIELD_KEPT in metadata:
+        _check_kept(field, metadata[FIELD_KEPT], (count, depth_count, wavelength_count))
+
+
+def _check_pairs(field: str, metadata: dict[str, Any], key: str, count: int, form: str) -> None:
+    """``key`` a list of ``count`` pairs: finite numbers, or (window_centre_px) integers below 2³¹."""
+    values = metadata[key]
+    if not isinstance(values, list) or len(values) != count:
+        size = len(values) if isinstance(values, list) else "not a list"
+        raise InputError(field, f"{key} holds {size} entries for {count} field angles", f"{count} pairs {form}")
+    integer = key == "window_centre_px"
+    for pair in values:
+        good = isinstance(pair, list) and len(pair) == 2 and all(_is_finite(v) for v in pair)
+        if good and integer:
+            good = all(isinstance(v, int) and abs(v) <= MAX_WINDOW_CENTRE_PX for v in pair)
+        if not good:
+            raise InputError(field, f"{key} holds {pair!r}", f"{count} pairs {form}")
+
+
+def _check_kept(field: str, values: Any, shape: tuple[int, int, int]) -> None:
+    """``field_kept``: nested lists of ``shape`` (F, D, W) holding finite numbers ≥ 0."""
+    form = f"{shape[0]} × {shape[1]} × {shape[2]} numbers ≥ 0 (fields × depths × wavelengths)"
+    nested = (
+        isinstance(values, list)
+        and len(values) == shape[0]
+        and all(
+            isinstance(rows, list)
+            and len(rows) == shape[1]
+            and all(isinstance(row, list) and len(row) == shape[2] for row in rows)
+            for rows in values
+        )
+    )
+    if not nested:
+        raise InputError(field, "field_kept is not F × D × W nested lists", form)
+    for value in (value for rows in values for row in rows for value in row):
+        if not _is_finite(value) or value < 0:
+            raise InputError(field, f"field_kept holds {value!r}", form)
 
 
 def _positive_list(
@@ -269,23 +438,45 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
-_CHANNEL = re.compile(r"psf\.d\d{2}\.w\d{3}|rgb\.d\d{2}\.[RGB]")
+def _is_finite(value: Any) -> bool:
+    """True for finite JSON numbers that a float holds (an integer of 400 digits is not one)."""
+    return _is_number(value) and -1e300 < value < 1e300
 
 
-def _check_channel_names(field: str, channels: dict[str, np.ndarray], depth_count: int, wavelength_count: int) -> None:
-    """Exactly the D × W psf channels, and either no rgb channels or all D × 3."""
-    expected = {psf_channel_name(i, j) for i in range(depth_count) for j in range(wavelength_count)}
-    rgb = {rgb_channel_name(i, c) for i in range(depth_count) for c in RGB_CHANNELS}
+_CHANNEL = re.compile(r"(psf|rgb)\.(f\d{2}\.)?d\d{2}\.(w\d{3}|[RGB])")
+_FIELD_CHANNEL = re.compile(r"(psf|rgb)\.f\d{2}\.")
+
+
+def _check_channel_names(
+    field: str, channels: dict[str, np.ndarray], depth_count: int, wavelength_count: int, fields: int | None = None
+) -> None:
+    """Exactly the D × W psf channels of each field (one for an on-axis cube, ``fields`` None), and
+    either no rgb channels or all D × 3 of each field."""
+    indices = range(fields or 1)
+    expected = {psf_channel_name(i, j, k) for k in indices for i in range(depth_count) for j in range(wavelength_count)}
+    rgb = {rgb_channel_name(i, c, k) for k in indices for i in range(depth_count) for c in RGB_CHANNELS}
     present = set(channels)
     if present & rgb:
         expected |= rgb
     missing, extra = sorted(expected - present), sorted(present - expected)
     if missing:
-        cube = f"{depth_count} depths × {wavelength_count} wavelengths"
+        cube = _cube_words(depth_count, wavelength_count, fields)
         raise InputError(field, f"missing channels {_listing(missing)} for {cube}", _EXPECTED)
     if extra:
-        reason = "unexpected channels" if all(_CHANNEL.fullmatch(name) for name in extra) else "foreign channels"
-        raise InputError(field, f"{reason} {_listing(extra)}", _EXPECTED)
+        if not all(_CHANNEL.fullmatch(name) for name in extra):
+            raise InputError(field, f"foreign channels {_listing(extra)}", _EXPECTED)
+        if fields is not None:
+            where = f" for {_cube_words(depth_count, wavelength_count, fields)}"
+        elif any(_FIELD_CHANNEL.match(name) for name in extra):
+            where = " (field channels need field_angles_rad and the other field keys)"
+        else:
+            where = ""
+        raise InputError(field, f"unexpected channels {_listing(extra)}{where}", _EXPECTED)
+
+
+def _cube_words(depth_count: int, wavelength_count: int, fields: int | None) -> str:
+    """ "2 depths × 3 wavelengths", with "3 fields × " before it for a field cube."""
+    return ("" if fields is None else f"{fields} fields × ") + f"{depth_count} depths × {wavelength_count} wavelengths"
 
 
 def _listing(names: list[str]) -> str:
@@ -319,10 +510,26 @@ def _axes(metadata: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 def _assemble(metadata: dict[str, Any], channels: dict[str, np.ndarray]) -> PsfCube:
     """Stack the validated channels into arrays."""
     wavelengths, depths = _axes(metadata)
+    indices = range(field_count(metadata) or 1)
     psf = np.stack(
-        [np.stack([channels[psf_channel_name(i, j)] for j in range(wavelengths.size)]) for i in range(depths.size)]
+        [
+            [[channels[psf_channel_name(i, j, k)] for j in range(wavelengths.size)] for i in range(depths.size)]
+            for k in indices
+        ]
     )
     rgb = None
     if rgb_channel_name(0, "R") in channels:
-        rgb = np.stack([np.stack([channels[rgb_channel_name(i, c)] for c in RGB_CHANNELS]) for i in range(depths.size)])
-    return PsfCube(psf, rgb, wavelengths, depths, metadata)
+        rgb = np.stack(
+            [[[channels[rgb_channel_name(i, c, k)] for c in RGB_CHANNELS] for i in range(depths.size)] for k in indices]
+        )
+    return _cube(metadata, psf, rgb)
+
+
+def _cube(metadata: dict[str, Any], psf: np.ndarray, rgb: np.ndarray | None) -> PsfCube:
+    """The PsfCube of validated ``metadata`` and psf (F, D, W, N, N) or, on axis, (D, W, N, N);
+    rgb likewise (F, D, 3, N, N), (D, 3, N, N) or None."""
+    if psf.ndim == 4:
+        return PsfCube(psf, rgb, *_axes(metadata), metadata)
+    if field_count(metadata) is None:  # an on-axis cube stacked as one field
+        return PsfCube(psf[0], None if rgb is None else rgb[0], *_axes(metadata), metadata)
+    return PsfCube(psf[0], None if rgb is None else rgb[0], *_axes(metadata), metadata, psf, rgb)

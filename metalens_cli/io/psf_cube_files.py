@@ -16,6 +16,10 @@ with a one-line :class:`InputError`. Values, axes and metadata round-trip exactl
 - ``.tif``/``.tiff``: one uncompressed float32 page per PSF, page I·W + J for depth I and
   wavelength J, then (with colour channels) page D·W + 3·I + C for channel C of R, G, B; the
   JSON in the first page's ImageDescription; each page's PageName is its EXR channel name.
+
+A field cube (off-axis fields, ``docs/formats.md``) is written as ``.exr`` only: the other
+writers refuse it. Their readers take any cube the contract allows in their layout, which holds
+one field's channel names, so a field cube in them is refused for its missing field channels.
 """
 
 from __future__ import annotations
@@ -79,10 +83,22 @@ def cube_suffix(path: str | os.PathLike[str], field: str) -> str:
     return suffix
 
 
-def check_cube_size(path: str | os.PathLike[str], field: str, depth_count: int, wavelength_count: int, pixels: int):
-    """Refuse, before any work, a cube that ``path``'s format cannot hold: a ``.mat`` variable
-    over MATLAB's 2 GiB (the psf array, or the rgb one when there are fewer than 3 wavelengths)."""
-    if cube_suffix(path, field) != ".mat":
+def check_cube_size(
+    path: str | os.PathLike[str],
+    field: str,
+    depth_count: int,
+    wavelength_count: int,
+    pixels: int,
+    *,
+    field_cube: bool = False,
+):
+    """Refuse, before any work, a cube that ``path``'s format cannot hold: a field cube
+    (``field_cube``) in any format but ``.exr``, a ``.mat`` variable over MATLAB's 2 GiB (the psf
+    array, or the rgb one when there are fewer than 3 wavelengths)."""
+    suffix = cube_suffix(path, field)
+    if field_cube and suffix != ".exr":
+        raise _field_cube_refused(field, suffix)
+    if suffix != ".mat":
         return
     largest = depth_count * max(wavelength_count, 3) * pixels * pixels * 4
     if largest > MAT_MAX_VARIABLE_BYTES:
@@ -106,15 +122,22 @@ def write_cube_file(
     extra: dict[str, Any] | None = None,
 ) -> None:
     """Write a PSF cube in the format of ``path``'s suffix (:data:`CUBE_SUFFIXES`), atomically;
-    arguments as :func:`metalens_cli.io.exr.prepare_cube`. An invalid cube, or a suffix of no
-    format, is an InputError naming ``path``, and nothing is written."""
+    arguments as :func:`metalens_cli.io.exr.prepare_cube`. An invalid cube, a suffix of no
+    format, or a field cube in a format but ``.exr`` is an InputError naming ``path``, and
+    nothing is written."""
     suffix = cube_suffix(path, str(path))
     arguments = (psf, wavelengths_m, depths_m, pixel_pitch_m, design)
     if suffix == ".exr":
         write_psf_cube(path, *arguments, rgb=rgb, normalization=normalization, extra=extra)
         return
     cube, text = prepare_cube(path, *arguments, rgb=rgb, normalization=normalization, extra=extra)
+    if cube.is_field_cube:
+        raise _field_cube_refused(str(path), suffix)
     _WRITERS[suffix](Path(path), cube, text)
+
+
+def _field_cube_refused(field: str, suffix: str) -> InputError:
+    return InputError(field, f"a field cube is written as .exr, not {suffix}", "a file ending in .exr for a field cube")
 
 
 def read_cube_file(path: str | os.PathLike[str]) -> PsfCube:

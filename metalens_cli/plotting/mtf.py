@@ -1,5 +1,6 @@
 """Figures of MTFs: frequency × wavelength heatmaps per depth (paper Suppl. Note 13), near vs far
-curves with the diffraction limit and the Nyquist line, and slanted-edge SFRs per channel."""
+curves with the diffraction limit and the Nyquist line, MTF50 against field angle (tangential and
+sagittal) for a field cube, and slanted-edge SFRs per channel."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from metalens_cli.analysis.mtf import RGB_NAMES, CubeMtf, diffraction_mtf
+from metalens_cli.analysis.mtf import DIRECTIONS, RGB_NAMES, CubeMtf, diffraction_mtf
 from metalens_cli.analysis.slanted_edge import EdgeAnalysis
 from metalens_cli.plotting.common import depth_label, new_figure, save_figure
 
 CHANNEL_COLOURS = {"R": "tab:red", "G": "tab:green", "B": "tab:blue", "Y": "black"}
 CURVE_WAVELENGTHS = 4  # wavelengths drawn as curves, spread over the cube's range
+DIRECTION_STYLES = {"tangential": "-", "sagittal": "--"}
 
 
 def plot_cube_mtf(path: str | Path, result: CubeMtf) -> Path:
@@ -44,14 +46,64 @@ def plot_cube_mtf(path: str | Path, result: CubeMtf) -> Path:
     return save_figure(fig, path)
 
 
-def _wavelength_curves(ax, result: CubeMtf) -> None:
-    """MTF curves of a few wavelengths, near (dashed) and far (solid), with references."""
+def plot_field_mtf50(path: str | Path, result: CubeMtf) -> Path:
+    """MTF50 against field angle (the lens-design figure) of a field cube's MTFs, one panel per
+    depth: tangential solid, sagittal dashed, one colour per R, G, B channel (for a few
+    wavelengths when the cube has no channels); the Nyquist frequency dash-dotted. A missing point
+    is an MTF that stays above 0.5 up to Nyquist."""
+    field = result.field
+    depths = result.depths_m.size
+    fig, axes = new_figure(1, depths, figsize=(4.6 * depths, 3.8), squeeze=False, layout="constrained")
+    order = np.argsort(field.angles_rad)
+    degrees = np.degrees(field.angles_rad[order])
+    if field.rgb_tangential is not None:
+        series = [(name, CHANNEL_COLOURS[name], c, True) for c, name in enumerate(RGB_NAMES)]
+    else:
+        series = [
+            (f"{result.wavelengths_m[j] * 1e9:.0f} nm", colour, j, False) for colour, j in _wavelength_choice(result)
+        ]
+    for i, z in enumerate(result.depths_m):
+        ax = axes[0, i]
+        missing = False
+        for label, colour, j, channel in series:
+            for direction in DIRECTIONS:
+                values = field.mtf50(direction, channel)[order, i, j]
+                missing |= bool(np.isnan(values).any())
+                ax.plot(
+                    degrees,
+                    values,
+                    color=colour,
+                    ls=DIRECTION_STYLES[direction],
+                    marker="o",
+                    ms=3,
+                    label=label if direction == "tangential" else None,
+                )
+        ax.axhline(result.nyquist_lpmm, color="0.4", lw=0.8, ls="-.", label="Nyquist")
+        for direction, style in DIRECTION_STYLES.items():
+            ax.plot([], [], color="0.3", ls=style, label=direction)
+        note = "\nmissing points: MTF above 0.5 up to Nyquist" if missing else ""
+        ax.set_title(f"MTF50 over the field, {depth_label(z)}{note}", fontsize=9)
+        ax.set_xlabel(f"field angle (°), azimuth {np.degrees(field.azimuth_rad):.3g}°")
+        ax.set_ylabel("MTF50 (lp/mm)" + (" (pixel MTF removed)" if result.pixel_mtf_removed else ""))
+        ax.set_xlim(0, max(degrees[-1] * 1.05, 1.0))
+        ax.set_ylim(0, result.nyquist_lpmm * 1.05)
+        ax.legend(fontsize=7, loc="best")
+    return save_figure(fig, path)
+
+
+def _wavelength_choice(result: CubeMtf) -> list[tuple[np.ndarray, int]]:
+    """(colour, wavelength index) of at most CURVE_WAVELENGTHS wavelengths spread over the cube's."""
     import matplotlib
 
     chosen = np.unique(np.linspace(0, result.wavelengths_m.size - 1, CURVE_WAVELENGTHS).round().astype(int))
     colours = matplotlib.colormaps["turbo"](np.linspace(0.05, 0.95, chosen.size))
+    return list(zip(colours, chosen.tolist()))
+
+
+def _wavelength_curves(ax, result: CubeMtf) -> None:
+    """MTF curves of a few wavelengths, near (dashed) and far (solid), with references."""
     near, far = int(np.argmin(result.depths_m)), int(np.argmax(result.depths_m))
-    for colour, j in zip(colours, chosen):
+    for colour, j in _wavelength_choice(result):
         label = f"{result.wavelengths_m[j] * 1e9:.0f} nm"
         ax.plot(result.frequencies_lpmm, result.mtf[far, j], color=colour, label=label)
         if near != far:

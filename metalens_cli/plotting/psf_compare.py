@@ -1,5 +1,6 @@
 """Figure of a measured-against-simulated PSF comparison: the x-λ scans of both side by side per
-depth (the paper's Fig. 4c), and the peak ratio and relative error against wavelength."""
+depth (and field, comparing field cubes; the paper's Fig. 4c), and the peak ratio and relative
+error against wavelength."""
 
 from __future__ import annotations
 
@@ -41,7 +42,7 @@ def plot_psf_comparison(path: str | Path, result, half_width_px: int = 40) -> Pa
                 interpolation="nearest",
                 extent=extent,
             )
-            ax.set_title(f"{kind}, {depth_label(scan['depth_m'])}", fontsize=9)
+            ax.set_title(f"{kind}, {_label(scan)}", fontsize=9)
             ax.set_xlabel("x (µm)")
             ax.set_ylabel("wavelength (nm)")
     ratio_ax, error_ax = axes[-1]
@@ -49,11 +50,12 @@ def plot_psf_comparison(path: str | Path, result, half_width_px: int = 40) -> Pa
         pairs = [
             p
             for p in result.pairs
-            if (p["depth_m"] is None and np.isinf(scan["depth_m"])) or p["depth_m"] == scan["depth_m"]
+            if ((p["depth_m"] is None and np.isinf(scan["depth_m"])) or p["depth_m"] == scan["depth_m"])
+            and p.get("field") == scan.get("field")
         ]
         wl = [p["wavelength_m"] * 1e9 for p in pairs]
-        ratio_ax.plot(wl, [p["peak_ratio"] for p in pairs], marker=".", label=depth_label(scan["depth_m"]))
-        error_ax.plot(wl, [p["relative_l2"] for p in pairs], marker=".", label=depth_label(scan["depth_m"]))
+        ratio_ax.plot(wl, [p["peak_ratio"] for p in pairs], marker=".", label=_label(scan))
+        error_ax.plot(wl, [p["relative_l2"] for p in pairs], marker=".", label=_label(scan))
     ratio_ax.set_ylabel("peak ratio (measured / simulated)")
     error_ax.set_ylabel("relative L2 error")
     for ax in (ratio_ax, error_ax):
@@ -61,3 +63,9 @@ def plot_psf_comparison(path: str | Path, result, half_width_px: int = 40) -> Pa
         ax.legend(fontsize=8)
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def _label(scan: dict) -> str:
+    """ "z = 45 mm", and the field angle of a field comparison's scan: "z = ∞, field 5°"."""
+    field = f", field {scan['field_angle_deg']:.3g}°" if "field" in scan else ""
+    return depth_label(scan["depth_m"]) + field

@@ -167,3 +167,98 @@ def test_encircled_energy_beyond_the_window_is_not_reported_and_light_outside_it
         "encircled energy at 10 µm and 20 µm is not reported" in w and "18 µm across" in w for w in result.warnings
     )
     assert all(r is not None for r in compare_cubes(measured, measured).pairs[0]["encircled_energy"]["measured"])
+
+
+# ---------------------------------------------------------------------------- field cubes
+
+
+def field_cube(psfs, angles, centres, pitch=PITCH, azimuth=0.0):
+    """A field cube of one depth (inf) and one wavelength (530 nm): ``psfs`` (F, N, N), window
+    centres [column, row] in its own pixels."""
+    psf = np.asarray(psfs, dtype=np.float32)[:, None, None]
+    metadata = {
+        "pixel_pitch_m": pitch,
+        "field_angles_rad": list(angles),
+        "field_azimuth_rad": azimuth,
+        "chief_ray_m": [[c * pitch, r * pitch] for c, r in centres],
+        "window_centre_px": [list(c) for c in centres],
+    }
+    return PsfCube(psf[0], None, np.array([530e-9]), np.array([math.inf]), metadata, psf, None)
+
+
+def test_field_cubes_are_compared_field_by_field():
+    measured = field_cube([spot(41, 1.5), spot(41, 2.0), spot(41, 2.5)], [0.0, 0.05, 0.1], [(0, 0), (100, 0), (200, 0)])
+    simulated = field_cube([spot(41, 2.5), spot(41, 1.5)], [0.1, 0.0], [(200, 0), (0, 0)])  # other order, no 0.05
+    result = compare_cubes(measured, simulated)
+    assert [(f["field"], f["simulated_field"]) for f in result.fields] == [(0, 1), (1, None), (2, 0)]
+    assert [p["field"] for p in result.pairs] == [0, 2] and result.pairs[1]["field_angle_deg"] == pytest.approx(
+        math.degrees(0.1)
+    )
+    for pair in result.pairs:  # each with its own partner: identical PSFs
+        assert pair["peak_ratio"] == pytest.approx(1, abs=1e-12) and pair["relative_l2"] < 1e-12
+        assert pair["sensor_shift_px"] == [0.0, 0.0]
+    assert result.refused == [
+        {
+            "field": 1,
+            "field_angle_deg": pytest.approx(math.degrees(0.05)),
+            "depth_m": None,
+            "wavelength_m": 530e-9,
+            "reason": "no simulated field at this field angle",
+        }
+    ]
+    assert [s["field"] for s in result.scans] == [0, 2] and result.warnings == []
+
+
+@pytest.mark.parametrize(("sim_pitch", "sim_centre"), [(PITCH, 103), (PITCH / 2, 206)])
+def test_window_centres_are_taken_into_account(sim_pitch, sim_centre):
+    """The measured window is centred on sensor column 100, the simulated on column 103 (206 half
+    pixels): a measured spot 3 columns right of its window's centre lies where the simulated spot
+    does on the sensor. The registration finds the windows' shift (0, 3); on the sensor: (0, 0)."""
+    n_sim = 41 if sim_pitch == PITCH else 81
+    measured = field_cube([spot(41, 1.5), spot(41, 2.0, (0.0, 3.0))], [0.0, 0.1], [(0, 0), (100, 0)])
+    simulated = field_cube(
+        [spot(n_sim, 1.5 * PITCH / sim_pitch), spot(n_sim, 2.0 * PITCH / sim_pitch)],
+        [0.0, 0.1 + 5e-7],  # within 1e-6 rad
+        [(0, 0), (sim_centre, 0)],
+        pitch=sim_pitch,
+    )
+    result = compare_cubes(measured, simulated)
+    assert result.fields[1]["window_offset_px"] == pytest.approx([0.0, 3.0])
+    pair = result.pairs[1]
+    assert np.allclose(pair["shift_px"], (0.0, 3.0), atol=0.05)
+    assert np.allclose(pair["sensor_shift_px"], (0.0, 0.0), atol=0.05)
+    assert pair["relative_l2"] < 0.03
+
+
+def test_a_field_cube_against_an_on_axis_cube_compares_field_0_with_a_warning():
+    on_axis = cube([spot(41, 1.5)], [530])
+    fields = field_cube([spot(41, 1.5), spot(41, 3.0)], [0.0, 0.1], [(0, 0), (100, 0)])
+    for measured, simulated, which in ((on_axis, fields, "simulated"), (fields, on_axis, "measured")):
+        result = compare_cubes(measured, simulated)
+        assert result.fields == [] and len(result.pairs) == 1 and "field" not in result.pairs[0]
+        assert result.pairs[0]["relative_l2"] < 1e-12  # field 0, not field 1
+        assert result.warnings == [
+            f"the {which} cube holds 2 fields and the {'measured' if which == 'simulated' else 'simulated'} cube is "
+            f"on axis: only the {which} cube's field 0 (at 0°) is compared"
+        ]
+    plain = compare_cubes(on_axis, on_axis)
+    assert plain.fields == [] and set(plain.pairs[0]) == {
+        "depth_m",
+        "wavelength_m",
+        "simulated",
+        "shift_px",
+        "peak_ratio",
+        "fwhm_m",
+        "encircled_energy",
+        "relative_l2",
+        "mtf50_lpmm",
+    }
+
+
+def test_field_cubes_at_other_azimuths_or_angles_are_refused():
+    measured = field_cube([spot(41, 1.5)], [0.1], [(100, 0)])
+    with pytest.raises(InputError, match="azimuth 90°, the measured cube's at 0°"):
+        compare_cubes(measured, field_cube([spot(41, 1.5)], [0.1], [(0, 100)], azimuth=math.pi / 2))
+    compare_cubes(measured, field_cube([spot(41, 1.5)], [0.1], [(100, 0)], azimuth=2 * math.pi))  # the same azimuth
+    with pytest.raises(InputError, match=re.escape("none of its field angles (11.46°) is one of the measured cube's")):
+        compare_cubes(measured, field_cube([spot(41, 1.5)], [0.2], [(200, 0)]))

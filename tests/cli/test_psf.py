@@ -227,3 +227,55 @@ def test_compare_refuses_a_3x3_window_and_does_not_report_encircled_energy_beyon
     )
     code, out, err = invoke(capsys, "psf", "compare", tmp_path / "m.exr", tmp_path / "s9.exr")
     assert code == 0 and "— / —" in out and "1.000 / 1.000" not in out
+
+
+def _write_field_cube(path, planes, angles, centres, pitch_m=1.85e-6):
+    """A field cube of one depth (inf) and one wavelength (530 nm): ``planes`` (F, N, N)."""
+    from metalens_cli.io.exr import write_psf_cube
+
+    extra = {
+        "field_angles_rad": angles,
+        "field_azimuth_rad": 0.0,
+        "chief_ray_m": [[c * pitch_m, r * pitch_m] for c, r in centres],
+        "window_centre_px": centres,
+    }
+    psf = np.asarray(planes, np.float32)[:, None, None]
+    write_psf_cube(path, psf, np.array([530e-9]), np.array([np.inf]), pitch_m, "test", extra=extra)
+
+
+def test_compare_field_cubes_per_field(capsys, tmp_path):
+    """Measured field 1 lies 2 columns right of its window's centre, the simulated window 2 columns
+    right of the measured one's: on the sensor they coincide."""
+    measured, simulated, table = tmp_path / "m.exr", tmp_path / "s.exr", tmp_path / "c.csv"
+    _write_field_cube(
+        measured,
+        [gaussian_spot(33, 33, (16, 16), 1.5), gaussian_spot(33, 33, (16, 18), 2.0)],
+        [0.0, 0.1],
+        [[0, 0], [216, 0]],
+    )
+    _write_field_cube(
+        simulated,
+        [gaussian_spot(33, 33, (16, 16), 1.5), gaussian_spot(33, 33, (16, 16), 2.0)],
+        [0.0, 0.1],
+        [[0, 0], [218, 0]],
+    )
+    code, out, err = invoke(
+        capsys, "psf", "compare", measured, simulated, "--json", "--csv", table, "--plot", tmp_path / "c.png"
+    )
+    assert code == 0 and err == ""
+    data = json.loads(out)
+    assert [(f["field"], f["simulated_field"]) for f in data["fields"]] == [(0, 0), (1, 1)]
+    assert data["fields"][1]["window_offset_px"] == [0.0, 2.0]
+    assert [p["field"] for p in data["pairs"]] == [0, 1]
+    assert data["pairs"][1]["shift_px"] == pytest.approx([0, 2], abs=0.05)
+    assert data["pairs"][1]["sensor_shift_px"] == pytest.approx([0, 0], abs=0.05)
+    rows = table.read_text().splitlines()
+    assert rows[0].endswith(",shift_y_px,shift_x_px,field,field_angle_deg,sensor_shift_y_px,sensor_shift_x_px")
+    assert len(rows) == 3 and (tmp_path / "c.png").stat().st_size > 0
+    code, out, err = invoke(capsys, "psf", "compare", measured, simulated)
+    assert code == 0 and "field (°)" in out and "sensor_shift_px" in out
+    on_axis = tmp_path / "a.exr"
+    _write_cube(on_axis, gaussian_spot(33, 33, (16, 16), 1.5), 1.85e-6)
+    code, out, err = invoke(capsys, "psf", "compare", on_axis, simulated, "--json")
+    assert code == 0 and "fields" not in json.loads(out) and len(json.loads(out)["pairs"]) == 1
+    assert "metalens: warning: the simulated cube holds 2 fields and the measured cube is on axis" in err
