@@ -67,6 +67,33 @@ class Angle(_UnitType):
         return units.parse_angle(text, field)
 
 
+class AngleList(_UnitType):
+    """Angles and ranges: ``0deg,3deg,6.75deg`` or ``0:6:1.5deg`` → list of radians in [0, π/2)."""
+
+    name = "angles"
+
+    def parse(self, text, field):
+        return units.parse_angle_list(text, field)
+
+
+class HeightList(_UnitType):
+    """Lengths ≥ 0 and ranges: ``0um,250um`` → list of metres (sensor heights; 0 is the axis)."""
+
+    name = "heights"
+
+    def parse(self, text, field):
+        return units.parse_height_list(text, field)
+
+
+class Azimuth(_UnitType):
+    """One azimuth: ``90deg`` → radians in [0, 2π)."""
+
+    name = "azimuth"
+
+    def parse(self, text, field):
+        return units.parse_angle(text, field, full_circle=True)
+
+
 class LengthList(_UnitType):
     """Lengths and ranges: ``45mm,inf`` or ``430:645:5nm`` → list of metres."""
 

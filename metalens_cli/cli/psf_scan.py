@@ -8,6 +8,9 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
+    AngleList,
+    Azimuth,
+    HeightList,
     Length,
     LengthList,
     MetalensCommand,
@@ -40,6 +43,27 @@ DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
 )
 @click.option(
     "--depths", type=LengthList(allow_inf=True), multiple=True, help="Source depths, e.g. 45mm,inf (default)."
+)
+@click.option(
+    "--field-angles",
+    "field_angles",
+    type=AngleList(),
+    help="Off-axis fields as angles, e.g. 0deg,3deg,6.75deg or 0:6:1.5deg: a field cube (.exr), each window "
+    "centred on its chief ray.",
+)
+@click.option(
+    "--field-heights",
+    "field_heights",
+    type=HeightList(),
+    help="Off-axis fields as chief-ray heights on the sensor, e.g. 0um,250um (angle atan(h/f)).",
+)
+@click.option(
+    "--field-azimuth",
+    "field_azimuth",
+    type=Azimuth(),
+    default="0deg",
+    show_default=True,
+    help="Azimuth of the fields, counter-clockwise from the sensor's +x axis.",
 )
 @click.option("--pixels", type=click.IntRange(1, 8192), help="Sensor window N × N [preset's, else 512].")
 @click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um].")
@@ -78,6 +102,9 @@ def psf_scan(
     pitch_m,
     wavelengths,
     depths,
+    field_angles,
+    field_heights,
+    field_azimuth,
     pixels,
     pixel_pitch_m,
     propagator,
@@ -96,13 +123,17 @@ def psf_scan(
 
     Each PSF is the fraction of the power through the aperture landing on each pixel of an
     N × N window centred on the axis (pixel N//2, N//2). With a preset (given or carried by the
-    design), R, G, B channel PSFs are mixed with the spectral sensitivity S^c.
+    design), R, G, B channel PSFs are mixed with the spectral sensitivity S^c. With
+    --field-angles or --field-heights, a field cube: each field's window centred on the pixel
+    where its chief ray lands (off-axis fields by the 2-D shifted angular spectrum).
     """
     import torch
 
     from metalens_cli.imaging.psf_scan import (
         check_scan_size,
+        estimate_field_scan,
         estimate_scan,
+        run_field_scan,
         run_scan,
         scan_metadata,
         scan_report,
@@ -118,24 +149,24 @@ def psf_scan(
     pixel_pitch_m = pixel_pitch_m or (sensor.pixel_pitch_m if sensor else DEFAULT_PIXEL_PITCH_M)
     wavelengths_m = flatten(wavelengths) or parse_length_list("430:645:5nm", "--wavelengths")
     depths_m = flatten(depths) or [0.045, math.inf]
-    check_scan_size(output, wavelengths_m, depths_m, pixels)
+    angles = _field_angles(field_angles, field_heights, design.focal_length_m, propagator)
+    check_scan_size(output, wavelengths_m, depths_m, pixels, field_cube=angles is not None)
     run_device = torch_device(device)  # resolved before the estimate: a CUDA job is checked against the GPU's memory
     psf_options = dict(propagator=propagator, dtype=getattr(torch, dtype), force=force)
-    estimate = estimate_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, **psf_options)
+    if angles is None:
+        estimate = estimate_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, **psf_options)
+    else:
+        psf_options.pop("propagator")
+        estimate = estimate_field_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, angles, **psf_options)
     announce(estimate, max_memory, output, run_device)
     efficiency = efficiency_used(design.preset, quiet)
     with progress_bar("psf-scan", quiet) as update:
-        scan = run_scan(
-            design,
-            wavelengths_m,
-            depths_m,
-            pixels,
-            pixel_pitch_m,
-            **psf_options,
-            device=run_device,
-            check_accuracy=check_accuracy,
-            progress=update,
-        )
+        common = (design, wavelengths_m, depths_m, pixels, pixel_pitch_m)
+        options = dict(**psf_options, device=run_device, check_accuracy=check_accuracy, progress=update)
+        if angles is None:
+            scan = run_scan(*common, **options)
+        else:
+            scan = run_field_scan(*common, angles, azimuth_rad=field_azimuth, **options)
     metadata = scan_metadata(design, scan, dtype, efficiency)
     write_scan(output, design, scan, metadata)
     if plot_path:
@@ -147,6 +178,57 @@ def psf_scan(
         render.emit_json(scan_report(design, scan, metadata, output, plot_path))
         return
     _render(scan, design, output)
+
+
+def _field_angles(angles, heights, focal_length_m, propagator) -> list[float] | None:
+    """The field angles (rad) from --field-angles or --field-heights (atan(h/f)), or None."""
+    from metalens_cli.errors import InputError
+    from metalens_cli.optics.field import field_angle
+
+    if angles and heights:
+        raise InputError("--field-heights", "given with --field-angles", "one of --field-angles or --field-heights")
+    if heights:
+        if focal_length_m is None:
+            raise InputError("--field-heights", "the design has no focal length", "--field-angles, or a design with f")
+        angles = [field_angle(h, focal_length_m) for h in heights]
+    if not angles:
+        return None
+    if len(set(angles)) != len(angles):
+        raise InputError("--field-angles", "the fields repeat an angle", "distinct field angles")
+    if propagator not in ("auto", "asm"):
+        raise InputError(
+            "--propagator", f"{propagator} with off-axis fields", "auto or asm (off axis: the shifted angular spectrum)"
+        )
+    return angles
+
+
+def _render_fields(scan, con) -> None:
+    from metalens_cli.io.units import format_length
+
+    rows = []
+    for f in scan.fields.metrics:
+        entries = f.get("channel_psfs") or f["psfs"]
+        for m in entries:
+            um = [None if m[k] is None else m[k] * 1e6 for k in ("fwhm_tangential_m", "fwhm_sagittal_m")]
+            rows.append(
+                [
+                    f"{f['angle_deg']:.3g}",
+                    f"{f['chief_ray_m'][0] * 1e6:.1f}, {f['chief_ray_m'][1] * 1e6:.1f}",
+                    format_length(m["depth_m"]),
+                    m.get("channel") or render.nm(m["wavelength_m"], 1),
+                    f"{m['centroid_from_chief_ray_m'][0] * 1e6:+.2f}, {m['centroid_from_chief_ray_m'][1] * 1e6:+.2f}",
+                    *("—" if v is None else f"{v:.2f}" for v in um),
+                    f"{m['ee80_radius_m'] * 1e6:.1f}",
+                    f"{m['energy_in_window']:.4f}",
+                ]
+            )
+    con.print(
+        render.table(
+            "Over the field (µm; centroid from the chief ray, FWHM through the brightest pixel)",
+            ["field (°)", "chief ray", "depth", "λ/channel", "centroid", "FWHM T", "FWHM S", "EE80 r", "in window"],
+            rows,
+        )
+    )
 
 
 def _render(scan, design, output) -> None:
@@ -170,7 +252,9 @@ def _render(scan, design, output) -> None:
             [[format_length(m["depth_m"]), render.nm(m["wavelength_m"], 1), *cells(m)] for m in scan.metrics],
         )
     )
-    if scan.channel_metrics:
+    if scan.fields is not None:
+        _render_fields(scan, con)
+    elif scan.channel_metrics:
         con.print(
             render.table(
                 "Channel PSFs: the wavelengths weighted by filter × camera response",

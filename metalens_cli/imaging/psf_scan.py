@@ -8,6 +8,11 @@ weighted mean of the wavelengths' own), and, on request, an accuracy report:
 the sharpest PSF recomputed with doubled sampling and, for radial designs, with the direct
 Rayleigh-Sommerfeld reference. The scan's cost is estimated and its cube file checked before
 any work; the cube is written with the scan's metadata in its header.
+
+With field angles (:func:`run_field_scan`) the cube gains a field axis (docs/formats.md, field
+cubes): each field's PSFs from ``optics.field.field_psf``, in a window centred on its chief ray,
+summarised by ``analysis.psf_metrics.field_summary`` (centroid, tangential and sagittal FWHM,
+encircled energy).
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS
 from metalens_cli.io.json_files import jsonable
 from metalens_cli.io.psf_cube_files import check_cube_size, write_cube_file
 from metalens_cli.io.resources import Estimate
-from metalens_cli.optics.psf import compute_psf, estimate_psf
+from metalens_cli.optics.psf import compute_psf, estimate_psf, validate_psf_arguments
 
 COVERAGE_WARNING = 0.99
 RS_WINDOW = 9  # central pixels compared with the direct Rayleigh-Sommerfeld reference
@@ -51,6 +56,22 @@ class ScanResult:
     spectra: dict | None = None
     accuracy: dict | None = None
     warnings: list[str] = field(default_factory=list)
+    fields: FieldScan | None = None
+
+
+@dataclass
+class FieldScan:
+    """The field axis of a scan: PSFs (F, D, W, N, N), channel PSFs (F, D, 3, N, N) or None, field
+    angles (rad), azimuth (rad), chief rays (F × (x, y), m), window centres (F × (column, row)
+    pixels from the axis pixel) and per field its PSF and channel summaries."""
+
+    psf: np.ndarray
+    rgb: np.ndarray | None
+    angles_rad: list[float]
+    azimuth_rad: float
+    chief_ray_m: list[list[float]]
+    centre_px: list[list[int]]
+    metrics: list[dict]
 
 
 def relative_l2(a: np.ndarray, reference: np.ndarray) -> float:
@@ -78,9 +99,12 @@ def _channel_weights(design: Design, wavelengths_m, warnings: list[str]):
     return weights.weights, spectra
 
 
-def check_scan_size(path: str | os.PathLike[str], wavelengths_m, depths_m, pixels: int) -> None:
+def check_scan_size(
+    path: str | os.PathLike[str], wavelengths_m, depths_m, pixels: int, *, field_cube: bool = False
+) -> None:
     """Refuse, before any work, a scan whose cube ``path`` cannot hold: more wavelengths or depths
-    than a cube file holds, or a ``.mat`` variable over 2 GiB (``io.psf_cube_files``)."""
+    than a cube file holds, a ``.mat`` variable over 2 GiB or a field cube in any format but
+    ``.exr`` (``io.psf_cube_files``)."""
     for option, values, limit in (
         ("--wavelengths", wavelengths_m, MAX_WAVELENGTHS),
         ("--depths", depths_m, MAX_DEPTHS),
@@ -89,7 +113,7 @@ def check_scan_size(path: str | os.PathLike[str], wavelengths_m, depths_m, pixel
             raise InputError(
                 option, f"{len(values)} values; a PSF cube holds at most {limit}", f"at most {limit} values"
             )
-    check_cube_size(path, "--output", len(depths_m), len(wavelengths_m), pixels)
+    check_cube_size(path, "--output", len(depths_m), len(wavelengths_m), pixels, field_cube=field_cube)
 
 
 def estimate_scan(
@@ -273,15 +297,16 @@ def scan_metadata(design: Design, scan: ScanResult, dtype: str, efficiency: dict
 
 def write_scan(path: str | os.PathLike[str], design: Design, scan: ScanResult, metadata: dict) -> None:
     """The scan's cube file, in the format of ``path``'s suffix, atomically, ``metadata`` in its header."""
+    fields = scan.fields
     write_cube_file(
         path,
-        scan.psf,
+        scan.psf if fields is None else fields.psf,
         scan.wavelengths_m,
         scan.depths_m,
         scan.pixel_pitch_m,
         design.describe(),
-        rgb=scan.rgb,
-        extra=jsonable(metadata),
+        rgb=scan.rgb if fields is None else fields.rgb,
+        extra=jsonable(metadata if fields is None else {**metadata, **field_metadata(scan)}),
     )
 
 
@@ -298,6 +323,178 @@ def scan_report(design: Design, scan: ScanResult, metadata: dict, path: str | os
         **metadata,
         "psfs": scan.metrics,
         "channel_psfs": scan.channel_metrics,
+        **({} if scan.fields is None else {"field_azimuth_rad": scan.fields.azimuth_rad}),
+        **({} if scan.fields is None else {"fields": scan.fields.metrics}),
         "warnings": scan.warnings,
         **({"plot": str(plot_path)} if plot_path else {}),
+    }
+
+
+def estimate_field_scan(
+    design: Design,
+    wavelengths_m: list[float],
+    depths_m: list[float],
+    pixels: int,
+    pixel_pitch_m: float,
+    angles_rad: list[float],
+    *,
+    dtype: torch.dtype = torch.float32,
+    force: bool = False,
+) -> Estimate:
+    """Peak memory and time of :func:`run_field_scan`: an on-axis field as :func:`estimate_scan`,
+    each other field as the 2-D angular spectrum of every PSF (``estimate_psf``, asm) plus the
+    whole site grid's float64 pupil arrays (six M² arrays)."""
+    axis = estimate_psf(
+        design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m=design.focal_length_m,
+        dtype=dtype, force=force,
+    )  # fmt: skip
+    off = [a for a in angles_rad if a > 0]
+    memory, seconds = axis.memory_bytes, axis.seconds if len(off) < len(angles_rad) else 0.0
+    if off:
+        tilted = estimate_psf(
+            design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m=design.focal_length_m,
+            propagator="asm", dtype=dtype, force=True,
+        )  # fmt: skip
+        memory = max(memory, tilted.memory_bytes + 6 * 8 * design.lens.grid_size**2)
+        seconds += len(off) * tilted.seconds
+    count = len(wavelengths_m) * len(depths_m) * len(angles_rad)
+    return Estimate(
+        f"psf-scan of {count} PSFs of {pixels}² pixels over {len(angles_rad)} fields",
+        memory,
+        "--pixels",
+        seconds,
+        disk_bytes=count * pixels**2 * 4,
+    )
+
+
+def run_field_scan(
+    design: Design,
+    wavelengths_m: list[float],
+    depths_m: list[float],
+    pixels: int,
+    pixel_pitch_m: float,
+    angles_rad: list[float],
+    *,
+    azimuth_rad: float = 0.0,
+    dtype: torch.dtype = torch.float32,
+    device: str = "cpu",
+    force: bool = False,
+    check_accuracy: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> ScanResult:
+    """A scan over the field angles ``angles_rad`` (rad) at azimuth ``azimuth_rad``: field 0's
+    PSFs are the scan's ``psf``/``rgb`` (what on-axis readers see), all of them in ``fields``.
+    ``check_accuracy`` recomputes the sharpest PSF of the outermost field with doubled sampling
+    (the direct Rayleigh-Sommerfeld sum over a lens of this size is out of reach off axis)."""
+    from metalens_cli.analysis.psf_metrics import field_summary
+    from metalens_cli.optics.field import field_psf
+
+    start = time.perf_counter()
+    warnings: list[str] = []
+    validate_psf_arguments(wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, "auto", dtype, 1.0)
+    weights, spectra = _channel_weights(design, wavelengths_m, warnings) if design.preset is not None else (None, None)
+    timing: dict[str, float] = {}
+    psfs, results = [], []
+    steps: list[tuple[int, list[float]]] = []  # (field, wavelengths): an on-axis radial field is one batch
+    for k, angle in enumerate(angles_rad):
+        batched = angle == 0 and design.lens.radial
+        steps += [(k, list(wavelengths_m))] if batched else [(k, [w]) for w in wavelengths_m]
+    parts: dict[int, list[torch.Tensor]] = {k: [] for k in range(len(angles_rad))}
+    for done, (k, group) in enumerate(steps, start=1):
+        result = field_psf(
+            design.lens, group, depths_m, pixels, pixel_pitch_m, angles_rad[k], azimuth_rad=azimuth_rad,
+            distance_m=design.focal_length_m, dtype=dtype, device=device, force=force,
+        )  # fmt: skip
+        parts[k].append(result.psf.detach().to("cpu", torch.float32))
+        if len(parts[k]) == 1:
+            results.append(result)
+        for stage, seconds in result.timing_s.items():
+            if stage != "total":
+                timing[stage] = timing.get(stage, 0.0) + seconds
+        if progress is not None:
+            progress(done, len(steps))
+    for k in range(len(angles_rad)):
+        psfs.append(torch.cat(parts[k], dim=1).numpy())
+    psf = np.stack(psfs)
+    rgb = None if weights is None else np.einsum("cw,fdwij->fdcij", weights, psf).astype(np.float32)
+    chief = [[float(v) for v in r.chief_ray_m] for r in results]
+    centre = [[int(v) for v in r.centre_px] for r in results]
+    metrics = []
+    for k, angle in enumerate(angles_rad):
+        offset = (centre[k][0] * pixel_pitch_m - chief[k][0], centre[k][1] * pixel_pitch_m - chief[k][1])
+        entry = {
+            "field": k,
+            "angle_rad": angle,
+            "angle_deg": math.degrees(angle),
+            "chief_ray_m": chief[k],
+            "window_centre_px": centre[k],
+            "propagator": results[k].propagator,
+            "psfs": [
+                {"depth_m": z, "wavelength_m": w, **field_summary(psf[k, i, j], pixel_pitch_m, offset, azimuth_rad)}
+                for i, z in enumerate(depths_m)
+                for j, w in enumerate(wavelengths_m)
+            ],
+        }
+        if rgb is not None:
+            entry["channel_psfs"] = [
+                {"depth_m": z, "channel": name, **field_summary(rgb[k, i, c], pixel_pitch_m, offset, azimuth_rad)}
+                for i, z in enumerate(depths_m)
+                for c, name in enumerate(spectra["channels"])
+            ]
+        metrics.append(entry)
+        kept = psf[k].sum(axis=(-2, -1))
+        if kept.min() < COVERAGE_WARNING:
+            warnings.append(
+                f"field {k} ({math.degrees(angle):.3g}°): the {pixels}-pixel window keeps as little as "
+                f"{kept.min():.3f} of the light; widen --pixels"
+            )
+    timing["total"] = time.perf_counter() - start
+    axis_metrics = [
+        {"depth_m": z, "wavelength_m": w, **summarize(psf[0, i, j], pixel_pitch_m)}
+        for i, z in enumerate(depths_m)
+        for j, w in enumerate(wavelengths_m)
+    ]
+    scan = ScanResult(
+        psf[0],
+        None if rgb is None else rgb[0],
+        list(wavelengths_m),
+        list(depths_m),
+        pixel_pitch_m,
+        results[-1].propagator,
+        results[-1].grid,
+        timing,
+        axis_metrics,
+        [],
+        spectra,
+        warnings=warnings,
+        fields=FieldScan(psf, rgb, list(angles_rad), azimuth_rad, chief, centre, metrics),
+    )
+    if check_accuracy:
+        k = int(np.argmax(angles_rad))
+        i, j = np.unravel_index(np.argmax(psf[k].max(axis=(-2, -1))), psf.shape[1:3])
+        clock = time.perf_counter()
+        doubled = field_psf(
+            design.lens, [wavelengths_m[j]], [depths_m[i]], pixels, pixel_pitch_m, angles_rad[k],
+            azimuth_rad=azimuth_rad, distance_m=design.focal_length_m, dtype=dtype, device=device, force=force,
+            oversample=2.0,
+        )  # fmt: skip
+        scan.accuracy = {
+            "field": k,
+            "depth_m": depths_m[i],
+            "wavelength_m": wavelengths_m[j],
+            "doubled_sampling_rel_l2": relative_l2(psf[k, i, j], doubled.psf[0, 0].detach().cpu().numpy()),
+            "doubled_sampling_seconds": time.perf_counter() - clock,
+        }
+    return scan
+
+
+def field_metadata(scan: ScanResult) -> dict:
+    """The field keys of a field cube's header (docs/formats.md), with the kept light per PSF."""
+    f = scan.fields
+    return {
+        "field_angles_rad": f.angles_rad,
+        "field_azimuth_rad": f.azimuth_rad,
+        "chief_ray_m": f.chief_ray_m,
+        "window_centre_px": f.centre_px,
+        "field_kept": f.psf.sum(axis=(-2, -1)).astype(float).tolist(),
     }

@@ -211,6 +211,17 @@ def parse_length_list(text: str, field: str, *, allow_inf: bool = False) -> list
     return values
 
 
+def parse_height_list(text: str, field: str) -> list[float]:
+    """:func:`parse_length_list` that also takes a zero length (``0um``: the axis), e.g. sensor
+    heights ``0um,100:500:100um`` → metres."""
+    values: list[float] = []
+    for item in str(text).split(","):
+        m = _LENGTH_RE.fullmatch(item.strip())
+        zero = m is not None and m.group(2) in UNITS_M and re.fullmatch(r"\+?0*\.?0*", m.group(1)) and "0" in m.group(1)
+        values += [0.0] if zero else parse_length_list(item, field)
+    return values
+
+
 def parse_interval(text: str, field: str, *, allow_inf: bool = False) -> tuple[float, float]:
     """Parse ``LO:HI`` (each with a unit) or a single length, returning ``(lo, hi)``."""
     parts = str(text).split(":")
@@ -254,15 +265,42 @@ ANGLE_FORM = "an angle with a unit (deg or rad), e.g. 12deg"
 _ANGLE_RE = re.compile(rf"\s*({_NUMBER})\s*(deg|rad)\s*")
 
 
-def parse_angle(text: str, field: str) -> float:
-    """``12deg`` or ``0.2rad`` → radians, in [0, π/2)."""
+def parse_angle(text: str, field: str, *, full_circle: bool = False) -> float:
+    """``12deg`` or ``0.2rad`` → radians, in [0, π/2) (``full_circle``: in [0, 2π), an azimuth)."""
     match = _ANGLE_RE.fullmatch(str(text))
     if not match:
         raise InputError(field, f"{_quote(text)} is not an angle", ANGLE_FORM)
     value = float(match.group(1)) * (math.pi / 180 if match.group(2) == "deg" else 1.0)
-    if not 0 <= value < math.pi / 2:
-        raise InputError(field, f"{_quote(text)} is outside [0, 90) degrees", ANGLE_FORM)
+    top, name = (2 * math.pi, "360") if full_circle else (math.pi / 2, "90")
+    if not 0 <= value < top:
+        raise InputError(field, f"{_quote(text)} is outside [0, {name}) degrees", ANGLE_FORM)
     return value
+
+
+ANGLE_LIST_FORM = "angles and ranges with a unit, e.g. 0deg,3deg,6.75deg or 0:6:1.5deg"
+
+
+def parse_angle_list(text: str, field: str, limit: int = 100) -> list[float]:
+    """Comma-separated angles (``6.75deg``) and ranges ``START:STOP:STEP UNIT`` (inclusive end,
+    the unit once at the end) → radians in [0, π/2), in the order given, at most ``limit``."""
+    values: list[float] = []
+    for item in (part.strip() for part in str(text).split(",")):
+        if item.count(":") == 2:
+            unit_match = re.fullmatch(rf"({_NUMBER}):({_NUMBER}):({_NUMBER})\s*(deg|rad)", item)
+            if not unit_match:
+                raise InputError(field, f"{_quote(item)} is not a range of angles", ANGLE_LIST_FORM)
+            lo, hi, step = (parse_angle(unit_match.group(i) + unit_match.group(4), field) for i in (1, 2, 3))
+            if step <= 0 or hi < lo:
+                raise InputError(field, f"{_quote(item)} needs a positive step and STOP ≥ START", ANGLE_LIST_FORM)
+            count = math.floor((hi - lo) / step * (1 + 1e-12)) + 1
+            if len(values) + count > limit:
+                raise InputError(field, f"{_quote(text)} has more than {limit} angles", ANGLE_LIST_FORM)
+            values += [lo + i * step for i in range(count)]
+        else:
+            values.append(parse_angle(item, field))
+        if len(values) > limit:
+            raise InputError(field, f"{_quote(text)} has more than {limit} angles", ANGLE_LIST_FORM)
+    return values
 
 
 def format_length(value_m: float, unit: str = "auto", digits: int = 4) -> str:
