@@ -145,15 +145,16 @@ def asm_transfer_shifted(
     xc, yc = centre_m
     f = torch.arange(-k_max, k_max + 1, dtype=torch.float64, device=device) / grid.extent_m
     u, v = (f + u0)[None, :], (f + v0)[:, None]
-    arg = 1.0 / wavelength_m**2 - u**2 - v**2
-    w = torch.sqrt(arg.clamp(min=0))
+    w = (1.0 / wavelength_m**2 - u**2) - v**2  # w² first; one (2K+1)² float64 array, reused in place
+    keep = w > 0
+    w.clamp_(min=0).sqrt_()
     half = grid.extent_m / 2
-    with torch.no_grad():
-        travel = distance_m / w.clamp(min=1e-300)
-        keep = (arg > 0) & ((travel * u - xc).abs() <= half) & ((travel * v - yc).abs() <= half)
-    phase = 2 * math.pi * (distance_m * w + f[None, :] * xc + f[:, None] * yc)
+    # lateral travel d·(u, v)/w within S/2 of the window's centre, multiplied through by w ≥ 0
+    keep &= (distance_m * u - xc * w).abs_() <= half * w
+    keep &= (distance_m * v - yc * w).abs_() <= half * w
+    phase = w.mul_(2 * math.pi * distance_m).add_((2 * math.pi * xc) * f[None, :]).add_((2 * math.pi * yc) * f[:, None])
     real_dtype = torch.float32 if dtype == torch.complex64 else torch.float64
-    return torch.polar(keep.to(real_dtype), torch.remainder(phase, 2 * math.pi).to(real_dtype)), k_max
+    return torch.polar(keep.to(real_dtype), phase.remainder_(2 * math.pi).to(real_dtype)), k_max
 
 
 def mirror_quadrant(q: torch.Tensor) -> torch.Tensor:
