@@ -68,9 +68,15 @@ def psf_transform(psf: torch.Tensor, sensor_hw: tuple[int, int]) -> PsfTransform
     """
     if psf.ndim < 3:
         raise InputError("psf", f"shape {tuple(psf.shape)}", "(..., C, N, N) PSFs")
-    margin = canvas_margin(*psf.shape[-2:])
+    return kernel_transform(unit_sum(psf), sensor_hw)
+
+
+def kernel_transform(kernel: torch.Tensor, sensor_hw: tuple[int, int]) -> PsfTransform:
+    """:func:`psf_transform` of ``kernel`` (..., C, N0, N1) as it is, not normalised (e.g. a
+    zero-sum correction to a PSF)."""
+    margin = canvas_margin(*kernel.shape[-2:])
     shape = tuple(fft_size(n + 2 * margin) for n in sensor_hw)
-    return PsfTransform(torch.fft.rfft2(_placed(unit_sum(psf), shape)), tuple(sensor_hw), margin, shape)
+    return PsfTransform(torch.fft.rfft2(_placed(kernel, shape)), tuple(sensor_hw), margin, shape)
 
 
 def _placed(psf: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
@@ -170,21 +176,39 @@ def form_image(
     in 0..1 are canvases with margin ``margin`` = M; PSFs (..., 3, N, N) (any normalisation: each
     is divided by its sum) or :class:`PsfTransform` (precomputed, reused).
     """
-    if formation not in FORMATIONS:
-        raise InputError("formation", f"unknown form {formation!r}", " or ".join(FORMATIONS))
+    emitted, mask = _obstruction_canvases(obstruction, mask, formation)
     sensor = _sensor_hw(clean, margin)
     near, far = _transform(psf_near, sensor), _transform(psf_far, sensor)
-    mask = mask.to(obstruction.dtype)
     channels = obstruction.shape[-3]
-    emitted = obstruction * mask if formation == "physical" else obstruction
     # one batched transform of [I_obs or m ⊙ I_obs, m]; the mask's spectrum meets each channel's PSF
     f = _canvas_spectrum(torch.cat([emitted, mask], dim=-3), margin, near)
     planes = _kept(
         torch.cat([f[..., :channels, :, :] * near.spectrum, f[..., channels:, :, :] * near.spectrum], dim=-3), near
     )
     near_light, blurred_mask = planes.split(channels, dim=-3)
-    alpha = coverage_alpha(blurred_mask, alpha_gain)
     unobstructed = _kept(_canvas_spectrum(clean, margin, far) * far.spectrum, far)
+    return _composite(near_light, blurred_mask, unobstructed, formation, alpha_gain)
+
+
+def _obstruction_canvases(
+    obstruction: torch.Tensor, mask: torch.Tensor, formation: str
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The obstruction light that the near PSF blurs (m ⊙ I_obs, or I_obs in the paper's form) and m."""
+    if formation not in FORMATIONS:
+        raise InputError("formation", f"unknown form {formation!r}", " or ".join(FORMATIONS))
+    mask = mask.to(obstruction.dtype)
+    return (obstruction * mask if formation == "physical" else obstruction), mask
+
+
+def _composite(
+    near_light: torch.Tensor,
+    blurred_mask: torch.Tensor,
+    unobstructed: torch.Tensor,
+    formation: str,
+    alpha_gain: float | None,
+) -> Capture:
+    """The capture from the blurred obstruction light, m ∗ P̂_near and P̂_far ∗ I_clean."""
+    alpha = coverage_alpha(blurred_mask, alpha_gain)
     obstruction_light = near_light if formation == "physical" else alpha * near_light
     return Capture(obstruction_light + (1 - alpha) * unobstructed, unobstructed, obstruction_light, alpha)
 
