@@ -135,6 +135,7 @@ def evaluate(
     wavelengths,
     formation,
     alpha_gain,
+    field_model,
     photons,
     read_noise,
     device,
@@ -191,6 +192,7 @@ def evaluate(
         match=match,
         photons_before_filter=photons_before_filter,
         psf_window=psf_pixels,
+        field_model=field_model,
         **formation_options,
     )
     reconstructors = _reconstructors(recon_runs, s.designs, s.device)
@@ -201,7 +203,9 @@ def evaluate(
     )
     # PSFs once per design and seed (the depths are the seed's), captures per obstruction kind too
     depths = (s.z_near_interval_m[0], s.z_far_interval_m[0])
-    estimate = estimate_capture_runs(s, what, depths, count, window=psf_pixels, seeds=len(seeds), kinds=len(kinds))
+    estimate = estimate_capture_runs(
+        s, what, depths, count, window=psf_pixels, seeds=len(seeds), kinds=len(kinds), field_model=field_model
+    )
     announce(estimate, max_memory, device=s.device)
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s.designs}
     with progress_bar("evaluate", quiet) as update:

@@ -98,6 +98,15 @@ def capture_options(f):
         click.option(
             "--alpha-gain", type=Number(0, min_open=True), help="Gain-and-clamp α = min(g·α, 1) (Shi et al.)."
         ),
+        click.option(
+            "--field",
+            "field_model",
+            type=click.Choice(("auto", "on-axis")),
+            default="auto",
+            show_default=True,
+            help="auto: PSFs that vary over the field (computed once per design and depths, cached) when the "
+            "sensor spans more than the lens's isoplanatic patch; on-axis: one PSF per depth everywhere.",
+        ),
         click.option("--photons", type=Photons(0, 1e15), help="Full-well electrons for shot noise (0/absent: none)."),
         click.option("--read-noise", type=Number(0, 1), default=0.0, help="Read-noise σ as a fraction of full scale."),
         device_option,
@@ -201,6 +210,7 @@ def simulate(
     wavelengths,
     formation,
     alpha_gain,
+    field_model,
     photons,
     read_noise,
     device,
@@ -219,7 +229,7 @@ def simulate(
     """
     from metalens_cli.imaging.images import image_count, load_images
     from metalens_cli.imaging.obstructions import parse_obstructions
-    from metalens_cli.imaging.pipeline import channel_psfs, draw_depths, estimate_capture_runs, simulate_captures
+    from metalens_cli.imaging.pipeline import capture_psfs, draw_depths, estimate_capture_runs, simulate_captures
     from metalens_cli.imaging.simulation_output import simulation_report, write_captures
     from metalens_cli.io.atomic import atomic_folder
     from metalens_cli.io.json_files import write_json
@@ -232,10 +242,15 @@ def simulate(
     design = s.designs[0]
     depths = draw_depths(s.z_near_interval_m, s.z_far_interval_m, seed)
     what = f"simulate on {s.pixels}² pixels"
-    estimate = estimate_capture_runs(s, what, depths, image_count(images, limit), window=psf_pixels)
+    estimate = estimate_capture_runs(
+        s, what, depths, image_count(images, limit), window=psf_pixels, field_model=field_model
+    )
     announce(estimate, max_memory, device=s.device)
     efficiency = efficiency_used(design.preset, quiet)
-    psfs = channel_psfs(design, *depths, s.wavelengths_m, s.pixel_pitch_m, device=s.device, window=psf_pixels)
+    psfs = capture_psfs(
+        design, *depths, s.wavelengths_m, s.pixel_pitch_m, s.pixels, field_model=field_model, device=s.device,
+        window=psf_pixels,
+    )  # fmt: skip
     clean = load_images(images, (s.pixels, s.pixels), limit, psfs.margin)
     formation_options = dict(formation=formation, alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
     with progress_bar("simulate", quiet) as update:

@@ -25,7 +25,7 @@ from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.pipeline import (
     CaptureSetup,
     ChannelPsfs,
-    channel_psfs,
+    capture_psfs,
     draw_depths,
     score,
     simulate_captures,
@@ -57,6 +57,7 @@ class EvaluationSettings:
     photons_before_filter: bool = False  # photons count the light before each design's filter (its throughput passes)
     psf_window: int | None = None
     device: object = "cpu"
+    field_model: str = "auto"  # "auto": PSFs over the field where the sensor outgrows the lens's isoplanatic patch
 
     @classmethod
     def from_setup(cls, setup: CaptureSetup, **options) -> EvaluationSettings:
@@ -134,12 +135,14 @@ def evaluate(
     for d, design in enumerate(designs):
         for seed in seeds:
             z_near, z_far = draw_depths(settings.z_near_interval_m, settings.z_far_interval_m, seed)
-            p = channel_psfs(
+            p = capture_psfs(
                 design,
                 z_near,
                 z_far,
                 settings.wavelengths_m,
                 settings.pixel_pitch_m,
+                settings.pixels,
+                field_model=settings.field_model,
                 device=settings.device,
                 window=settings.psf_window,
             )

@@ -16,6 +16,7 @@ import torch
 
 from metalens_cli.constants import PAPER_Z_FAR_M, PAPER_Z_NEAR_M
 from metalens_cli.errors import InputError
+from metalens_cli.imaging.field_formation import field_transform, form_image_field
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
@@ -61,18 +62,23 @@ class ChannelPsfs:
     coverage: list[float]
     seconds: float
     held: dict = field(default_factory=dict)
+    field_psfs: object = None  # imaging.field_psfs.FieldPsfs: captures vary over the field
+    field_test: dict | None = None  # the isoplanatic test and the model chosen (capture_psfs)
 
     @property
     def margin(self) -> int:
         """Canvas margin (pixels) these PSFs need around the sensor."""
-        return canvas_margin(self.near.shape[-1], self.far.shape[-1])
+        own = canvas_margin(self.near.shape[-1], self.far.shape[-1])
+        return own if self.field_psfs is None else max(own, self.field_psfs.margin)
 
     def report(self) -> dict:
-        """JSON-ready windows and kept fractions per depth and channel."""
+        """JSON-ready windows and kept fractions per depth and channel (and the field model)."""
         return {
             "psf_window_px": {"near": self.near.shape[-1], "far": self.far.shape[-1]},
             "psf_energy": {"near": dict(zip("RGB", self.kept_near)), "far": dict(zip("RGB", self.kept_far))},
             **({"psf_held": self.held} if self.held else {}),
+            **({"field": self.field_test} if self.field_test is not None else {}),
+            **({} if self.field_psfs is None else self.field_psfs.report()),
         }
 
     def warnings(self) -> list[str]:
@@ -96,17 +102,22 @@ def draw_depths(z_near_m: tuple[float, float], z_far_m: tuple[float, float], see
     return near, far
 
 
-def channel_weights(design, wavelengths_m):
-    """(3, W) R, G, B quadrature weights: the preset's S^c, or the default camera without a filter."""
+def design_sensitivity(design):
+    """S^c of a design: its preset's (filter × camera × η), or the default camera without a filter."""
     from metalens_cli.io.preset_spectra import preset_sensitivity
-    from metalens_cli.optics.spectra import camera_response, quadrature_weights, spectral_sensitivity, wavelength_grid
+    from metalens_cli.optics.spectra import camera_response, spectral_sensitivity, wavelength_grid
 
     if design.preset is not None:
-        sensitivity = preset_sensitivity(design.preset)
-    else:
-        grid = wavelength_grid()
-        sensitivity = spectral_sensitivity(grid, camera_response(grid))
-    return quadrature_weights(sensitivity, np.asarray(wavelengths_m, dtype=float))
+        return preset_sensitivity(design.preset)
+    grid = wavelength_grid()
+    return spectral_sensitivity(grid, camera_response(grid))
+
+
+def channel_weights(design, wavelengths_m):
+    """(3, W) R, G, B quadrature weights of :func:`design_sensitivity` at ``wavelengths_m``."""
+    from metalens_cli.optics.spectra import quadrature_weights
+
+    return quadrature_weights(design_sensitivity(design), np.asarray(wavelengths_m, dtype=float))
 
 
 def channel_psfs(
@@ -190,6 +201,43 @@ def channel_psfs(
     )
 
 
+FIELD_MODELS = ("auto", "on-axis")
+FIELD_WINDOW_ESTIMATE = 301  # pixels: the paper's lens's near window off axis, for cost estimates
+
+
+def capture_psfs(
+    design,
+    z_near_m: float,
+    z_far_m: float,
+    wavelengths_m,
+    pixel_pitch_m: float,
+    sensor_pixels: int,
+    *,
+    field_model: str = "auto",
+    device="cpu",
+    window: int | None = None,
+) -> ChannelPsfs:
+    """:func:`channel_psfs`, and with ``field_model`` "auto" the field PSF set
+    (``imaging.field_psfs``) when the isoplanatic test says the ``sensor_pixels``² sensor spans
+    more than the lens's patch (``field_test`` says which and why); "on-axis": one PSF per depth."""
+    from metalens_cli.imaging.field_psfs import field_channel_psfs, field_dependence
+
+    if field_model not in FIELD_MODELS:
+        raise InputError("--field", f"{field_model!r}", " or ".join(FIELD_MODELS))
+    psfs = channel_psfs(design, z_near_m, z_far_m, wavelengths_m, pixel_pitch_m, device=device, window=window)
+    if field_model == "on-axis":
+        psfs.field_test = {"requested": "on-axis", "model": "on-axis"}
+        return psfs
+    test = field_dependence(design, sensor_pixels, pixel_pitch_m)
+    psfs.field_test = {"requested": "auto", "model": "field" if test["field_dependent"] else "on-axis", **test}
+    if test["field_dependent"]:
+        psfs.field_psfs = field_channel_psfs(
+            design, z_near_m, z_far_m, wavelengths_m, pixel_pitch_m, sensor_pixels, device=device
+        )
+        psfs.seconds += psfs.field_psfs.seconds
+    return psfs
+
+
 def estimate_captures(
     design,
     z_near_m: float,
@@ -234,17 +282,26 @@ def estimate_capture_runs(
     window: int | None = None,
     seeds: int = 1,
     kinds: int = 1,
+    field_model: str = "on-axis",
 ) -> Estimate:
     """The cost of capturing ``images`` images through every design of ``setup`` at ``depths_m``
     (near, far) for each of ``seeds`` seeds and ``kinds`` obstruction kinds (:func:`estimate_captures`):
     the PSFs once per design and seed, the captures per kind too; the memory of the largest
-    design. ``what`` names the job; ``window``: :func:`channel_psfs`'s."""
+    design. ``what`` names the job; ``window``: :func:`channel_psfs`'s; ``field_model`` "auto" adds
+    the field PSF sets where the isoplanatic test asks for them (an upper bound: they may be cached)."""
     costs = [
         estimate_captures(
             design, *depths_m, setup.wavelengths_m, setup.pixel_pitch_m, setup.pixels, images, window=window
         )
         for design in setup.designs
     ]
+    if field_model == "auto":
+        from metalens_cli.imaging.field_psfs import estimate_field_psfs, field_dependence
+
+        for i, design in enumerate(setup.designs):
+            if field_dependence(design, setup.pixels, setup.pixel_pitch_m)["field_dependent"]:
+                memory, seconds = estimate_field_psfs(design, setup.pixels, setup.pixel_pitch_m, FIELD_WINDOW_ESTIMATE)
+                costs[i] = (max(costs[i][0], memory), costs[i][1] + seconds, costs[i][2])
     return Estimate(
         what,
         max(memory for memory, _, _ in costs),
@@ -319,9 +376,10 @@ def simulate_captures(
         if obstructions is not None:
             obstructions[key] = obstruction
         if transforms is None or transforms[0].sensor_hw != tuple(sensor):
-            transforms = (psf_transform(psfs.near, tuple(sensor)), psf_transform(psfs.far, tuple(sensor)))
+            transforms = _capture_transforms(psfs, tuple(sensor))
+        form = form_image if psfs.field_psfs is None else form_image_field
         with torch.no_grad():
-            capture = form_image(
+            capture = form(
                 torch.as_tensor(image.linear, dtype=dt, device=dev),
                 torch.as_tensor(obstruction.rgb, dtype=dt, device=dev),
                 torch.as_tensor(obstruction.mask, dtype=dt, device=dev),
@@ -351,6 +409,16 @@ def simulate_captures(
         )
         report(index + 1, len(images))
     return captures
+
+
+def _capture_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:
+    """The near and far transforms a capture reuses: of the on-axis PSFs, or of the field PSF sets
+    (``imaging.field_formation``; the expansion's measured error goes into ``psfs.field_test``)."""
+    if psfs.field_psfs is None:
+        return psf_transform(psfs.near, sensor), psf_transform(psfs.far, sensor)
+    transforms = tuple(field_transform(s, sensor) for s in (psfs.field_psfs.near, psfs.field_psfs.far))
+    psfs.field_test["expansion_error"] = {"near": transforms[0].error, "far": transforms[1].error}
+    return transforms
 
 
 def score(estimate_linear: np.ndarray, clean_linear: np.ndarray, lpips_model=None, match: str = DEFAULT_MATCH) -> dict:

@@ -267,3 +267,70 @@ def _field_rs(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dty
     timing["propagate"] = time.perf_counter() - clock
     grid = {"kind": "rs-grid", "sites": int(nodes.shape[0]), "output_step_m": h, "window_samples": g.numel()}
     return torch.stack(out).reshape(len(zs), len(lams), pixels, pixels).to(dtype), grid, timing
+
+
+def ray_landings(
+    lens: Metalens,
+    wavelength_m: float,
+    angle_rad: float,
+    depth_m: float,
+    distance_m: float,
+    *,
+    azimuth_rad: float = 0.0,
+    samples: int = 48,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Geometric rays through a ``samples``² grid of pupil points: where they land on the sensor
+    (R, 2) (m), and where the chief ray lands (2,). Each ray leaves the lens in the direction the
+    incoming light (from the field point (α, ψ) at ``depth_m``) is bent to by the lens's phase
+    gradient, s = s_in + (λ/2π)·∇φ (local grating equation), and travels d·s/√(1 − |s|²) sideways;
+    rays whose |s| ≥ 1 are evanescent and dropped. For sizing windows and the isoplanatic test."""
+    a = lens.radius_m
+    u = (np.arange(samples) + 0.5) / samples * 2 - 1
+    x, y = np.meshgrid(u * a, u * a)
+    inside = np.hypot(x, y) <= a
+    x, y = x[inside], y[inside]
+    gx, gy = _phase_gradient(lens, x, y)
+    if math.isinf(depth_m):
+        sx0, sy0 = field_direction(angle_rad, azimuth_rad)
+        sx, sy = np.full_like(x, sx0), np.full_like(y, sy0)
+    else:
+        t = depth_m * math.tan(angle_rad)
+        bx, by = x + t * math.cos(azimuth_rad), y + t * math.sin(azimuth_rad)
+        r = np.sqrt(bx**2 + by**2 + depth_m**2)
+        sx, sy = bx / r, by / r
+    sx, sy = sx + wavelength_m * gx / (2 * math.pi), sy + wavelength_m * gy / (2 * math.pi)
+    keep = sx**2 + sy**2 < 1
+    cos = np.sqrt(1 - sx[keep] ** 2 - sy[keep] ** 2)
+    landings = np.stack([x[keep] + distance_m * sx[keep] / cos, y[keep] + distance_m * sy[keep] / cos], 1)
+    return landings, np.array(chief_ray(lens, wavelength_m, angle_rad, azimuth_rad, distance_m))
+
+
+def _phase_gradient(lens: Metalens, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """∇φ (rad/m) at points (x, y): the radial profile's slope (central differences over one pitch,
+    the profile being linear between samples) along r̂, or the 2-D map's wrapped differences at
+    the nearest site."""
+    p = lens.pitch_m
+    if lens.radial:
+        r = np.hypot(x, y)
+        radii = torch.from_numpy(np.concatenate([r + p / 2, np.maximum(r - p / 2, 0.0)]))
+        phase = lens.phase_at_radius(radii).detach().double().numpy()
+        slope = (phase[: r.size] - phase[r.size :]) / (r + p / 2 - np.maximum(r - p / 2, 0.0))
+        safe = np.where(r > 0, r, 1.0)
+        return slope * x / safe, slope * y / safe
+    theta = lens.theta.detach().double().cpu().numpy()
+    m = theta.shape[0]
+    col = np.clip(np.rint(x / p).astype(int) + m // 2, 1, m - 2)
+    row = np.clip(np.rint(y / p).astype(int) + m // 2, 1, m - 2)
+
+    def wrapped(step: np.ndarray) -> np.ndarray:
+        return np.remainder(2 * step + math.pi, 2 * math.pi) - math.pi
+
+    return (
+        wrapped(theta[row, col + 1] - theta[row, col - 1]) / (2 * p),
+        wrapped(theta[row + 1, col] - theta[row - 1, col]) / (2 * p),
+    )
+
+
+def rms_spot(landings: np.ndarray) -> float:
+    """RMS radius (m) of ray landings (R, 2) about their centroid."""
+    return float(np.sqrt(((landings - landings.mean(axis=0)) ** 2).sum(axis=1).mean()))

@@ -1,0 +1,502 @@
+"""Image formation with PSFs that vary over the field of a rotationally symmetric lens.
+
+The field model. A :class:`FieldPsfSet` holds the PSFs P_k of the image points at heights h_k
+(pixels) along the sensor's +x axis from the optical-axis pixel; rows are y (down), columns x,
+and the axis is the sensor's centre pixel (H//2, W//2). The unit-sum PSF of the image point at
+x = ρ(cos ψ, sin ψ) from the axis is (:func:`field_psf`)
+
+    P_x = P̂(c·P_0 + R_ψ[P_ρ − c·P_0]),   c = ⟨P_ρ, P_0⟩ / ⟨P_0, P_0⟩ (per channel)
+
+with P_ρ linear in ρ between the two nearest heights (the last one beyond them: the sensor's
+corners if the set stops short), P̂ the division by the sum and R_ψ the rotation by ψ about the
+window's centre pixel, Q ↦ Q(R(−ψ)·), by bicubic resampling (Keys, a = −0.75; zero outside the
+window; exact at multiples of 90°, within 2-4 % (relative L2) of a rotated Gaussian of σ ≈ 1 px
+elsewhere, slightly negative beside sharp detail). The part of P_ρ along the on-axis PSF P_0
+(rotationally symmetric for such a lens) is not resampled: the sharp core at the chief ray stays
+sharp, the field is continuous at the axis, and identical symmetric PSFs at every height give
+that PSF everywhere.
+
+Gather form. A capture is out(x) = Σ_s P_x(x − s)·in(s), the PSF of the image point at the
+*output* pixel: a uniform scene stays uniform, full opaque coverage gives α = 1, and a uniform
+field is :func:`formation.form_image` exactly, whatever the PSFs. The scatter form
+Σ_s P_s(x − s)·in(s) (the PSF of the source point) keeps energy instead and differs from it at
+first order in the PSF's change across its own width: for the paper's f/1.6 lens
+(``benchmarks/bench_field_imaging.py``: coma up to ~80 px at the corners) the two differ by 1.3 %
+(relative L2) on the far blur of a dead-leaves scene and by 0.3 % on a grey wall, which the
+scatter form darkens and brightens by up to 1.5 % where the PSF grows.
+
+Fast method: a low-rank (eigen-PSF) expansion in gather form,
+
+    P_x ≈ P̄ + Σ_r a_r(x)·e_r,   out = P̄ ∗ in + Σ_r a_r ⊙ (e_r ∗ in)   (r < rank)
+
+per colour channel. P̄ is the mean of P_x over a grid of about ``BASIS_NODES`` nodes, e_r the
+leading principal components of P_x − P̄ there, each even or odd under y → −y (so a mirror
+symmetric set gives mirror symmetric captures exactly) and of zero sum (so the invariants above
+hold exactly at any rank), and a_r(x) = ⟨P_x − P̄, e_r⟩ at the nodes of a grid half as coarse,
+interpolated bilinearly. Its error is the relative L2 error of the PSF field over the sensor's
+pixels, (Σ_x ‖P̃_x − P_x‖² / Σ_x ‖P_x‖²)^½ over all channels: the relative error of the capture
+of a zero-mean white-noise scene, an upper bound for smoother scenes. The rank is the smallest
+whose truncation error on the nodes meets ``tolerance``/√2; the error is then measured at
+``CHECK_PIXELS`` random pixels and the coefficient grid refined (or the rank raised) until it
+meets ``tolerance`` (:attr:`FieldTransform.error`). Each rank costs one FFT convolution per plane:
+6 planes for the near PSF (the obstruction light and the mask), 3 for the far one.
+
+Every function here is pure torch (batched, differentiable in the images, any device); the field
+transforms are fixed once made (no gradient to the PSFs).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.formation import (
+    Capture,
+    PsfTransform,
+    _canvas_spectrum,
+    _composite,
+    _kept,
+    _obstruction_canvases,
+    _sensor_hw,
+    kernel_transform,
+    psf_transform,
+    unit_sum,
+)
+
+DEFAULT_TOLERANCE = 0.01  # relative L2 of the PSF field
+NODE_SPACING = 8  # at most this many pixels between a tile's nodes
+CHECK_PIXELS = 256  # random pixels at which the error is measured
+MAX_REFINEMENTS = 4  # rank or node-grid refinements after the first try
+TERM_CHUNK = 8  # eigen-PSFs convolved per batched FFT
+NODE_CHUNK = 64  # nodes resampled at a time
+MAP_MODE = "bicubic"
+
+
+@dataclass(frozen=True)
+class FieldPsfSet:
+    """PSFs of a rotationally symmetric lens at one depth, sampled along the sensor's +x axis.
+
+    ``heights_px``: chief-ray positions, pixels from the optical-axis pixel along +x, ascending,
+    the first 0. ``psfs`` (K, C, N, N), one per height, N odd, the chief-ray pixel at
+    (N//2, N//2); any normalisation (each is divided by its sum).
+    """
+
+    heights_px: tuple[int, ...]
+    psfs: torch.Tensor
+
+    def __post_init__(self):
+        heights = tuple(int(h) for h in self.heights_px)
+        if not heights or heights[0] != 0 or any(b <= a for a, b in zip(heights, heights[1:])):
+            raise InputError("heights_px", f"{self.heights_px!r}", "ascending pixel heights starting at 0")
+        shape = tuple(self.psfs.shape)
+        if len(shape) != 4 or shape[0] != len(heights) or shape[-1] != shape[-2] or shape[-1] % 2 == 0:
+            raise InputError("psfs", f"shape {shape} for {len(heights)} heights", "(K, C, N, N) PSFs, N odd")
+        object.__setattr__(self, "heights_px", heights)
+
+
+def field_psf(psf_set: FieldPsfSet, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Unit-sum PSFs (..., C, N, N) of the image points at offsets ``x``, ``y`` (...) pixels from
+    the optical-axis pixel (x right, y down), by the field model of the module docstring."""
+    p = unit_sum(psf_set.psfs)
+    x = torch.as_tensor(x, dtype=p.dtype, device=p.device)
+    y = torch.as_tensor(y, dtype=p.dtype, device=p.device)
+    x, y = torch.broadcast_tensors(x, y)
+    shape = x.shape
+    x, y = x.reshape(-1), y.reshape(-1)
+    axis = p[0]
+    if len(psf_set.heights_px) == 1:
+        return unit_sum(axis.expand(len(x), *axis.shape)).reshape(*shape, *axis.shape)
+    heights = torch.tensor(psf_set.heights_px, dtype=p.dtype, device=p.device)
+    rho = torch.hypot(x, y).clamp(max=heights[-1])
+    i = torch.searchsorted(heights, rho, right=True).clamp(1, len(heights) - 1)
+    w = ((rho - heights[i - 1]) / (heights[i] - heights[i - 1])).clamp(0, 1)[:, None, None, None]
+    radial = p[i - 1] * (1 - w) + p[i] * w
+    along = (radial * axis).sum((-2, -1), keepdim=True) / (axis * axis).sum((-2, -1), keepdim=True)
+    return unit_sum(along * axis + _rotated(radial - along * axis, torch.atan2(y, x))).reshape(*shape, *axis.shape)
+
+
+def _rotated(q: torch.Tensor, psi: torch.Tensor) -> torch.Tensor:
+    """R_ψ q: q (B, C, N, N) rotated by ψ (B,) about pixel (N//2, N//2), sampled bicubically."""
+    n = q.shape[-1]
+    c, s = torch.cos(psi)[:, None, None], torch.sin(psi)[:, None, None]
+    k = torch.arange(n, dtype=q.dtype, device=q.device) - n // 2
+    dy, dx = torch.meshgrid(k, k, indexing="ij")
+    half = n // 2  # odd N: pixel i of the window sits at −1 + i/half in grid_sample's coordinates
+    grid = torch.stack([c * dx + s * dy, c * dy - s * dx], dim=-1) / half
+    return F.grid_sample(q, grid, mode="bicubic", padding_mode="zeros", align_corners=True)
+
+
+@dataclass(frozen=True)
+class FieldTransform:
+    """A field PSF set prepared for H × W sensor images (:func:`field_transform`).
+
+    The sensor is cut into tiles of ``mean.sensor_hw`` whose top-left pixels are every
+    combination of ``tile_rows`` and ``tile_cols`` (the last ones moved inwards to end at the
+    sensor's edge); each pixel takes the expansion of the first tile holding it. ``mean``: the
+    tiles' P̄ (tiles, C, N, N) transformed; ``basis``: the eigen-PSFs (terms, N, N) transformed,
+    term k of tile ``term_tile[k]`` (row-major) and channel ``term_channel[k]`` with coefficients
+    ``maps[k]`` over its tile; ``error``: the measured relative L2 error of the PSF field.
+    """
+
+    mean: PsfTransform
+    basis: PsfTransform
+    maps: torch.Tensor
+    term_tile: torch.Tensor
+    term_channel: torch.Tensor
+    tile_rows: tuple[int, ...]
+    tile_cols: tuple[int, ...]
+    sensor_hw: tuple[int, int]
+    error: float
+    tolerance: float
+
+    @property
+    def ranks(self) -> torch.Tensor:
+        """Eigen-PSFs per tile and channel (tiles, C)."""
+        tiles, channels = self.mean.spectrum.shape[:2]
+        index = (self.term_tile * channels + self.term_channel).cpu()
+        return torch.bincount(index, minlength=tiles * channels).reshape(tiles, channels)
+
+
+def tile_side(n: int) -> int:
+    """Side (pixels) of the sensor tiles for N × N PSF windows: the power of two nearest 0.6·N,
+    32..256 (each tile costs FFTs of about its side + N; smaller tiles need fewer eigen-PSFs)."""
+    return min(256, max(32, 2 ** round(math.log2(0.6 * n))))
+
+
+def _starts(n: int, tile: int) -> tuple[int, ...]:
+    """Tile starts along a side of ``n`` pixels: every ``tile``, the last one ending at n."""
+    starts = list(range(0, n - tile + 1, tile))
+    if starts[-1] + tile < n:
+        starts.append(n - tile)
+    return tuple(starts)
+
+
+def _firsts(starts: tuple[int, ...], tile: int) -> list[int]:
+    """Index within each tile of its first pixel not held by the tile before."""
+    return [0] + [max(0, a + tile - b) for a, b in zip(starts, starts[1:])]
+
+
+def _assembled(tiles: torch.Tensor, rows: tuple[int, ...], cols: tuple[int, ...]) -> torch.Tensor:
+    """(..., tiles, C, T0, T1) → (..., C, H, W), each pixel from the first tile holding it."""
+    t0, t1 = tiles.shape[-2:]
+    tiles = tiles.unflatten(-4, (len(rows), len(cols)))
+    lo0, lo1 = _firsts(rows, t0), _firsts(cols, t1)
+    return torch.cat(
+        [torch.cat([tiles[..., i, j, :, a:, b:] for j, b in enumerate(lo1)], dim=-1) for i, a in enumerate(lo0)],
+        dim=-2,
+    )
+
+
+def _tile_of(pixels: torch.Tensor, starts: tuple[int, ...], tile: int) -> torch.Tensor:
+    """Index of the tile holding each pixel (row or column numbers)."""
+    firsts = torch.tensor([s + lo for s, lo in zip(starts, _firsts(starts, tile))], device=pixels.device)
+    return torch.searchsorted(firsts, pixels.long(), right=True) - 1
+
+
+def _node_axis(start: int, size: int, spacing: int, centre: int, dtype, device) -> torch.Tensor:
+    """Node offsets from the axis pixel along one side of a tile: start..start + size − 1 split
+    evenly in steps ≤ ``spacing``."""
+    count = max(2, math.ceil((size - 1) / spacing) + 1)
+    return torch.linspace(start, start + size - 1, count, dtype=dtype, device=device) - centre
+
+
+def _field_at(psf_set: FieldPsfSet, ys: torch.Tensor, xs: torch.Tensor) -> torch.Tensor:
+    """Field PSFs (P, C, N·N) at offsets ``ys``, ``xs`` (P,), a chunk of nodes at a time."""
+    return torch.cat(
+        [
+            field_psf(psf_set, xs[i : i + NODE_CHUNK], ys[i : i + NODE_CHUNK]).flatten(-2)
+            for i in range(0, len(xs), NODE_CHUNK)
+        ]
+    )
+
+
+def _halves(residual: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The y-even and y-odd parts of residuals (K, N·N) on rows 0..N//2 (resp. N//2 − 1), rows
+    weighted √2 where they stand for two rows: their Gram matrices are those of the full parts."""
+    full = residual.unflatten(-1, (n, n))
+    half, mirrored = full[:, : n // 2 + 1], full.flip(-2)[:, : n // 2 + 1]
+    weight = torch.full((n // 2 + 1, 1), math.sqrt(2), dtype=residual.dtype, device=residual.device)
+    weight[-1] = 1
+    return ((half + mirrored) / 2 * weight).flatten(1), ((half - mirrored) / 2 * weight)[:, :-1].flatten(1)
+
+
+def _eigh(matrix: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """torch.linalg.eigh on one CPU thread: for matrices this small more threads only wait on
+    each other (up to 100× slower on a busy 2-core machine)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return torch.linalg.eigh(matrix)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _principal(residual: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Eigenvalues (descending, float64), node vectors (K, M) and parities (M,) (+1: even under
+    y → −y, −1: odd) of the principal components of one channel's residuals (K, N·N)."""
+    values, vectors, parities = [], [], []
+    for sign, part in zip((1, -1), _halves(residual, n)):
+        val, vec = _eigh((part @ part.T).double())
+        keep = val > val[-1].clamp_min(0) * 1e-12
+        values.append(val[keep].flip(0))
+        vectors.append(vec[:, keep].flip(1))
+        parities.append(torch.full((int(keep.sum()),), sign))
+    values = torch.cat(values)
+    order = values.argsort(descending=True)
+    return values[order], torch.cat(vectors, dim=1)[:, order], torch.cat(parities)[order]
+
+
+def _components(residual: torch.Tensor, n: int, values, vectors, parities) -> torch.Tensor:
+    """The principal components (M, N·N) of residuals (K, N·N), unit L2 norm and zero sum."""
+    full = residual.unflatten(-1, (n, n))
+    even, odd = (full + full.flip(-2)) / 2, (full - full.flip(-2)) / 2
+    scaled = (vectors / values.sqrt()).to(residual.dtype)
+    comp = torch.where(
+        (parities > 0).to(residual.device)[:, None],
+        scaled.T @ even.flatten(1),
+        scaled.T @ odd.flatten(1),
+    )
+    return comp - comp.mean(-1, keepdim=True)  # zero sum to rounding already: the residuals sum to 0
+
+
+@dataclass
+class _Tile:
+    """A tile's eigen-analysis: its origin, node spacing and offsets, the mean, the total squared
+    norm of the node PSFs and per channel the output of :func:`_principal`."""
+
+    origin: tuple[int, int]
+    spacing: int
+    ys: torch.Tensor
+    xs: torch.Tensor
+    mean: torch.Tensor
+    total: float
+    spectra: list
+
+
+def _tile_nodes(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int):
+    """Node offsets (ys, xs) from the axis pixel over a tile and the grid's shape."""
+    p = psf_set.psfs
+    rows, cols = (
+        _node_axis(start, size, spacing, n // 2, p.dtype, p.device)
+        for start, size, n in zip(origin, tile_hw, sensor_hw)
+    )
+    ys, xs = (g.flatten() for g in torch.meshgrid(rows, cols, indexing="ij"))
+    return ys, xs, (len(rows), len(cols))
+
+
+def _tile_spectra(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int) -> _Tile:
+    ys, xs, _ = _tile_nodes(psf_set, origin, tile_hw, sensor_hw, spacing)
+    residual = _field_at(psf_set, ys, xs)
+    total = float((residual.double() ** 2).sum())
+    mean = residual.mean(0)
+    residual -= mean
+    n, channels = psf_set.psfs.shape[-1], psf_set.psfs.shape[1]
+    return _Tile(origin, spacing, ys, xs, mean, total, [_principal(residual[:, c], n) for c in range(channels)])
+
+
+def _selected(tiles: list[_Tile], target: float) -> list[list[int]]:
+    """Eigen-PSFs to keep per tile and channel: the largest eigenvalues over all tiles and
+    channels until what is left is at most ``target``² of the field's squared norm."""
+    values = torch.cat([v for t in tiles for v, _, _ in t.spectra])
+    owner = torch.cat([torch.full((len(v),), k) for k, v in enumerate(v for t in tiles for v, _, _ in t.spectra)])
+    order = values.argsort(descending=True)
+    left = values[order].flip(0).cumsum(0).flip(0)  # left[i]: the sum of values[order][i:]
+    limit = target**2 * sum(t.total for t in tiles)
+    keep = int((left > limit).sum())
+    channels = len(tiles[0].spectra)
+    counts = torch.bincount(owner[order[:keep]], minlength=len(tiles) * channels).tolist()
+    return [counts[i * channels : (i + 1) * channels] for i in range(len(tiles))]
+
+
+def field_transform(
+    psf_set: FieldPsfSet, sensor_hw: tuple[int, int], *, tolerance: float = DEFAULT_TOLERANCE
+) -> FieldTransform:
+    """Prepare ``psf_set`` for H × W sensor images: the tiled eigen-PSF expansion of the module
+    docstring with the fewest eigen-PSFs whose measured PSF-field error meets ``tolerance``
+    (relative L2, e.g. 0.01). Precompute once per PSF set and reuse."""
+    if not 0 < tolerance < 1:
+        raise InputError("tolerance", f"{tolerance!r}", "a relative L2 error between 0 and 1")
+    h, w = (int(n) for n in sensor_hw)
+    if h < 1 or w < 1:
+        raise InputError("sensor", f"{tuple(sensor_hw)} pixels", "a positive height and width")
+    with torch.no_grad():
+        psf_set = FieldPsfSet(psf_set.heights_px, psf_set.psfs.detach())
+        p = psf_set.psfs
+        n, channels = p.shape[-1], p.shape[1]
+        side = tile_side(n)
+        tile_hw = (min(side, h), min(side, w))
+        rows, cols = _starts(h, tile_hw[0]), _starts(w, tile_hw[1])
+        origins = [(r, c) for r in rows for c in cols]
+        check = torch.Generator().manual_seed(0)
+        check_r, check_c = (torch.randint(0, m, (CHECK_PIXELS,), generator=check).to(p.device) for m in (h, w))
+        exact = _field_at(psf_set, (check_r - h // 2).to(p.dtype), (check_c - w // 2).to(p.dtype))
+        exact_norm = float((exact.double() ** 2).sum())
+        check_tile = _tile_of(check_r, rows, tile_hw[0]) * len(cols) + _tile_of(check_c, cols, tile_hw[1])
+        check_r = check_r - torch.tensor(rows, device=p.device)[_tile_of(check_r, rows, tile_hw[0])]
+        check_c = check_c - torch.tensor(cols, device=p.device)[_tile_of(check_c, cols, tile_hw[1])]
+        spacing = max(1, min(NODE_SPACING, min(tile_hw) // 16))
+        tiles = [_tile_spectra(psf_set, o, tile_hw, (h, w), spacing) for o in origins]
+        target = 0.9 * tolerance
+        for _ in range(MAX_REFINEMENTS + 1):
+            counts = _selected(tiles, target)
+            built = _built(psf_set, tiles, counts, tile_hw, (h, w), spacing)
+            kernels, maps, term_tile, term_channel, means = built
+            approx = means[check_tile].clone()
+            on = term_tile[None, :] == check_tile[:, None]  # (P, terms)
+            at = maps[:, check_r, check_c].T * on  # coefficients of each term at each check pixel
+            for c in range(channels):
+                sel = term_channel == c
+                approx[:, c] += at[:, sel] @ kernels[sel]
+            error = math.sqrt(float(((approx - exact).double() ** 2).sum()) / exact_norm)
+            import os
+
+            if os.environ.get("FF_DEBUG"):
+                print("iter", spacing, round(target, 5), round(error, 5), len(built[0]), flush=True)
+            if error <= tolerance:
+                break
+            truncation = math.sqrt(
+                sum(float(v[k:].sum()) for t, ks in zip(tiles, counts) for (v, _, _), k in zip(t.spectra, ks))
+                / sum(t.total for t in tiles)
+            )
+            if error**2 > 2 * truncation**2 and spacing > 1:
+                spacing //= 2  # the coefficients' interpolation dominates: a finer grid of them
+            else:
+                target = 0.95 * truncation * tolerance / error
+        mean = psf_transform(means.reshape(len(origins), channels, n, n), tile_hw)
+        if len(kernels):
+            basis = kernel_transform(kernels.reshape(-1, n, n), tile_hw)
+        else:  # a uniform field: nothing but the mean (MKL transforms no empty batch)
+            basis = PsfTransform(mean.spectrum[:0, 0], tile_hw, mean.margin, mean.fft_shape)
+        return FieldTransform(
+            mean,
+            basis,
+            maps,
+            term_tile,
+            term_channel,
+            rows,
+            cols,
+            (h, w),
+            error,
+            tolerance,
+        )
+
+
+def _built(psf_set: FieldPsfSet, tiles: list[_Tile], counts, tile_hw, sensor_hw, spacing: int):
+    """Eigen-PSFs (terms, N·N), their coefficient maps (terms, T0, T1) from nodes ``spacing``
+    apart, tile and channel of each, and the tiles' means (tiles, C, N·N), for the ``counts``
+    kept per tile and channel."""
+    n = psf_set.psfs.shape[-1]
+    kernels, maps, term_tile, term_channel = [], [], [], []
+    for i, (tile, kept) in enumerate(zip(tiles, counts)):
+        if not any(kept):
+            continue
+        residual = _field_at(psf_set, tile.ys, tile.xs) - tile.mean
+        basis = [
+            _components(residual[:, c], n, values[:k], vectors[:, :k], parities[:k]) if k else None
+            for c, ((values, vectors, parities), k) in enumerate(zip(tile.spectra, kept))
+        ]
+        ys, xs, shape = _tile_nodes(psf_set, tile.origin, tile_hw, sensor_hw, spacing)
+        values = [[] for _ in basis]  # ⟨P_node − P̄, e⟩ per channel, a chunk of nodes at a time
+        for start in range(0, len(xs), NODE_CHUNK):
+            if spacing == tile.spacing:
+                nodes = residual[start : start + NODE_CHUNK]
+            else:
+                nodes = _field_at(psf_set, ys[start : start + NODE_CHUNK], xs[start : start + NODE_CHUNK]) - tile.mean
+            for c, e in enumerate(basis):
+                if e is not None:
+                    values[c].append(e @ nodes[:, c].T)
+        for c, e in enumerate(basis):
+            if e is None:
+                continue
+            grid = torch.cat(values[c], dim=1).reshape(len(e), 1, *shape)
+            maps.append(F.interpolate(grid, size=tile_hw, mode=MAP_MODE, align_corners=True)[:, 0])
+            kernels.append(e)
+            term_tile.append(torch.full((len(e),), i))
+            term_channel.append(torch.full((len(e),), c))
+    p = psf_set.psfs
+    means = torch.stack([t.mean for t in tiles])
+    if not kernels:
+        empty = torch.zeros(0, dtype=torch.long, device=p.device)
+        return p.new_zeros(0, n * n), p.new_zeros(0, *tile_hw), empty, empty, means
+    return (
+        torch.cat(kernels),
+        torch.cat(maps),
+        torch.cat(term_tile).to(p.device),
+        torch.cat(term_channel).to(p.device),
+        means,
+    )
+
+
+def _field_transform(psfs, sensor_hw: tuple[int, int], tolerance: float) -> FieldTransform:
+    if isinstance(psfs, FieldTransform):
+        if psfs.sensor_hw != tuple(sensor_hw):
+            raise InputError(
+                "psf",
+                f"field transform made for {psfs.sensor_hw} images, sensor is {tuple(sensor_hw)}",
+                "field_transform(psf set, sensor size)",
+            )
+        return psfs
+    if not isinstance(psfs, FieldPsfSet):
+        raise InputError("psf", f"a {type(psfs).__name__}", "a FieldPsfSet or FieldTransform")
+    return field_transform(psfs, sensor_hw, tolerance=tolerance)
+
+
+def _tile_spectrum(canvas: torch.Tensor, margin: int, t: FieldTransform) -> torch.Tensor:
+    """rfft2 of each tile's canvas (..., tiles, C, L0, L1 // 2 + 1) on the tiles' FFT grid."""
+    t0, t1 = t.mean.sensor_hw
+    tiles = [canvas[..., r : r + t0 + 2 * margin, c : c + t1 + 2 * margin] for r in t.tile_rows for c in t.tile_cols]
+    return _canvas_spectrum(torch.stack(tiles, dim=-4), margin, t.mean)
+
+
+def _gather(spectrum: torch.Tensor, t: FieldTransform) -> torch.Tensor:
+    """P̄ ∗ in + Σ a ⊙ (e ∗ in) on the sensor from the tiles' spectra (..., tiles, C or 1, L0, L1')."""
+    out = _kept(spectrum * t.mean.spectrum, t.mean)  # (..., tiles, C, T0, T1)
+    channels = out.shape[-3]
+    flat = spectrum.expand(*spectrum.shape[:-3], channels, *spectrum.shape[-2:]).flatten(-4, -3)
+    index = t.term_tile * channels + t.term_channel
+    out = out.flatten(-4, -3)
+    for k in range(0, len(index), TERM_CHUNK):
+        chunk = slice(k, k + TERM_CHUNK)
+        planes = _kept(flat.index_select(-3, index[chunk]) * t.basis.spectrum[chunk], t.basis)
+        out.index_add_(-3, index[chunk], planes * t.maps[chunk].to(planes.dtype))
+    return _assembled(out.unflatten(-3, (-1, channels)), t.tile_rows, t.tile_cols)
+
+
+def field_convolve(canvas: torch.Tensor, psfs, margin: int, *, tolerance: float = DEFAULT_TOLERANCE) -> torch.Tensor:
+    """The sensor crop of ``canvas`` (..., C, H + 2M, W + 2M) blurred in gather form by the field
+    PSFs ``psfs`` (:class:`FieldPsfSet` or :class:`FieldTransform`); C broadcasts as in
+    :func:`formation.convolve`."""
+    t = _field_transform(psfs, _sensor_hw(canvas, margin), tolerance)
+    return _gather(_tile_spectrum(canvas, margin, t), t)
+
+
+def form_image_field(
+    clean: torch.Tensor,
+    obstruction: torch.Tensor,
+    mask: torch.Tensor,
+    near,
+    far,
+    margin: int,
+    *,
+    formation: str = "physical",
+    alpha_gain: float | None = None,
+    tolerance: float = DEFAULT_TOLERANCE,
+) -> Capture:
+    """:func:`formation.form_image` with field PSFs: ``near``, ``far`` a :class:`FieldPsfSet` each
+    (prepared here at ``tolerance``) or a :class:`FieldTransform` (precomputed, reused; it carries
+    its own tolerance). The optical axis is the sensor's centre pixel (H//2, W//2); α = m ∗ P̂_near
+    and both forms as in ``imaging.formation``, each PSF the one of the output pixel."""
+    emitted, mask = _obstruction_canvases(obstruction, mask, formation)
+    sensor = _sensor_hw(clean, margin)
+    near, far = _field_transform(near, sensor, tolerance), _field_transform(far, sensor, tolerance)
+    channels = obstruction.shape[-3]
+    # one batched transform of [I_obs or m ⊙ I_obs, m]; the mask's spectrum meets each channel's PSF
+    f = _tile_spectrum(torch.cat([emitted, mask], dim=-3), margin, near)
+    light, coverage = torch.broadcast_tensors(f[..., :channels, :, :], f[..., channels:, :, :])
+    near_light, blurred_mask = _gather(torch.stack([light, coverage], dim=-5), near).unbind(-4)
+    unobstructed = _gather(_tile_spectrum(clean, margin, far), far)
+    return _composite(near_light, blurred_mask, unobstructed, formation, alpha_gain)

@@ -1,0 +1,310 @@
+"""Image formation with field PSFs: the field model against closed forms (rotated Gaussians), the
+fast eigen-PSF expansion against a direct per-pixel sum, the cases whose answer needs no code
+(grey wall, opaque cover, a uniform field is ``form_image``), rotation and mirror symmetry,
+batches and gradients."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.field_formation import (
+    FieldPsfSet,
+    field_convolve,
+    field_psf,
+    field_transform,
+    form_image_field,
+)
+from metalens_cli.imaging.formation import canvas_margin, coverage_alpha, form_image
+
+N = 21  # PSF window
+HEIGHTS = (0, 6, 12, 20, 28)  # up to the corner of a 48 × 45 sensor (33 px): the last one is used beyond
+
+
+def gaussians(heights=HEIGHTS, n=N, offset=0.15, tangential=0.12, radial=0.03, angle=0.0):
+    """Closed-form anisotropic Gaussians (3, n, n) per height h, for the image point at height h
+    on the axis at azimuth ``angle``: centroid h·``offset`` px outwards, widths σ_c + h·``radial``
+    (outwards) and σ_c + h·``tangential`` (across), σ_c 0.9, 1.1, 1.4 px for R, G, B. Strongly
+    varying: at h = 28 the centroid is 4 px out and the tangential width 4.5 px."""
+    k = torch.arange(n, dtype=torch.float64) - n // 2
+    y, x = torch.meshgrid(k, k, indexing="ij")
+    c, s = math.cos(angle), math.sin(angle)
+    u, v = c * x + s * y, -s * x + c * y  # outwards, across
+    sets = []
+    for h in heights:
+        sets.append(
+            torch.stack(
+                [
+                    torch.exp(
+                        -((u - offset * h) ** 2) / (2 * (s0 + radial * h) ** 2)
+                        - v**2 / (2 * (s0 + tangential * h) ** 2)
+                    )
+                    for s0 in (0.9, 1.1, 1.4)
+                ]
+            )
+        )
+    return torch.stack(sets)
+
+
+def field_set(**kwargs):
+    return FieldPsfSet(HEIGHTS, gaussians(**kwargs))
+
+
+def unit(p):
+    return p / p.sum((-2, -1), keepdim=True)
+
+
+def brute_force(canvas, psf_set, margin):
+    """out(x) = Σ_d P_x(d)·in(x − d), P_x the field PSF of each output pixel, summed directly."""
+    h, w = (m - 2 * margin for m in canvas.shape[-2:])
+    n = psf_set.psfs.shape[-1]
+    k = n // 2
+    ys, xs = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    psf = field_psf(psf_set, (xs - w // 2).double(), (ys - h // 2).double())  # (h, w, C, n, n)
+    trimmed = canvas[..., margin - k : margin + h + k, margin - k : margin + w + k]
+    windows = trimmed.unfold(-2, n, 1).unfold(-2, n, 1)  # (..., C, h, w, n, n): rows i..i+n-1, cols j..j+n-1
+    return torch.einsum("hwcab,...chwab->...chw", psf.flip(-2, -1), windows)
+
+
+def relative(a, b):
+    return float((a - b).norm() / b.norm())
+
+
+rng = np.random.default_rng(1)
+
+
+def canvas(shape, channels=3):
+    return torch.as_tensor(rng.random((channels, *shape)), dtype=torch.float64)
+
+
+# --- the field model against closed forms -------------------------------------------------------
+
+
+def test_field_psf_on_the_axes_is_the_set_rotated_exactly():
+    """At the set's heights along +x the set's PSF; along +y (azimuth 90°, y down) the closed form
+    of the same Gaussian rotated by 90° (exact: the rotation maps pixels onto pixels)."""
+    psfs = field_set()
+    for k, h in enumerate(HEIGHTS):
+        np.testing.assert_allclose(field_psf(psfs, float(h), 0.0).numpy(), unit(psfs.psfs[k]).numpy(), atol=1e-14)
+        turned = unit(gaussians(heights=(h,), angle=math.pi / 2)[0])
+        np.testing.assert_allclose(field_psf(psfs, 0.0, float(h)).numpy(), turned.numpy(), atol=1e-12)
+        turned = unit(gaussians(heights=(h,), angle=math.pi)[0])
+        np.testing.assert_allclose(field_psf(psfs, -float(h), 0.0).numpy(), turned.numpy(), atol=1e-12)
+
+
+def test_field_psf_interpolates_linearly_in_height_and_keeps_the_last():
+    psfs = field_set()
+    p = unit(psfs.psfs)
+    np.testing.assert_allclose(
+        field_psf(psfs, 9.0, 0.0).numpy(), unit(p[1] / 2 + p[2] / 2).numpy(), atol=1e-14
+    )  # halfway between 6 and 12
+    np.testing.assert_allclose(
+        field_psf(psfs, 15.0, 0.0).numpy(), unit(p[2] * 5 / 8 + p[3] * 3 / 8).numpy(), atol=1e-14
+    )
+    np.testing.assert_allclose(field_psf(psfs, 40.0, 0.0).numpy(), p[-1].numpy(), atol=1e-14)
+
+
+def test_field_psf_at_an_oblique_azimuth_is_the_rotated_closed_form():
+    """At 30° and 45° the bicubically resampled PSF is within 3 % (relative L2) of the Gaussian
+    rotated in closed form (σ down to 1.1 px; at h = 28 the window also cuts the tails), and far
+    from the one rotated the other way (the sign of the rule)."""
+    psfs = field_set()
+    for h in (6, 12, 28):  # heights of the set
+        for psi in (math.radians(30), math.radians(45)):
+            ours = field_psf(psfs, h * math.cos(psi), h * math.sin(psi))
+            assert relative(ours, unit(gaussians(heights=(h,), angle=psi)[0])) < 0.03
+            assert relative(ours, unit(gaussians(heights=(h,), angle=-psi)[0])) > 0.4
+
+
+def test_identical_psfs_give_the_same_psf_everywhere():
+    psf = gaussians(heights=(5,))[0]
+    psfs = FieldPsfSet(HEIGHTS, psf.expand(len(HEIGHTS), -1, -1, -1))
+    xs, ys = torch.tensor([3.0, -17.5, 0.0, 30.0]), torch.tensor([0.0, 9.25, -40.0, 30.0])
+    np.testing.assert_allclose(field_psf(psfs, xs, ys).numpy(), unit(psf).expand(4, -1, -1, -1).numpy(), atol=1e-15)
+
+
+# --- the fast path against the direct sum --------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def strongly_varying():
+    """The small case: a 48 × 45 sensor (tiles of 32 px, the last ones moved inwards), N = 21,
+    prepared at the default tolerance (1 %)."""
+    psfs = field_set()
+    return psfs, field_transform(psfs, (48, 45))
+
+
+def test_fast_path_matches_the_direct_sum(strongly_varying):
+    """Within 1 % (relative L2) of the direct per-pixel sum, for the capture and for its
+    deviation from its mean (the part that the PSFs shape: white noise, a worst case)."""
+    psfs, prepared = strongly_varying
+    assert prepared.error <= prepared.tolerance == 0.01
+    margin = N // 2 + 2  # a larger margin is trimmed
+    scene = canvas((48 + 2 * margin, 45 + 2 * margin))
+    fast, exact = field_convolve(scene, prepared, margin), brute_force(scene, psfs, margin)
+    assert relative(fast, exact) < 1e-3
+    assert relative(fast - fast.mean(), exact - exact.mean()) < 0.01
+    one_channel = canvas((48 + 2 * margin, 45 + 2 * margin), channels=1)  # broadcasts over the PSF's channels
+    assert relative(field_convolve(one_channel, prepared, margin), brute_force(one_channel, psfs, margin)) < 1e-3
+
+
+def test_reported_error_is_the_error_on_white_noise(strongly_varying):
+    """The relative L2 error of the PSF field is that of the capture of zero-mean white noise."""
+    psfs, prepared = strongly_varying
+    noise = torch.as_tensor(rng.standard_normal((16, 3, 48 + N - 1, 45 + N - 1)))
+    measured = relative(field_convolve(noise, prepared, N // 2), brute_force(noise, psfs, N // 2))
+    assert 0.7 * prepared.error < measured < 1.3 * prepared.error
+
+
+@pytest.mark.parametrize("formation", ["physical", "paper"])
+def test_capture_matches_the_direct_sum(strongly_varying, formation):
+    """I = P̂_near∗(m⊙I_obs) + (1 − α)⊙(P̂_far∗I_clean), α = m∗P̂_near (paper: α⊙(P̂_near∗I_obs)),
+    each blur summed directly with the PSF of the output pixel."""
+    near, prepared = strongly_varying
+    far = field_set(offset=0.05, tangential=0.05)
+    margin = N // 2
+    shape = (48 + 2 * margin, 45 + 2 * margin)
+    clean, colour, mask = canvas(shape), canvas(shape), canvas(shape, channels=1)
+    capture = form_image_field(clean, colour, mask, prepared, far, margin, formation=formation)
+    emitted = colour * mask if formation == "physical" else colour
+    light, alpha = brute_force(emitted, near, margin), coverage_alpha(brute_force(mask, near, margin))
+    unobstructed = brute_force(clean, far, margin)
+    light = light if formation == "physical" else alpha * light
+    assert relative(capture.alpha, alpha) < 1e-3
+    assert relative(capture.unobstructed, unobstructed) < 1e-3
+    assert relative(capture.obstructed, light + (1 - alpha) * unobstructed) < 0.01
+
+
+# --- cases whose answer needs no code ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("formation", ["physical", "paper"])
+def test_uniform_field_is_form_image(formation):
+    """Identical rotationally symmetric PSFs at every height (a different one per channel): the
+    same PSF everywhere, so exactly ``form_image``, whatever the obstruction."""
+    psf = gaussians(heights=(0,))[0]
+    near = FieldPsfSet(HEIGHTS, psf.expand(len(HEIGHTS), -1, -1, -1))
+    far = FieldPsfSet((0,), gaussians(heights=(0,), n=9)[0:1])
+    margin = canvas_margin(N, 9) + 1
+    shape = (40 + 2 * margin, 36 + 2 * margin)
+    clean, colour, mask = canvas(shape), canvas(shape), canvas(shape, channels=1)
+    ours = form_image_field(clean, colour, mask, near, far, margin, formation=formation)
+    theirs = form_image(clean, colour, mask, psf, far.psfs[0], margin, formation=formation)
+    for name in ("obstructed", "unobstructed", "obstruction_light", "alpha"):
+        np.testing.assert_allclose(getattr(ours, name).numpy(), getattr(theirs, name).numpy(), atol=1e-13)
+
+
+@pytest.fixture(scope="module", params=[0.01, 0.3])
+def prepared_at(request, strongly_varying):
+    """The small case prepared at the default tolerance and at a loose one (a few eigen-PSFs)."""
+    psfs, prepared = strongly_varying
+    return psfs, prepared if request.param == 0.01 else field_transform(psfs, (48, 45), tolerance=request.param)
+
+
+@pytest.mark.parametrize("formation", ["physical", "paper"])
+def test_grey_wall_stays_grey(prepared_at, formation):
+    """A uniform scene with no obstruction gives a uniform capture, at any rank."""
+    _, prepared = prepared_at
+    margin = N // 2
+    shape = (3, 48 + 2 * margin, 45 + 2 * margin)
+    grey = torch.full(shape, 0.25, dtype=torch.float64)
+    none = torch.zeros(1, *shape[1:], dtype=torch.float64)
+    capture = form_image_field(grey, grey, none, prepared, prepared, margin, formation=formation)
+    np.testing.assert_allclose(capture.obstructed.numpy(), 0.25, rtol=1e-12)
+    np.testing.assert_allclose(capture.alpha.numpy(), 0.0, atol=1e-13)
+
+
+def test_opaque_cover_hides_the_scene(prepared_at):
+    """Mask 1 everywhere: α = 1 and the capture is the blurred obstruction, whatever the scene;
+    a uniform obstruction colour comes out unchanged."""
+    psfs, prepared = prepared_at
+    margin = N // 2
+    shape = (3, 48 + 2 * margin, 45 + 2 * margin)
+    ones = torch.ones(1, *shape[1:], dtype=torch.float64)
+    colour = canvas(shape[1:])
+    a, b = (form_image_field(canvas(shape[1:]), colour, ones, prepared, prepared, margin) for _ in range(2))
+    np.testing.assert_allclose(a.alpha.numpy(), 1.0, atol=1e-13)
+    np.testing.assert_allclose(a.obstructed.numpy(), b.obstructed.numpy(), atol=1e-13)
+    assert relative(a.obstructed, brute_force(colour, psfs, margin)) < max(1e-3, prepared.error / 10)
+    plain = torch.full(shape, 0.6, dtype=torch.float64)
+    capture = form_image_field(canvas(shape[1:]), plain, ones, prepared, prepared, margin)
+    np.testing.assert_allclose(capture.obstructed.numpy(), 0.6, rtol=1e-12)
+
+
+# --- symmetry ----------------------------------------------------------------------------------------
+
+
+def test_point_source_at_azimuth_90_is_the_rotated_image_at_azimuth_0():
+    """A point 14 px right of the axis and the same point 14 px below it (y down: azimuth 90°):
+    the second capture is the first turned by 90° about the axis pixel (x → y), for the direct
+    sum exactly and for the fast path to its tolerance; the opposite turn is far off."""
+    psfs = field_set()
+    size, margin = 49, N // 2  # odd: the axis pixel (24, 24) is the centre of the array
+    prepared = field_transform(psfs, (size, size), tolerance=0.002)
+    right, below = (torch.zeros(3, size + 2 * margin, size + 2 * margin, dtype=torch.float64) for _ in range(2))
+    right[:, margin + 24, margin + 24 + 14] = 1.0
+    below[:, margin + 24 + 14, margin + 24] = 1.0
+    for blur, tolerance in (
+        (lambda c: brute_force(c, psfs, margin), 1e-12),
+        (lambda c: field_convolve(c, prepared, margin), 0.01),
+    ):
+        a, b = blur(right), blur(below)
+        turned = torch.rot90(a, -1, dims=(-2, -1))  # B[i, j] = A[n − 1 − j, i]: (x, y) → (−y, x)
+        assert relative(b, turned) < tolerance
+        assert relative(b, torch.rot90(a, 1, dims=(-2, -1))) > 0.5
+
+
+def test_mirror_symmetric_set_gives_mirror_symmetric_captures():
+    """The Gaussians are symmetric under y → −y: flipping the scene about the axis row flips the
+    capture, exactly on one tile (the eigen-PSFs are even or odd)."""
+    psfs = field_set()
+    size, margin = 31, N // 2  # one tile of 32
+    prepared = field_transform(psfs, (size, size), tolerance=0.05)
+    assert prepared.ranks.shape[0] == 1
+    scene = canvas((size + 2 * margin, size + 2 * margin))
+    flipped = field_convolve(scene.flip(-2), prepared, margin)
+    np.testing.assert_allclose(flipped.numpy(), field_convolve(scene, prepared, margin).flip(-2).numpy(), atol=1e-13)
+
+
+# --- batches, gradients, inputs ------------------------------------------------------------------------
+
+
+def test_batches_and_gradients(strongly_varying):
+    psfs, prepared = strongly_varying
+    margin = N // 2
+    shape = (2, 3, 48 + 2 * margin, 45 + 2 * margin)
+    clean = torch.rand(shape, dtype=torch.float64, requires_grad=True)
+    colour, mask = torch.rand(shape, dtype=torch.float64), torch.rand(2, 1, *shape[2:], dtype=torch.float64)
+    batch = form_image_field(clean, colour, mask, prepared, prepared, margin)
+    for i in range(2):
+        single = form_image_field(clean[i], colour[i], mask[i], prepared, prepared, margin)
+        np.testing.assert_allclose(batch.obstructed[i].detach().numpy(), single.obstructed.detach().numpy(), atol=1e-13)
+    batch.obstructed.square().mean().backward()
+    assert clean.grad is not None and torch.isfinite(clean.grad).all() and clean.grad.abs().sum() > 0
+    small = field_transform(FieldPsfSet((0, 4), gaussians(heights=(0, 4), n=5)), (6, 5), tolerance=0.05)
+    x = torch.rand(3, 10, 9, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda c: field_convolve(c, small, 2), (x,))
+
+
+def test_bad_inputs_are_refused():
+    psf = gaussians(heights=(0, 6))
+    with pytest.raises(InputError, match="heights_px"):
+        FieldPsfSet((1, 6), psf)
+    with pytest.raises(InputError, match="heights_px"):
+        FieldPsfSet((0, 6, 6), gaussians(heights=(0, 6, 6)))
+    with pytest.raises(InputError, match="psfs"):
+        FieldPsfSet((0, 6), psf[..., 1:, 1:])  # even window
+    with pytest.raises(InputError, match="psfs"):
+        FieldPsfSet((0, 6, 12), psf)
+    psfs = FieldPsfSet((0, 6), psf)
+    with pytest.raises(InputError, match="tolerance"):
+        field_transform(psfs, (16, 16), tolerance=0.0)
+    prepared = field_transform(psfs, (16, 16), tolerance=0.1)
+    with pytest.raises(InputError, match="field transform made for"):
+        field_convolve(torch.zeros(3, 40, 40), prepared, 10)
+    with pytest.raises(InputError, match="canvas margin"):
+        field_convolve(torch.zeros(3, 24, 24), prepared, 4)
+    with pytest.raises(InputError, match="formation"):
+        form_image_field(*(torch.zeros(3, 36, 36),) * 3, prepared, prepared, 10, formation="literal")
