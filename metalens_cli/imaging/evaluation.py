@@ -57,7 +57,7 @@ class EvaluationSettings:
     photons_before_filter: bool = False  # photons count the light before each design's filter (its throughput passes)
     psf_window: int | None = None
     device: object = "cpu"
-    field_model: str = "auto"  # "auto": PSFs over the field where the sensor outgrows the lens's isoplanatic patch
+    field_model: str = "on-axis"  # "auto": PSFs over the field where the sensor outgrows the isoplanatic patch
 
     @classmethod
     def from_setup(cls, setup: CaptureSetup, **options) -> EvaluationSettings:

@@ -201,7 +201,7 @@ def channel_psfs(
     )
 
 
-FIELD_MODELS = ("auto", "on-axis")
+FIELD_MODELS = ("on-axis", "auto")
 FIELD_WINDOW_ESTIMATE = 301  # pixels: the paper's lens's near window off axis, for cost estimates
 
 
@@ -213,7 +213,7 @@ def capture_psfs(
     pixel_pitch_m: float,
     sensor_pixels: int,
     *,
-    field_model: str = "auto",
+    field_model: str = "on-axis",
     device="cpu",
     window: int | None = None,
 ) -> ChannelPsfs:
