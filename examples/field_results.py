@@ -105,15 +105,16 @@ def write(path: Path, results: dict[str, tuple[dict, dict]]) -> None:
         "Seidel theory gives sin α·a²/(2f) = 23 µm at 6.75° for the hyperbolic lens at its design "
         "wavelength) and the radius holding 80 % of the window's light, at 530 nm.",
         "",
-        "| design | " + " | ".join(f"{a:g}°: centroid, EE80 r" for a in FIELDS_DEG) + " |",
-        "| --- | " + " | ".join("---" for _ in FIELDS_DEG) + " |",
+        "| design | " + " | ".join(f"{a:g}°: centroid, EE80 r" for a in FIELDS_DEG) + " | window keeps |",
+        "| --- | " + " | ".join("---" for _ in FIELDS_DEG) + " | --- |",
     ]
     for label, (report, _) in results.items():
         cells = []
         for field in report["fields"]:
             (psf,) = [p for p in field["psfs"] if abs(p["wavelength_m"] - 530e-9) < 1e-12]
             cells.append(f"{psf['centroid_from_chief_ray_m'][0] * 1e6:+.1f}, {psf['ee80_radius_m'] * 1e6:.1f}")
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        kept = [p["energy_in_window"] for field in report["fields"] for p in field["psfs"]]
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {100 * min(kept):.0f}-{100 * max(kept):.1f} % |")
     lines += [
         "",
         "Not here yet: captures formed with these field-dependent PSFs against the on-axis model "
