@@ -103,7 +103,12 @@ def write(path: Path, results: dict[str, tuple[dict, dict]]) -> None:
         "",
         "From `psf-scan`'s report: the centroid's offset from the chief ray along the radius (coma: "
         "Seidel theory gives sin α·a²/(2f) = 23 µm at 6.75° for the hyperbolic lens at its design "
-        "wavelength) and the radius holding 80 % of the window's light, at 530 nm.",
+        "wavelength) and the radius holding 80 % of the window's light, at 530 nm. Last column: the "
+        "fraction of the light through the aperture that the 255-pixel window holds, over the fields and "
+        "wavelengths (the rest is the halo of wavelengths far from focus; the MTFs describe what it holds). "
+        "The learned lenses spread most of each wavelength's light into a wide halo (their extended depth "
+        "of field), so their MTF50 sits at a few lp/mm wherever the core is sharp: compare their rows with "
+        "each other across the field, not with the hyperbolic lens's.",
         "",
         "| design | " + " | ".join(f"{a:g}°: centroid, EE80 r" for a in FIELDS_DEG) + " | window keeps |",
         "| --- | " + " | ".join("---" for _ in FIELDS_DEG) + " | --- |",
