@@ -83,14 +83,15 @@ def centre_gradient(lens: Metalens) -> tuple[float, float]:
         return 0.0, 0.0
     theta = lens.theta.detach().double().cpu().numpy()
     c = theta.shape[0] // 2
-
-    def wrapped(step: float) -> float:
-        return float(np.remainder(2 * step + math.pi, 2 * math.pi) - math.pi)
-
     return (
-        wrapped(theta[c, c + 1] - theta[c, c - 1]) / (2 * lens.pitch_m),
-        wrapped(theta[c + 1, c] - theta[c - 1, c]) / (2 * lens.pitch_m),
+        float(_phase_step(theta[c, c + 1] - theta[c, c - 1])) / (2 * lens.pitch_m),
+        float(_phase_step(theta[c + 1, c] - theta[c - 1, c])) / (2 * lens.pitch_m),
     )
+
+
+def _phase_step(theta_step):
+    """The phase step 2·Δθ (rad) wrapped to (−π, π] (a map given modulo π in θ is fine)."""
+    return np.remainder(2 * theta_step + math.pi, 2 * math.pi) - math.pi
 
 
 def chief_ray(
@@ -321,13 +322,9 @@ def _phase_gradient(lens: Metalens, x: np.ndarray, y: np.ndarray) -> tuple[np.nd
     m = theta.shape[0]
     col = np.clip(np.rint(x / p).astype(int) + m // 2, 1, m - 2)
     row = np.clip(np.rint(y / p).astype(int) + m // 2, 1, m - 2)
-
-    def wrapped(step: np.ndarray) -> np.ndarray:
-        return np.remainder(2 * step + math.pi, 2 * math.pi) - math.pi
-
     return (
-        wrapped(theta[row, col + 1] - theta[row, col - 1]) / (2 * p),
-        wrapped(theta[row + 1, col] - theta[row - 1, col]) / (2 * p),
+        _phase_step(theta[row, col + 1] - theta[row, col - 1]) / (2 * p),
+        _phase_step(theta[row + 1, col] - theta[row - 1, col]) / (2 * p),
     )
 
 
