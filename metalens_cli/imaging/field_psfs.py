@@ -27,7 +27,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -59,7 +59,6 @@ class FieldPsfs:
     seconds: float
     cached: bool
     cache_path: str | None = None
-    notes: list[str] = field(default_factory=list)
 
     @property
     def margin(self) -> int:
@@ -76,6 +75,7 @@ class FieldPsfs:
             "spectral_error": self.spectral_error,
             "field_psf_seconds": self.seconds,
             "field_psf_cached": self.cached,
+            "field_psf_cache": self.cache_path,
         }
 
 
