@@ -24,8 +24,8 @@ HEIGHTS = (0, 6, 12, 20, 28)  # up to the corner of a 48 × 45 sensor (33 px): t
 
 
 def gaussians(heights=HEIGHTS, n=N, offset=0.15, tangential=0.12, radial=0.03, angle=0.0):
-    """Closed-form anisotropic Gaussians (3, n, n) per height h, for the image point at height h
-    on the axis at azimuth ``angle``: centroid h·``offset`` px outwards, widths σ_c + h·``radial``
+    """Closed-form anisotropic Gaussians (K, 3, n, n), one per height h, of the image point at
+    height h from the axis at azimuth ``angle``: centroid h·``offset`` px outwards, widths σ_c + h·``radial``
     (outwards) and σ_c + h·``tangential`` (across), σ_c 0.9, 1.1, 1.4 px for R, G, B. Strongly
     varying: at h = 28 the centroid is 4 px out and the tangential width 4.5 px."""
     k = torch.arange(n, dtype=torch.float64) - n // 2
