@@ -49,8 +49,11 @@ def test_field_set_is_pixel_aligned_cached_and_on_axis_at_its_centre(tmp_path, m
     # the corner's coma needs a larger window than the axis, and the windows keep the light
     assert first.far.psfs.shape[-1] >= axis.far.shape[-1] and first.near.psfs.shape[-1] >= axis.near.shape[-1]
     assert min(min(k) for k in first.kept["far"]) > 0.99
+    # the set's single angle margin against field_psf's doubled one, measured at the corner
+    assert 0 < first.sampling_error < 2e-3 and first.report()["sampling_error"] == first.sampling_error
     again = field_channel_psfs(design, 0.01, 1.0, LAMS, PITCH, 64, wavelengths_per_channel=2)
     assert again.cached and torch.equal(again.far.psfs, first.far.psfs)
+    assert again.sampling_error == first.sampling_error
 
 
 def test_field_set_refuses_a_2d_design():
