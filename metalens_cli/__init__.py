@@ -44,6 +44,18 @@ _EXPORTS = {
     "read_psf_cube": "io.exr",
     "write_psf_cube": "io.exr",
     "run_scan": "imaging.psf_scan",
+    # the field of view: off-axis PSFs and captures that vary over the field
+    "FieldPsf": "optics.field",
+    "field_psf": "optics.field",
+    "field_angle": "optics.field",
+    "chief_ray": "optics.field",
+    "ray_landings": "optics.field",
+    "rms_spot": "optics.field",
+    "run_field_scan": "imaging.psf_scan",
+    "field_channel_psfs": "imaging.field_psfs",
+    "FieldPsfSet": "imaging.field_formation",
+    "field_transform": "imaging.field_formation",
+    "form_image_field": "imaging.field_formation",
     # spectra and the filter
     "SpectralSensitivity": "optics.spectra",
     "spectral_sensitivity": "optics.spectra",
@@ -76,6 +88,8 @@ _EXPORTS = {
     "diffraction_limited_mtf": "analysis.mtf",
     "mtf50": "analysis.mtf",
     "cube_mtf": "analysis.mtf",
+    "line_mtf": "analysis.mtf",
+    "field_mtf": "analysis.mtf",
     "slanted_edge_sfr": "analysis.slanted_edge",
     # layout export
     "FinGeometry": "io.layout",
@@ -92,6 +106,8 @@ __all__ = [
     "Capture",
     "Design",
     "EvaluationSettings",
+    "FieldPsf",
+    "FieldPsfSet",
     "Fin",
     "FinGeometry",
     "FinResponse",
@@ -110,6 +126,7 @@ __all__ = [
     "camera_response",
     "channel_psf_stack",
     "check_bands",
+    "chief_ray",
     "compute_psf",
     "constants",
     "crop_window",
@@ -119,10 +136,17 @@ __all__ = [
     "estimate_psf",
     "evaluate",
     "export_layout",
+    "field_angle",
+    "field_channel_psfs",
+    "field_mtf",
+    "field_psf",
+    "field_transform",
     "fin_response",
     "form_image",
+    "form_image_field",
     "format_length",
     "hyperbolic",
+    "line_mtf",
     "load_preset",
     "mtf50",
     "parse_angle",
@@ -133,9 +157,12 @@ __all__ = [
     "quadrature_weights",
     "radial_grid",
     "radial_propagate",
+    "ray_landings",
     "rayleigh_sommerfeld",
     "read_psf_cube",
     "resolve_design",
+    "rms_spot",
+    "run_field_scan",
     "run_scan",
     "simulate_captures",
     "slanted_edge_sfr",
@@ -169,23 +196,35 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # static checkers and IDEs see the names eagerly
     from metalens_cli import constants
     from metalens_cli.analysis.bands import Band, BandsReport, bands_from_centers, check_bands
-    from metalens_cli.analysis.mtf import RadialGrid, cube_mtf, diffraction_limited_mtf, mtf50, psf_mtf, radial_grid
+    from metalens_cli.analysis.mtf import (
+        RadialGrid,
+        cube_mtf,
+        diffraction_limited_mtf,
+        field_mtf,
+        line_mtf,
+        mtf50,
+        psf_mtf,
+        radial_grid,
+    )
     from metalens_cli.analysis.slanted_edge import slanted_edge_sfr
     from metalens_cli.analysis.symmetry import depth_for_wavelength, wavelength_for_depth
     from metalens_cli.design.reconstruct_training import train_reconstruction
     from metalens_cli.design.training import train
     from metalens_cli.errors import InputError, ResultFailed
     from metalens_cli.imaging.evaluation import EvaluationSettings, evaluate
+    from metalens_cli.imaging.field_formation import FieldPsfSet, field_transform, form_image_field
+    from metalens_cli.imaging.field_psfs import field_channel_psfs
     from metalens_cli.imaging.formation import Capture, add_noise, form_image
     from metalens_cli.imaging.metrics import psnr, ssim
     from metalens_cli.imaging.pipeline import simulate_captures
-    from metalens_cli.imaging.psf_scan import run_scan
+    from metalens_cli.imaging.psf_scan import run_field_scan, run_scan
     from metalens_cli.io.designs import Design, resolve_design
     from metalens_cli.io.exr import PsfCube, read_psf_cube, write_psf_cube
     from metalens_cli.io.layout import FinGeometry, export_layout
     from metalens_cli.io.presets import Preset, load_preset
     from metalens_cli.io.units import format_length, parse_angle, parse_length, parse_range
     from metalens_cli.optics.channel_psf import channel_psf_stack
+    from metalens_cli.optics.field import FieldPsf, chief_ray, field_angle, field_psf, ray_landings, rms_spot
     from metalens_cli.optics.lens import Metalens, hyperbolic
     from metalens_cli.optics.nanofin import Fin, FinResponse, fin_response
     from metalens_cli.optics.propagate import asm_propagate, radial_propagate, rayleigh_sommerfeld
