@@ -45,8 +45,12 @@ def test_field_scan_writes_a_field_cube_whose_field_zero_is_the_on_axis_scan(cap
 
 def test_field_heights_are_chief_ray_positions(capsys, tmp_path):
     out_file = tmp_path / "f.exr"
-    code, out, _ = invoke(capsys, "psf-scan", *SMALL, "--field-heights", "0um,20um", "-o", out_file, "--json")
+    plot = tmp_path / "fields.png"
+    code, out, _ = invoke(
+        capsys, "psf-scan", *SMALL, "--field-heights", "0um,20um", "-o", out_file, "--plot", plot, "--json"
+    )
     assert code == 0
+    assert json.loads(out)["plot"] == str(plot) and plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     fields = json.loads(out)["fields"]
     assert fields[1]["angle_rad"] == pytest.approx(math.atan(20e-6 / 200e-6))
     assert fields[1]["chief_ray_m"][0] == pytest.approx(20e-6) and fields[1]["window_centre_px"] == [20, 0]
