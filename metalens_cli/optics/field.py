@@ -35,12 +35,12 @@ from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.psf import compute_psf, validate_psf_arguments
-from metalens_cli.optics.sensor import grid_pixel_matrix
+from metalens_cli.optics.sensor import GridPixels, grid_pixel_matrix
 from metalens_cli.optics.source import (
     field_direction,
     tilted_source_amplitude,
+    tilted_source_path,
     tilted_source_phase,
-    tilted_source_residual,
 )
 
 FIELD_PROPAGATORS = ("asm", "rs")
@@ -207,8 +207,21 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
     sin_a = math.sin(angle)
     grids = {lam: sampling.plan_field_asm(lens, lam, d, pixels, pitch, f_g, sin_a, oversample) for lam in lams}
     grid = grids[lams[0]][0]
-    mat = torch.from_numpy(grid_pixel_matrix(grid.window_coords().numpy(), pixels, pitch)).to(device, dtype)
+    to_pixels = GridPixels.build(grid.window_coords().numpy(), pixels, pitch, device, dtype)
     timing["kernels"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    # per depth, what no wavelength changes: the amplitude, the light through the pupil, and the source's
+    # residual path (m; its phase is 2π/λ times it); a plane wave has none, so its field serves every λ
+    sources = []
+    for z in zs:
+        amplitude = (tilted_source_amplitude(x, y, z, angle, azimuth) * pupil).to(dtype)
+        power = amplitude.double().pow(2).sum() * lens.pitch_m**2
+        if math.isinf(z):
+            sources.append((torch.polar(amplitude, torch.remainder(phase_lens, 2 * math.pi).to(dtype)), power, None))
+        else:
+            path = tilted_source_path(x, y, z, angle, azimuth)
+            sources.append((amplitude, power, path))
+    timing["source"] = time.perf_counter() - clock
     out = torch.empty(len(zs), len(lams), pixels, pixels, dtype=dtype, device=device)
     for j, lam in enumerate(lams):
         clock = time.perf_counter()
@@ -217,14 +230,14 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
         transfer = prop.asm_transfer_shifted(g, lam, d, k_max, carrier, centre_m, complex_dtype, device)
         timing["kernels"] += time.perf_counter() - clock
         clock = time.perf_counter()
-        for i, z in enumerate(zs):
-            residual = tilted_source_residual(x, y, lam, z, angle, azimuth)
-            amplitude = tilted_source_amplitude(x, y, z, angle, azimuth) * pupil
-            phase = torch.remainder(phase_lens + residual, 2 * math.pi)
-            field_g = torch.polar(amplitude.to(dtype), phase.to(dtype))
-            power = field_g.abs().pow(2).sum() * lens.pitch_m**2
+        for i, (source, power, path) in enumerate(sources):
+            if path is None:
+                field_g = source
+            else:
+                phase = torch.add(phase_lens, path, alpha=2 * math.pi / lam).remainder_(2 * math.pi)
+                field_g = torch.polar(source, phase.to(dtype))
             window = prop.asm_propagate(field_g, g, lambda t=transfer: t)
-            out[i, j] = mat @ window.abs().pow(2) @ mat.T / power
+            out[i, j] = to_pixels(window.abs().pow(2)) / power.to(dtype)
         timing["propagate"] = timing.get("propagate", 0.0) + time.perf_counter() - clock
     info = {
         "kind": "asm-shifted",

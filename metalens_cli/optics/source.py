@@ -73,17 +73,17 @@ def tilted_source_phase(x, y, wavelength_m: float, depth_m: float, angle_rad: fl
     return k * _offsets(x, y, angle_rad, azimuth_rad, depth_m)[2]
 
 
-def tilted_source_residual(x, y, wavelength_m: float, depth_m: float, angle_rad: float, azimuth_rad: float):
-    """:func:`tilted_source_phase` minus its carrier, the linear part k·(sin α·cos ψ·x + sin α·sin ψ·y)
-    (rad): 0 for a plane wave; for a point, k·(R − R0 − q/R0) = k·(ρ²/(R + R0) − q·(R − R0)/((R + R0)·R0))
-    with ρ² = x² + y², free of cancellation."""
+def tilted_source_path(x, y, depth_m: float, angle_rad: float, azimuth_rad: float):
+    """The source's path at lens points (x, y) (m) beyond its carrier: R − R0 − q/R0 =
+    ρ²/(R + R0) − q·(R − R0)/((R + R0)·R0) with ρ² = x² + y², free of cancellation; 0 for a plane
+    wave (z = ∞). 2π/λ times it is :func:`tilted_source_phase` without its carrier, the linear part
+    k·(sin α·cos ψ·x + sin α·sin ψ·y), at every wavelength."""
     if math.isinf(depth_m):
         return torch.zeros_like(x + y)
-    k = 2 * math.pi / wavelength_m
     q, r0, dr, ratio = _offsets(x, y, angle_rad, azimuth_rad, depth_m)
     # R − R0 − q/R0 = (ρ² + 2q)/(R + R0) − q/R0 = ρ²/(R + R0) − q·(R − R0)/((R + R0)·R0)
     total = r0 * (ratio + 1)  # R + R0
-    return k * ((x**2 + y**2) / total - q * dr / (total * r0))
+    return (x**2 + y**2) / total - q * dr / (total * r0)
 
 
 def tilted_source_amplitude(x, y, depth_m: float, angle_rad: float, azimuth_rad: float):
