@@ -20,7 +20,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.lens import Metalens
-from metalens_cli.optics.sensor import grid_pixel_matrix, radial_sensor
+from metalens_cli.optics.sensor import GridPixels, grid_pixel_matrix, radial_sensor
 from metalens_cli.optics.source import source_amplitude, source_phase
 
 PROPAGATORS = ("auto", "asm", "radial", "rs")
@@ -266,7 +266,7 @@ def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample,
     phase_lens, r = phase_lens.to(device), r.to(device)
     mask = r <= lens.radius_m
     grid = grids[lams[0]]  # the output window (pitch/upsample, half-width) is the same for every λ
-    mat = torch.from_numpy(grid_pixel_matrix(grid.window_coords().numpy(), pixels, pitch)).to(device, dtype)
+    to_pixels = GridPixels.build(grid.window_coords().numpy(), pixels, pitch, device, dtype)
     clock.lap("kernels")
     checkpointed = torch.is_grad_enabled() and phase_lens.requires_grad
     out = {}
@@ -277,7 +277,7 @@ def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample,
                 checkpointed, _masked_field, phase_lens, r, mask, lam, z, dtype, lens.radial, lens.pitch_m
             )
             window = prop.asm_propagate(field, grids[lam], transfer)
-            out[i, j] = _call(checkpointed, _pixel_psf, window, mat, power)
+            out[i, j] = _call(checkpointed, _pixel_psf, window, to_pixels, power)
             clock.lap("propagate")
     info = {
         "kind": "asm",
@@ -304,9 +304,9 @@ def _masked_field(phase_lens, r, mask, lam, z, dtype, radial, site_pitch_m):
     return field, field.abs().pow(2).sum() * site_pitch_m**2
 
 
-def _pixel_psf(window, mat, power):
+def _pixel_psf(window, to_pixels, power):
     """Window intensity integrated over the sensor pixels, over the pupil power."""
-    return mat @ window.abs().pow(2) @ mat.T / power
+    return to_pixels(window.abs().pow(2)) / power
 
 
 def _rs_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _):

@@ -6,7 +6,8 @@ Intensity samples are interpolated with the Catmull-Rom cubic (local, third-orde
 interpolant is integrated over each pixel exactly:
 
 - 2-D samples on a uniform grid: separable weights ∫_pixel K((x − x_g)/h) dx, so
-  P = Wy · I · Wxᵀ (``grid_pixel_matrix``).
+  P = Wy · I · Wxᵀ (``grid_pixel_matrix``). Each pixel touches only the samples within two of its
+  edges, so W is a band of about Δ/h + 4 nonzeros a row: ``GridPixels`` applies it sparse.
 - Radial samples I(k·δ): the weight of sample k in pixel p is ∫ φ_k(ρ) dA_p(ρ) = −∫ φ_k'(ρ) A_p(ρ) dρ,
   with A_p(ρ) the closed-form area of the pixel inside the disc of radius ρ (Gauss-Legendre in ρ,
   exact up to the quadrature of a smooth function). Built for the pixels of one octant, the rest
@@ -55,6 +56,28 @@ def grid_pixel_matrix(coords_m: np.ndarray, n_pixels: int, pixel_pitch_m: float)
     t0 = (lo - coords_m[None, :]) / h
     t1 = (lo + pixel_pitch_m - coords_m[None, :]) / h
     return h * (_cr_kernel_integral(t1) - _cr_kernel_integral(t0))
+
+
+@dataclass(frozen=True)
+class GridPixels:
+    """P = W · I · Wᵀ, W = ``grid_pixel_matrix`` (N × S): held sparse (CSR) on the CPU and CUDA,
+    where it costs ~N·S·(Δ/h + 4) instead of N·S² (10-20× less for the paper's windows); dense
+    elsewhere. The same sums as the dense product (float rounding apart), differentiable in I."""
+
+    matrix: torch.Tensor
+
+    @classmethod
+    def build(cls, coords_m: np.ndarray, n_pixels: int, pixel_pitch_m: float, device=None, dtype=torch.float32):
+        dense = torch.from_numpy(grid_pixel_matrix(coords_m, n_pixels, pixel_pitch_m)).to(device, dtype)
+        if dense.device.type not in ("cpu", "cuda"):
+            return cls(dense)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "Sparse CSR tensor support is in beta", UserWarning)
+            return cls(dense.to_sparse_csr())
+
+    def __call__(self, intensity: torch.Tensor) -> torch.Tensor:
+        """Pixel powers (N, N) of samples (S, S) (rows y, columns x)."""
+        return (self.matrix @ (self.matrix @ intensity).transpose(-1, -2)).transpose(-1, -2)
 
 
 def _quadrant_area(x: np.ndarray, y: np.ndarray, rho: np.ndarray) -> np.ndarray:

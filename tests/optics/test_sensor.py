@@ -46,6 +46,24 @@ def test_grid_operator_integrates_gaussian():
     assert_allclose(got, want, rtol=0, atol=1e-4 * want.max())  # cubic error, δ/σ = 1/4
 
 
+def test_sparse_grid_operator_is_the_dense_product_and_its_gradient():
+    # an off-centre Gaussian (rows y ≠ columns x, so a transposed product would fail), closed form too
+    sigma, n = 0.4e-6, 9
+    g = np.arange(-300, 301) * 0.07e-6
+    image = torch.from_numpy(np.exp(-((g[:, None] - 1e-6) ** 2 + (g[None, :] + 2e-6) ** 2) / (2 * sigma**2)))
+    mat = torch.from_numpy(S.grid_pixel_matrix(g, n, PITCH))
+    op = S.GridPixels.build(g, n, PITCH, dtype=torch.float64)
+    assert op.matrix.layout == torch.sparse_csr
+    dense = mat @ image @ mat.T
+    torch.testing.assert_close(op(image), dense, rtol=1e-12, atol=1e-30)
+    assert int(dense.argmax()) == (n // 2 + 1) * n + (n // 2 - 1)  # row y = +1 px, column x = −1 px
+    weights = torch.rand(n, n, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    a, b = image.clone().requires_grad_(), image.clone().requires_grad_()
+    (op(a) * weights).sum().backward()
+    ((mat @ b @ mat.T) * weights).sum().backward()
+    torch.testing.assert_close(a.grad, b.grad, rtol=1e-12, atol=1e-30)
+
+
 def test_axis_is_centre_of_pixel_n_half_for_odd_and_even():
     for n in (5, 6):
         sensor = S.radial_sensor(0.1e-6, n, PITCH)
