@@ -111,17 +111,45 @@ def field_dependence(design, sensor_pixels: int, pixel_pitch_m: float, wavelengt
     }
 
 
-def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, window: int) -> tuple[int, float]:
-    """(peak bytes, seconds) of :func:`field_channel_psfs` with ``window``-pixel PSFs, when not
-    cached: the off-axis heights' angular spectra (``optics.psf.estimate_psf``, asm) plus the site
-    grid's float64 pupil arrays."""
-    from metalens_cli.optics.psf import estimate_psf
+def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths_m) -> tuple[int, float]:
+    """(peak bytes, seconds) of :func:`field_channel_psfs` at ``depths_m`` (near, far), when not
+    cached: each off-axis height's PSFs (``optics.field.estimate_field_psf``, the set's margin, at
+    ``DEFAULT_WAVELENGTHS_PER_CHANNEL`` wavelengths a channel spread over 400-700 nm) in the window
+    the set will use (the on-axis rule's or the corner's rays') and the corner's check with the
+    doubled margin."""
+    from metalens_cli.optics.blur import psf_window
+    from metalens_cli.optics.field import estimate_field_psf
 
     top = corner_pixels(sensor_pixels)
-    off_axis = max(2, min(5, math.ceil(top / HEIGHT_STEP_PX) + 1)) - 1
-    lams = [530e-9] * (3 * DEFAULT_WAVELENGTHS_PER_CHANNEL)
-    cost = estimate_psf(design.lens, lams, [0.045, math.inf], window, pixel_pitch_m, propagator="asm", force=True)
-    return cost.memory_bytes + 6 * 8 * design.lens.grid_size**2, off_axis * cost.seconds
+    count = max(2, min(5, math.ceil(top / HEIGHT_STEP_PX) + 1))
+    heights = sorted({round(top * k / (count - 1)) for k in range(1, count)})
+    d, lens = design.focal_length_m, design.lens
+    lams = list(np.linspace(400e-9, 700e-9, 3 * DEFAULT_WAVELENGTHS_PER_CHANNEL))
+    corner = math.atan2(heights[-1] * pixel_pitch_m, d)
+    window = max(
+        _field_window(lens, lams[::4], z, corner, d, pixel_pitch_m, psf_window(lens, lams, [z], d, pixel_pitch_m))
+        for z in depths_m
+    )
+    costs = [
+        estimate_field_psf(
+            lens,
+            lams,
+            depths_m,
+            window,
+            pixel_pitch_m,
+            math.atan2(h * pixel_pitch_m, d),
+            distance_m=d,
+            force=True,
+            oversample=SET_OVERSAMPLE,
+        )  # fmt: skip
+        for h in heights
+    ]
+    corner = math.atan2(heights[-1] * pixel_pitch_m, d)
+    check = estimate_field_psf(
+        design.lens, [530e-9], [depths_m[-1]], window, pixel_pitch_m, corner, distance_m=d, force=True
+    )
+    costs.append(check)
+    return max(c.memory_bytes for c in costs), sum(c.seconds for c in costs)
 
 
 def _field_window(lens, wavelengths_m, depth_m, angle_rad, distance_m, pitch, on_axis: int) -> int:

@@ -202,7 +202,6 @@ def channel_psfs(
 
 
 FIELD_MODELS = ("on-axis", "auto")
-FIELD_WINDOW_ESTIMATE = 301  # pixels: the paper's lens's near window off axis, for cost estimates
 
 
 def capture_psfs(
@@ -300,7 +299,7 @@ def estimate_capture_runs(
 
         for i, design in enumerate(setup.designs):
             if field_dependence(design, setup.pixels, setup.pixel_pitch_m)["field_dependent"]:
-                memory, seconds = estimate_field_psfs(design, setup.pixels, setup.pixel_pitch_m, FIELD_WINDOW_ESTIMATE)
+                memory, seconds = estimate_field_psfs(design, setup.pixels, setup.pixel_pitch_m, depths_m)
                 costs[i] = (max(costs[i][0], memory), costs[i][1] + seconds, costs[i][2])
     return Estimate(
         what,

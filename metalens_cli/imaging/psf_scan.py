@@ -342,21 +342,21 @@ def estimate_field_scan(
     force: bool = False,
 ) -> Estimate:
     """Peak memory and time of :func:`run_field_scan`: an on-axis field as :func:`estimate_scan`,
-    each other field as the 2-D angular spectrum of every PSF (``estimate_psf``, asm) plus the
-    whole site grid's float64 pupil arrays (six M² arrays)."""
+    each other field as ``optics.field.estimate_field_psf``."""
+    from metalens_cli.optics.field import estimate_field_psf
+
     axis = estimate_psf(
         design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m=design.focal_length_m,
         dtype=dtype, force=force,
     )  # fmt: skip
     off = [a for a in angles_rad if a > 0]
     memory, seconds = axis.memory_bytes, axis.seconds if len(off) < len(angles_rad) else 0.0
-    if off:
-        tilted = estimate_psf(
-            design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m=design.focal_length_m,
-            propagator="asm", dtype=dtype, force=True,
+    for angle in off:
+        tilted = estimate_field_psf(
+            design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, angle, distance_m=design.focal_length_m,
+            dtype=dtype, force=force,
         )  # fmt: skip
-        memory = max(memory, tilted.memory_bytes + 6 * 8 * design.lens.grid_size**2)
-        seconds += len(off) * tilted.seconds
+        memory, seconds = max(memory, tilted.memory_bytes), seconds + tilted.seconds
     count = len(wavelengths_m) * len(depths_m) * len(angles_rad)
     return Estimate(
         f"psf-scan of {count} PSFs of {pixels}² pixels over {len(angles_rad)} fields",

@@ -34,7 +34,7 @@ from metalens_cli.errors import InputError, SamplingError
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.lens import Metalens
-from metalens_cli.optics.psf import compute_psf, validate_psf_arguments
+from metalens_cli.optics.psf import PsfCost, compute_psf, validate_psf_arguments
 from metalens_cli.optics.sensor import GridPixels, grid_pixel_matrix
 from metalens_cli.optics.source import (
     field_direction,
@@ -155,6 +155,53 @@ def field_psf(
                             torch.device(device), oversample)  # fmt: skip
     timing["total"] = time.perf_counter() - start
     return FieldPsf(psf, *common, propagator, grid, timing)
+
+
+# Rates of the shifted angular spectrum on 2 CPU cores (benchmarks/bench_field.py, the paper's lens)
+SITE_SECONDS = 2.3e-8  # per meta-atom site: the lens phase on the whole grid, the pupil, the sources
+TRANSFER_SECONDS = 2.8e-8  # per element of the kept band: one shifted transfer function (float64 build)
+FFT_LENGTH_RATE = 4.2e9  # rows × length × log2(length) per second through the 1-D FFT passes
+MEMORY_SLACK = 1.6  # peak RSS over the arrays counted, 1.35-1.55 measured (FFT work buffers, the allocator)
+
+
+def estimate_field_psf(
+    lens: Metalens,
+    wavelengths_m,
+    depths_m,
+    pixels: int,
+    pixel_pitch_m: float,
+    angle_rad: float,
+    *,
+    distance_m: float | None = None,
+    dtype: torch.dtype = torch.float32,
+    force: bool = False,
+    oversample: float = 1.0,
+) -> PsfCost:
+    """What :func:`field_psf` (asm) will cost, from the same plans (a :class:`SamplingError` here
+    is the one it would raise): the site grid once, per wavelength one shifted transfer function,
+    per (wavelength, depth) the band FFT passes over the pupil and the window's inverse passes;
+    ``setup_seconds`` is the site grid's. Peak memory: the site arrays (float64 phase, per finite
+    depth its path, the pupil field) and the propagation's arrays at the largest band."""
+    lams, zs = [float(x) for x in np.ravel(wavelengths_m)], [float(x) for x in np.ravel(depths_m)]
+    d = distance_m if distance_m is not None else lens.focal_length_m
+    validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, "auto", dtype, oversample)
+    f_g = _carrier_free_frequency(lens, lams, zs, angle_rad, 0.0, force)
+    sin_a, m = math.sin(angle_rad), lens.grid_size
+    seconds, band_max, window = SITE_SECONDS * m**2, 0, 0
+    for lam in lams:
+        grid, k_max = sampling.plan_field_asm(lens, lam, d, pixels, pixel_pitch_m, f_g, sin_a, oversample)
+        band, n, up = 2 * k_max + 1, grid.size, grid.upsampled_size
+        passes = (m + band) * n * math.log2(n) + (band + grid.window_samples) * up * math.log2(up)
+        seconds += TRANSFER_SECONDS * band**2 + len(zs) * passes / FFT_LENGTH_RATE
+        band_max, window = max(band_max, band), grid.window_samples
+    real = 4 if dtype == torch.float32 else 8
+    finite = sum(1 for z in zs if math.isfinite(z))
+    sites = m**2 * (8 + 1 + 2 * real + (real + 8) * finite)  # lens phase, pupil, fields, per finite depth
+    # the transfer function and the band's spectrum, the first pass's band × sites, the window's
+    # band × samples, three blocks of FFT rows, and the PSFs
+    work = 2 * real * (2 * band_max**2 + band_max * (m + window)) + 3 * prop.BLOCK_BYTES
+    memory = MEMORY_SLACK * (sites + work) + 3 * len(lams) * len(zs) * pixels**2 * real
+    return PsfCost(int(memory), seconds, SITE_SECONDS * m**2)
 
 
 def _carrier_free_frequency(lens, lams, zs, angle, azimuth, force) -> float:

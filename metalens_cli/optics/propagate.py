@@ -139,22 +139,31 @@ def asm_transfer_shifted(
     on-axis position. Kept where the wave propagates and its lateral travel d·(u + u0)/w lies within
     S/2 of xc (and likewise in y), the band limit of the recentred kernel: its sampling in
     frequency then resolves it, and rays from the pupil to the window all pass (the grid's side S
-    is at least 2a + W). Built in float64.
+    is at least 2a + W). Built in float64 a block of rows at a time (its transient memory is one
+    block's, not five float64 arrays of the band's size).
     """
     u0, v0 = carrier
     xc, yc = centre_m
     f = torch.arange(-k_max, k_max + 1, dtype=torch.float64, device=device) / grid.extent_m
-    u, v = (f + u0)[None, :], (f + v0)[:, None]
-    w = (1.0 / wavelength_m**2 - u**2) - v**2  # w² first; one (2K+1)² float64 array, reused in place
-    keep = w > 0
-    w.clamp_(min=0).sqrt_()
+    u = f + u0
     half = grid.extent_m / 2
-    # lateral travel d·(u, v)/w within S/2 of the window's centre, multiplied through by w ≥ 0
-    keep &= (distance_m * u - xc * w).abs_() <= half * w
-    keep &= (distance_m * v - yc * w).abs_() <= half * w
-    phase = w.mul_(2 * math.pi * distance_m).add_((2 * math.pi * xc) * f[None, :]).add_((2 * math.pi * yc) * f[:, None])
+    column = (1.0 / wavelength_m**2 - u**2)[None, :]
+    ramp_x = (2 * math.pi * xc) * f[None, :]
     real_dtype = torch.float32 if dtype == torch.complex64 else torch.float64
-    return torch.polar(keep.to(real_dtype), phase.remainder_(2 * math.pi).to(real_dtype)), k_max
+    out = torch.empty(f.numel(), f.numel(), dtype=dtype, device=device)
+    step = max(1, BLOCK_BYTES // (8 * f.numel()))
+    for a in range(0, f.numel(), step):  # a block of rows (v) at a time: float64 work of one block
+        fv = f[a : a + step, None]
+        v = fv + v0
+        w = column - v**2  # w² first, reused in place
+        keep = w > 0
+        w.clamp_(min=0).sqrt_()
+        # lateral travel d·(u, v)/w within S/2 of the window's centre, multiplied through by w ≥ 0
+        keep &= (distance_m * u[None, :] - xc * w).abs_() <= half * w
+        keep &= (distance_m * v - yc * w).abs_() <= half * w
+        phase = w.mul_(2 * math.pi * distance_m).add_(ramp_x).add_((2 * math.pi * yc) * fv)
+        out[a : a + step] = torch.polar(keep.to(real_dtype), phase.remainder_(2 * math.pi).to(real_dtype))
+    return out, k_max
 
 
 def mirror_quadrant(q: torch.Tensor) -> torch.Tensor:
