@@ -8,10 +8,6 @@
    in runs/field-*.exr.
 3. ``metalens mtf`` of each cube: tangential and sagittal MTF50 per field and wavelength, and
    ``psf-scan``'s centroid (coma) and encircled energy per field.
-4. ``metalens evaluate`` of the three designs on the photographs at 512², once with the on-axis
-   model and once with ``--field auto`` (fixed depths, so one field PSF set per design): the paired
-   per-unit differences, field − on-axis, with 95 % bootstrap CIs: how much the on-axis model
-   overstates each design. Reports kept in runs/evaluate_field_{on-axis,auto}.json (``--reuse``).
 
     python examples/field_results.py [--reuse]
 """
@@ -35,12 +31,6 @@ DESIGNS = {
 WAVELENGTHS = "457nm,530nm,628nm"  # the tri-band filter's centres
 FIELDS_DEG = (0.0, 2.25, 4.5, 6.75, 9.5)  # to the 512² sensor's edge (6.75°) and corner (9.5°) at f = 4 mm
 PIXELS = 255  # holds the corner's coma (rays land up to ~170 µm from the chief ray)
-EVALUATED = ("runs/quick-split-spectrum", "runs/quick-broadband", "presets/hyperbolic-532.toml")
-# Over the field, the hyperbolic lens only: a learned lens's field transforms (its PSF windows ~1000 px)
-# outgrow this 23 GiB machine (the split lens's evaluate was killed by the kernel at 24 GB, alone too)
-FIELD_EVALUATED = ("presets/hyperbolic-532.toml",)
-EVALUATE = ["--images", "photos", "--obstruction", "dirt,fence", "--pixels", "512", "--seed", "0:2",
-            "--z-near", "45mm", "--z-far", "5m"]  # fmt: skip
 
 
 def metalens(*args: str) -> dict:
@@ -78,45 +68,7 @@ def scan(label: str, spec: list[str], reuse: bool) -> tuple[dict, dict]:
     return report, metalens("mtf", cube)
 
 
-def evaluate(model: str, reuse: bool) -> dict:
-    """``metalens evaluate`` with ``--field MODEL`` (kept in runs/): the three designs on axis,
-    ``FIELD_EVALUATED`` over the field."""
-    saved = ROOT / "runs" / f"evaluate_field_{model}.json"
-    if reuse and saved.is_file():
-        return json.loads(saved.read_text())
-    report = metalens("evaluate", *(EVALUATED if model == "on-axis" else FIELD_EVALUATED), *EVALUATE, "--field", model,
-                      "--max-time", "inf", "--quiet")  # fmt: skip
-    saved.write_text(json.dumps(report))
-    return report
-
-
-def field_differences(on_axis: dict, field: dict) -> dict[tuple[str, str, str], dict]:
-    """(design, condition, metric) → paired field − on-axis mean and CI over the same units."""
-    from metalens_cli.analysis.statistics import paired_difference_ci
-
-    def scores(report):
-        out = {}
-        for unit in report["units"]:
-            if unit["capture"] != "raw":
-                continue
-            key = (unit["design"], unit["seed"], unit["image"])
-            out.setdefault(("unobstructed", *key), unit["unobstructed"])
-            out[(unit["obstruction"], *key)] = unit["obstructed"]
-        return out
-
-    a, b = scores(on_axis), scores(field)
-    result = {}
-    for design in FIELD_EVALUATED:
-        for condition in ("unobstructed", "dirt", "fence"):
-            keys = sorted(k for k in a if k[0] == condition and k[1] == design)
-            for metric in ("psnr_db", "ssim"):
-                result[design, condition, metric] = paired_difference_ci(
-                    [b[k][metric] for k in keys], [a[k][metric] for k in keys], metric=metric
-                )
-    return result
-
-
-def write(path: Path, results: dict[str, tuple[dict, dict]], on_axis: dict, field: dict) -> None:
+def write(path: Path, results: dict[str, tuple[dict, dict]]) -> None:
     lines = [
         "# Over the field of view",
         "",
@@ -168,67 +120,10 @@ def write(path: Path, results: dict[str, tuple[dict, dict]], on_axis: dict, fiel
             cells.append(f"{psf['centroid_from_chief_ray_m'][0] * 1e6:+.1f}, {psf['ee80_radius_m'] * 1e6:.1f}")
         kept = [p["energy_in_window"] for field in report["fields"] for p in field["psfs"]]
         lines.append(f"| {label} | " + " | ".join(cells) + f" | {100 * min(kept):.0f}-{100 * max(kept):.1f} % |")
-    labels = dict(zip(EVALUATED, DESIGNS))
-    differences = field_differences(on_axis, field)
     lines += [
         "",
-        "## Captures over the whole field against the on-axis model",
-        "",
-        "`metalens evaluate " + " ".join(EVALUATED) + " " + " ".join(EVALUATE) + " --field on-axis`, and "
-        "`metalens evaluate " + " ".join(FIELD_EVALUATED) + " " + " ".join(EVALUATE) + " --field auto` (the "
-        "field-dependent PSF sets and the space-variant formation of `imaging.field_psfs` and "
-        "`imaging.field_formation`; the depths fixed so that a design needs one set). The same units (9 "
-        "photographs × 3 seeds) in both: per-unit differences field − on-axis, mean and 95 % bootstrap CI. "
-        "Negative: the on-axis model overstates the design by that much. Obstructed rows: the field model's "
-        "larger PSF windows widen the canvas, on which the obstruction of a unit is drawn anew, so those pairs "
-        "share image and seed but not the obstruction's pattern (wider CIs).",
-        "",
-        "Only the hyperbolic lens: the learned lenses' field PSF sets were computed (23-37 min each on 2 cores, "
-        "shared) but their space-variant formation, with PSF windows of about 1000 pixels, outgrew this 23 GiB "
-        "machine: `evaluate --field auto` of the split-spectrum lens alone was killed by the kernel at 24 GB "
-        "while preparing its transforms.",
-        "",
-        "| design | condition | PSNR on axis (dB) | Δ PSNR, field − on-axis (dB) | SSIM on axis | Δ SSIM |",
-        "| --- | --- | --- | --- | --- | --- |",
-    ]
-    rows = {
-        (r["design"], "unobstructed" if r["condition"] == "unobstructed" else r["obstruction"]): r
-        for r in on_axis["rows"]
-        if r["capture"] == "raw"
-    }
-    for design in FIELD_EVALUATED:
-        for condition in ("unobstructed", "dirt", "fence"):
-            row = rows[design, condition]
-            cells = []
-            for metric, digits in (("psnr_db", 2), ("ssim", 3)):
-                d = differences[design, condition, metric]
-                mean = f"{row[metric]:.{digits}f}"
-                cells += [mean, f"{d['mean']:+.{digits}f} [{d['ci'][0]:+.{digits}f}, {d['ci'][1]:+.{digits}f}]"]
-            lines.append(f"| {labels[design]} | {condition} | " + " | ".join(cells) + " |")
-    lines += ["", "What the field model cost and how accurate it is, per design (from `evaluate`'s JSON):", ""]
-    lines += [
-        "| design | model | heights (px) | windows near / far (px) | set (s) | sampling error "
-        "| spectral error near / far | expansion error near / far |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for entry in [e for e in field["psfs"] if e["seed"] == 0]:
-        test = entry.get("field", {})
-        if test.get("model") != "field":
-            lines.append(f"| {labels[entry['design']]} | {test.get('model', 'on-axis')} | | | | | | |")
-            continue
-        windows = entry["field_psf_window_px"]
-        spectral, expansion = entry["spectral_error"], test.get("expansion_error", {})
-        lines.append(
-            f"| {labels[entry['design']]} | field | {', '.join(map(str, entry['field_heights_px']))} | "
-            f"{windows['near']} / {windows['far']} | {entry['field_psf_seconds']:.0f}"
-            f"{' (cache)' if entry['field_psf_cached'] else ''} | "
-            f"{entry['sampling_error']:.1e} | "
-            f"{spectral['near']:.3f} / {spectral['far']:.3f} | "
-            + (f"{expansion['near']:.4f} / {expansion['far']:.4f} |" if expansion else "— |")
-        )
-    lines += [
-        "",
-        "Not here yet: lenses trained over the field (`[optimize] field_angles`).",
+        "Not here yet: captures formed with these field-dependent PSFs against the on-axis model "
+        "(`evaluate --field auto` against `--field on-axis` at 512²) and lenses trained over the field.",
         "",
     ]
     path.write_text("\n".join(lines))
@@ -244,8 +139,7 @@ def main() -> None:
     args = parser.parse_args()
     train(args.reuse)
     results = {label: scan(label, spec, args.reuse) for label, spec in DESIGNS.items()}
-    on_axis, field = evaluate("on-axis", args.reuse), evaluate("auto", args.reuse)
-    write(ROOT / "docs" / "field.md", results, on_axis, field)
+    write(ROOT / "docs" / "field.md", results)
     print("wrote docs/field.md", file=sys.stderr)
 
 
