@@ -1,6 +1,6 @@
-"""The PSF cost estimates (``optics.psf.estimate_psf``, ``optics.field.estimate_field_psf``) against the peak memory of the computation
-it plans, measured in a fresh process: Linux's peak RSS (VmHWM), reset just before the PSFs
-(``/proc/self/clear_refs``), minus the RSS then."""
+"""The PSF cost estimates (``optics.psf.estimate_psf``, ``optics.field.estimate_field_psf``) against
+the peak memory of the computation they plan, measured in a fresh process: Linux's peak RSS
+(VmHWM), reset just before the PSFs (``/proc/self/clear_refs``), minus the RSS then."""
 
 import json
 import os
