@@ -93,6 +93,16 @@ def corner_pixels(sensor_pixels: int) -> int:
     return math.ceil(math.hypot(half, half))
 
 
+def field_heights(sensor_pixels: int, heights: int | None = None) -> tuple[int, ...]:
+    """Image-point heights (pixels) from the axis (0) to the sensor's corner: ``heights`` of them,
+    default one per ``HEIGHT_STEP_PX`` (2 to 5)."""
+    top = corner_pixels(sensor_pixels)
+    heights = heights or max(2, min(5, math.ceil(top / HEIGHT_STEP_PX) + 1))
+    if heights < 2:
+        raise InputError("field heights", f"{heights}", "at least 2 (the axis and the corner)")
+    return tuple(sorted({round(top * k / (heights - 1)) for k in range(heights)}))
+
+
 def field_dependence(design, sensor_pixels: int, pixel_pitch_m: float, wavelength_m: float = 530e-9) -> dict:
     """The isoplanatic test (module docstring): the corner's field angle, the RMS geometric spot
     radii (m) on axis and at the corner, and whether the field matters (``field_dependent``)."""
@@ -120,9 +130,7 @@ def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths
     from metalens_cli.optics.blur import psf_window
     from metalens_cli.optics.field import estimate_field_psf
 
-    top = corner_pixels(sensor_pixels)
-    count = max(2, min(5, math.ceil(top / HEIGHT_STEP_PX) + 1))
-    heights = sorted({round(top * k / (count - 1)) for k in range(1, count)})
+    heights = field_heights(sensor_pixels)[1:]
     d, lens = design.focal_length_m, design.lens
     lams = list(np.linspace(400e-9, 700e-9, 3 * DEFAULT_WAVELENGTHS_PER_CHANNEL))
     corner = math.atan2(heights[-1] * pixel_pitch_m, d)
@@ -187,13 +195,9 @@ def field_channel_psfs(
         raise InputError(
             "--field", "a field-dependent capture rotates one radius's PSFs", "a radially symmetric design"
         )
-    top = corner_pixels(sensor_pixels)
-    heights = heights or max(2, min(5, math.ceil(top / HEIGHT_STEP_PX) + 1))
-    if heights < 2:
-        raise InputError("field heights", f"{heights}", "at least 2 (the axis and the corner)")
     start = time.perf_counter()
     d = design.focal_length_m
-    heights_px = tuple(sorted({round(top * k / (heights - 1)) for k in range(heights)}))
+    heights_px = field_heights(sensor_pixels, heights)
     angles = [math.atan2(h * pixel_pitch_m, d) for h in heights_px]
     per_channel = wavelengths_per_channel or DEFAULT_WAVELENGTHS_PER_CHANNEL
     strata = sample_wavelengths(design_sensitivity(design), per_channel, None)
