@@ -32,9 +32,15 @@ the expansion of its own tile t (a hard partition: the gather form needs no blen
 
     P_x ≈ P̄_t + Σ_r a_tr(x)·e_tr,   out = P̄_t ∗ in + Σ_r a_tr ⊙ (e_tr ∗ in)   on tile t,
 
-per colour channel, each convolution on the tile's own canvas (FFTs of about its side + N).
-P̄_t is the mean of P_x over nodes at most ``NODE_SPACING`` px apart on the tile, e_tr the
-principal components of P_x − P̄_t there, each even or odd under y → −y (a mirror-symmetric set
+per colour channel, each convolution on the tile's own canvas (FFTs of about its side + N for
+P̄_t, its side + S for the e_tr). P̄_t is the mean of P_x over ``SUPPORT_NODES``² nodes of the
+tile (whole N × N windows), e_tr the principal components of P_x − P̄_t on nodes at most
+``NODE_SPACING`` px apart (wider where their PSFs would pass ``NODE_VALUES``), restricted to the
+central S × S pixels (:func:`eigen_support`: the smallest window that leaves out at most
+``SUPPORT_SHARE`` of the tolerance). A learned lens's PSF is ~1000 px wide for its halo, but its
+field dependence lies within a few hundred: on the quick split-spectrum lens at 5 m, a 401-px window
+leaves out 0.16 % (relative L2) of it, so the eigen-PSFs' FFTs and memory shrink ~8×. Each e_tr is
+even or odd under y → −y (a mirror-symmetric set
 gives mirror-symmetric captures exactly on a tile symmetric about the axis row) and of zero sum
 (the invariants above hold exactly at any rank), a_tr = ⟨P_x − P̄_t, e_tr⟩ at the nodes,
 interpolated bicubically. Kept are the components of largest eigenvalue over all tiles and
@@ -42,8 +48,8 @@ channels (the least error per FFT), as many as ``tolerance`` needs. The error is
 error of the PSF field over the sensor's pixels, (Σ_x ‖P̃_x − P_x‖² / Σ_x ‖P_x‖²)^½ over all
 channels: that of the capture of a zero-mean white-noise scene, an upper bound for smoother ones.
 It is estimated from the eigenvalues left out, then measured at ``CHECK_PIXELS`` random pixels
-(:attr:`FieldTransform.error`), adding components or refining the nodes until it meets the
-tolerance. Each component costs one inverse FFT of its tile per plane: twice for the near PSF
+(:attr:`FieldTransform.error`), adding components or refining the nodes until it is within
+``CHECK_MARGIN`` of the tolerance. Each component costs one inverse FFT of its tile per plane: twice for the near PSF
 (the obstruction light and the mask).
 
 Why tiles: over the whole sensor the coma turns through every azimuth and its spectrum spreads;
@@ -52,7 +58,10 @@ and interpolating node PSFs (overlap-add) needs nodes 5 px apart for 1 % on the 
 work again. On that stand-in at the default 1 % (512² RGB, windows 201/101): 2102 near and 6188 far
 eigen-PSFs (1.8 GB of spectra), prepared in about 45 s and 60 s (one thread); a capture takes
 1.0-1.4 s on 2 cores (1.7 s on one; form_image: 20 ms); dead-leaves captures are within 0.1 %
-of the direct sums.
+of the direct sums. On the paper's hyperbolic lens (512², field PSFs from ``imaging.field_psfs``
+at 45 mm and 5 m, N = 503 and 705): S = 333 and 375, 1430 and 1752 eigen-PSFs, both at 0.81 %,
+prepared in 18 min on 2 cores (``evaluate --field auto``, peak RSS 15.3 GB), most of it resampling
+node PSFs (bicubic, ~15 M samples/s); then about 4 s per capture and its scoring.
 
 Every function here is pure torch (batched, differentiable in the images, any device); the field
 transforms are fixed once made (no gradient to the PSFs).
@@ -83,9 +92,15 @@ from metalens_cli.imaging.formation import (
 DEFAULT_TOLERANCE = 0.01  # relative L2 of the PSF field
 NODE_SPACING = 8  # at most this many pixels between a tile's nodes
 CHECK_PIXELS = 256  # random pixels at which the error is measured
+CHECK_MARGIN = 0.95  # accept at this fraction of the tolerance: the check's estimate scatters by a few %
 MAX_REFINEMENTS = 4  # rank or node-grid refinements after the first try
 CHUNK_VALUES = 2**19  # spectrum values per batched inverse FFT of eigen-PSF terms
-NODE_CHUNK = 64  # nodes resampled at a time
+NODE_CHUNK_VALUES = 2**25  # PSF values of the nodes resampled at a time
+SUPPORT_SHARE = 0.3  # of the tolerance, the most the eigen-PSFs' support may leave out (relative L2)
+SUPPORT_NODES = 5  # nodes per tile side on which the support is chosen
+KEEP_SHARE = 0.4  # of the tolerance: a tile's analysis keeps the components it alone needs for this
+ROW_BLOCK_VALUES = 2**24  # residual values per block of rows in a Gram product
+NODE_VALUES = 2**29  # node PSF values a tile's eigen-analysis holds at most (2 GiB in float32)
 
 
 @dataclass(frozen=True)
@@ -115,9 +130,12 @@ class FieldPsfSet:
         object.__setattr__(self, "heights_px", heights)
 
 
-def field_psf(psf_set: FieldPsfSet, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+def field_psf(psf_set: FieldPsfSet, x: torch.Tensor, y: torch.Tensor, support: int | None = None) -> torch.Tensor:
     """Unit-sum PSFs (..., C, N, N) of the image points at offsets ``x``, ``y`` (...) pixels from
-    the optical-axis pixel (x right, y down), by the field model of the module docstring."""
+    the optical-axis pixel (x right, y down), by the field model of the module docstring.
+
+    ``support``: only their central S × S pixels (S odd), resampled there alone; the sum that
+    normalises them is then taken before the rotation, which keeps it to the resampling's error."""
     p = unit_sum(psf_set.psfs)
     x = torch.as_tensor(x, dtype=p.dtype, device=p.device)
     y = torch.as_tensor(y, dtype=p.dtype, device=p.device)
@@ -125,22 +143,36 @@ def field_psf(psf_set: FieldPsfSet, x: torch.Tensor, y: torch.Tensor) -> torch.T
     shape = x.shape
     x, y = x.reshape(-1), y.reshape(-1)
     axis = p[0]
+    size = axis.shape[-1] if support is None else support
+    out_shape = (*shape, axis.shape[0], size, size)
     if len(psf_set.heights_px) == 1:
-        return unit_sum(axis.expand(len(x), *axis.shape)).reshape(*shape, *axis.shape)
+        return _cropped(axis, size).expand(len(x), *axis.shape[:-2], size, size).reshape(out_shape).clone()
     heights = torch.tensor(psf_set.heights_px, dtype=p.dtype, device=p.device)
     rho = torch.hypot(x, y).clamp(max=heights[-1])
     i = torch.searchsorted(heights, rho, right=True).clamp(1, len(heights) - 1)
     w = ((rho - heights[i - 1]) / (heights[i] - heights[i - 1])).clamp(0, 1)[:, None, None, None]
     radial = p[i - 1] * (1 - w) + p[i] * w
     along = (radial * axis).sum((-2, -1), keepdim=True) / (axis * axis).sum((-2, -1), keepdim=True)
-    return unit_sum(along * axis + _rotated(radial - along * axis, torch.atan2(y, x))).reshape(*shape, *axis.shape)
+    varying = radial - along * axis
+    rotated = _rotated(varying, torch.atan2(y, x), size)
+    if support is None:
+        return unit_sum(along * axis + rotated).reshape(out_shape)
+    total = (radial.sum((-2, -1), keepdim=True)).clamp_min(torch.finfo(p.dtype).tiny)
+    return ((along * _cropped(axis, size) + rotated) / total).reshape(out_shape)
 
 
-def _rotated(q: torch.Tensor, psi: torch.Tensor) -> torch.Tensor:
-    """R_ψ q: q (B, C, N, N) rotated by ψ (B,) about pixel (N//2, N//2), sampled bicubically."""
+def _cropped(psfs: torch.Tensor, support: int) -> torch.Tensor:
+    """The central ``support`` × ``support`` pixels of (..., N, N) windows (N, support odd)."""
+    a = (psfs.shape[-1] - support) // 2
+    return psfs[..., a : a + support, a : a + support]
+
+
+def _rotated(q: torch.Tensor, psi: torch.Tensor, size: int | None = None) -> torch.Tensor:
+    """R_ψ q: q (B, C, N, N) rotated by ψ (B,) about pixel (N//2, N//2), sampled bicubically,
+    on the central ``size`` × ``size`` pixels (default all N)."""
     n = q.shape[-1]
     c, s = torch.cos(psi)[:, None, None], torch.sin(psi)[:, None, None]
-    k = torch.arange(n, dtype=q.dtype, device=q.device) - n // 2
+    k = torch.arange(size or n, dtype=q.dtype, device=q.device) - (size or n) // 2
     dy, dx = torch.meshgrid(k, k, indexing="ij")
     half = n // 2  # odd N: pixel i of the window sits at −1 + i/half in grid_sample's coordinates
     grid = torch.stack([c * dx + s * dy, c * dy - s * dx], dim=-1) / half
@@ -154,7 +186,7 @@ class FieldTransform:
     The sensor is cut into tiles of ``mean.sensor_hw`` whose top-left pixels are every
     combination of ``tile_rows`` and ``tile_cols`` (the last ones moved inwards to end at the
     sensor's edge); each pixel takes the expansion of the first tile holding it. ``mean``: the
-    tiles' P̄ (tiles, C, N, N) transformed; ``basis``: the eigen-PSFs (terms, N, N) transformed,
+    tiles' P̄ (tiles, C, N, N) transformed; ``basis``: the eigen-PSFs (terms, S, S) transformed on their own grid,
     term k of tile ``term_tile[k]`` (row-major) and channel ``term_channel[k]`` with coefficients
     ``maps[k]`` over its tile; ``error``: the measured relative L2 error of the PSF field.
     """
@@ -169,6 +201,11 @@ class FieldTransform:
     sensor_hw: tuple[int, int]
     error: float
     tolerance: float
+
+    @property
+    def support(self) -> int:
+        """Side (pixels) of the eigen-PSFs' window, centred in the PSFs' (0 without any)."""
+        return 2 * self.basis.margin + 1 if len(self.term_tile) else 0
 
     @property
     def ranks(self) -> torch.Tensor:
@@ -221,24 +258,37 @@ def _node_axis(start: int, size: int, spacing: int, centre: int, dtype, device) 
     return torch.linspace(start, start + size - 1, count, dtype=dtype, device=device) - centre
 
 
-def _field_at(psf_set: FieldPsfSet, ys: torch.Tensor, xs: torch.Tensor) -> torch.Tensor:
-    """Field PSFs (P, C, N·N) at offsets ``ys``, ``xs`` (P,), a chunk of nodes at a time."""
-    return torch.cat(
-        [
-            field_psf(psf_set, xs[i : i + NODE_CHUNK], ys[i : i + NODE_CHUNK]).flatten(-2)
-            for i in range(0, len(xs), NODE_CHUNK)
-        ]
-    )
+def _node_chunk(psf_shape) -> int:
+    """Nodes per batch of field PSFs (C, N, N): about ``NODE_CHUNK_VALUES`` values a batch."""
+    return max(1, NODE_CHUNK_VALUES // math.prod(psf_shape))
 
 
-def _halves(residual: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The y-even and y-odd parts of residuals (K, N·N) on rows 0..N//2 (resp. N//2 − 1), rows
-    weighted √2 where they stand for two rows: their Gram matrices are those of the full parts."""
-    full = residual.unflatten(-1, (n, n))
-    half, mirrored = full[:, : n // 2 + 1], full.flip(-2)[:, : n // 2 + 1]
-    weight = torch.full((n // 2 + 1, 1), math.sqrt(2), dtype=residual.dtype, device=residual.device)
-    weight[-1] = 1
-    return ((half + mirrored) / 2 * weight).flatten(1), ((half - mirrored) / 2 * weight)[:, :-1].flatten(1)
+def _node_psfs(psf_set: FieldPsfSet, ys: torch.Tensor, xs: torch.Tensor, support: int, mean: torch.Tensor):
+    """Field PSFs at offsets ``ys``, ``xs`` (K,) less ``mean`` (C, N, N), on their central
+    ``support`` pixels, flattened (K, C, S·S); a batch of nodes at a time."""
+    channels = psf_set.psfs.shape[1]
+    out = psf_set.psfs.new_empty(len(xs), channels, support * support)
+    step = _node_chunk((channels, support, support))
+    for i in range(0, len(xs), step):
+        out[i : i + step] = field_psf(psf_set, xs[i : i + step], ys[i : i + step], support).flatten(-2)
+    out -= _cropped(mean, support).flatten(-2)
+    return out
+
+
+def _flip_gram(x: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gram matrices (K, K), float64, of residuals ``x`` (K, N·N) with themselves, G = X·Xᵀ, and
+    with their mirror images under y → −y, G_F = X·(FX)ᵀ, a block of rows at a time (no copy of
+    X). The even parts (x + Fx)/2 have the Gram matrix (G + G_F)/2, the odd ones (G − G_F)/2."""
+    full = x.unflatten(-1, (n, n))
+    gram = torch.zeros(len(x), len(x), dtype=torch.float64, device=x.device)
+    mirrored = torch.zeros_like(gram)
+    rows = max(1, ROW_BLOCK_VALUES // max(1, len(x) * n))
+    for r0 in range(0, n, rows):
+        r1 = min(n, r0 + rows)
+        block = full[:, r0:r1].flatten(1)
+        gram += (block @ block.T).double()
+        mirrored += (block @ full[:, n - r1 : n - r0].flip(1).flatten(1).T).double()
+    return gram, mirrored
 
 
 def _eigh(matrix: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -255,9 +305,10 @@ def _eigh(matrix: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 def _principal(residual: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Eigenvalues (descending, float64), node vectors (K, M) and parities (M,) (+1: even under
     y → −y, −1: odd) of the principal components of one channel's residuals (K, N·N)."""
+    gram, mirrored = _flip_gram(residual, n)
     values, vectors, parities = [], [], []
-    for sign, part in zip((1, -1), _halves(residual, n)):
-        val, vec = _eigh((part @ part.T).double())
+    for sign in (1, -1):
+        val, vec = _eigh((gram + sign * mirrored) / 2)
         keep = val > val[-1].clamp_min(0) * 1e-12
         values.append(val[keep].flip(0))
         vectors.append(vec[:, keep].flip(1))
@@ -268,22 +319,22 @@ def _principal(residual: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tens
 
 
 def _components(residual: torch.Tensor, n: int, values, vectors, parities) -> torch.Tensor:
-    """The principal components (M, N·N) of residuals (K, N·N), unit L2 norm and zero sum."""
-    full = residual.unflatten(-1, (n, n))
-    even, odd = (full + full.flip(-2)) / 2, (full - full.flip(-2)) / 2
+    """The principal components (M, N·N) of residuals (K, N·N), unit L2 norm and zero sum: each
+    the combination of the residuals its node vector gives, made even or odd under y → −y (the
+    mirror commutes with the combination, so this is the combination of the even or odd parts)."""
     scaled = (vectors / values.sqrt()).to(residual.dtype)
-    comp = torch.where(
-        (parities > 0).to(residual.device)[:, None],
-        scaled.T @ even.flatten(1),
-        scaled.T @ odd.flatten(1),
-    )
+    comp = (scaled.T @ residual).unflatten(-1, (n, n))
+    sign = parities.to(device=residual.device, dtype=residual.dtype)[:, None, None]
+    comp = ((comp + sign * comp.flip(-2)) / 2).flatten(1)
     return comp - comp.mean(-1, keepdim=True)  # zero sum to rounding already: the residuals sum to 0
 
 
 @dataclass
 class _Tile:
-    """A tile's eigen-analysis: its origin, node spacing and offsets, the mean, the total squared
-    norm of the node PSFs and per channel the output of :func:`_principal`."""
+    """A tile's eigen-analysis: its origin, node spacing and offsets, the mean (C, N, N), the
+    total squared norm of the node PSFs and per channel the output of :func:`_principal` of
+    their residuals on the central ``support`` × ``support`` pixels, and the leading components
+    made while those residuals were at hand (``KEEP_SHARE``: what the tile alone would need)."""
 
     origin: tuple[int, int]
     spacing: int
@@ -292,6 +343,7 @@ class _Tile:
     mean: torch.Tensor
     total: float
     spectra: list
+    kept: list  # per channel, the leading eigen-PSFs (M, S·S) and their values at the nodes (M, K)
 
 
 def _tile_nodes(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int):
@@ -305,14 +357,58 @@ def _tile_nodes(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int):
     return ys, xs, (len(rows), len(cols))
 
 
-def _tile_spectra(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int) -> _Tile:
+@dataclass
+class _Coarse:
+    """A tile's field PSFs on ``SUPPORT_NODES``² nodes: their mean (C, N, N), mean squared norm
+    and the squared norm of their variation about the mean at each Chebyshev radius (N//2 + 1,)."""
+
+    mean: torch.Tensor
+    energy: float
+    rings: torch.Tensor
+
+
+def _coarse(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw) -> _Coarse:
+    ys, xs, _ = _tile_nodes(psf_set, origin, tile_hw, sensor_hw, max(1, max(tile_hw) // (SUPPORT_NODES - 1)))
+    full = field_psf(psf_set, xs, ys)
+    mean = full.mean(0)
+    n = full.shape[-1]
+    k = torch.arange(n, device=full.device) - n // 2
+    ring = torch.maximum(k[:, None].abs(), k[None, :].abs()).flatten()  # Chebyshev radius of each pixel
+    varying = ((full - mean).double() ** 2).sum((0, 1)).flatten()
+    rings = torch.bincount(ring, varying, minlength=n // 2 + 1).cpu()
+    return _Coarse(mean, float((full.double() ** 2).sum()) / len(xs), rings)
+
+
+def eigen_support(coarse: list[_Coarse], share: float) -> int:
+    """Side S (odd, pixels) of the central window the eigen-PSFs keep: the smallest whose
+    leaving out of the field PSFs' variation about their tiles' means costs at most ``share``
+    (relative L2 of the PSF field), judged on the tiles' coarse nodes. A PSF's sharp,
+    field-dependent part is compact; its wide halo varies slowly and stays in the tiles' means."""
+    n = 2 * (len(coarse[0].rings) - 1) + 1
+    beyond = sum(c.rings for c in coarse).flip(0).cumsum(0).flip(0)  # beyond[r]: variation at radius ≥ r
+    total = sum(c.energy for c in coarse) * SUPPORT_NODES**2
+    fits = (beyond <= share**2 * total).nonzero()
+    return min(n, max(1, 2 * int(fits[0]) - 1)) if len(fits) else n
+
+
+def _tile_spectra(
+    psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int, support: int, coarse, keep_share: float
+) -> _Tile:
     ys, xs, _ = _tile_nodes(psf_set, origin, tile_hw, sensor_hw, spacing)
-    residual = _field_at(psf_set, ys, xs)
-    total = float((residual.double() ** 2).sum())
-    mean = residual.mean(0)
-    residual -= mean
-    n, channels = psf_set.psfs.shape[-1], psf_set.psfs.shape[1]
-    return _Tile(origin, spacing, ys, xs, mean, total, [_principal(residual[:, c], n) for c in range(channels)])
+    residual = _node_psfs(psf_set, ys, xs, support, coarse.mean)
+    total = coarse.energy * len(xs)
+    spectra = [_principal(residual[:, c], support) for c in range(residual.shape[1])]
+    keep = sum(float(v.sum()) for v, _, _ in spectra) - (keep_share**2) * total  # what the kept must hold
+    # the fewest leading components, over the channels, whose values sum to ``keep``
+    values = torch.cat([v for v, _, _ in spectra]).sort(descending=True).values
+    count = int((values.cumsum(0) < keep).sum()) + 1 if keep > 0 else 0
+    floor = float(values[min(count, len(values)) - 1]) if count else math.inf
+    kept = []
+    for c, (v, vectors, parities) in enumerate(spectra):
+        m = int((v >= floor).sum())
+        e = _components(residual[:, c], support, v[:m], vectors[:, :m], parities[:m])
+        kept.append((e, e @ residual[:, c].T))
+    return _Tile(origin, spacing, ys, xs, coarse.mean, total, spectra, kept)
 
 
 def _selected(tiles: list[_Tile], target: float) -> list[list[int]]:
@@ -350,26 +446,25 @@ def field_transform(
         origins = [(r, c) for r in rows for c in cols]
         check = torch.Generator().manual_seed(0)
         check_r, check_c = (torch.randint(0, m, (CHECK_PIXELS,), generator=check).to(p.device) for m in (h, w))
-        exact = _field_at(psf_set, (check_r - h // 2).to(p.dtype), (check_c - w // 2).to(p.dtype))
-        exact_norm = float((exact.double() ** 2).sum())
+        at_pixels = (check_r - h // 2).to(p.dtype), (check_c - w // 2).to(p.dtype)
         check_tile = _tile_of(check_r, rows, tile_hw[0]) * len(cols) + _tile_of(check_c, cols, tile_hw[1])
         check_r = check_r - torch.tensor(rows, device=p.device)[_tile_of(check_r, rows, tile_hw[0])]
         check_c = check_c - torch.tensor(cols, device=p.device)[_tile_of(check_c, cols, tile_hw[1])]
-        spacing = max(1, min(NODE_SPACING, min(tile_hw) // 16))
-        tiles = [_tile_spectra(psf_set, o, tile_hw, (h, w), spacing) for o in origins]
+        coarse = [_coarse(psf_set, o, tile_hw, (h, w)) for o in origins]
+        support = eigen_support(coarse, SUPPORT_SHARE * tolerance)
+        spacing = node_spacing(tile_hw, (channels, support, support))
+        tiles = [
+            _tile_spectra(psf_set, o, tile_hw, (h, w), spacing, support, c, KEEP_SHARE * tolerance)
+            for o, c in zip(origins, coarse)
+        ]
         target = 0.9 * tolerance
         for _ in range(MAX_REFINEMENTS + 1):
+            built = None  # the last try's expansion goes before the next one is built
             counts = _selected(tiles, target)
-            built = _built(psf_set, tiles, counts, tile_hw, (h, w), spacing)
+            built = _built(psf_set, tiles, counts, tile_hw, (h, w), spacing, support)
             kernels, maps, term_tile, term_channel, means = built
-            approx = means[check_tile].clone()
-            on = term_tile[None, :] == check_tile[:, None]  # (P, terms)
-            at = maps[:, check_r, check_c].T * on  # coefficients of each term at each check pixel
-            for c in range(channels):
-                sel = term_channel == c
-                approx[:, c] += at[:, sel] @ kernels[sel]
-            error = math.sqrt(float(((approx - exact).double() ** 2).sum()) / exact_norm)
-            if error <= tolerance:
+            error = _check_error(psf_set, at_pixels, (check_tile, check_r, check_c), built)
+            if error <= CHECK_MARGIN * tolerance:
                 break
             truncation = math.sqrt(
                 sum(float(v[k:].sum()) for t, ks in zip(tiles, counts) for (v, _, _), k in zip(t.spectra, ks))
@@ -379,9 +474,9 @@ def field_transform(
                 spacing //= 2  # the coefficients' interpolation dominates: a finer grid of them
             else:
                 target = 0.95 * truncation * tolerance / error
-        mean = psf_transform(means.reshape(len(origins), channels, n, n), tile_hw)
+        mean = psf_transform(means, tile_hw)
         if len(kernels):
-            basis = kernel_transform(kernels.reshape(-1, n, n), tile_hw)
+            basis = _kernels_transform(kernels.reshape(-1, support, support), tile_hw)
         else:  # a uniform field: nothing but the mean (MKL transforms no empty batch)
             basis = PsfTransform(mean.spectrum[:0, 0], tile_hw, mean.margin, mean.fft_shape)
         return FieldTransform(
@@ -398,43 +493,114 @@ def field_transform(
         )
 
 
-def _built(psf_set: FieldPsfSet, tiles: list[_Tile], counts, tile_hw, sensor_hw, spacing: int):
-    """Eigen-PSFs (terms, N·N), their coefficient maps (terms, T0, T1) from nodes ``spacing``
-    apart, tile and channel of each, and the tiles' means (tiles, C, N·N), for the ``counts``
+def node_spacing(tile_hw: tuple[int, int], psf_shape) -> int:
+    """Pixels between the nodes whose PSFs a tile's eigen-analysis takes: at most
+    ``NODE_SPACING`` and 1/16 of the tile's side, wider where the node PSFs (C, N, N) of a tile
+    would exceed ``NODE_VALUES`` values (the coefficients may then be taken on a finer grid)."""
+    spacing = max(1, min(NODE_SPACING, min(tile_hw) // 16))
+    values = math.prod(psf_shape)
+    while (
+        spacing < min(tile_hw) // 2
+        and math.prod(math.ceil((t - 1) / spacing) + 1 for t in tile_hw) * values > NODE_VALUES
+    ):
+        spacing *= 2
+    return spacing
+
+
+def _check_error(psf_set: FieldPsfSet, at_pixels, where, built) -> float:
+    """Relative L2 error of the expansion ``built`` (:func:`_built`) against the field PSFs at
+    the check pixels ``at_pixels`` (ys, xs from the axis), which lie at ``where`` (tile index,
+    row and column within it); a chunk of pixels at a time."""
+    kernels, maps, term_tile, term_channel, means = built
+    tile, r, c = where
+    ys, xs = at_pixels
+    error = norm = 0.0
+    step = _node_chunk(psf_set.psfs.shape[1:])
+    for start in range(0, len(xs), step):
+        chunk = slice(start, start + step)
+        exact = field_psf(psf_set, xs[chunk], ys[chunk])
+        approx = means[tile[chunk]].clone()
+        on = term_tile[None, :] == tile[chunk, None]  # (P, terms)
+        at = maps[:, r[chunk], c[chunk]].T * on  # coefficients of each term at each check pixel
+        support = math.isqrt(kernels.shape[-1])
+        centre = _cropped(approx, support)
+        for channel in range(approx.shape[1]):
+            sel = term_channel == channel
+            centre[:, channel] += (at[:, sel] @ kernels[sel]).unflatten(-1, (support, support))
+        error += float(((approx - exact).double() ** 2).sum())
+        norm += float((exact.double() ** 2).sum())
+    return math.sqrt(error / norm)
+
+
+def _kernels_transform(kernels: torch.Tensor, tile_hw: tuple[int, int]) -> PsfTransform:
+    """:func:`formation.kernel_transform` of eigen-PSFs (terms, S, S), a chunk at a time (the
+    padded kernels of one chunk are the only transient)."""
+    first = kernel_transform(kernels[:1], tile_hw)
+    step = max(1, CHUNK_VALUES * 8 // first.spectrum[0].numel())
+    spectrum = torch.cat(
+        [first.spectrum]
+        + [kernel_transform(kernels[k : k + step], tile_hw).spectrum for k in range(1, len(kernels), step)]
+    )
+    return PsfTransform(spectrum, first.sensor_hw, first.margin, first.fft_shape)
+
+
+def _append_terms(basis, grids, shape, tile: int, tile_hw, terms) -> None:
+    """Add one tile's eigen-PSFs (per channel, (M, S·S) or None) with their coefficient maps,
+    interpolated bicubically from their values at the ``shape`` grid of nodes (M, K), to
+    ``terms`` (lists of kernels, maps, tile and channel indices)."""
+    kernels, maps, term_tile, term_channel = terms
+    for c, (e, grid) in enumerate(zip(basis, grids)):
+        if e is None or not len(e):
+            continue
+        grid = grid.reshape(len(e), 1, *shape)
+        maps.append(F.interpolate(grid, size=tile_hw, mode="bicubic", align_corners=True)[:, 0])
+        kernels.append(e)
+        term_tile.append(torch.full((len(e),), tile))
+        term_channel.append(torch.full((len(e),), c))
+
+
+def _built(psf_set: FieldPsfSet, tiles: list[_Tile], counts, tile_hw, sensor_hw, spacing: int, support: int):
+    """Eigen-PSFs (terms, S·S), their coefficient maps (terms, T0, T1) from nodes ``spacing``
+    apart, tile and channel of each, and the tiles' means (tiles, C, N, N), for the ``counts``
     kept per tile and channel."""
-    n = psf_set.psfs.shape[-1]
     kernels, maps, term_tile, term_channel = [], [], [], []
     for i, (tile, kept) in enumerate(zip(tiles, counts)):
         if not any(kept):
             continue
-        residual = _field_at(psf_set, tile.ys, tile.xs) - tile.mean
-        basis = [
-            _components(residual[:, c], n, values[:k], vectors[:, :k], parities[:k]) if k else None
-            for c, ((values, vectors, parities), k) in enumerate(zip(tile.spectra, kept))
-        ]
+        stored = all(k <= len(e) for (e, _), k in zip(tile.kept, kept))  # made with the tile's analysis
+        if stored:
+            basis = [e[:k] if k else None for (e, _), k in zip(tile.kept, kept)]
+        else:
+            residual = _node_psfs(psf_set, tile.ys, tile.xs, support, tile.mean)
+            basis = [
+                _components(residual[:, c], support, values[:k], vectors[:, :k], parities[:k]) if k else None
+                for c, ((values, vectors, parities), k) in enumerate(zip(tile.spectra, kept))
+            ]
         ys, xs, shape = _tile_nodes(psf_set, tile.origin, tile_hw, sensor_hw, spacing)
-        values = [[] for _ in basis]  # ⟨P_node − P̄, e⟩ per channel, a chunk of nodes at a time
-        for start in range(0, len(xs), NODE_CHUNK):
+        if spacing == tile.spacing and stored:
+            grids = [at[:k] for (_, at), k in zip(tile.kept, kept)]
+        else:  # ⟨P_node − P̄, e⟩ per channel, a batch of nodes at a time (the finer grid's, if refined)
             if spacing == tile.spacing:
-                nodes = residual[start : start + NODE_CHUNK]
+                batches = [residual]
             else:
-                nodes = _field_at(psf_set, ys[start : start + NODE_CHUNK], xs[start : start + NODE_CHUNK]) - tile.mean
-            for c, e in enumerate(basis):
-                if e is not None:
-                    values[c].append(e @ nodes[:, c].T)
-        for c, e in enumerate(basis):
-            if e is None:
-                continue
-            grid = torch.cat(values[c], dim=1).reshape(len(e), 1, *shape)
-            maps.append(F.interpolate(grid, size=tile_hw, mode="bicubic", align_corners=True)[:, 0])
-            kernels.append(e)
-            term_tile.append(torch.full((len(e),), i))
-            term_channel.append(torch.full((len(e),), c))
+                step = _node_chunk((psf_set.psfs.shape[1], support, support))
+                batches = (
+                    _node_psfs(psf_set, ys[k : k + step], xs[k : k + step], support, tile.mean)
+                    for k in range(0, len(xs), step)
+                )
+            values = [[] for _ in basis]
+            for nodes in batches:
+                for c, e in enumerate(basis):
+                    if e is not None:
+                        values[c].append(e @ nodes[:, c].T)
+            grids = [torch.cat(v, dim=1) if v else None for v in values]
+            residual = batches = None
+        _append_terms(basis, grids, shape, i, tile_hw, (kernels, maps, term_tile, term_channel))
     p = psf_set.psfs
     means = torch.stack([t.mean for t in tiles])
     if not kernels:
         empty = torch.zeros(0, dtype=torch.long, device=p.device)
-        return p.new_zeros(0, n * n), p.new_zeros(0, *tile_hw), empty, empty, means
+        return p.new_zeros(0, support * support), p.new_zeros(0, *tile_hw), empty, empty, means
     return (
         torch.cat(kernels),
         torch.cat(maps),
@@ -458,18 +624,26 @@ def _field_transform(psfs, sensor_hw: tuple[int, int], tolerance: float) -> Fiel
     return field_transform(psfs, sensor_hw, tolerance=tolerance)
 
 
-def _tile_spectrum(canvas: torch.Tensor, margin: int, t: FieldTransform) -> torch.Tensor:
-    """rfft2 of each tile's canvas (..., tiles, C, L0, L1 // 2 + 1) on the tiles' FFT grid."""
+def _tile_canvases(canvas: torch.Tensor, margin: int, t: FieldTransform) -> torch.Tensor:
+    """Each tile's canvas (..., tiles, C, T0 + 2M, T1 + 2M) cut from ``canvas`` of margin M."""
     t0, t1 = t.mean.sensor_hw
     tiles = [canvas[..., r : r + t0 + 2 * margin, c : c + t1 + 2 * margin] for r in t.tile_rows for c in t.tile_cols]
-    return _canvas_spectrum(torch.stack(tiles, dim=-4), margin, t.mean)
+    return torch.stack(tiles, dim=-4)
 
 
-def _gather(spectrum: torch.Tensor, t: FieldTransform) -> torch.Tensor:
-    """P̄ ∗ in + Σ a ⊙ (e ∗ in) on the sensor from the tiles' spectra (..., tiles, C or 1, L0, L1')."""
+def _spectra(tiles: torch.Tensor, margin: int, t: FieldTransform) -> tuple[torch.Tensor, torch.Tensor]:
+    """rfft2 of the tiles' canvases on the means' FFT grid and on the eigen-PSFs' (smaller) one."""
+    spectrum = _canvas_spectrum(tiles, margin, t.mean)
+    return spectrum, _canvas_spectrum(tiles, margin, t.basis) if len(t.basis.spectrum) else spectrum
+
+
+def _gather(spectra: tuple[torch.Tensor, torch.Tensor], t: FieldTransform) -> torch.Tensor:
+    """P̄ ∗ in + Σ a ⊙ (e ∗ in) on the sensor from the tiles' spectra (..., tiles, C or 1, L0, L1')
+    on the means' and the eigen-PSFs' FFT grids (:func:`_spectra`)."""
+    spectrum, fine = spectra
     out = _kept(spectrum * t.mean.spectrum, t.mean)  # (..., tiles, C, T0, T1)
     channels = out.shape[-3]
-    flat = spectrum.expand(*spectrum.shape[:-3], channels, *spectrum.shape[-2:]).flatten(-4, -3)
+    flat = fine.expand(*fine.shape[:-3], channels, *fine.shape[-2:]).flatten(-4, -3)
     index = t.term_tile * channels + t.term_channel
     out = out.flatten(-4, -3)
     step = max(1, CHUNK_VALUES // flat[..., :1, :, :].numel())
@@ -485,7 +659,7 @@ def field_convolve(canvas: torch.Tensor, psfs, margin: int, *, tolerance: float 
     PSFs ``psfs`` (:class:`FieldPsfSet` or :class:`FieldTransform`); C broadcasts as in
     :func:`formation.convolve`."""
     t = _field_transform(psfs, _sensor_hw(canvas, margin), tolerance)
-    return _gather(_tile_spectrum(canvas, margin, t), t)
+    return _gather(_spectra(_tile_canvases(canvas, margin, t), margin, t), t)
 
 
 def form_image_field(
@@ -508,9 +682,10 @@ def form_image_field(
     sensor = _sensor_hw(clean, margin)
     near, far = _field_transform(near, sensor, tolerance), _field_transform(far, sensor, tolerance)
     channels = obstruction.shape[-3]
-    # one batched transform of [I_obs or m ⊙ I_obs, m]; the mask's spectrum meets each channel's PSF
-    f = _tile_spectrum(torch.cat([emitted, mask], dim=-3), margin, near)
-    light, coverage = torch.broadcast_tensors(f[..., :channels, :, :], f[..., channels:, :, :])
-    near_light, blurred_mask = _gather(torch.stack([light, coverage], dim=-5), near).unbind(-4)
-    unobstructed = _gather(_tile_spectrum(clean, margin, far), far)
+    # one batched transform of [I_obs or m ⊙ I_obs, m] per grid; the mask's spectrum meets each channel's PSF
+    pairs = []
+    for f in _spectra(_tile_canvases(torch.cat([emitted, mask], dim=-3), margin, near), margin, near):
+        pairs.append(torch.stack(torch.broadcast_tensors(f[..., :channels, :, :], f[..., channels:, :, :]), dim=-5))
+    near_light, blurred_mask = _gather(tuple(pairs), near).unbind(-4)
+    unobstructed = _gather(_spectra(_tile_canvases(clean, margin, far), margin, far), far)
     return _composite(near_light, blurred_mask, unobstructed, formation, alpha_gain)
