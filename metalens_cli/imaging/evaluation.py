@@ -133,9 +133,10 @@ def evaluate(
     recon = list(reconstructors) if reconstructors is not None else [None] * len(designs)
     psfs: dict[tuple[int, int], ChannelPsfs] = {}
     for d, design in enumerate(designs):
+        at_depths: dict[tuple[float, float], ChannelPsfs] = {}  # seeds drawing the same depths share them
         for seed in seeds:
             z_near, z_far = draw_depths(settings.z_near_interval_m, settings.z_far_interval_m, seed)
-            p = capture_psfs(
+            p = at_depths.get((z_near, z_far)) or capture_psfs(
                 design,
                 z_near,
                 z_far,
@@ -146,7 +147,7 @@ def evaluate(
                 device=settings.device,
                 window=settings.psf_window,
             )
-            psfs[d, seed] = p
+            psfs[d, seed] = at_depths[z_near, z_far] = p
             out.psfs.append(
                 {
                     "design": design.spec,
@@ -166,10 +167,11 @@ def evaluate(
     scores: dict[tuple, dict] = {}
     total, done = len(designs) * len(kinds) * len(seeds), 0
     out.panels = {design.spec: [] for design in designs}
-    for kind in kinds:
-        for seed in seeds:
-            obstructions: dict = {}  # generated once, shared by the designs (same seed, depths and canvas)
-            for d, design in enumerate(designs):
+    obstructions: dict = {}  # generated once, shared by the designs (same seed, depths and canvas)
+    units: dict[tuple, list] = {}  # (kind, seed, design) → its units, listed in that order at the end
+    for d, design in enumerate(designs):  # one design's capture transforms held at a time
+        for kind in kinds:
+            for seed in seeds:
                 captures = simulate_captures(
                     images,
                     kind,
@@ -197,7 +199,7 @@ def evaluate(
                         if key not in scores:
                             scores[key] = score(clear, c.clean, lpips_model, settings.match)
                         scores[capture, d, kind, seed, index] = score(obstructed, c.clean, lpips_model, settings.match)
-                        out.units.append(
+                        units.setdefault((kind, seed, d), []).append(
                             {
                                 "design": design.spec,
                                 "capture": capture,
@@ -216,6 +218,9 @@ def evaluate(
                 done += 1
                 if on_progress is not None:
                     on_progress(done, total)
+        for seed in seeds:
+            psfs[d, seed].transforms.clear()
+    out.units = [unit for kind in kinds for seed in seeds for d in range(len(designs)) for unit in units[kind, seed, d]]
     summarise(out, [design.spec for design in designs], recon, kinds, seeds, len(images), metrics, scores)
     warn_few_units(
         out,

@@ -168,6 +168,30 @@ def _field_window(lens, wavelengths_m, depth_m, angle_rad, distance_m, pitch, on
     return max(on_axis, 2 * math.ceil(1.1 * reach / pitch) + 9)
 
 
+def field_strata(design, wavelengths_per_channel: int | None = None):
+    """The wavelengths and weights (``optics.spectra.sample_wavelengths``) the off-axis PSFs of a
+    set use: the midpoints of ``wavelengths_per_channel`` (default
+    ``DEFAULT_WAVELENGTHS_PER_CHANNEL``) equal-mass strata of each channel's S^c."""
+    from metalens_cli.imaging.pipeline import design_sensitivity
+    from metalens_cli.optics.spectra import sample_wavelengths
+
+    return sample_wavelengths(
+        design_sensitivity(design), wavelengths_per_channel or DEFAULT_WAVELENGTHS_PER_CHANNEL, None
+    )
+
+
+def strata_channel_psfs(design, strata, depths_m, pixels: int, pixel_pitch_m: float, device="cpu") -> torch.Tensor:
+    """On-axis R, G, B PSFs (Z, 3, N, N), float64, from the wavelengths of ``strata``
+    (:func:`field_strata`) alone: what the off-axis PSFs' spectral reduction does on axis."""
+    from metalens_cli.optics.psf import compute_psf
+
+    lams = [float(x) for x in strata.wavelengths_m]
+    mono = compute_psf(
+        design.lens, lams, list(depths_m), pixels, pixel_pitch_m, distance_m=design.focal_length_m, device=device
+    ).psf
+    return torch.einsum("zwij,cw->zcij", mono.double(), torch.as_tensor(strata.weights))
+
+
 def field_channel_psfs(
     design,
     z_near_m: float,
@@ -186,10 +210,8 @@ def field_channel_psfs(
     points from the axis to the corner (default one per ``HEIGHT_STEP_PX``, 2 to 5);
     ``wavelengths_per_channel``: default ``DEFAULT_WAVELENGTHS_PER_CHANNEL``; ``progress(done,
     total)`` after each off-axis height."""
-    from metalens_cli.imaging.pipeline import channel_psfs, design_sensitivity
+    from metalens_cli.imaging.pipeline import channel_psfs
     from metalens_cli.optics.field import field_psf
-    from metalens_cli.optics.psf import compute_psf
-    from metalens_cli.optics.spectra import sample_wavelengths
 
     if not design.lens.radial:
         raise InputError(
@@ -199,13 +221,11 @@ def field_channel_psfs(
     d = design.focal_length_m
     heights_px = field_heights(sensor_pixels, heights)
     angles = [math.atan2(h * pixel_pitch_m, d) for h in heights_px]
-    per_channel = wavelengths_per_channel or DEFAULT_WAVELENGTHS_PER_CHANNEL
-    strata = sample_wavelengths(design_sensitivity(design), per_channel, None)
+    strata = field_strata(design, wavelengths_per_channel)
     lams = [float(x) for x in strata.wavelengths_m]
     axis = channel_psfs(design, z_near_m, z_far_m, wavelengths_m, pixel_pitch_m, device=device)
     n = max(axis.near.shape[-1], axis.far.shape[-1])
-    mono = compute_psf(design.lens, lams, [z_near_m, z_far_m], n, pixel_pitch_m, distance_m=d, device=device).psf
-    reduced = torch.einsum("zwij,cw->zcij", mono.double(), torch.as_tensor(strata.weights))
+    reduced = strata_channel_psfs(design, strata, [z_near_m, z_far_m], n, pixel_pitch_m, device=device)
     error = {which: _relative_l2(reduced[i], _pad(getattr(axis, which), n)) for i, which in enumerate(("near", "far"))}
     sizes = [
         _field_window(design.lens, lams, z, angles[-1], d, pixel_pitch_m, n)

@@ -64,6 +64,7 @@ class ChannelPsfs:
     held: dict = field(default_factory=dict)
     field_psfs: object = None  # imaging.field_psfs.FieldPsfs: captures vary over the field
     field_test: dict | None = None  # the isoplanatic test and the model chosen (capture_psfs)
+    transforms: dict = field(default_factory=dict, repr=False)  # sensor (H, W) → (near, far), made once
 
     @property
     def margin(self) -> int:
@@ -350,7 +351,6 @@ def simulate_captures(
     captures = []
     report = on_progress or (lambda done, total: None)
     report(0, len(images))
-    transforms = None
     dev, dt = psfs.near.device, psfs.near.dtype
     counts = (
         torch.as_tensor(np.asarray(photons, dtype=float), dtype=dt, device=dev).reshape(-1, 1, 1)
@@ -374,8 +374,7 @@ def simulate_captures(
         )
         if obstructions is not None:
             obstructions[key] = obstruction
-        if transforms is None or transforms[0].sensor_hw != tuple(sensor):
-            transforms = _capture_transforms(psfs, tuple(sensor))
+        transforms = _capture_transforms(psfs, tuple(sensor))
         form = form_image if psfs.field_psfs is None else form_image_field
         with torch.no_grad():
             capture = form(
@@ -411,12 +410,22 @@ def simulate_captures(
 
 
 def _capture_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:
-    """The near and far transforms a capture reuses: of the on-axis PSFs, or of the field PSF sets
-    (``imaging.field_formation``; the expansion's measured error goes into ``psfs.field_test``)."""
+    """The near and far transforms a capture reuses, made once per sensor size and kept in
+    ``psfs.transforms``: of the on-axis PSFs, or of the field PSF sets (``imaging.field_formation``;
+    the expansion's measured error, size and cost go into ``psfs.field_test``)."""
+    if sensor in psfs.transforms:
+        return psfs.transforms[sensor]
     if psfs.field_psfs is None:
-        return psf_transform(psfs.near, sensor), psf_transform(psfs.far, sensor)
-    transforms = tuple(field_transform(s, sensor) for s in (psfs.field_psfs.near, psfs.field_psfs.far))
-    psfs.field_test["expansion_error"] = {"near": transforms[0].error, "far": transforms[1].error}
+        transforms = psf_transform(psfs.near, sensor), psf_transform(psfs.far, sensor)
+    else:
+        start = time.perf_counter()
+        transforms = tuple(field_transform(s, sensor) for s in (psfs.field_psfs.near, psfs.field_psfs.far))
+        psfs.field_test["expansion"] = {
+            which: {"error": t.error, "eigen_psfs": len(t.term_tile), "support_px": t.support}
+            for which, t in zip(("near", "far"), transforms)
+        }
+        psfs.field_test["expansion"]["seconds"] = time.perf_counter() - start
+    psfs.transforms[sensor] = transforms
     return transforms
 
 

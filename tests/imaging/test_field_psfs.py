@@ -86,3 +86,29 @@ def test_grey_wall_stays_grey_with_field_psfs(model, tmp_path, monkeypatch):
 def test_capture_psfs_refuses_an_unknown_model():
     with pytest.raises(InputError, match="--field"):
         capture_psfs(small(), 0.01, 1.0, LAMS, PITCH, 64, field_model="everywhere")
+
+
+def test_evaluate_prepares_the_field_transforms_once_per_design(tmp_path, monkeypatch):
+    """Two seeds drawing the same depths and two obstruction kinds share one PSF set and one
+    near and far field transform per design (they were made per seed and kind: the expansion's
+    minutes and gigabytes four times over); the units keep their order (kind, seed, design)."""
+    from metalens_cli.imaging import pipeline
+    from metalens_cli.imaging.evaluation import EvaluationSettings, evaluate
+
+    monkeypatch.setenv("METALENS_CACHE", str(tmp_path))
+    monkeypatch.setattr("metalens_cli.imaging.field_psfs.DEFAULT_WAVELENGTHS_PER_CHANNEL", 2)
+    made, real = [], pipeline.field_transform
+    monkeypatch.setattr(pipeline, "field_transform", lambda s, sensor: made.append(sensor) or real(s, sensor))
+    settings = EvaluationSettings(
+        64, PITCH, (0.01, 0.01), (1.0, 1.0), LAMS, images="charts", limit=2, field_model="auto"
+    )
+    designs = [small(), resolve_design("hyperbolic:560nm", None, f_m=200e-6, aperture_m=100e-6, pitch_m=None)]
+    result = evaluate(designs, ["dirt", "fence"], [0, 1], settings)
+    assert made == [(64, 64)] * 4  # near and far, per design
+    order = [(u["obstruction"], u["seed"], u["design"]) for u in result.units]
+    assert order == sorted(
+        order, key=lambda k: (["dirt", "fence"].index(k[0]), k[1], [d.spec for d in designs].index(k[2]))
+    )
+    assert len(order) == 2 * 2 * 2 * 2  # kinds × seeds × designs × images
+    expansion = result.psfs[0]["field"]["expansion"]
+    assert expansion["near"]["error"] <= 0.01 and expansion["far"]["eigen_psfs"] > 0 and expansion["seconds"] > 0
