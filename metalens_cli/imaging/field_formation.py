@@ -151,14 +151,27 @@ def field_psf(psf_set: FieldPsfSet, x: torch.Tensor, y: torch.Tensor, support: i
     rho = torch.hypot(x, y).clamp(max=heights[-1])
     i = torch.searchsorted(heights, rho, right=True).clamp(1, len(heights) - 1)
     w = ((rho - heights[i - 1]) / (heights[i] - heights[i - 1])).clamp(0, 1)[:, None, None, None]
-    radial = p[i - 1] * (1 - w) + p[i] * w
-    along = (radial * axis).sum((-2, -1), keepdim=True) / (axis * axis).sum((-2, -1), keepdim=True)
-    varying = radial - along * axis
-    rotated = _rotated(varying, torch.atan2(y, x), size)
     if support is None:
+        radial = p[i - 1] * (1 - w) + p[i] * w
+        along = (radial * axis).sum((-2, -1), keepdim=True) / (axis * axis).sum((-2, -1), keepdim=True)
+        rotated = _rotated(radial - along * axis, torch.atan2(y, x))
         return unit_sum(along * axis + rotated).reshape(out_shape)
-    total = (radial.sum((-2, -1), keepdim=True)).clamp_min(torch.finfo(p.dtype).tiny)
-    return ((along * _cropped(axis, size) + rotated) / total).reshape(out_shape)
+    # on the support alone: the same sum, each height's part rotated separately (R_ψ is linear),
+    # so no whole N × N window is made per point; the unit-sum heights keep the sum at 1
+    a = (p * axis).sum((-2, -1), keepdim=True) / (axis * axis).sum((-2, -1), keepdim=True)  # (K, C, 1, 1)
+    varying, w = p - a * axis, w[:, 0, 0, 0]
+    grid = _rotation_grid(torch.atan2(y, x), size, axis.shape[-1])
+    out = (a[i - 1] * (1 - w[:, None, None, None]) + a[i] * w[:, None, None, None]) * _cropped(axis, size)
+    for k in torch.unique(torch.cat([i - 1, i])).tolist():
+        weight = torch.where(i - 1 == k, 1 - w, 0) + torch.where(i == k, w, 0)
+        at = (weight != 0).nonzero()[:, 0]
+        if k == 0 or not len(at):  # the axis's own part along itself is all of it
+            continue
+        folded = grid[at].reshape(1, -1, size, 2)  # every point's grid, one after another
+        sampled = F.grid_sample(varying[k][None], folded, mode="bicubic", padding_mode="zeros", align_corners=True)
+        sampled = sampled[0].unflatten(1, (len(at), size)).transpose(0, 1)  # (points, C, S, S)
+        out[at] += weight[at, None, None, None] * sampled
+    return out.reshape(out_shape)
 
 
 def _cropped(psfs: torch.Tensor, support: int) -> torch.Tensor:
@@ -167,15 +180,19 @@ def _cropped(psfs: torch.Tensor, support: int) -> torch.Tensor:
     return psfs[..., a : a + support, a : a + support]
 
 
-def _rotated(q: torch.Tensor, psi: torch.Tensor, size: int | None = None) -> torch.Tensor:
-    """R_ψ q: q (B, C, N, N) rotated by ψ (B,) about pixel (N//2, N//2), sampled bicubically,
-    on the central ``size`` × ``size`` pixels (default all N)."""
-    n = q.shape[-1]
+def _rotation_grid(psi: torch.Tensor, size: int, n: int) -> torch.Tensor:
+    """grid_sample's grid (B, S, S, 2) that samples an N × N window at the central S × S pixels
+    rotated by ψ (B,) about pixel (N//2, N//2)."""
     c, s = torch.cos(psi)[:, None, None], torch.sin(psi)[:, None, None]
-    k = torch.arange(size or n, dtype=q.dtype, device=q.device) - (size or n) // 2
+    k = torch.arange(size, dtype=psi.dtype, device=psi.device) - size // 2
     dy, dx = torch.meshgrid(k, k, indexing="ij")
     half = n // 2  # odd N: pixel i of the window sits at −1 + i/half in grid_sample's coordinates
-    grid = torch.stack([c * dx + s * dy, c * dy - s * dx], dim=-1) / half
+    return torch.stack([c * dx + s * dy, c * dy - s * dx], dim=-1) / half
+
+
+def _rotated(q: torch.Tensor, psi: torch.Tensor) -> torch.Tensor:
+    """R_ψ q: q (B, C, N, N) rotated by ψ (B,) about pixel (N//2, N//2), sampled bicubically."""
+    grid = _rotation_grid(psi.to(q.dtype), q.shape[-1], q.shape[-1])
     return F.grid_sample(q, grid, mode="bicubic", padding_mode="zeros", align_corners=True)
 
 
