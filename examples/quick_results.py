@@ -951,7 +951,15 @@ def write(path: Path, reports, recon_reports, walls, tables, clear, energies, ba
             f"broadband's (target ≤ 1/5: {'met' if near_ratio <= 0.2 else 'NOT met'})."
         )
     lines += verdict_b2
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    path.write_text("\n".join(lines) + "\n" + field_block(path), encoding="utf-8")
+
+
+def field_block(path: Path) -> str:
+    """The section examples/field_results.py keeps at the end of ``path`` (between its markers),
+    carried over as it is; empty when there is none."""
+    text = path.read_text(encoding="utf-8") if path.is_file() else ""
+    found = re.search(r"<!-- field_results -->\n.*?<!-- /field_results -->\n", text, re.S)
+    return "" if found is None else "\n" + found.group(0)
 
 
 def step_benchmark() -> str:

@@ -35,7 +35,7 @@ the expansion of its own tile t (a hard partition: the gather form needs no blen
 per colour channel, each convolution on the tile's own canvas (FFTs of about its side + N for
 P̄_t, its side + S for the e_tr). P̄_t is the mean of P_x over ``SUPPORT_NODES``² nodes of the
 tile (whole N × N windows), e_tr the principal components of P_x − P̄_t on nodes at most
-``NODE_SPACING`` px apart (wider where their PSFs would pass ``NODE_VALUES``), restricted to the
+``NODE_SPACING`` px apart (the tiles halved where a channel's node PSFs would pass ``NODE_VALUES``), restricted to the
 central S × S pixels (:func:`eigen_support`: the smallest window that leaves out at most
 ``SUPPORT_SHARE`` of the tolerance). A learned lens's PSF is ~1000 px wide for its halo, but its
 field dependence lies within a few hundred: on the quick split-spectrum lens at 5 m, a 401-px window
@@ -98,9 +98,9 @@ CHUNK_VALUES = 2**19  # spectrum values per batched inverse FFT of eigen-PSF ter
 NODE_CHUNK_VALUES = 2**25  # PSF values of the nodes resampled at a time
 SUPPORT_SHARE = 0.3  # of the tolerance, the most the eigen-PSFs' support may leave out (relative L2)
 SUPPORT_NODES = 5  # nodes per tile side on which the support is chosen
-KEEP_SHARE = 0.4  # of the tolerance: a tile's analysis keeps the components it alone needs for this
+KEEP_SHARE = 0.4  # of the tolerance: a tile's analysis keeps the components each channel needs for its share of this
 ROW_BLOCK_VALUES = 2**24  # residual values per block of rows in a Gram product
-NODE_VALUES = 2**29  # node PSF values a tile's eigen-analysis holds at most (2 GiB in float32)
+NODE_VALUES = 2**28  # node PSF values of one channel a tile's analysis holds (1 GiB in float32), else smaller tiles
 
 
 @dataclass(frozen=True)
@@ -280,15 +280,18 @@ def _node_chunk(psf_shape) -> int:
     return max(1, NODE_CHUNK_VALUES // math.prod(psf_shape))
 
 
-def _node_psfs(psf_set: FieldPsfSet, ys: torch.Tensor, xs: torch.Tensor, support: int, mean: torch.Tensor):
-    """Field PSFs at offsets ``ys``, ``xs`` (K,) less ``mean`` (C, N, N), on their central
-    ``support`` pixels, flattened (K, C, S·S); a batch of nodes at a time."""
-    channels = psf_set.psfs.shape[1]
-    out = psf_set.psfs.new_empty(len(xs), channels, support * support)
-    step = _node_chunk((channels, support, support))
+def _node_psfs(
+    psf_set: FieldPsfSet, ys: torch.Tensor, xs: torch.Tensor, support: int, mean: torch.Tensor, channel: int
+) -> torch.Tensor:
+    """Channel ``channel``'s field PSFs at offsets ``ys``, ``xs`` (K,) less ``mean`` (C, N, N),
+    on their central ``support`` pixels, flattened (K, S·S); a batch of nodes at a time (one
+    channel at a time, so a tile's analysis holds a third of the values)."""
+    one = FieldPsfSet(psf_set.heights_px, psf_set.psfs[:, channel : channel + 1])
+    out = psf_set.psfs.new_empty(len(xs), support * support)
+    step = _node_chunk((support, support))
     for i in range(0, len(xs), step):
-        out[i : i + step] = field_psf(psf_set, xs[i : i + step], ys[i : i + step], support).flatten(-2)
-    out -= _cropped(mean, support).flatten(-2)
+        out[i : i + step] = field_psf(one, xs[i : i + step], ys[i : i + step], support).flatten(-3)
+    out -= _cropped(mean[channel], support).flatten()
     return out
 
 
@@ -351,7 +354,8 @@ class _Tile:
     """A tile's eigen-analysis: its origin, node spacing and offsets, the mean (C, N, N), the
     total squared norm of the node PSFs and per channel the output of :func:`_principal` of
     their residuals on the central ``support`` × ``support`` pixels, and the leading components
-    made while those residuals were at hand (``KEEP_SHARE``: what the tile alone would need)."""
+    made while those residuals were at hand (``KEEP_SHARE``: what each channel alone would need
+    for its share)."""
 
     origin: tuple[int, int]
     spacing: int
@@ -412,19 +416,19 @@ def _tile_spectra(
     psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int, support: int, coarse, keep_share: float
 ) -> _Tile:
     ys, xs, _ = _tile_nodes(psf_set, origin, tile_hw, sensor_hw, spacing)
-    residual = _node_psfs(psf_set, ys, xs, support, coarse.mean)
     total = coarse.energy * len(xs)
-    spectra = [_principal(residual[:, c], support) for c in range(residual.shape[1])]
-    keep = sum(float(v.sum()) for v, _, _ in spectra) - (keep_share**2) * total  # what the kept must hold
-    # the fewest leading components, over the channels, whose values sum to ``keep``
-    values = torch.cat([v for v, _, _ in spectra]).sort(descending=True).values
-    count = int((values.cumsum(0) < keep).sum()) + 1 if keep > 0 else 0
-    floor = float(values[min(count, len(values)) - 1]) if count else math.inf
-    kept = []
-    for c, (v, vectors, parities) in enumerate(spectra):
-        m = int((v >= floor).sum())
-        e = _components(residual[:, c], support, v[:m], vectors[:, :m], parities[:m])
-        kept.append((e, e @ residual[:, c].T))
+    channels = psf_set.psfs.shape[1]
+    spectra, kept = [], []
+    for c in range(channels):
+        residual = _node_psfs(psf_set, ys, xs, support, coarse.mean, c)
+        values, vectors, parities = _principal(residual, support)
+        # the fewest leading components that leave out at most the channel's share of keep_share²
+        keep = float(values.sum()) - keep_share**2 * total / channels
+        m = min(len(values), int((values.cumsum(0) < keep).sum()) + 1) if keep > 0 else 0
+        e = _components(residual, support, values[:m], vectors[:, :m], parities[:m])
+        spectra.append((values, vectors, parities))
+        kept.append((e, e @ residual.T))
+        residual = None  # before the next channel's
     return _Tile(origin, spacing, ys, xs, coarse.mean, total, spectra, kept)
 
 
@@ -456,20 +460,25 @@ def field_transform(
     with torch.no_grad():
         psf_set = FieldPsfSet(psf_set.heights_px, psf_set.psfs.detach())
         p = psf_set.psfs
-        n, channels = p.shape[-1], p.shape[1]
+        n = p.shape[-1]
         side = tile_side(n)
-        tile_hw = (min(side, h), min(side, w))
-        rows, cols = _starts(h, tile_hw[0]), _starts(w, tile_hw[1])
-        origins = [(r, c) for r in rows for c in cols]
+        while True:  # halve the tiles while a channel's node PSFs of one would pass NODE_VALUES
+            tile_hw = (min(side, h), min(side, w))
+            rows, cols = _starts(h, tile_hw[0]), _starts(w, tile_hw[1])
+            origins = [(r, c) for r in rows for c in cols]
+            coarse = [_coarse(psf_set, o, tile_hw, (h, w)) for o in origins]
+            support = eigen_support(coarse, SUPPORT_SHARE * tolerance)
+            spacing = node_spacing(tile_hw)
+            nodes = math.prod(math.ceil((t - 1) / spacing) + 1 for t in tile_hw)
+            if nodes * support**2 <= NODE_VALUES or side <= 16 * NODE_SPACING:  # smaller: no fewer nodes
+                break
+            side //= 2
         check = torch.Generator().manual_seed(0)
         check_r, check_c = (torch.randint(0, m, (CHECK_PIXELS,), generator=check).to(p.device) for m in (h, w))
         at_pixels = (check_r - h // 2).to(p.dtype), (check_c - w // 2).to(p.dtype)
         check_tile = _tile_of(check_r, rows, tile_hw[0]) * len(cols) + _tile_of(check_c, cols, tile_hw[1])
         check_r = check_r - torch.tensor(rows, device=p.device)[_tile_of(check_r, rows, tile_hw[0])]
         check_c = check_c - torch.tensor(cols, device=p.device)[_tile_of(check_c, cols, tile_hw[1])]
-        coarse = [_coarse(psf_set, o, tile_hw, (h, w)) for o in origins]
-        support = eigen_support(coarse, SUPPORT_SHARE * tolerance)
-        spacing = node_spacing(tile_hw, (channels, support, support))
         tiles = [
             _tile_spectra(psf_set, o, tile_hw, (h, w), spacing, support, c, KEEP_SHARE * tolerance)
             for o, c in zip(origins, coarse)
@@ -510,18 +519,11 @@ def field_transform(
         )
 
 
-def node_spacing(tile_hw: tuple[int, int], psf_shape) -> int:
+def node_spacing(tile_hw: tuple[int, int]) -> int:
     """Pixels between the nodes whose PSFs a tile's eigen-analysis takes: at most
-    ``NODE_SPACING`` and 1/16 of the tile's side, wider where the node PSFs (C, N, N) of a tile
-    would exceed ``NODE_VALUES`` values (the coefficients may then be taken on a finer grid)."""
-    spacing = max(1, min(NODE_SPACING, min(tile_hw) // 16))
-    values = math.prod(psf_shape)
-    while (
-        spacing < min(tile_hw) // 2
-        and math.prod(math.ceil((t - 1) / spacing) + 1 for t in tile_hw) * values > NODE_VALUES
-    ):
-        spacing *= 2
-    return spacing
+    ``NODE_SPACING`` and 1/16 of the tile's side (the coefficients may then be taken on a finer
+    grid)."""
+    return max(1, min(NODE_SPACING, min(tile_hw) // 16))
 
 
 def _check_error(psf_set: FieldPsfSet, at_pixels, where, built) -> float:
@@ -584,34 +586,27 @@ def _built(psf_set: FieldPsfSet, tiles: list[_Tile], counts, tile_hw, sensor_hw,
     for i, (tile, kept) in enumerate(zip(tiles, counts)):
         if not any(kept):
             continue
-        stored = all(k <= len(e) for (e, _), k in zip(tile.kept, kept))  # made with the tile's analysis
-        if stored:
-            basis = [e[:k] if k else None for (e, _), k in zip(tile.kept, kept)]
-        else:
-            residual = _node_psfs(psf_set, tile.ys, tile.xs, support, tile.mean)
-            basis = [
-                _components(residual[:, c], support, values[:k], vectors[:, :k], parities[:k]) if k else None
-                for c, ((values, vectors, parities), k) in enumerate(zip(tile.spectra, kept))
-            ]
         ys, xs, shape = _tile_nodes(psf_set, tile.origin, tile_hw, sensor_hw, spacing)
-        if spacing == tile.spacing and stored:
-            grids = [at[:k] for (_, at), k in zip(tile.kept, kept)]
-        else:  # ⟨P_node − P̄, e⟩ per channel, a batch of nodes at a time (the finer grid's, if refined)
-            if spacing == tile.spacing:
-                batches = [residual]
-            else:
-                step = _node_chunk((psf_set.psfs.shape[1], support, support))
-                batches = (
-                    _node_psfs(psf_set, ys[k : k + step], xs[k : k + step], support, tile.mean)
-                    for k in range(0, len(xs), step)
+        basis, grids = [], []
+        for c, ((e, at), (values, vectors, parities), k) in enumerate(zip(tile.kept, tile.spectra, kept)):
+            residual = None
+            if k > len(e):  # more than the tile's analysis made: its residuals again
+                residual = _node_psfs(psf_set, tile.ys, tile.xs, support, tile.mean, c)
+                e = _components(residual, support, values[:k], vectors[:, :k], parities[:k])
+            e = e[:k] if k else None
+            if e is None:
+                grid = None
+            elif spacing != tile.spacing:  # ⟨P_node − P̄, e⟩ on the finer grid, a batch of nodes at a time
+                step = _node_chunk((support, support))
+                nodes = (
+                    _node_psfs(psf_set, ys[j : j + step], xs[j : j + step], support, tile.mean, c)
+                    for j in range(0, len(xs), step)
                 )
-            values = [[] for _ in basis]
-            for nodes in batches:
-                for c, e in enumerate(basis):
-                    if e is not None:
-                        values[c].append(e @ nodes[:, c].T)
-            grids = [torch.cat(v, dim=1) if v else None for v in values]
-            residual = batches = None
+                grid = torch.cat([e @ batch.T for batch in nodes], dim=1)
+            else:
+                grid = at[:k] if residual is None else e @ residual.T
+            basis.append(e)
+            grids.append(grid)
         _append_terms(basis, grids, shape, i, tile_hw, (kernels, maps, term_tile, term_channel))
     p = psf_set.psfs
     means = torch.stack([t.mean for t in tiles])

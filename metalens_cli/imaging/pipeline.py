@@ -65,6 +65,7 @@ class ChannelPsfs:
     field_psfs: object = None  # imaging.field_psfs.FieldPsfs: captures vary over the field
     field_test: dict | None = None  # the isoplanatic test and the model chosen (capture_psfs)
     transforms: dict = field(default_factory=dict, repr=False)  # sensor (H, W) → (near, far), made once
+    formation_seconds: list = field(default_factory=list, repr=False)  # each capture's (simulate_captures)
 
     @property
     def margin(self) -> int:
@@ -358,8 +359,9 @@ def simulate_captures(
         else photons
     )
     for index, image in enumerate(images):
-        start = time.perf_counter()
         sensor = image.sensor.shape[-2:]
+        transforms = _capture_transforms(psfs, tuple(sensor))  # made once, timed apart (field_test)
+        start = time.perf_counter()
         key = (obstruction_spec, seed, index, psfs.z_near_m, focal_length_m)
         obstruction = (obstructions or {}).get(key) or make_obstruction(
             obstruction_spec,
@@ -374,8 +376,8 @@ def simulate_captures(
         )
         if obstructions is not None:
             obstructions[key] = obstruction
-        transforms = _capture_transforms(psfs, tuple(sensor))
         form = form_image if psfs.field_psfs is None else form_image_field
+        formed = time.perf_counter()
         with torch.no_grad():
             capture = form(
                 torch.as_tensor(image.linear, dtype=dt, device=dev),
@@ -393,13 +395,15 @@ def simulate_captures(
                     unobstructed, counts, read_noise=read_noise, generator=seed * 1000 + 2 * index + 1
                 )
         alpha = capture.alpha.cpu().numpy().astype(np.float32)
+        unobstructed, obstructed = (x.cpu().numpy().astype(np.float32) for x in (unobstructed, obstructed))
+        _record_formation(psfs, time.perf_counter() - formed)
         captures.append(
             SimulatedCapture(
                 image.name,
                 image.sensor,
                 obstruction,
-                unobstructed.cpu().numpy().astype(np.float32),
-                obstructed.cpu().numpy().astype(np.float32),
+                unobstructed,
+                obstructed,
                 alpha,
                 time.perf_counter() - start,
                 float(alpha.mean()),
@@ -407,6 +411,17 @@ def simulate_captures(
         )
         report(index + 1, len(images))
     return captures
+
+
+def _record_formation(psfs: ChannelPsfs, seconds: float) -> None:
+    """Add one capture's image formation (both captures of an image, noise included; seconds) to
+    ``psfs.formation_seconds`` and its count and median to ``psfs.field_test`` (the report)."""
+    psfs.formation_seconds.append(seconds)
+    if psfs.field_test is not None:
+        psfs.field_test["formation"] = {
+            "captures": len(psfs.formation_seconds),
+            "median_seconds": float(np.median(psfs.formation_seconds)),
+        }
 
 
 def _capture_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:

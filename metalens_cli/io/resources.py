@@ -91,13 +91,16 @@ def check(
     device=None,
 ) -> None:
     """Refuse ``estimate`` (an :class:`InputError` naming its option, with the estimate) when its
-    memory exceeds ``max_memory`` or 90 % of the free memory of ``device`` (:func:`device_memory`:
-    a CUDA device's own, else the host's RAM), its disk bytes exceed the free space of
-    ``output``'s folder, or its longest run time exceeds ``max_seconds`` (inf: no limit)."""
-    available, which = device_memory(device)
-    limits = [(max_memory, "the --max-memory limit")] if max_memory is not None else []
-    if available is not None:
-        limits.append((int(available * MEMORY_SHARE), which))
+    memory exceeds ``max_memory`` (default: 90 % of the free memory of ``device``,
+    :func:`device_memory`: a CUDA device's own, else the host's RAM; a ``max_memory`` given
+    replaces it, for an estimate the user knows to be too cautious), its disk bytes exceed the
+    free space of ``output``'s folder, or its longest run time exceeds ``max_seconds`` (inf: no
+    limit)."""
+    if max_memory is not None:
+        limits = [(max_memory, "the --max-memory limit")]
+    else:
+        available, which = device_memory(device)
+        limits = [] if available is None else [(int(available * MEMORY_SHARE), which)]
     for limit, name in limits:
         if estimate.memory_bytes > limit:
             raise InputError(

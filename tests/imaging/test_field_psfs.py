@@ -112,3 +112,5 @@ def test_evaluate_prepares_the_field_transforms_once_per_design(tmp_path, monkey
     assert len(order) == 2 * 2 * 2 * 2  # kinds × seeds × designs × images
     expansion = result.psfs[0]["field"]["expansion"]
     assert expansion["near"]["error"] <= 0.01 and expansion["far"]["eigen_psfs"] > 0 and expansion["seconds"] > 0
+    formation = result.psfs[0]["field"]["formation"]  # the seeds share one set: all their captures
+    assert formation["captures"] == 2 * 2 * 2 and 0 < formation["median_seconds"] < expansion["seconds"]

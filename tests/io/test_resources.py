@@ -24,6 +24,15 @@ def test_memory_over_the_limit_is_refused_naming_the_option_and_the_estimate():
     check(Estimate("η", 2**19, "--harmonics", 1.0), max_memory=2**20)
 
 
+def test_max_memory_given_replaces_the_free_memory_default(monkeypatch):
+    """The refusal's advice works: a --max-memory above what is free lets a cautious estimate run."""
+    monkeypatch.setattr(resources, "available_memory", lambda: 2**30)
+    job = Estimate("evaluate", 2 * 2**30, "--pixels", 1.0)
+    with pytest.raises(InputError, match=r"over the host RAM available on this machine \(922 MiB\)"):
+        check(job)
+    check(job, max_memory=3 * 2**30)
+
+
 def test_a_job_longer_than_max_time_is_refused_by_its_longest_estimate():
     converge = Estimate("η", 1, "--harmonics", 600.0, seconds_max=7200.0)
     with pytest.raises(InputError, match=r"--harmonics.*up to 2.0 h.*--max-time limit \(60 min\)"):
