@@ -136,6 +136,7 @@ def evaluate(
     formation,
     alpha_gain,
     field_model,
+    field_tolerance,
     photons,
     read_noise,
     device,
@@ -193,6 +194,7 @@ def evaluate(
         photons_before_filter=photons_before_filter,
         psf_window=psf_pixels,
         field_model=field_model,
+        field_tolerance=field_tolerance,
         **formation_options,
     )
     reconstructors = _reconstructors(recon_runs, s.designs, s.device)

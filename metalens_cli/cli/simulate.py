@@ -107,6 +107,14 @@ def capture_options(f):
             help="on-axis: one PSF per depth everywhere; auto: PSFs that vary over the field where the sensor spans "
             "more than the lens's isoplanatic patch (minutes per design and depths on 2 CPU cores, then cached).",
         ),
+        click.option(
+            "--field-tolerance",
+            type=Number(0, 1, min_open=True, max_open=True),
+            default=0.01,
+            show_default=True,
+            help="With --field auto: the space-variant formation's relative L2 error of the PSF field (that of a "
+            "white-noise scene, a bound for photographs); larger is faster and needs less memory.",
+        ),
         click.option("--photons", type=Photons(0, 1e15), help="Full-well electrons for shot noise (0/absent: none)."),
         click.option("--read-noise", type=Number(0, 1), default=0.0, help="Read-noise σ as a fraction of full scale."),
         device_option,
@@ -211,6 +219,7 @@ def simulate(
     formation,
     alpha_gain,
     field_model,
+    field_tolerance,
     photons,
     read_noise,
     device,
@@ -249,7 +258,7 @@ def simulate(
     efficiency = efficiency_used(design.preset, quiet)
     psfs = capture_psfs(
         design, *depths, s.wavelengths_m, s.pixel_pitch_m, s.pixels, field_model=field_model, device=s.device,
-        window=psf_pixels,
+        window=psf_pixels, field_tolerance=field_tolerance,
     )  # fmt: skip
     clean = load_images(images, (s.pixels, s.pixels), limit, psfs.margin)
     formation_options = dict(formation=formation, alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)

@@ -58,6 +58,7 @@ class EvaluationSettings:
     psf_window: int | None = None
     device: object = "cpu"
     field_model: str = "on-axis"  # "auto": PSFs over the field where the sensor outgrows the isoplanatic patch
+    field_tolerance: float = 0.01  # the space-variant formation's (imaging.field_formation)
 
     @classmethod
     def from_setup(cls, setup: CaptureSetup, **options) -> EvaluationSettings:
@@ -144,6 +145,7 @@ def evaluate(
                 settings.pixel_pitch_m,
                 settings.pixels,
                 field_model=settings.field_model,
+                field_tolerance=settings.field_tolerance,
                 device=settings.device,
                 window=settings.psf_window,
             )

@@ -34,34 +34,51 @@ the expansion of its own tile t (a hard partition: the gather form needs no blen
 
 per colour channel, each convolution on the tile's own canvas (FFTs of about its side + N for
 P̄_t, its side + S for the e_tr). P̄_t is the mean of P_x over ``SUPPORT_NODES``² nodes of the
-tile (whole N × N windows), e_tr the principal components of P_x − P̄_t on nodes at most
-``NODE_SPACING`` px apart (the tiles halved where a channel's node PSFs would pass ``NODE_VALUES``), restricted to the
-central S × S pixels (:func:`eigen_support`: the smallest window that leaves out at most
-``SUPPORT_SHARE`` of the tolerance). A learned lens's PSF is ~1000 px wide for its halo, but its
-field dependence lies within a few hundred: on the quick split-spectrum lens at 5 m, a 401-px window
-leaves out 0.16 % (relative L2) of it, so the eigen-PSFs' FFTs and memory shrink ~8×. Each e_tr is
-even or odd under y → −y (a mirror-symmetric set
-gives mirror-symmetric captures exactly on a tile symmetric about the axis row) and of zero sum
-(the invariants above hold exactly at any rank), a_tr = ⟨P_x − P̄_t, e_tr⟩ at the nodes,
-interpolated bicubically. Kept are the components of largest eigenvalue over all tiles and
-channels (the least error per FFT), as many as ``tolerance`` needs. The error is the relative L2
-error of the PSF field over the sensor's pixels, (Σ_x ‖P̃_x − P_x‖² / Σ_x ‖P_x‖²)^½ over all
-channels: that of the capture of a zero-mean white-noise scene, an upper bound for smoother ones.
-It is estimated from the eigenvalues left out, then measured at ``CHECK_PIXELS`` random pixels
-(:attr:`FieldTransform.error`), adding components or refining the nodes until it is within
-``CHECK_MARGIN`` of the tolerance. Each component costs one inverse FFT of its tile per plane: twice for the near PSF
-(the obstruction light and the mask).
+tile (whole N × N windows), e_tr the principal components of P_x − P̄_t over the tile's pixels,
+restricted to the central S × S pixels (:func:`eigen_support`: the smallest window that leaves
+out at most ``SUPPORT_SHARE`` of the tolerance). A learned lens's PSF is ~1000 px wide for its
+halo, but its field dependence lies within a few hundred: on the quick split-spectrum lens at
+5 m, a 401-px window leaves out 0.16 % (relative L2) of it, so the eigen-PSFs' FFTs and memory
+shrink ~8×. Each e_tr is even or odd under y → −y (a mirror-symmetric set gives
+mirror-symmetric captures exactly on a tile symmetric about the axis row) and of zero sum (the
+invariants above hold exactly at any rank). Kept are the components of largest eigenvalue over
+all tiles and channels (the least error per FFT), as many as ``tolerance`` needs.
+
+Nodes (:func:`_tile_nodes`). The field model is linear in height between the set's heights, so
+P_x = (1 − w)·P(h_{k−1}, ψ) + w·P(h_k, ψ) exactly (before the sum's normalisation): the
+principal components are taken over the PSFs of the on-axis point and of azimuths ψ_j on each
+height the tile uses, weighed by the pixels each stands for, and a_tr(x) = ⟨P_x − P̄_t, e_tr⟩ is
+linear along the radius and Keys-cubic in azimuth between them. The azimuths are as close as
+turns the support's rim (S//2 px from the chief ray) by ``NODE_STEP`` px. A grid of nodes in x,
+y cannot follow a wide PSF near the axis, where a step of a few pixels turns it by many degrees:
+on the quick split-spectrum lens's near set (45 mm, S = 481), nodes 8 px apart left 2.5 % of
+interpolation error against a 1 % tolerance. The tiles are halved where a channel's node PSFs
+would pass ``NODE_VALUES``.
+
+The error is the relative L2 error of the PSF field over the sensor's pixels,
+(Σ_x ‖P̃_x − P_x‖² / Σ_x ‖P_x‖²)^½ over all channels: that of the capture of a zero-mean
+white-noise scene, an upper bound for smoother ones. It is estimated from the eigenvalues left
+out, then measured at ``CHECK_PIXELS`` random pixels (:attr:`FieldTransform.error`), adding
+components or halving the azimuth step until it is within ``CHECK_MARGIN`` of the tolerance.
+Each component costs one inverse FFT of its tile per plane: twice for the near PSF (the
+obstruction light and the mask).
 
 Why tiles: over the whole sensor the coma turns through every azimuth and its spectrum spreads;
 on the paper's lens one expansion for the sensor needed 3× the FFT work of tiles at the same error,
 and interpolating node PSFs (overlap-add) needs nodes 5 px apart for 1 % on the far PSFs, 3× the
-work again. On that stand-in at the default 1 % (512² RGB, windows 201/101): 2102 near and 6188 far
-eigen-PSFs (1.8 GB of spectra), prepared in about 45 s and 60 s (one thread); a capture takes
-1.0-1.4 s on 2 cores (1.7 s on one; form_image: 20 ms); dead-leaves captures are within 0.1 %
-of the direct sums. On the paper's hyperbolic lens (512², field PSFs from ``imaging.field_psfs``
-at 45 mm and 5 m, N = 503 and 705): S = 333 and 375, 1430 and 1752 eigen-PSFs, both at 0.81 %,
-prepared in 18 min on 2 cores (``evaluate --field auto``, peak RSS 15.3 GB), most of it resampling
-node PSFs (bicubic, ~15 M samples/s); then about 4 s per capture and its scoring.
+work again. Measured with nodes on an x-y grid (before the azimuth nodes), at the default 1 %:
+on that stand-in (512² RGB, windows 201/101) 2102 near and 6188 far eigen-PSFs (1.8 GB of
+spectra), prepared in about 45 s and 60 s (one thread), a capture in 1.0-1.4 s on 2 cores (1.7 s
+on one; form_image: 20 ms), dead-leaves captures within 0.1 % of the direct sums; on the paper's
+hyperbolic lens (512², field PSFs from ``imaging.field_psfs`` at 45 mm and 5 m, N = 503 and
+705) S = 333 and 375, 1430 and 1752 eigen-PSFs, both at 0.81 %, prepared in 18 min on 2 cores
+(peak RSS 15.3 GB), most of it resampling node PSFs (bicubic, ~15 M samples/s), then about 4 s
+per capture and its scoring. The learned split-spectrum lens's near set (N = 907) is the hard
+case: with azimuth nodes, at 1 % its tiles halve to 128 px (S = 409), 10790 eigen-PSFs at 0.65 %
+that with their spectra passed 20 GB; at 3 % (``evaluate --field-tolerance 0.03``) 256-px tiles,
+S = 323, 2287 eigen-PSFs at 2.2 % (3.2 GB of spectra), prepared in 4.5 min, one blur of a 512²
+RGB image 2.2 s (2 cores, shared with other work). The x-y grid at 1 % measured 2.5 % after 7
+min, and its refinement to nodes 4 px apart had not finished 20 min later.
 
 Every function here is pure torch (batched, differentiable in the images, any device); the field
 transforms are fixed once made (no gradient to the PSFs).
@@ -84,16 +101,20 @@ from metalens_cli.imaging.formation import (
     _kept,
     _obstruction_canvases,
     _sensor_hw,
+    canvas_margin,
     kernel_transform,
     psf_transform,
     unit_sum,
 )
+from metalens_cli.optics.propagate import fft_size
 
 DEFAULT_TOLERANCE = 0.01  # relative L2 of the PSF field
-NODE_SPACING = 8  # at most this many pixels between a tile's nodes
+NODE_STEP = 1.0  # at most this many pixels the eigen-PSFs' support rim turns between azimuth nodes
+MIN_NODE_STEP = 0.25  # the finest azimuth step (pixels at the rim) a refinement goes to
+KEYS = -0.5  # the cubic convolution kernel's a: Keys' third-order accurate one
 CHECK_PIXELS = 256  # random pixels at which the error is measured
 CHECK_MARGIN = 0.95  # accept at this fraction of the tolerance: the check's estimate scatters by a few %
-MAX_REFINEMENTS = 4  # rank or node-grid refinements after the first try
+MAX_REFINEMENTS = 4  # rank or azimuth-node refinements after the first try
 CHUNK_VALUES = 2**19  # spectrum values per batched inverse FFT of eigen-PSF terms
 NODE_CHUNK_VALUES = 2**25  # PSF values of the nodes resampled at a time
 SUPPORT_SHARE = 0.3  # of the tolerance, the most the eigen-PSFs' support may leave out (relative L2)
@@ -268,11 +289,96 @@ def _tile_of(pixels: torch.Tensor, starts: tuple[int, ...], tile: int) -> torch.
     return torch.searchsorted(firsts, pixels.long(), right=True) - 1
 
 
-def _node_axis(start: int, size: int, spacing: int, centre: int, dtype, device) -> torch.Tensor:
-    """Node offsets from the axis pixel along one side of a tile: start..start + size − 1 split
-    evenly in steps ≤ ``spacing``."""
-    count = max(2, math.ceil((size - 1) / spacing) + 1)
-    return torch.linspace(start, start + size - 1, count, dtype=dtype, device=device) - centre
+def _keys_weights(t: torch.Tensor) -> torch.Tensor:
+    """Cubic convolution weights (..., 4) of the samples at −1, 0, 1, 2 for offsets t ∈ [0, 1)."""
+    a = KEYS
+    near = torch.stack([t, 1 - t], dim=-1)
+    far = torch.stack([t + 1, 2 - t], dim=-1)
+    inner = ((a + 2) * near - (a + 3)) * near * near + 1
+    outer = ((a * far - 5 * a) * far + 8 * a) * far - 4 * a
+    return torch.stack([outer[..., 0], inner[..., 0], inner[..., 1], outer[..., 1]], dim=-1)
+
+
+def _tile_nodes(heights_px, origin, tile_hw, sensor_hw, step: float, support: int):
+    """The nodes of a tile's eigen-analysis and the interpolation of their coefficients.
+
+    The field model is linear in height between the set's heights h_k (:func:`field_psf`), so a
+    pixel's PSF is (1 − w)·P(h_{k−1}, ψ) + w·P(h_k, ψ) exactly: the nodes are the on-axis point
+    and, on each height the tile's pixels use, azimuths ψ_j whose spacing turns the support's rim
+    (S//2 px from the chief ray) by at most ``step`` px, over the tile's azimuths (all of them
+    where the tile surrounds the axis). A coefficient map is then linear along the radius, the
+    field model's own interpolation, and Keys-cubic in azimuth, so it follows the fast turning
+    of a wide PSF near the axis that a grid of nodes in x, y cannot. Returns the node offsets
+    (ys, xs) from the axis pixel, float64, and the sparse (T0·T1, nodes) float64 matrix whose row
+    p holds pixel p's weights on the nodes (row-major pixels; each row sums to 1)."""
+    heights = torch.tensor(heights_px, dtype=torch.float64)
+    rows, cols = (torch.arange(o, o + t, dtype=torch.float64) - n // 2 for o, t, n in zip(origin, tile_hw, sensor_hw))
+    y, x = (g.flatten() for g in torch.meshgrid(rows, cols, indexing="ij"))
+    rho = torch.hypot(x, y).clamp(max=heights[-1])
+    if len(heights) == 1:  # one PSF everywhere: the axis node alone
+        return (
+            torch.zeros(1, dtype=torch.float64),
+            torch.zeros(1, dtype=torch.float64),
+            _sparse(torch.arange(len(x)), torch.zeros(len(x), dtype=torch.long), torch.ones(len(x)), (len(x), 1)),
+        )
+    i = torch.searchsorted(heights, rho, right=True).clamp(1, len(heights) - 1)
+    w = ((rho - heights[i - 1]) / (heights[i] - heights[i - 1])).clamp(0, 1)
+    used = torch.unique(torch.cat([(i - 1)[w < 1], i[w > 0]])).tolist()
+    psi = torch.atan2(y, x)
+    off = rho > 0
+    centre = float(torch.atan2(y[off].mean(), x[off].mean())) if off.any() else 0.0
+    rel = torch.remainder(psi - centre + math.pi, 2 * math.pi) - math.pi  # azimuth from the tile's centre
+    lo, hi = (float(rel[off].min()), float(rel[off].max())) if off.any() else (0.0, 0.0)
+    largest = step / max(1, support // 2)  # radians
+    if hi - lo > math.pi:  # the tile surrounds the axis: every azimuth, periodic
+        count = max(4, math.ceil(2 * math.pi / largest))
+        spacing = 2 * math.pi / count
+        u = (rel + math.pi) / spacing
+        j0 = u.floor().clamp(max=count - 1)
+        taps = (j0[:, None].long() - 1 + torch.arange(4)) % count
+        angles = centre - math.pi + spacing * torch.arange(count, dtype=torch.float64)
+    else:  # one sample below and two above the range, for the cubic's taps
+        steps = max(1, math.ceil((hi - lo) / largest))
+        spacing = (hi - lo) / steps if hi > lo else largest
+        count = steps + 3
+        u = ((rel - lo) / spacing).clamp(0, steps)
+        j0 = u.floor().clamp(max=steps - 1)
+        taps = j0[:, None].long() + torch.arange(4)
+        angles = centre + lo + spacing * (torch.arange(count, dtype=torch.float64) - 1)
+    cubic = _keys_weights(u - j0)  # (P, 4)
+    ring = [k for k in used if k > 0]
+    first = {k: (1 if 0 in used else 0) + n * count for n, k in enumerate(ring)}
+    pixels, nodes, values = [], [], []
+    for k_of, weight in ((i - 1, 1 - w), (i, w)):
+        for k in used:
+            at = ((k_of == k) & (weight > 0)).nonzero()[:, 0]
+            if not len(at):
+                continue
+            if k == 0:
+                pixels.append(at), nodes.append(torch.zeros_like(at)), values.append(weight[at])
+            else:
+                pixels.append(at.repeat_interleave(4))
+                nodes.append((first[k] + taps[at]).flatten())
+                values.append((weight[at, None] * cubic[at]).flatten())
+    ys = [torch.zeros(1, dtype=torch.float64)] if 0 in used else []
+    xs = list(ys)
+    for k in ring:
+        ys.append(heights[k] * torch.sin(angles))
+        xs.append(heights[k] * torch.cos(angles))
+    ys, xs = torch.cat(ys), torch.cat(xs)
+    return ys, xs, _sparse(torch.cat(pixels), torch.cat(nodes), torch.cat(values), (len(x), len(xs)))
+
+
+def _sparse(rows: torch.Tensor, cols: torch.Tensor, values: torch.Tensor, shape) -> torch.Tensor:
+    """The sparse float64 matrix of ``shape`` with ``values`` at (``rows``, ``cols``), summed where repeated."""
+    return torch.sparse_coo_tensor(torch.stack([rows, cols]), values.double(), shape, check_invariants=True).coalesce()
+
+
+def _node_weights(interpolation: torch.Tensor) -> torch.Tensor:
+    """The pixels each node stands for (nodes,): the sum of |weights| it gets over the tile (the
+    eigen-analysis weighs the nodes by them, so that its error is one over the tile's pixels)."""
+    i = interpolation.indices()[1]
+    return torch.zeros(interpolation.shape[1], dtype=torch.float64).index_add_(0, i, interpolation.values().abs())
 
 
 def _node_chunk(psf_shape) -> int:
@@ -351,31 +457,21 @@ def _components(residual: torch.Tensor, n: int, values, vectors, parities) -> to
 
 @dataclass
 class _Tile:
-    """A tile's eigen-analysis: its origin, node spacing and offsets, the mean (C, N, N), the
-    total squared norm of the node PSFs and per channel the output of :func:`_principal` of
-    their residuals on the central ``support`` × ``support`` pixels, and the leading components
-    made while those residuals were at hand (``KEEP_SHARE``: what each channel alone would need
-    for its share)."""
+    """A tile's eigen-analysis: its origin, azimuth step (:func:`_tile_nodes`) and node
+    offsets, the mean (C, N, N), the total squared norm of its pixels' PSFs and per channel the
+    output of :func:`_principal` of their node-weighted residuals on the central ``support`` ×
+    ``support`` pixels, and the leading components made while those residuals were at hand
+    (``KEEP_SHARE``: what each channel alone would need for its share)."""
 
     origin: tuple[int, int]
-    spacing: int
+    step: float
     ys: torch.Tensor
     xs: torch.Tensor
     mean: torch.Tensor
     total: float
     spectra: list
     kept: list  # per channel, the leading eigen-PSFs (M, S·S) and their values at the nodes (M, K)
-
-
-def _tile_nodes(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int):
-    """Node offsets (ys, xs) from the axis pixel over a tile and the grid's shape."""
-    p = psf_set.psfs
-    rows, cols = (
-        _node_axis(start, size, spacing, n // 2, p.dtype, p.device)
-        for start, size, n in zip(origin, tile_hw, sensor_hw)
-    )
-    ys, xs = (g.flatten() for g in torch.meshgrid(rows, cols, indexing="ij"))
-    return ys, xs, (len(rows), len(cols))
+    root: torch.Tensor  # (K, 1): the square roots of the node weights (:func:`_node_weights`)
 
 
 @dataclass
@@ -389,7 +485,12 @@ class _Coarse:
 
 
 def _coarse(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw) -> _Coarse:
-    ys, xs, _ = _tile_nodes(psf_set, origin, tile_hw, sensor_hw, max(1, max(tile_hw) // (SUPPORT_NODES - 1)))
+    p = psf_set.psfs
+    rows, cols = (
+        torch.linspace(start, start + size - 1, SUPPORT_NODES, dtype=p.dtype, device=p.device) - n // 2
+        for start, size, n in zip(origin, tile_hw, sensor_hw)
+    )
+    ys, xs = (g.flatten() for g in torch.meshgrid(rows, cols, indexing="ij"))
     full = field_psf(psf_set, xs, ys)
     mean = full.mean(0)
     n = full.shape[-1]
@@ -413,23 +514,28 @@ def eigen_support(coarse: list[_Coarse], share: float) -> int:
 
 
 def _tile_spectra(
-    psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, spacing: int, support: int, coarse, keep_share: float
+    psf_set: FieldPsfSet, origin, tile_hw, sensor_hw, step: float, support: int, coarse, keep_share: float
 ) -> _Tile:
-    ys, xs, _ = _tile_nodes(psf_set, origin, tile_hw, sensor_hw, spacing)
-    total = coarse.energy * len(xs)
-    channels = psf_set.psfs.shape[1]
+    p = psf_set.psfs
+    ys, xs, interpolation = _tile_nodes(psf_set.heights_px, origin, tile_hw, sensor_hw, step, support)
+    ys, xs = ys.to(p), xs.to(p)
+    weight = _node_weights(interpolation)
+    root = weight.clamp_min(1e-6 * float(weight.max())).sqrt().to(p)[:, None]
+    total = coarse.energy * math.prod(tile_hw)
+    channels = p.shape[1]
     spectra, kept = [], []
     for c in range(channels):
         residual = _node_psfs(psf_set, ys, xs, support, coarse.mean, c)
+        residual *= root  # each node weighed by the pixels it stands for
         values, vectors, parities = _principal(residual, support)
         # the fewest leading components that leave out at most the channel's share of keep_share²
         keep = float(values.sum()) - keep_share**2 * total / channels
         m = min(len(values), int((values.cumsum(0) < keep).sum()) + 1) if keep > 0 else 0
         e = _components(residual, support, values[:m], vectors[:, :m], parities[:m])
         spectra.append((values, vectors, parities))
-        kept.append((e, e @ residual.T))
+        kept.append((e, (e @ residual.T) / root.T))  # ⟨P_node − P̄, e⟩
         residual = None  # before the next channel's
-    return _Tile(origin, spacing, ys, xs, coarse.mean, total, spectra, kept)
+    return _Tile(origin, step, ys, xs, coarse.mean, total, spectra, kept, root)
 
 
 def _selected(tiles: list[_Tile], target: float) -> list[list[int]]:
@@ -447,11 +553,17 @@ def _selected(tiles: list[_Tile], target: float) -> list[list[int]]:
 
 
 def field_transform(
-    psf_set: FieldPsfSet, sensor_hw: tuple[int, int], *, tolerance: float = DEFAULT_TOLERANCE
+    psf_set: FieldPsfSet,
+    sensor_hw: tuple[int, int],
+    *,
+    tolerance: float = DEFAULT_TOLERANCE,
+    max_bytes: int | None = None,
 ) -> FieldTransform:
     """Prepare ``psf_set`` for H × W sensor images: the tiled eigen-PSF expansion of the module
     docstring with the fewest eigen-PSFs whose measured PSF-field error meets ``tolerance``
-    (relative L2, e.g. 0.01). Precompute once per PSF set and reuse."""
+    (relative L2, e.g. 0.01). Precompute once per PSF set and reuse. ``max_bytes``: refuse
+    (:class:`InputError` on ``--field-tolerance``) before building eigen-PSFs, their coefficient
+    maps and spectra that would hold more (:func:`expansion_bytes`)."""
     if not 0 < tolerance < 1:
         raise InputError("tolerance", f"{tolerance!r}", "a relative L2 error between 0 and 1")
     h, w = (int(n) for n in sensor_hw)
@@ -468,9 +580,9 @@ def field_transform(
             origins = [(r, c) for r in rows for c in cols]
             coarse = [_coarse(psf_set, o, tile_hw, (h, w)) for o in origins]
             support = eigen_support(coarse, SUPPORT_SHARE * tolerance)
-            spacing = node_spacing(tile_hw)
-            nodes = math.prod(math.ceil((t - 1) / spacing) + 1 for t in tile_hw)
-            if nodes * support**2 <= NODE_VALUES or side <= 16 * NODE_SPACING:  # smaller: no fewer nodes
+            heights = psf_set.heights_px
+            nodes = max(len(_tile_nodes(heights, o, tile_hw, (h, w), NODE_STEP, support)[0]) for o in origins)
+            if nodes * support**2 <= NODE_VALUES or side <= 16:
                 break
             side //= 2
         check = torch.Generator().manual_seed(0)
@@ -479,15 +591,24 @@ def field_transform(
         check_tile = _tile_of(check_r, rows, tile_hw[0]) * len(cols) + _tile_of(check_c, cols, tile_hw[1])
         check_r = check_r - torch.tensor(rows, device=p.device)[_tile_of(check_r, rows, tile_hw[0])]
         check_c = check_c - torch.tensor(cols, device=p.device)[_tile_of(check_c, cols, tile_hw[1])]
+        step = NODE_STEP
         tiles = [
-            _tile_spectra(psf_set, o, tile_hw, (h, w), spacing, support, c, KEEP_SHARE * tolerance)
+            _tile_spectra(psf_set, o, tile_hw, (h, w), step, support, c, KEEP_SHARE * tolerance)
             for o, c in zip(origins, coarse)
         ]
         target = 0.9 * tolerance
         for _ in range(MAX_REFINEMENTS + 1):
             built = None  # the last try's expansion goes before the next one is built
             counts = _selected(tiles, target)
-            built = _built(psf_set, tiles, counts, tile_hw, (h, w), spacing, support)
+            needed = expansion_bytes(sum(map(sum, counts)), support, tile_hw)
+            if max_bytes is not None and needed > max_bytes:
+                raise InputError(
+                    "--field-tolerance",
+                    f"{tolerance:g}: {sum(map(sum, counts))} eigen-PSFs of {support}² px would hold "
+                    f"{needed / 2**30:.1f} GiB, over the limit of {max_bytes / 2**30:.1f} GiB",
+                    "a larger tolerance (e.g. 0.03) or a smaller sensor",
+                )
+            built = _built(psf_set, tiles, counts, tile_hw, (h, w), step, support)
             kernels, maps, term_tile, term_channel, means = built
             error = _check_error(psf_set, at_pixels, (check_tile, check_r, check_c), built)
             if error <= CHECK_MARGIN * tolerance:
@@ -496,8 +617,8 @@ def field_transform(
                 sum(float(v[k:].sum()) for t, ks in zip(tiles, counts) for (v, _, _), k in zip(t.spectra, ks))
                 / sum(t.total for t in tiles)
             )
-            if error**2 > 2 * truncation**2 and spacing > 1:
-                spacing //= 2  # the coefficients' interpolation dominates: a finer grid of them
+            if error**2 > 2 * truncation**2 and step > MIN_NODE_STEP:
+                step /= 2  # the coefficients' interpolation dominates: azimuth nodes twice as close
             else:
                 target = 0.95 * truncation * tolerance / error
         mean = psf_transform(means, tile_hw)
@@ -519,11 +640,13 @@ def field_transform(
         )
 
 
-def node_spacing(tile_hw: tuple[int, int]) -> int:
-    """Pixels between the nodes whose PSFs a tile's eigen-analysis takes: at most
-    ``NODE_SPACING`` and 1/16 of the tile's side (the coefficients may then be taken on a finer
-    grid)."""
-    return max(1, min(NODE_SPACING, min(tile_hw) // 16))
+def expansion_bytes(terms: int, support: int, tile_hw: tuple[int, int]) -> int:
+    """Bytes that ``terms`` eigen-PSFs of ``support``² pixels on tiles ``tile_hw`` hold in a
+    :class:`FieldTransform` being built: the kernels and coefficient maps (float32) and the
+    spectra (complex64) on the tiles' FFT grid."""
+    margin = canvas_margin(support)
+    l0, l1 = (fft_size(t + 2 * margin) for t in tile_hw)
+    return terms * 4 * (support**2 + math.prod(tile_hw) + 2 * l0 * (l1 // 2 + 1))
 
 
 def _check_error(psf_set: FieldPsfSet, at_pixels, where, built) -> float:
@@ -563,51 +686,52 @@ def _kernels_transform(kernels: torch.Tensor, tile_hw: tuple[int, int]) -> PsfTr
     return PsfTransform(spectrum, first.sensor_hw, first.margin, first.fft_shape)
 
 
-def _append_terms(basis, grids, shape, tile: int, tile_hw, terms) -> None:
+def _append_terms(basis, grids, interpolation, tile: int, tile_hw, terms) -> None:
     """Add one tile's eigen-PSFs (per channel, (M, S·S) or None) with their coefficient maps,
-    interpolated bicubically from their values at the ``shape`` grid of nodes (M, K), to
-    ``terms`` (lists of kernels, maps, tile and channel indices)."""
+    interpolated by ``interpolation`` (:func:`_tile_nodes`) from their values at the nodes
+    (M, K), to ``terms`` (lists of kernels, maps, tile and channel indices)."""
     kernels, maps, term_tile, term_channel = terms
     for c, (e, grid) in enumerate(zip(basis, grids)):
         if e is None or not len(e):
             continue
-        grid = grid.reshape(len(e), 1, *shape)
-        maps.append(F.interpolate(grid, size=tile_hw, mode="bicubic", align_corners=True)[:, 0])
+        at = torch.sparse.mm(interpolation.to(grid.dtype), grid.T.contiguous().cpu()).to(grid.device)
+        maps.append(at.T.reshape(len(e), *tile_hw))
         kernels.append(e)
         term_tile.append(torch.full((len(e),), tile))
         term_channel.append(torch.full((len(e),), c))
 
 
-def _built(psf_set: FieldPsfSet, tiles: list[_Tile], counts, tile_hw, sensor_hw, spacing: int, support: int):
-    """Eigen-PSFs (terms, S·S), their coefficient maps (terms, T0, T1) from nodes ``spacing``
-    apart, tile and channel of each, and the tiles' means (tiles, C, N, N), for the ``counts``
-    kept per tile and channel."""
+def _built(psf_set: FieldPsfSet, tiles: list[_Tile], counts, tile_hw, sensor_hw, step: float, support: int):
+    """Eigen-PSFs (terms, S·S), their coefficient maps (terms, T0, T1) from azimuth nodes
+    ``step`` apart (:func:`_tile_nodes`), tile and channel of each, and the tiles' means
+    (tiles, C, N, N), for the ``counts`` kept per tile and channel."""
     kernels, maps, term_tile, term_channel = [], [], [], []
     for i, (tile, kept) in enumerate(zip(tiles, counts)):
         if not any(kept):
             continue
-        ys, xs, shape = _tile_nodes(psf_set, tile.origin, tile_hw, sensor_hw, spacing)
+        ys, xs, interpolation = _tile_nodes(psf_set.heights_px, tile.origin, tile_hw, sensor_hw, step, support)
+        ys, xs = ys.to(psf_set.psfs), xs.to(psf_set.psfs)
         basis, grids = [], []
         for c, ((e, at), (values, vectors, parities), k) in enumerate(zip(tile.kept, tile.spectra, kept)):
             residual = None
             if k > len(e):  # more than the tile's analysis made: its residuals again
-                residual = _node_psfs(psf_set, tile.ys, tile.xs, support, tile.mean, c)
+                residual = _node_psfs(psf_set, tile.ys, tile.xs, support, tile.mean, c) * tile.root
                 e = _components(residual, support, values[:k], vectors[:, :k], parities[:k])
             e = e[:k] if k else None
             if e is None:
                 grid = None
-            elif spacing != tile.spacing:  # ⟨P_node − P̄, e⟩ on the finer grid, a batch of nodes at a time
-                step = _node_chunk((support, support))
+            elif step != tile.step:  # ⟨P_node − P̄, e⟩ on the finer nodes, a batch of them at a time
+                chunk = _node_chunk((support, support))
                 nodes = (
-                    _node_psfs(psf_set, ys[j : j + step], xs[j : j + step], support, tile.mean, c)
-                    for j in range(0, len(xs), step)
+                    _node_psfs(psf_set, ys[j : j + chunk], xs[j : j + chunk], support, tile.mean, c)
+                    for j in range(0, len(xs), chunk)
                 )
                 grid = torch.cat([e @ batch.T for batch in nodes], dim=1)
             else:
-                grid = at[:k] if residual is None else e @ residual.T
+                grid = at[:k] if residual is None else (e @ residual.T) / tile.root.T
             basis.append(e)
             grids.append(grid)
-        _append_terms(basis, grids, shape, i, tile_hw, (kernels, maps, term_tile, term_channel))
+        _append_terms(basis, grids, interpolation, i, tile_hw, (kernels, maps, term_tile, term_channel))
     p = psf_set.psfs
     means = torch.stack([t.mean for t in tiles])
     if not kernels:

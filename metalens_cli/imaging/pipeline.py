@@ -16,7 +16,7 @@ import torch
 
 from metalens_cli.constants import PAPER_Z_FAR_M, PAPER_Z_NEAR_M
 from metalens_cli.errors import InputError
-from metalens_cli.imaging.field_formation import field_transform, form_image_field
+from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE, field_transform, form_image_field
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
@@ -65,6 +65,7 @@ class ChannelPsfs:
     field_psfs: object = None  # imaging.field_psfs.FieldPsfs: captures vary over the field
     field_test: dict | None = None  # the isoplanatic test and the model chosen (capture_psfs)
     transforms: dict = field(default_factory=dict, repr=False)  # sensor (H, W) → (near, far), made once
+    field_tolerance: float = DEFAULT_TOLERANCE  # of the field transforms (imaging.field_formation)
     formation_seconds: list = field(default_factory=list, repr=False)  # each capture's (simulate_captures)
 
     @property
@@ -217,15 +218,18 @@ def capture_psfs(
     field_model: str = "on-axis",
     device="cpu",
     window: int | None = None,
+    field_tolerance: float = DEFAULT_TOLERANCE,
 ) -> ChannelPsfs:
     """:func:`channel_psfs`, and with ``field_model`` "auto" the field PSF set
     (``imaging.field_psfs``) when the isoplanatic test says the ``sensor_pixels``² sensor spans
-    more than the lens's patch (``field_test`` says which and why); "on-axis": one PSF per depth."""
+    more than the lens's patch (``field_test`` says which and why); "on-axis": one PSF per depth.
+    ``field_tolerance``: the relative L2 error of the field transforms the captures will use."""
     from metalens_cli.imaging.field_psfs import field_channel_psfs, field_dependence
 
     if field_model not in FIELD_MODELS:
         raise InputError("--field", f"{field_model!r}", " or ".join(FIELD_MODELS))
     psfs = channel_psfs(design, z_near_m, z_far_m, wavelengths_m, pixel_pitch_m, device=device, window=window)
+    psfs.field_tolerance = field_tolerance
     if field_model == "on-axis":
         psfs.field_test = {"requested": "on-axis", "model": "on-axis"}
         return psfs
@@ -427,16 +431,24 @@ def _record_formation(psfs: ChannelPsfs, seconds: float) -> None:
 def _capture_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:
     """The near and far transforms a capture reuses, made once per sensor size and kept in
     ``psfs.transforms``: of the on-axis PSFs, or of the field PSF sets (``imaging.field_formation``;
-    the expansion's measured error, size and cost go into ``psfs.field_test``)."""
+    the expansion's measured error, size and cost go into ``psfs.field_test``). A transform whose
+    eigen-PSFs would not fit the memory then free is refused before it is built."""
     if sensor in psfs.transforms:
         return psfs.transforms[sensor]
     if psfs.field_psfs is None:
         transforms = psf_transform(psfs.near, sensor), psf_transform(psfs.far, sensor)
     else:
+        from metalens_cli.io.resources import device_memory
+
         start = time.perf_counter()
-        transforms = tuple(field_transform(s, sensor) for s in (psfs.field_psfs.near, psfs.field_psfs.far))
+        transforms = []
+        for s in (psfs.field_psfs.near, psfs.field_psfs.far):
+            free = device_memory(s.psfs.device)[0]
+            limit = None if free is None else int(0.9 * free)
+            transforms.append(field_transform(s, sensor, tolerance=psfs.field_tolerance, max_bytes=limit))
+        transforms = tuple(transforms)
         psfs.field_test["expansion"] = {
-            which: {"error": t.error, "eigen_psfs": len(t.term_tile), "support_px": t.support}
+            which: {"error": t.error, "tolerance": t.tolerance, "eigen_psfs": len(t.term_tile), "support_px": t.support}
             for which, t in zip(("near", "far"), transforms)
         }
         psfs.field_test["expansion"]["seconds"] = time.perf_counter() - start

@@ -233,6 +233,8 @@ def test_grey_wall_is_grey_and_an_opaque_cover_hides_it(capsys, tmp_path, grey_w
         ["evaluate", "hyperbolic:532nm", *SMALL, "--images", "/nonexistent"],
         ["evaluate", "nonsense", *SMALL],
         ["simulate", "hyperbolic:532nm", *SMALL, "--z-near", "2m", "-o", "x"],
+        ["evaluate", "hyperbolic:532nm", *SMALL, "--field", "auto", "--field-tolerance", "0"],
+        ["simulate", "hyperbolic:532nm", *SMALL, "--field-tolerance", "1%", "-o", "x"],
     ],
 )
 def test_bad_input_one_line_exit_2(capsys, args):

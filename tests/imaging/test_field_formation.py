@@ -189,22 +189,58 @@ def test_fast_path_matches_the_direct_sum(strongly_varying):
     assert relative(field_convolve(one_channel, prepared, margin), brute_force(one_channel, psfs, margin)) < 1e-3
 
 
+@pytest.mark.parametrize("origin", [(0, 0), (16, 13), (0, 13)])
+def test_node_interpolation_is_linear_in_height_and_cubic_in_azimuth(origin):
+    """A tile's coefficient maps interpolate node values linearly along the radius between the
+    set's heights and Keys-cubically in azimuth: node values x = h·cos ψ (y = h·sin ψ) give every
+    pixel's own x (y) to the azimuth interpolation's O(Δψ³), on a tile away from the axis, one
+    surrounding it (every azimuth, periodic) and one whose corner touches it; the axis pixel is
+    the on-axis node's alone."""
+    from metalens_cli.imaging.field_formation import _tile_nodes
+
+    sensor, tile = (48, 45), (32, 32)
+    ys, xs, interpolation = _tile_nodes(HEIGHTS, origin, tile, sensor, 1.0, 21)
+    rows, cols = (torch.arange(o, o + t, dtype=torch.float64) - n // 2 for o, t, n in zip(origin, tile, sensor))
+    y, x = (g.flatten() for g in torch.meshgrid(rows, cols, indexing="ij"))
+    inside = torch.hypot(x, y) <= HEIGHTS[-1]  # beyond the last height the last one is kept
+    step = 1.0 / (21 // 2)  # radians between azimuth nodes at most
+    for node, pixel in ((xs, x), (ys, y)):
+        at = torch.sparse.mm(interpolation, node[:, None])[:, 0]
+        assert float((at - pixel)[inside].abs().max()) < 0.05 * step**3 * HEIGHTS[-1]
+    assert torch.allclose(torch.sparse.sum(interpolation, 1).to_dense(), torch.ones(len(x), dtype=torch.float64))
+
+
 def test_tiles_are_halved_where_their_nodes_would_pass_the_budget(monkeypatch):
     """Where a channel's node PSFs of a tile would pass ``NODE_VALUES`` (the learned lenses' near
-    PSFs at 512² would pass the default with tiles twice as large), the tiles are halved: the
-    nodes stay as close, and the capture still within 1 % of the direct sum."""
+    PSFs at 512² would with tiles twice as large), the tiles are halved: the capture stays within
+    1 % of the direct sum."""
     from metalens_cli.imaging import field_formation
 
-    monkeypatch.setattr(field_formation, "NODE_SPACING", 1)
-    monkeypatch.setattr(field_formation, "NODE_VALUES", 300 * N * N)  # 33² nodes of a 32-px tile do not fit
+    monkeypatch.setattr(field_formation, "NODE_VALUES", 200 * N * N)  # 253 nodes of a 32-px tile do not fit
     psfs = field_set()
     prepared = field_transform(psfs, (48, 45))
-    assert prepared.mean.sensor_hw == (16, 16)  # 17² nodes 1 px apart
+    assert prepared.mean.sensor_hw == (16, 16)  # at most 190 nodes
     assert prepared.error <= prepared.tolerance
     margin = N // 2
     scene = canvas((48 + 2 * margin, 45 + 2 * margin))
     fast, exact = field_convolve(scene, prepared, margin), brute_force(scene, psfs, margin)
     assert relative(fast - fast.mean(), exact - exact.mean()) < 0.01
+
+
+def test_an_expansion_over_the_memory_limit_is_refused_before_it_is_built():
+    """Eigen-PSFs, maps and spectra that would pass ``max_bytes`` are refused naming
+    --field-tolerance (the learned lenses' near set at 1 % held 20 GB and was killed for memory);
+    a limit they fit in changes nothing."""
+    from metalens_cli.imaging.field_formation import expansion_bytes
+
+    psfs = field_set()
+    fits = field_transform(psfs, (48, 45), max_bytes=2**30)
+    terms, support = len(fits.term_tile), fits.support
+    assert expansion_bytes(terms, support, fits.mean.sensor_hw) < 2**30
+    assert len(field_transform(psfs, (48, 45)).term_tile) == terms
+    assert terms * 4 * support**2 < expansion_bytes(terms, support, fits.mean.sensor_hw)  # the kernels and more
+    with pytest.raises(InputError, match="--field-tolerance"):
+        field_transform(psfs, (48, 45), max_bytes=expansion_bytes(terms // 2, support, fits.mean.sensor_hw))
 
 
 def test_reported_error_is_the_error_on_white_noise(strongly_varying):
