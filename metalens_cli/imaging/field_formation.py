@@ -73,7 +73,9 @@ on one; form_image: 20 ms), dead-leaves captures within 0.1 % of the direct sums
 hyperbolic lens (512², field PSFs from ``imaging.field_psfs`` at 45 mm and 5 m, N = 503 and
 705) S = 333 and 375, 1430 and 1752 eigen-PSFs, both at 0.81 %, prepared in 18 min on 2 cores
 (peak RSS 15.3 GB), most of it resampling node PSFs (bicubic, ~15 M samples/s), then about 4 s
-per capture and its scoring. The learned split-spectrum lens's near set (N = 907) is the hard
+per capture and its scoring. With azimuth nodes: 1554 and 1909 eigen-PSFs at 0.68 %, prepared
+in 5.1 min, 4.2 s a capture (``examples/field_results.py``, run alone); the captures' scores
+unchanged to the digits docs/field.md shows. The learned split-spectrum lens's near set (N = 907) is the hard
 case: with azimuth nodes, at 1 % its tiles halve to 128 px (S = 409), 10790 eigen-PSFs at 0.65 %
 that with their spectra passed 20 GB; at 3 % (``evaluate --field-tolerance 0.03``) 256-px tiles,
 S = 323, 2287 eigen-PSFs at 2.2 % (3.2 GB of spectra), prepared in 4.5 min, one blur of a 512²
