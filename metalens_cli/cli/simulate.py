@@ -110,7 +110,7 @@ def capture_options(f):
         click.option(
             "--field-tolerance",
             type=Number(0, 1, min_open=True, max_open=True),
-            default=0.01,
+            default=0.01,  # field_formation.DEFAULT_TOLERANCE (not imported: it pulls in torch)
             show_default=True,
             help="With --field auto: the space-variant formation's relative L2 error of the PSF field (that of a "
             "white-noise scene, a bound for photographs); larger is faster and needs less memory.",

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from metalens_cli.analysis.statistics import mean_ci, paired_difference_ci
+from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
 from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.pipeline import (
@@ -58,7 +59,7 @@ class EvaluationSettings:
     psf_window: int | None = None
     device: object = "cpu"
     field_model: str = "on-axis"  # "auto": PSFs over the field where the sensor outgrows the isoplanatic patch
-    field_tolerance: float = 0.01  # the space-variant formation's (imaging.field_formation)
+    field_tolerance: float = DEFAULT_TOLERANCE  # the space-variant formation's (imaging.field_formation)
 
     @classmethod
     def from_setup(cls, setup: CaptureSetup, **options) -> EvaluationSettings:
