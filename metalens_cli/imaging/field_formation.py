@@ -440,7 +440,7 @@ def _principal(residual: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tens
         keep = val > val[-1].clamp_min(0) * 1e-12
         values.append(val[keep].flip(0))
         vectors.append(vec[:, keep].flip(1))
-        parities.append(torch.full((int(keep.sum()),), sign))
+        parities.append(torch.full((int(keep.sum()),), sign, device=val.device))
     values = torch.cat(values)
     order = values.argsort(descending=True)
     return values[order], torch.cat(vectors, dim=1)[:, order], torch.cat(parities)[order]

@@ -191,7 +191,7 @@ def strata_channel_psfs(design, strata, depths_m, pixels: int, pixel_pitch_m: fl
     mono = compute_psf(
         design.lens, lams, list(depths_m), pixels, pixel_pitch_m, distance_m=design.focal_length_m, device=device
     ).psf
-    return torch.einsum("zwij,cw->zcij", mono.double(), torch.as_tensor(strata.weights))
+    return torch.einsum("zwij,cw->zcij", mono.double(), torch.as_tensor(strata.weights, device=mono.device))
 
 
 def field_channel_psfs(
@@ -252,7 +252,8 @@ def field_channel_psfs(
         for k, angle in enumerate(angles[1:], start=1):
             result = field_psf(design.lens, lams, [z_near_m, z_far_m], max(sizes), pixel_pitch_m, angle,
                                distance_m=d, device=device, oversample=SET_OVERSAMPLE)  # fmt: skip
-            rgb = torch.einsum("zwij,cw->zcij", result.psf.double(), torch.as_tensor(strata.weights)).float()
+            weights = torch.as_tensor(strata.weights, device=result.psf.device)
+            rgb = torch.einsum("zwij,cw->zcij", result.psf.double(), weights).float()
             near.append(crop_window(rgb[0], sizes[0]).cpu().numpy())
             far.append(crop_window(rgb[1], sizes[1]).cpu().numpy())
             if progress is not None:

@@ -70,7 +70,8 @@ def available_memory() -> int | None:
 
 def device_memory(device=None) -> tuple[int | None, str]:
     """(bytes free, which memory that is) for a job on ``device`` (a torch.device, a device name
-    or None): a CUDA device's own free memory (``torch.cuda.mem_get_info``), else the host's
+    or None): a CUDA device's own free memory (``torch.cuda.mem_get_info``, plus what torch's
+    caching allocator holds reserved but unused, which it hands out again), else the host's
     (:func:`available_memory`; mps shares it). torch is imported only for a CUDA device."""
     if device is not None and str(device).startswith("cuda"):
         import torch
@@ -79,7 +80,8 @@ def device_memory(device=None) -> tuple[int | None, str]:
         if device.index is None:  # plain "cuda": the current device
             device = torch.device("cuda", torch.cuda.current_device())
         free, _total = torch.cuda.mem_get_info(device)
-        return int(free), f"the free memory of GPU {device}"
+        cached = torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device)
+        return int(free + cached), f"the free memory of GPU {device}"
     return available_memory(), "the host RAM available on this machine"
 
 

@@ -45,7 +45,8 @@ def test_a_job_longer_than_max_time_is_refused_by_its_longest_estimate():
 
 
 def test_a_cuda_job_is_checked_against_the_gpu_s_free_memory(monkeypatch):
-    """No GPU here: torch.cuda.mem_get_info is replaced by a device with 1 GiB free (of 80)."""
+    """No GPU here: torch.cuda.mem_get_info is replaced by a device with 1 GiB free (of 80), and
+    torch's caching allocator by one that holds nothing unused."""
     import torch
 
     asked = []
@@ -56,6 +57,8 @@ def test_a_cuda_job_is_checked_against_the_gpu_s_free_memory(monkeypatch):
 
     monkeypatch.setattr(torch.cuda, "mem_get_info", mem_get_info)
     monkeypatch.setattr(torch.cuda, "current_device", lambda: 0)
+    monkeypatch.setattr(torch.cuda, "memory_reserved", lambda device=None: 3 * 2**30)
+    monkeypatch.setattr(torch.cuda, "memory_allocated", lambda device=None: 3 * 2**30)
     job = Estimate("psf-scan", 2 * 2**30, "--pixels", 1.0)
     assert device_memory(torch.device("cuda", 1)) == (2**30, "the free memory of GPU cuda:1")
     with pytest.raises(InputError, match=r"--pixels.*about 2 GiB of memory.*over the free memory of GPU cuda:0"):
@@ -65,6 +68,17 @@ def test_a_cuda_job_is_checked_against_the_gpu_s_free_memory(monkeypatch):
     monkeypatch.setattr(resources, "available_memory", lambda: 64 * 2**30)
     check(job, device="cpu")  # the host's 64 GiB of RAM, not the GPU's 1 GiB
     assert len(asked) == 3
+
+
+def test_memory_torch_holds_cached_but_unused_counts_as_free_on_a_gpu(monkeypatch):
+    """Found on an H200: after a field PSF set's FFTs the caching allocator held ~120 GiB it no
+    longer used, which mem_get_info counts as taken; a job may use it (torch hands it out again)."""
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "mem_get_info", lambda device=None: (19 * 2**30, 140 * 2**30))
+    monkeypatch.setattr(torch.cuda, "memory_reserved", lambda device=None: 121 * 2**30)
+    monkeypatch.setattr(torch.cuda, "memory_allocated", lambda device=None: 1 * 2**30)
+    assert device_memory(torch.device("cuda", 0))[0] == 139 * 2**30
 
 
 def test_a_host_job_is_checked_against_the_host_ram_and_says_so(monkeypatch):
