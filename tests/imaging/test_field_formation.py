@@ -401,3 +401,39 @@ def test_bad_inputs_are_refused():
         field_convolve(torch.zeros(3, 24, 24), prepared, 4)
     with pytest.raises(InputError, match="formation"):
         form_image_field(*(torch.zeros(3, 36, 36),) * 3, prepared, prepared, 10, formation="literal")
+
+
+def test_pixel_energies_are_what_leaving_a_component_out_costs_the_pixels():
+    """Σ of the left-out components' pixel energies (``_pixel_energies``) equals the squared
+    error summed over a tile's pixels, computed the slow way: every pixel's interpolated residual
+    W·R projected off the kept components. The eigenvalues alone (node-weighted) overstate it.
+    WᵀW (``_overlap``) against the dense product."""
+    from metalens_cli.imaging.field_formation import (
+        _components,
+        _node_psfs,
+        _node_weights,
+        _overlap,
+        _pixel_energies,
+        _principal,
+        _tile_nodes,
+    )
+
+    psfs, support = field_set(), N
+    ys, xs, interpolation = _tile_nodes(HEIGHTS, (0, 0), (32, 32), (48, 45), 1.0, support)
+    root = _node_weights(interpolation).clamp_min(1e-12).sqrt()[:, None]
+    mean = field_psf(psfs, xs, ys).mean(0)
+    residual = _node_psfs(psfs, ys, xs, support, mean, 1) * root
+    values, vectors, parities = _principal(residual, support)
+    energies = _pixel_energies(values, vectors, root, _overlap(interpolation))
+    dense = interpolation.to_dense()
+    assert torch.allclose(_overlap(interpolation).to_dense(), dense.T @ dense, rtol=1e-12, atol=1e-15)
+    components = _components(residual, support, values, vectors, parities)
+    pixels = torch.sparse.mm(interpolation, residual / root)  # (P, S·S): each pixel's residual
+    order, total = energies.argsort(descending=True), float((pixels**2).sum())
+    assert float(energies.sum()) == pytest.approx(total, rel=1e-9)
+    for kept in (5, 20, 60):
+        e = components[order[:kept]]
+        slow = float(((pixels - (pixels @ e.T) @ e) ** 2).sum())
+        # to 1e-5 of the whole: the components of eigenvalues near rounding are not quite orthonormal
+        assert abs(slow - float(energies[order[kept:]].sum())) < 1e-5 * total
+        assert float(values[order[kept:]].sum()) > 1.1 * slow
