@@ -81,7 +81,9 @@ case: with azimuth nodes, at 1 % its tiles halve to 128 px (S = 409), 10790 eige
 that with their spectra passed 20 GB; at 3 % (``evaluate --field-tolerance 0.03``) 256-px tiles,
 S = 323, 2287 eigen-PSFs at 2.2 % (3.2 GB of spectra), prepared in 4.5 min, one blur of a 512²
 RGB image 2.2 s (2 cores, shared with other work). The x-y grid at 1 % measured 2.5 % after 7
-min, and its refinement to nodes 4 px apart had not finished 20 min later.
+min, and its refinement to nodes 4 px apart had not finished 20 min later. Chosen by their pixel
+energies rather than eigenvalues (:func:`_pixel_energies`): hyperbolic 1369 + 1683 eigen-PSFs at
+0.87 %, 3.1 s a capture; split-spectrum at 3 % 1766 + 645, 2.9 s (``examples/field_results.py``).
 
 Every function here is pure torch (batched, differentiable in the images, any device); the field
 transforms are fixed once made (no gradient to the PSFs).
