@@ -169,3 +169,26 @@ def test_field_angle_from_height_and_refusals():
         field_psf(lens, [532e-9], [math.inf], 9, 1e-6, -0.1)
     with pytest.raises(InputError, match="propagator"):
         field_psf(lens, [532e-9], [math.inf], 9, 1e-6, 0.1, propagator="radial")
+
+
+@pytest.mark.parametrize("radial", [True, False])
+@pytest.mark.parametrize("depth", [math.inf, 0.002])
+def test_off_axis_psf_is_differentiable_in_theta(radial, depth):
+    """What training over the field needs: the gradient of a weighted sum of an off-axis PSF
+    (5°) with respect to θ, by autograd through the shifted angular spectrum, against central
+    finite differences along a random direction (float64; measured 1e-11 to 8e-8 apart)."""
+    base = small(radial)
+    weights = torch.linspace(0, 1, 2 * 17 * 17, dtype=torch.float64).reshape(1, 2, 17, 17)
+
+    def loss(theta):
+        lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
+        psf = field_psf(lens, [532e-9, 600e-9], [depth], 17, 1e-6, math.radians(5), **F64).psf
+        return (psf * weights).sum()
+
+    theta = base.theta.detach().double().clone().requires_grad_(True)
+    (gradient,) = torch.autograd.grad(loss(theta), theta)
+    direction = torch.randn(theta.shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    step = 1e-5
+    with torch.no_grad():
+        finite = (loss(theta + step * direction) - loss(theta - step * direction)) / (2 * step)
+    assert float((gradient * direction).sum()) == pytest.approx(float(finite), rel=1e-6)
