@@ -47,7 +47,7 @@ EVALUATED = {
     "presets/hyperbolic-532.toml": "hyperbolic",
 }  # evaluate's design argument → the slug of its files in runs/
 # evaluate --field-tolerance per design: the learned lenses' near sets at 0.01 need ~10⁴ eigen-PSFs
-# (~20 GB with their spectra), past a 23-GB machine; 0.03 needs ~2300 (3.2 GB)
+# (~18-20 GB with their spectra), past a 23-GB machine; 0.03 needs ~1800 (3.4 GiB with maps and spectra)
 FIELD_TOLERANCE = {"split-spectrum": "0.03", "broadband": "0.03", "hyperbolic": "0.01"}
 EVALUATE = ["--images", "photos", "--obstruction", "dirt,fence", "--pixels", "512", "--seed", "0:2",
             "--z-near", "45mm", "--z-far", "5m"]  # fmt: skip
