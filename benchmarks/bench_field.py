@@ -3,7 +3,7 @@
 
 One off-axis PSF (``optics.field.field_psf``, 255-pixel window, 530 nm, ∞) at the sensor's edge
    and corner: with ``field_psf``'s default angle margin (doubled, for small lenses) and with the
-   single one the field PSF sets use (``imaging.field_psfs.SET_OVERSAMPLE``), their relative L2
+   single one the field PSF sets use (``optics.field.ON_AXIS_MARGIN``), their relative L2
    apart; the on-axis radial PSF for scale.
 The off-axis estimate (``optics.field.estimate_field_psf``) beside each measurement.
 
@@ -41,7 +41,8 @@ def _timed(on: str, run, *args, **kwargs):
 
 
 def one_psf(design, device: str) -> list[str]:
-    from metalens_cli.imaging.field_psfs import SET_OVERSAMPLE, corner_pixels
+    from metalens_cli.imaging.field_psfs import corner_pixels
+    from metalens_cli.optics.field import ON_AXIS_MARGIN
     from metalens_cli.optics.field import estimate_field_psf, field_psf
     from metalens_cli.optics.psf import compute_psf
 
@@ -51,11 +52,11 @@ def one_psf(design, device: str) -> list[str]:
     for label, height in (("sensor edge", PIXELS // 2), ("sensor corner", corner_pixels(PIXELS))):
         angle = math.atan2(height * PITCH, 4e-3)
         results = {}
-        for oversample in (1.0, SET_OVERSAMPLE):
+        for oversample in (1.0, ON_AXIS_MARGIN):
             results[oversample] = _timed(
                 device, field_psf, lens, [530e-9], [math.inf], 255, PITCH, angle, device=device, oversample=oversample
             )
-        ref, fast = results[1.0][0].psf, results[SET_OVERSAMPLE][0].psf
+        ref, fast = results[1.0][0].psf, results[ON_AXIS_MARGIN][0].psf
         error = float((fast - ref).norm() / ref.norm())
         for oversample, (r, seconds) in results.items():
             margin = "doubled (default)" if oversample == 1.0 else "single (field sets)"

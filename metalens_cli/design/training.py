@@ -3,12 +3,16 @@
 Each step s draws everything it needs from (seed, s) alone, so that a resumed run repeats an
 uninterrupted one exactly and every data-parallel rank agrees on the shared draws:
 
-1. z_near, z_far uniform in the preset's scene intervals;
+1. z_near, z_far uniform in the preset's scene intervals; with ``[optimize] field_angles``, a
+   field angle among them, equally likely (a 2-D lens also an azimuth, uniform);
 2. per channel, ``wavelengths_per_channel`` wavelengths by stratified importance sampling of S^c
    (with ``spectral_sampling = "bands"``: per filter band, and weights differentiable in a
    filter learned with θ, ``design.filter_learning``);
 3. monochromatic PSFs at both depths in one differentiable ``compute_psf`` call, mixed into
-   R, G, B (one sampling plan for the whole run, so kernels are built once);
+   R, G, B (one sampling plan for the whole run, so kernels are built once); off axis by
+   ``optics.field.field_psf`` in a window centred on the chief ray (``optics.channel_psf.
+   field_channel_stack``), the step's scenes then being what the sensor sees around that field
+   point, blurred by its PSF (isoplanatic over the sensor crop);
 4. a batch of clean scenes with generated obstructions at z_near, rendered by the image
    formation of ``imaging.formation``;
 5. loss (``design.losses``), backward, gradient sum over ranks, AdamW and the LR schedule.
@@ -56,7 +60,14 @@ from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
 from metalens_cli.io.presets import WAVELENGTH_MODES, to_toml
 from metalens_cli.optics.blur import psf_window
-from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, ChannelPsfStack, channel_psf_stack
+from metalens_cli.optics.channel_psf import (
+    ENCIRCLED_ENERGY,
+    ChannelPsfStack,
+    channel_psf_stack,
+    field_channel_stack,
+)
+from metalens_cli.optics.field import ON_AXIS_MARGIN, estimate_field_psf, field_window
+from metalens_cli.optics.psf import PsfCost
 from metalens_cli.optics.sampling import check_lens_sampling
 from metalens_cli.optics.sensor import larger_window
 from metalens_cli.optics.spectra import sample_wavelengths
@@ -69,6 +80,10 @@ FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 
 THETA_GRID_COPIES = 12  # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
 LARGE_GRID_BYTES = 1 << 30  # a 2-D θ grid above this is estimated (and refused) before it is built
 MAX_PLAN_WINDOW = 4097  # planned windows stop growing here (pixels): the step then reports what it kept
+FIELD_COLUMNS = ("field_angle_deg", "field_azimuth_deg")  # loss.csv columns of a run with field angles
+# an off-axis step's PSF seconds over their forward pass: its backward is one adjoint propagation per PSF
+# (7.7 s forward, 7.4 s backward measured on examples/scaled-split-spectrum.toml at 6.75°, 2 cores)
+FIELD_BACKWARD = 2.0
 
 
 @dataclass
@@ -93,23 +108,47 @@ class StepDraw:
     wavelengths_m: np.ndarray
     weights: np.ndarray | torch.Tensor
     throughput: torch.Tensor | None = None  # (3,) the filter's share of each channel's light (band draws)
+    field_angle_rad: float = 0.0  # the field point whose PSFs the step uses (optics.field)
+    azimuth_rad: float = 0.0
 
 
 def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
-    """Depths and wavelengths of a step; ``sensitivity``: the preset's S^c, or a ``BandSampler``
-    (``spectral_sampling = "bands"``: its weights a tensor, differentiable in its filter)."""
+    """Depths, wavelengths and field point of a step; ``sensitivity``: the preset's S^c, or a
+    ``BandSampler`` (``spectral_sampling = "bands"``: its weights a tensor, differentiable in its
+    filter)."""
     rng = np.random.default_rng([seed, step, 3])
     z_near = float(rng.uniform(*preset.scene.z_near_m))
     lo, hi = preset.scene.z_far_m
     z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
+    angle, azimuth = draw_field(preset, seed, step)
     if isinstance(sensitivity, BandSampler):
-        return StepDraw(z_near, z_far, *sensitivity.draw(rng))
+        return StepDraw(z_near, z_far, *sensitivity.draw(rng), field_angle_rad=angle, azimuth_rad=azimuth)
     sample = sample_wavelengths(
         sensitivity,
         preset.optimize.wavelengths_per_channel,
         rng if preset.optimize.spectral_sampling == "stratified" else None,
     )
-    return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights)
+    return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights, field_angle_rad=angle, azimuth_rad=azimuth)
+
+
+def field_training(preset) -> bool:
+    """Whether the run draws field points off axis (``[optimize] field_angles`` beyond 0)."""
+    return any(a > 0 for a in preset.optimize.field_angles_rad)
+
+
+def draw_field(preset, seed: int, step: int) -> tuple[float, float]:
+    """The field point (angle, azimuth; rad) of a step, from its own (seed, step) stream, so that
+    the other draws are those of an on-axis run: one of ``optimize.field_angles``, equally likely
+    (list an angle twice to weigh it double), and for a 2-D lens an azimuth uniform in [0, 2π)
+    (a radial lens's PSFs at other azimuths are rotations of azimuth 0's, and its scenes have no
+    preferred direction); (0, 0) for a run on axis."""
+    if not field_training(preset):
+        return 0.0, 0.0
+    rng = np.random.default_rng([seed, step, 7])
+    angles = preset.optimize.field_angles_rad
+    angle = float(angles[rng.integers(len(angles))])
+    azimuth = float(rng.uniform(0, 2 * math.pi)) if preset.lens.parameterization == "2d" and angle > 0 else 0.0
+    return angle, azimuth
 
 
 def spectral_source(preset, band_filter=None):
@@ -211,8 +250,11 @@ def estimate_training(preset) -> tuple[int, float | None]:
     at the plan's wavelength range, kept for the backward pass: ×2) and its batch of captures on
     the canvas (about 20 float32 planes of 3 channels per image, forward and backward); time from
     the PSF plan (×3 with its backward pass) and the canvas FFTs, times the steps plus
-    ``FINISH_STEPS`` for what follows them. A 2-D θ grid over 1 GiB is estimated alone, without
-    building anything (time None)."""
+    ``FINISH_STEPS`` for what follows them. With field angles, the off-axis steps' PSFs at the
+    largest angle (``optics.field.estimate_field_psf``, × ``FIELD_BACKWARD`` in time; in memory ×2
+    and the fields each (wavelength, depth) keeps for the backward pass), in the share of steps
+    drawn off axis.
+    A 2-D θ grid over 1 GiB is estimated alone, without building anything (time None)."""
     from metalens_cli.optics.psf import FFT_RATE, estimate_psf
 
     o = preset.optimize
@@ -234,10 +276,41 @@ def estimate_training(preset) -> tuple[int, float | None]:
     )
     canvas = preset.sensor.pixels + 2 * windows.margin
     captures = o.batch_size * 20 * 3 * canvas**2 * 4
-    per_step = (
-        3 * (psf.seconds - psf.setup_seconds) + o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
-    )
-    return 2 * psf.memory_bytes + captures, psf.setup_seconds + (o.steps + FINISH_STEPS) * per_step
+    psf_seconds, psf_bytes = 3 * (psf.seconds - psf.setup_seconds), 2 * psf.memory_bytes  # with the backward pass
+    if field_training(preset):
+        off = sum(a > 0 for a in o.field_angles_rad) / len(o.field_angles_rad)
+        field = estimate_field_psf_step(preset, windows, waves)
+        psf_seconds = (1 - off) * psf_seconds + off * FIELD_BACKWARD * field.seconds
+        psf_bytes = max(psf_bytes, field.memory_bytes)
+    per_step = psf_seconds + o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
+    return psf_bytes + captures, psf.setup_seconds + (o.steps + FINISH_STEPS) * per_step
+
+
+def estimate_field_psf_step(preset, windows: Windows, wavelengths_m) -> PsfCost:
+    """An off-axis step's PSFs at the largest field angle: seconds of the forward pass, and bytes
+    with what the backward pass keeps (the pupil field and its phase for each (wavelength, depth),
+    complex64 and float64 over the meta-atom grid)."""
+    angle, lens = max(preset.optimize.field_angles_rad), build_model(preset).lens()
+    zs = [preset.scene.z_near_m[0], preset.scene.z_far_m[0]]
+    window = max(_field_capacities(lens, preset, wavelengths_m, zs, angle, windows))
+    cost = estimate_field_psf(
+        lens, wavelengths_m, zs, window, preset.sensor.pixel_pitch_m, angle,
+        distance_m=preset.lens.focal_length_m, oversample=ON_AXIS_MARGIN,
+    )  # fmt: skip
+    kept = len(wavelengths_m) * len(zs) * lens.grid_size**2 * (8 + 8)
+    return PsfCost(2 * cost.memory_bytes + kept, cost.seconds, cost.setup_seconds)
+
+
+def _field_capacities(lens, preset, wavelengths_m, depths_m, angle: float, windows: Windows) -> list[int]:
+    """Windows (pixels) for the PSFs of the field point at ``angle`` at each of the two depths:
+    the run's near and far capacities, grown to hold the geometric rays of the shortest and
+    longest wavelength (``optics.field.field_window``), at most ``MAX_PLAN_WINDOW``."""
+    ends = [min(wavelengths_m), max(wavelengths_m)]
+    d, pitch = preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
+    return [
+        min(MAX_PLAN_WINDOW, field_window(lens, ends, z, angle, d, pitch, cap))
+        for z, cap in zip(depths_m, (windows.near, windows.far))
+    ]
 
 
 def core_window(preset) -> int | None:
@@ -256,7 +329,19 @@ def step_psfs(
     """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
     (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ, the
     step recomputed in larger capacities while its light outgrows them; and the next step's
-    windows (``Windows.following``)."""
+    windows (``Windows.following``). Off axis: the capacities grown to hold the field point's
+    geometric rays, and the windows left as they are (they follow the on-axis light)."""
+    if draw.field_angle_rad > 0:
+        lams = [float(x) for x in np.ravel(draw.wavelengths_m)]
+        zs = [draw.z_near_m, draw.z_far_m]
+        stack = field_channel_stack(
+            lens, lams, zs, draw.weights,
+            _field_capacities(lens, preset, lams, zs, draw.field_angle_rad, windows),
+            preset.sensor.pixel_pitch_m, draw.field_angle_rad, azimuth_rad=draw.azimuth_rad,
+            distance_m=preset.lens.focal_length_m, device=device, core_window=core_window(preset),
+        )  # fmt: skip
+        _add_psf_timing(timing, stack)
+        return stack, windows
     plan_l, plan_z = plan_range(preset)
     while True:
         stack = channel_psf_stack(
@@ -274,13 +359,17 @@ def step_psfs(
             plan_frequency=frequency,
             core_window=core_window(preset),
         )
-        if timing is not None:
-            for stage, seconds in stack.timing_s.items():
-                timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
+        _add_psf_timing(timing, stack)
         if not stack.outgrown.any() or max(windows.near, windows.far) >= MAX_PLAN_WINDOW:
             break
         windows = windows.grown(stack.outgrown)
     return stack, windows.following(stack)
+
+
+def _add_psf_timing(timing: dict | None, stack: ChannelPsfStack) -> None:
+    if timing is not None:
+        for stage, seconds in stack.timing_s.items():
+            timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
 
 
 def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
@@ -473,6 +562,8 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     o = preset.optimize
     if preset.filter is not None and preset.filter.learn:
         run.columns = run.columns + filter_columns(len(preset.filter.centers_m))
+    if field_training(preset):
+        run.columns = run.columns + FIELD_COLUMNS
     checkpoint = checkpoint_to_resume(run, resume, o.steps)
     session = _session(preset, ctx)
     if ctx.is_main and not resume:
@@ -627,6 +718,11 @@ def _one_step(session: _Session, preset, step, ctx, timing):
         **kept,
         **held,
         **(filter_row(session.band_filter) if session.band_filter is not None else {}),
+        **(
+            {"field_angle_deg": math.degrees(draw.field_angle_rad), "field_azimuth_deg": math.degrees(draw.azimuth_rad)}
+            if field_training(preset)
+            else {}
+        ),
     }
     return row, stack.grid, sample
 

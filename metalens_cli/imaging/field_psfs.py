@@ -12,12 +12,12 @@ chief-ray pixel: α_k = atan(h_k·p/f) puts the chief ray of a lens whose phase 
   both are cheap (``spectral_error``: relative L2 of the on-axis channel PSFs from the strata
   against the full quadrature), and reported. The on-axis entry keeps the full quadrature, so the
   capture at the centre is the on-axis model's exactly.
-- Sampling: ``field_psf`` with the on-axis angle margin (``SET_OVERSAMPLE``; its default doubles
-  it for small lenses, whose edge-diffracted light it would otherwise cut). What that costs is
-  measured on every set: the corner's far PSF at the middle wavelength against the doubled margin
-  (``sampling_error``, relative L2).
+- Sampling: ``field_psf`` with the on-axis angle margin (``optics.field.ON_AXIS_MARGIN``; its
+  default doubles it for small lenses, whose edge-diffracted light it would otherwise cut). What
+  that costs is measured on every set: the corner's far PSF at the middle wavelength against the
+  doubled margin (``sampling_error``, relative L2).
 - Windows: the on-axis rule's, grown to hold the geometric rays at the corner (``optics.field.
-  ray_landings``) with a 10 % and 4-pixel margin; what each window keeps is reported.
+  field_window``); what each window keeps is reported.
 - Cached on disk (``io.cache``, kind ``field-psfs``) by a hash of the lens, depths, wavelengths,
   sensor and heights: the same set is computed once.
 
@@ -39,14 +39,13 @@ import torch
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.field_formation import FieldPsfSet
 from metalens_cli.io.cache import cached, check_array, input_key
+from metalens_cli.optics.field import ON_AXIS_MARGIN, field_window
 from metalens_cli.optics.window import crop_window
 
 HEIGHT_STEP_PX = 90  # default spacing of the image points from the axis to the corner (at most 5 of them)
 # strata per channel: on the paper's lenses' on-axis PSFs 0.13-0.76 relative L2 from every 2.5 nm, but in captures of
 # the photographs −0.14 dB PSNR (hyperbolic) and +0.00-0.01 dB (learned) against every 5 nm (docs/field.md)
 DEFAULT_WAVELENGTHS_PER_CHANNEL = 8
-# field_psf's angle margin as on axis, not doubled: 3e-6 relative L2 on the paper's lens, 1.9-2.1× faster (bench_field)
-SET_OVERSAMPLE = 0.5
 CACHE_KIND = "field-psfs"
 CACHE_VERSION = 2  # bump when the computation changes
 
@@ -137,7 +136,7 @@ def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths
     lams = list(np.linspace(400e-9, 700e-9, 3 * DEFAULT_WAVELENGTHS_PER_CHANNEL))
     corner = math.atan2(heights[-1] * pixel_pitch_m, d)
     window = max(
-        _field_window(lens, lams[::4], z, corner, d, pixel_pitch_m, psf_window(lens, lams, [z], d, pixel_pitch_m))
+        field_window(lens, lams[::4], z, corner, d, pixel_pitch_m, psf_window(lens, lams, [z], d, pixel_pitch_m))
         for z in depths_m
     )
     common = dict(distance_m=d, force=True)
@@ -149,25 +148,13 @@ def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths
             window,
             pixel_pitch_m,
             math.atan2(h * pixel_pitch_m, d),
-            oversample=SET_OVERSAMPLE,
+            oversample=ON_AXIS_MARGIN,
             **common,
         )
         for h in heights
     ]
     costs.append(estimate_field_psf(lens, [530e-9], [depths_m[-1]], window, pixel_pitch_m, corner, **common))
     return max(c.memory_bytes for c in costs), sum(c.seconds for c in costs)
-
-
-def _field_window(lens, wavelengths_m, depth_m, angle_rad, distance_m, pitch, on_axis: int) -> int:
-    """Odd window holding the geometric rays at ``angle_rad`` over the wavelengths, 10 % and 4
-    pixels of margin, and no smaller than the on-axis rule's."""
-    from metalens_cli.optics.field import ray_landings
-
-    reach = max(
-        float(np.hypot(*(landing - chief).T).max())
-        for landing, chief in (ray_landings(lens, lam, angle_rad, depth_m, distance_m) for lam in wavelengths_m)
-    )
-    return max(on_axis, 2 * math.ceil(1.1 * reach / pitch) + 9)
 
 
 def field_strata(design, wavelengths_per_channel: int | None = None):
@@ -230,7 +217,7 @@ def field_channel_psfs(
     reduced = strata_channel_psfs(design, strata, [z_near_m, z_far_m], n, pixel_pitch_m, device=device)
     error = {which: _relative_l2(reduced[i], _pad(getattr(axis, which), n)) for i, which in enumerate(("near", "far"))}
     sizes = [
-        _field_window(design.lens, lams, z, angles[-1], d, pixel_pitch_m, n)
+        field_window(design.lens, lams, z, angles[-1], d, pixel_pitch_m, n)
         for z, n in ((z_near_m, axis.near.shape[-1]), (z_far_m, axis.far.shape[-1]))
     ]
     key = input_key(
@@ -251,7 +238,7 @@ def field_channel_psfs(
         near, far = [], []
         for k, angle in enumerate(angles[1:], start=1):
             result = field_psf(design.lens, lams, [z_near_m, z_far_m], max(sizes), pixel_pitch_m, angle,
-                               distance_m=d, device=device, oversample=SET_OVERSAMPLE)  # fmt: skip
+                               distance_m=d, device=device, oversample=ON_AXIS_MARGIN)  # fmt: skip
             weights = torch.as_tensor(strata.weights, device=result.psf.device)
             rgb = torch.einsum("zwij,cw->zcij", result.psf.double(), weights).float()
             near.append(crop_window(rgb[0], sizes[0]).cpu().numpy())

@@ -155,6 +155,8 @@ class OptimizeConfig:
     images: str | None = toml_key("images", "folder", default=None)  # training images; none: procedural scenes
     checkpoint_every: int = toml_key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
     sample_every: int = toml_key("sample_every", "int", lo=1, hi=10_000_000, default=100)
+    # field angles (rad) a step draws its PSFs at, equally likely (design.training); (0,): on axis, the paper's
+    field_angles_rad: tuple[float, ...] = toml_key("field_angles", "angle_list", default=(0.0,), hi=math.radians(60))
 
 
 @dataclass(frozen=True)
@@ -261,6 +263,17 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
                 raise InputError(path, "upper end below lower end", units.INTERVAL_FORM)
             return lo, hi
         return units.parse_interval(as_str(value, path, units.INTERVAL_FORM), path, allow_inf=True)
+    if kind == "angle_list":
+        if isinstance(value, list):
+            if not value:
+                raise InputError(path, "expected at least one angle", units.ANGLE_LIST_FORM)
+            angles = [units.parse_angle(as_str(v, path, units.ANGLE_LIST_FORM), path) for v in value]
+        else:
+            angles = units.parse_angle_list(as_str(value, path, units.ANGLE_LIST_FORM), path)
+        top = math.degrees(meta["hi"])
+        if max(angles) > meta["hi"] * (1 + 1e-12):
+            raise InputError(path, f"{math.degrees(max(angles)):g}° is past {top:g}°", f"angles from 0 to {top:g}°")
+        return tuple(angles)
     if kind == "fraction_pair":
         if not isinstance(value, list) or len(value) != 2:
             raise InputError(path, "expected two numbers [lo, hi] in [0, 1]", "[0.15, 0.35]")
@@ -615,6 +628,8 @@ def toml_field(value: Any, kind: str) -> str:
         return length(value)
     if kind in ("length_list", "interval"):
         return "[" + ", ".join(length(v) for v in value) + "]"
+    if kind == "angle_list":
+        return "[" + ", ".join(f'"{v!r}rad"' for v in value) + "]"
     return toml_value(value)
 
 

@@ -15,7 +15,8 @@ is computed in N = max_c N_c. Fractions are of the power through the aperture (`
   keep the plan), the field is evaluated out to the ``capacity`` window only (cached output
   rows, extended when a capacity grows), and only the chosen window goes through the pixel
   operator (cut from a cached larger one, ``optics.sensor.radial_sensor``).
-- Other propagators (2-D lenses): PSFs in the capacity window, the energy in concentric squares
+- Other propagators (2-D lenses) and field points off axis (:func:`field_channel_stack`, the
+  window centred on the chief ray): PSFs in the capacity window, the energy in concentric squares
   against the capacity's total (light outside the capacity is not seen).
 
 A channel whose light is not held by the capacity is ``outgrown``: its window is the capacity,
@@ -39,6 +40,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.blur import window_pixels
+from metalens_cli.optics.field import ON_AXIS_MARGIN, field_psf
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.psf import compute_psf, pupil_field, validate_psf_arguments
 from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
@@ -262,7 +264,50 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
         plan_depths_m=plan_z,
         plan_frequency=plan_f,
     )
-    rgb = torch.einsum("zwij,cw->zcij", result.psf, mix.to(result.psf.device, result.psf.dtype))
+    return _square_stack(result.psf, mix, caps, energy, core_window, result.grid, dict(result.timing_s))
+
+
+def field_channel_stack(
+    lens: Metalens,
+    wavelengths_m,
+    depths_m,
+    weights,
+    capacity,
+    pixel_pitch_m: float,
+    angle_rad: float,
+    *,
+    azimuth_rad: float = 0.0,
+    distance_m: float | None = None,
+    energy: float = ENCIRCLED_ENERGY,
+    dtype: torch.dtype = torch.float32,
+    device: str | torch.device = "cpu",
+    core_window: int | None = None,
+) -> ChannelPsfStack:
+    """:func:`channel_psf_stack` of the field point (α = ``angle_rad``, ψ = ``azimuth_rad``): the
+    monochromatic PSFs of ``optics.field.field_psf`` (on-axis angle margin) in the largest
+    capacity, centred on the chief ray, mixed, and each depth cropped to the concentric square
+    that holds ``energy`` of what the capacity holds (light outside it is not seen: size the
+    capacity with ``optics.field.field_window``). Differentiable in θ and the weights."""
+    start = time.perf_counter()
+    zs = [float(x) for x in np.ravel(depths_m)]
+    caps = [int(c) for c in np.broadcast_to(np.asarray(capacity), (len(zs),))]
+    mix = weights.double() if torch.is_tensor(weights) else torch.as_tensor(np.asarray(weights), dtype=torch.float64)
+    result = field_psf(
+        lens, wavelengths_m, zs, max(caps), pixel_pitch_m, angle_rad, azimuth_rad=azimuth_rad, distance_m=distance_m,
+        dtype=dtype, device=device, oversample=ON_AXIS_MARGIN,
+    )  # fmt: skip
+    if mix.shape != (3, result.psf.shape[1]):
+        raise InputError("weights", f"shape {tuple(mix.shape)} for {result.psf.shape[1]} wavelengths", "(3, W)")
+    stack = _square_stack(result.psf, mix, caps, energy, core_window, result.grid, dict(result.timing_s))
+    stack.timing_s["total"] = time.perf_counter() - start
+    return stack
+
+
+def _square_stack(mono, mix, caps, energy, core_window, grid, timing) -> ChannelPsfStack:
+    """Monochromatic PSFs (depths, W, N, N) with N ≥ every capacity mixed into R, G, B by ``mix``
+    (3, W), each depth cut to its capacity and then to the concentric square holding ``energy``
+    of what the capacity holds per channel (never outgrown: light beyond it is not seen)."""
+    rgb = torch.einsum("zwij,cw->zcij", mono, mix.to(mono.device, mono.dtype))
     psfs, windows, kept, on_sensor, outgrown = [], [], [], [], []
     for i, cap in enumerate(caps):
         psf = crop_window(rgb[i], cap)
@@ -278,7 +323,7 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
     cores = (
         None
         if core_window is None
-        else tuple(crop_window(result.psf[i], core_window).sum(dim=(-2, -1)) for i in range(len(caps)))
+        else tuple(crop_window(mono[i], core_window).sum(dim=(-2, -1)) for i in range(len(caps)))
     )
     return ChannelPsfStack(
         tuple(psfs),
@@ -287,8 +332,8 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
         np.array(on_sensor),
         np.array(outgrown, bool),
         tuple(caps),
-        result.grid,
-        dict(result.timing_s),
+        grid,
+        timing,
         cores,
     )
 

@@ -45,6 +45,9 @@ from metalens_cli.optics.source import (
 
 FIELD_PROPAGATORS = ("asm", "rs")
 MAX_FIELD_ANGLE = math.radians(60.0)
+# field_psf's angle margin as on axis (its default doubles it for small lenses, whose edge-diffracted light the
+# single one would cut): 3e-6 relative L2 on the paper's lens, 1.9-2.1× faster (benchmarks/bench_field.py)
+ON_AXIS_MARGIN = 0.5
 
 
 @dataclass
@@ -386,6 +389,18 @@ def _phase_gradient(lens: Metalens, x: np.ndarray, y: np.ndarray) -> tuple[np.nd
         _phase_step(theta[row, col + 1] - theta[row, col - 1]) / (2 * p),
         _phase_step(theta[row + 1, col] - theta[row - 1, col]) / (2 * p),
     )
+
+
+def field_window(lens: Metalens, wavelengths_m, depth_m: float, angle_rad: float, distance_m: float,
+                 pixel_pitch_m: float, at_least: int = 1) -> int:  # fmt: skip
+    """Odd window (pixels) centred on the chief ray that holds the geometric rays of the field point
+    at ``angle_rad`` and ``depth_m`` over the wavelengths (:func:`ray_landings`), with 10 % and 4
+    pixels of margin, and no smaller than ``at_least`` (the on-axis rule's window)."""
+    reach = max(
+        float(np.hypot(*(landing - chief).T).max())
+        for landing, chief in (ray_landings(lens, lam, angle_rad, depth_m, distance_m) for lam in wavelengths_m)
+    )
+    return max(at_least, 2 * math.ceil(1.1 * reach / pixel_pitch_m) + 9)
 
 
 def rms_spot(landings: np.ndarray) -> float:

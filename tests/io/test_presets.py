@@ -54,6 +54,9 @@ def _paper_dict():
         (lambda d: d.pop("scene"), "scene", "missing section"),
         (lambda d: d.update(extra=1), "extra", "unknown"),
         (lambda d: d["lens"].update(design="magic"), "lens.design", "not allowed"),
+        (lambda d: d["optimize"].update(field_angles="3"), "optimize.field_angles", "not an angle"),
+        (lambda d: d["optimize"].update(field_angles=["0deg", "70deg"]), "optimize.field_angles", "past 60°"),
+        (lambda d: d["optimize"].update(field_angles=[]), "optimize.field_angles", "at least one angle"),
     ],
 )
 def test_validation_names_the_key_path(mutate, path, why):
@@ -148,3 +151,20 @@ def test_preset_name_must_not_leave_runs():
         data["name"] = name
         with pytest.raises(InputError, match="not a plain name"):
             preset_from_dict(data)
+
+
+def test_field_angles_read_as_a_list_or_a_range_and_round_trip(tmp_path):
+    """``[optimize] field_angles``: on axis by default; an array of angles or the CLI's list and
+    range form, in radians; written back by to_toml to the same angles."""
+    import math
+
+    data = _paper_dict()
+    assert preset_from_dict(data).optimize.field_angles_rad == (0.0,)
+    data["optimize"]["field_angles"] = ["0deg", "6.75deg", "0.05rad"]
+    listed = preset_from_dict(data)
+    assert listed.optimize.field_angles_rad == (0.0, math.radians(6.75), 0.05)
+    data["optimize"]["field_angles"] = "0:6:3deg"
+    assert preset_from_dict(data).optimize.field_angles_rad == pytest.approx(tuple(map(math.radians, (0, 3, 6))))
+    path = tmp_path / "again.toml"
+    path.write_text(to_toml(listed))
+    assert load_preset(path).optimize.field_angles_rad == listed.optimize.field_angles_rad
