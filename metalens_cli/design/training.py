@@ -251,9 +251,8 @@ def estimate_training(preset) -> tuple[int, float | None]:
     the canvas (about 20 float32 planes of 3 channels per image, forward and backward); time from
     the PSF plan (×3 with its backward pass) and the canvas FFTs, times the steps plus
     ``FINISH_STEPS`` for what follows them. With field angles, the off-axis steps' PSFs at the
-    largest angle (``optics.field.estimate_field_psf``, × ``FIELD_BACKWARD`` in time; in memory ×2
-    and the fields each (wavelength, depth) keeps for the backward pass), in the share of steps
-    drawn off axis.
+    largest angle (``optics.field.estimate_field_psf`` with its backward pass, × ``FIELD_BACKWARD``
+    in time), in the share of steps drawn off axis.
     A 2-D θ grid over 1 GiB is estimated alone, without building anything (time None)."""
     from metalens_cli.optics.psf import FFT_RATE, estimate_psf
 
@@ -287,18 +286,15 @@ def estimate_training(preset) -> tuple[int, float | None]:
 
 
 def estimate_field_psf_step(preset, windows: Windows, wavelengths_m) -> PsfCost:
-    """An off-axis step's PSFs at the largest field angle: seconds of the forward pass, and bytes
-    with what the backward pass keeps (the pupil field and its phase for each (wavelength, depth),
-    complex64 and float64 over the meta-atom grid)."""
+    """An off-axis step's PSFs at the largest field angle (``optics.field.estimate_field_psf``
+    with its backward pass): seconds of the forward pass, bytes with what the backward keeps."""
     angle, lens = max(preset.optimize.field_angles_rad), build_model(preset).lens()
     zs = [preset.scene.z_near_m[0], preset.scene.z_far_m[0]]
     window = max(_field_capacities(lens, preset, wavelengths_m, zs, angle, windows))
-    cost = estimate_field_psf(
+    return estimate_field_psf(
         lens, wavelengths_m, zs, window, preset.sensor.pixel_pitch_m, angle,
-        distance_m=preset.lens.focal_length_m, oversample=ON_AXIS_MARGIN,
+        distance_m=preset.lens.focal_length_m, oversample=ON_AXIS_MARGIN, backward=True,
     )  # fmt: skip
-    kept = len(wavelengths_m) * len(zs) * lens.grid_size**2 * (8 + 8)
-    return PsfCost(2 * cost.memory_bytes + kept, cost.seconds, cost.setup_seconds)
 
 
 def _field_capacities(lens, preset, wavelengths_m, depths_m, angle: float, windows: Windows) -> list[int]:

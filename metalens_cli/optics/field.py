@@ -179,12 +179,16 @@ def estimate_field_psf(
     dtype: torch.dtype = torch.float32,
     force: bool = False,
     oversample: float = 1.0,
+    backward: bool = False,
 ) -> PsfCost:
     """What :func:`field_psf` (asm) will cost, from the same plans (a :class:`SamplingError` here
     is the one it would raise): the site grid once, per wavelength one shifted transfer function,
     per (wavelength, depth) the band FFT passes over the pupil and the window's inverse passes;
     ``setup_seconds`` is the site grid's. Peak memory: the site arrays (float64 phase, per finite
-    depth its path, the pupil field) and the propagation's arrays at the largest band."""
+    depth its path, the pupil field) and the propagation's arrays at the largest band; with
+    ``backward`` (PSFs differentiated in θ), twice that and what autograd keeps per (wavelength,
+    depth): the pupil field and its float64 phase over the sites, the window's field and intensity
+    (the seconds stay the forward pass's)."""
     lams, zs = [float(x) for x in np.ravel(wavelengths_m)], [float(x) for x in np.ravel(depths_m)]
     d = distance_m if distance_m is not None else lens.focal_length_m
     validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, "auto", dtype, oversample)
@@ -204,6 +208,8 @@ def estimate_field_psf(
     # band × samples, three blocks of FFT rows, and the PSFs
     work = 2 * real * (2 * band_max**2 + band_max * (m + window)) + 3 * prop.BLOCK_BYTES
     memory = MEMORY_SLACK * (sites + work) + 3 * len(lams) * len(zs) * pixels**2 * real
+    if backward:
+        memory = 2 * memory + len(lams) * len(zs) * (m**2 * (2 * real + 8) + window**2 * 3 * real)
     return PsfCost(int(memory), seconds, SITE_SECONDS * m**2)
 
 
