@@ -4,7 +4,7 @@ One off-axis training step of the paper's lens is 18 PSFs through the whole 2.5-
 each forward on 2 CPU cores, about as much again backward): minutes a step. So this study trains the
 paper's camera scaled down 4× (examples/scaled-split-spectrum.toml: f = 1 mm, D = 0.629 mm, the same
 NA and field of view on a 128² sensor, depths and obstructions / 16), where an off-axis step costs
-~15 s.
+15-32 s (38 min for the field run).
 
 1. ``metalens optimize`` of that preset on axis (runs/scaled-axis) and with ``[optimize]
    field_angles`` 0°, 4.75°, 9.5° (runs/scaled-field), the same seed and a schedule of ``STEPS``
@@ -31,7 +31,7 @@ from field_results import WAVELENGTHS, _lpmm, field_differences, metalens
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESET = "examples/scaled-split-spectrum.toml"
-STEPS = 100  # a third of the quick schedule: an off-axis step of the learned lens costs 30-50 s on 2 cores
+STEPS = 100  # a third of the quick schedule: an off-axis step of the learned lens costs 23-32 s on 2 cores
 FIELD_ANGLES_DEG = (0.0, 4.75, 9.5)  # trained: the axis, half-way and the 128² sensor's corner (atan(90.5 px · p / f))
 FIELDS_DEG = (0.0, 2.25, 4.75, 6.75, 9.5)  # scanned: the trained ones and the sensor's edge
 DESIGNS = {
@@ -67,7 +67,7 @@ def train(reuse: bool) -> None:
 
 
 def scan(spec: str, reuse: bool) -> dict:
-    """mtf's report of the design's field cube (runs/scaled-field-cube-<slug>.exr)."""
+    """mtf's report of the design's field cube (runs/scaled-cube-<slug>.exr)."""
     slug = spec.split("/")[-1].replace(":", "-")
     cube = f"runs/scaled-cube-{slug}.exr"
     if not (reuse and (ROOT / cube).is_file()):
