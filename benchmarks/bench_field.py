@@ -42,8 +42,7 @@ def _timed(on: str, run, *args, **kwargs):
 
 def one_psf(design, device: str) -> list[str]:
     from metalens_cli.imaging.field_psfs import corner_pixels
-    from metalens_cli.optics.field import ON_AXIS_MARGIN
-    from metalens_cli.optics.field import estimate_field_psf, field_psf
+    from metalens_cli.optics.field import ON_AXIS_MARGIN, estimate_field_psf, field_psf
     from metalens_cli.optics.psf import compute_psf
 
     lens, rows = design.lens, []
