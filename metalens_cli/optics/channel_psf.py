@@ -107,11 +107,8 @@ def channel_psf_stack(
     lams = [float(x) for x in np.ravel(wavelengths_m)]
     zs = [float(x) for x in np.ravel(depths_m)]
     d = distance_m if distance_m is not None else lens.focal_length_m
-    caps = [int(c) for c in np.broadcast_to(np.asarray(capacity), (len(zs),))]
+    caps, mix = _capacities_and_mix(capacity, len(zs), weights, len(lams))
     plan_px = int(plan_pixels or max(caps))
-    mix = weights.double() if torch.is_tensor(weights) else torch.as_tensor(np.asarray(weights), dtype=torch.float64)
-    if mix.shape != (3, len(lams)):
-        raise InputError("weights", f"shape {tuple(mix.shape)} for {len(lams)} wavelengths", "(3, W) channel weights")
     if not 0 < energy < 1:
         raise InputError("energy", f"{energy!r}", "a fraction between 0 and 1")
     if min(caps) < 1 or plan_px < max(caps):
@@ -158,6 +155,16 @@ def channel_psf_stack(
         )
     stack.timing_s["total"] = time.perf_counter() - start
     return stack
+
+
+def _capacities_and_mix(capacity, depths: int, weights, wavelengths: int) -> tuple[list[int], torch.Tensor]:
+    """One capacity per depth, and the (3, W) channel weights as float64 (a tensor stays
+    differentiable), checked against the number of wavelengths."""
+    caps = [int(c) for c in np.broadcast_to(np.asarray(capacity), (depths,))]
+    mix = weights.double() if torch.is_tensor(weights) else torch.as_tensor(np.asarray(weights), dtype=torch.float64)
+    if mix.shape != (3, wavelengths):
+        raise InputError("weights", f"shape {tuple(mix.shape)} for {wavelengths} wavelengths", "(3, W) channel weights")
+    return caps, mix
 
 
 def _radial_stack(
@@ -289,15 +296,13 @@ def field_channel_stack(
     that holds ``energy`` of what the capacity holds (light outside it is not seen: size the
     capacity with ``optics.field.field_window``). Differentiable in θ and the weights."""
     start = time.perf_counter()
+    lams = [float(x) for x in np.ravel(wavelengths_m)]
     zs = [float(x) for x in np.ravel(depths_m)]
-    caps = [int(c) for c in np.broadcast_to(np.asarray(capacity), (len(zs),))]
-    mix = weights.double() if torch.is_tensor(weights) else torch.as_tensor(np.asarray(weights), dtype=torch.float64)
+    caps, mix = _capacities_and_mix(capacity, len(zs), weights, len(lams))  # checked before the PSFs' cost
     result = field_psf(
-        lens, wavelengths_m, zs, max(caps), pixel_pitch_m, angle_rad, azimuth_rad=azimuth_rad, distance_m=distance_m,
+        lens, lams, zs, max(caps), pixel_pitch_m, angle_rad, azimuth_rad=azimuth_rad, distance_m=distance_m,
         dtype=dtype, device=device, oversample=ON_AXIS_MARGIN,
     )  # fmt: skip
-    if mix.shape != (3, result.psf.shape[1]):
-        raise InputError("weights", f"shape {tuple(mix.shape)} for {result.psf.shape[1]} wavelengths", "(3, W)")
     stack = _square_stack(result.psf, mix, caps, energy, core_window, result.grid, dict(result.timing_s))
     stack.timing_s["total"] = time.perf_counter() - start
     return stack
