@@ -44,6 +44,20 @@ mirror-symmetric captures exactly on a tile symmetric about the axis row) and of
 invariants above hold exactly at any rank). Kept are the components of largest pixel energy
 (below) over all tiles and channels (the least error per FFT), as many as ``tolerance`` needs.
 
+Windows (:func:`_windows`). S holds the widest eigen-PSF, but most are compact (on the paper's
+hyperbolic lens at 45 mm half hold all but 10⁻³ of their squared norm within 157 of the 333
+px). Each one is cut to its own central
+window, one of a few sides whose FFT grids (:func:`_basis_grid`, tile + side, lengths with a
+factor of 8) shrink in area by ``WINDOW_STEP``, less its mean there (zero sum and parity kept),
+chosen for the least FFT work whose cuts cost the PSF field at most ``WINDOW_SHARE`` of the
+tolerance; each window's eigen-PSFs go through FFTs of their own size. Their spectra are stored
+transposed, so the inverse transform's first pass runs along contiguous memory and its second
+only over the tile's rows. On the paper's hyperbolic lens at 1 % (N = 503 and 705, 2 cores,
+``benchmarks/bench_field_capture.py``): near 422, 281, 697 eigen-PSFs in 331-, 195- and 139-px
+windows, far 231, 723, 822 in 375, 251, 139 px; the measured error 0.91 and 0.90 % (0.88 and
+0.86 % in one window); a capture 1.69 s, against 2.28 s in one window and 2.79 s before this
+(one grid per set, a gather by index), peak RSS 9.7 GB against 14.3.
+
 Nodes (:func:`_tile_nodes`). The field model is linear in height between the set's heights, so
 P_x = (1 − w)·P(h_{k−1}, ψ) + w·P(h_k, ψ) exactly (before the sum's normalisation): the
 principal components are taken over the PSFs of the on-axis point and of azimuths ψ_j on each
@@ -62,7 +76,8 @@ out, each by its squared norm summed over the tile's pixels through the interpol
 coefficients (:func:`_pixel_energies`; kept are the largest of these), then measured at
 ``CHECK_PIXELS`` random pixels (:attr:`FieldTransform.error`), adding components or halving the
 azimuth step until it is within ``CHECK_MARGIN`` of the tolerance. Each component costs one
-inverse FFT of its tile per plane: twice for the near PSF (the obstruction light and the mask).
+inverse FFT of its tile on its window's grid per plane: twice for the near PSF (the obstruction
+light and the mask).
 
 Why tiles: over the whole sensor the coma turns through every azimuth and its spectrum spreads;
 on the paper's lens one expansion for the sensor needed 3× the FFT work of tiles at the same error,
@@ -105,9 +120,9 @@ from metalens_cli.imaging.formation import (
     _composite,
     _kept,
     _obstruction_canvases,
+    _placed,
     _sensor_hw,
     canvas_margin,
-    kernel_transform,
     psf_transform,
     unit_sum,
 )
@@ -119,12 +134,14 @@ MIN_NODE_STEP = 0.25  # the finest azimuth step (pixels at the rim) a refinement
 KEYS = -0.5  # the cubic convolution kernel's a: Keys' third-order accurate one
 CHECK_PIXELS = 256  # random pixels at which the error is measured
 CHECK_MARGIN = 0.95  # accept at this fraction of the tolerance: the check's estimate scatters by a few %
-TARGET_SHARE = 0.85  # of the tolerance, the error aimed at: the first truncation's, the support's ≤ 0.3 beside it
+TARGET_SHARE = 0.85  # of the tolerance, the error aimed at: the first truncation's; support, windows beside it
 MAX_REFINEMENTS = 4  # rank or azimuth-node refinements after the first try
 CHUNK_VALUES = 2**19  # spectrum values per batched inverse FFT of eigen-PSF terms
 NODE_CHUNK_VALUES = 2**25  # PSF values of the nodes resampled at a time
 SUPPORT_SHARE = 0.3  # of the tolerance, the most the eigen-PSFs' support may leave out (relative L2)
 SUPPORT_NODES = 5  # nodes per tile side on which the support is chosen
+WINDOW_SHARE = 0.25  # of the tolerance, the most the eigen-PSFs' own smaller windows may leave out (relative L2)
+WINDOW_STEP = 0.7  # each smaller window's FFT grid has at most this share of the next larger one's area
 KEEP_SHARE = 0.4  # of the tolerance: a tile's analysis keeps the components each channel needs for its share of this
 ROW_BLOCK_VALUES = 2**24  # residual values per block of rows in a Gram product
 NODE_VALUES = 2**28  # node PSF values of one channel a tile's analysis holds (1 GiB in float32), else smaller tiles
@@ -224,19 +241,33 @@ def _rotated(q: torch.Tensor, psi: torch.Tensor) -> torch.Tensor:
 
 
 @dataclass(frozen=True)
+class EigenBasis:
+    """Eigen-PSFs of one window side S = 2·``margin`` + 1 transformed for tiles of ``sensor_hw``:
+    ``spectrum`` (terms, L1 // 2 + 1, L0), the rfft2 of each kernel placed on the FFT grid
+    ``fft_shape`` (L0, L1) with its centre pixel at (0, 0), stored transposed
+    (the inverse transform's first, pruned pass then runs along contiguous memory)."""
+
+    spectrum: torch.Tensor
+    sensor_hw: tuple[int, int]
+    margin: int
+    fft_shape: tuple[int, int]
+
+
+@dataclass(frozen=True)
 class FieldTransform:
     """A field PSF set prepared for H × W sensor images (:func:`field_transform`).
 
     The sensor is cut into tiles of ``mean.sensor_hw`` whose top-left pixels are every
     combination of ``tile_rows`` and ``tile_cols`` (the last ones moved inwards to end at the
     sensor's edge); each pixel takes the expansion of the first tile holding it. ``mean``: the
-    tiles' P̄ (tiles, C, N, N) transformed; ``basis``: the eigen-PSFs (terms, S, S) transformed on their own grid,
-    term k of tile ``term_tile[k]`` (row-major) and channel ``term_channel[k]`` with coefficients
+    tiles' P̄ (tiles, C, N, N) transformed; ``bases``: the eigen-PSFs by window side, largest
+    first, each group on its own FFT grid; term k (counting through ``bases`` in order) belongs
+    to tile ``term_tile[k]`` (row-major) and channel ``term_channel[k]``, with coefficients
     ``maps[k]`` over its tile; ``error``: the measured relative L2 error of the PSF field.
     """
 
     mean: PsfTransform
-    basis: PsfTransform
+    bases: tuple[EigenBasis, ...]
     maps: torch.Tensor
     term_tile: torch.Tensor
     term_channel: torch.Tensor
@@ -248,8 +279,13 @@ class FieldTransform:
 
     @property
     def support(self) -> int:
-        """Side (pixels) of the eigen-PSFs' window, centred in the PSFs' (0 without any)."""
-        return 2 * self.basis.margin + 1 if len(self.term_tile) else 0
+        """Side (pixels) of the largest eigen-PSF window, centred in the PSFs' (0 without any)."""
+        return max((2 * b.margin + 1 for b in self.bases), default=0)
+
+    @property
+    def windows(self) -> dict[int, int]:
+        """Eigen-PSFs per window side (pixels), largest first."""
+        return {2 * b.margin + 1: len(b.spectrum) for b in self.bases}
 
     @property
     def ranks(self) -> torch.Tensor:
@@ -649,29 +685,29 @@ def field_transform(
                 )
             built = _built(psf_set, tiles, counts, tile_hw, (h, w), step, support)
             kernels, maps, term_tile, term_channel, means = built
+            total = sum(t.total for t in tiles)
+            sides, cut = _windows(kernels, maps, support, tile_hw, (WINDOW_SHARE * tolerance) ** 2 * total)
+            kernels = _windowed(kernels, sides, support)
+            built = kernels, maps, term_tile, term_channel, means
             error = _check_error(psf_set, at_pixels, (check_tile, check_r, check_c), built)
             if error <= CHECK_MARGIN * tolerance:
                 break
             truncation = math.sqrt(
                 sum(float(v[k:].sum()) for t, ks in zip(tiles, counts) for (_, _, _, v), k in zip(t.spectra, ks))
-                / sum(t.total for t in tiles)
+                / total
             )
-            rest = error**2 - truncation**2  # what the eigen-PSFs left out does not explain: window, azimuth nodes
-            if rest > truncation**2 and step > MIN_NODE_STEP:
+            rest = error**2 - truncation**2  # what the eigen-PSFs left out does not explain: windows, azimuth nodes
+            if rest - cut / total > truncation**2 and step > MIN_NODE_STEP:
                 step /= 2  # the coefficients' interpolation dominates: azimuth nodes twice as close
             else:  # leave out as much as the aim has room for beside the rest, at least halving it
                 target = math.sqrt(max((TARGET_SHARE * tolerance) ** 2 - rest, truncation**2 / 4))
-        mean = psf_transform(means, tile_hw)
-        if len(kernels):
-            basis = _kernels_transform(kernels.reshape(-1, support, support), tile_hw)
-        else:  # a uniform field: nothing but the mean (MKL transforms no empty batch)
-            basis = PsfTransform(mean.spectrum[:0, 0], tile_hw, mean.margin, mean.fft_shape)
+        order = torch.sort(sides, descending=True, stable=True).indices.to(term_tile.device)
         return FieldTransform(
-            mean,
-            basis,
-            maps,
-            term_tile,
-            term_channel,
+            psf_transform(means, tile_hw),
+            _bases(kernels[order], sides[order.cpu()], support, tile_hw),
+            maps[order],
+            term_tile[order],
+            term_channel[order],
             rows,
             cols,
             (h, w),
@@ -684,8 +720,7 @@ def expansion_bytes(terms: int, support: int, tile_hw: tuple[int, int]) -> int:
     """Bytes that ``terms`` eigen-PSFs of ``support``² pixels on tiles ``tile_hw`` hold in a
     :class:`FieldTransform` being built: the kernels and coefficient maps (float32) and the
     spectra (complex64) on the tiles' FFT grid."""
-    margin = canvas_margin(support)
-    l0, l1 = (fft_size(t + 2 * margin) for t in tile_hw)
+    l0, l1 = _basis_grid(support, tile_hw)
     return terms * 4 * (support**2 + math.prod(tile_hw) + 2 * l0 * (l1 // 2 + 1))
 
 
@@ -714,16 +749,100 @@ def _check_error(psf_set: FieldPsfSet, at_pixels, where, built) -> float:
     return math.sqrt(error / norm)
 
 
-def _kernels_transform(kernels: torch.Tensor, tile_hw: tuple[int, int]) -> PsfTransform:
-    """:func:`formation.kernel_transform` of eigen-PSFs (terms, S, S), a chunk at a time (the
-    padded kernels of one chunk are the only transient)."""
-    first = kernel_transform(kernels[:1], tile_hw)
-    step = max(1, CHUNK_VALUES * 8 // first.spectrum[0].numel())
-    spectrum = torch.cat(
-        [first.spectrum]
-        + [kernel_transform(kernels[k : k + step], tile_hw).spectrum for k in range(1, len(kernels), step)]
-    )
-    return PsfTransform(spectrum, first.sensor_hw, first.margin, first.fft_shape)
+def _basis_grid(side: int, tile_hw: tuple[int, int]) -> tuple[int, int]:
+    """The FFT grid (L0, L1) of eigen-PSFs of ``side`` pixels on tiles ``tile_hw``: at least
+    tile + side − 1 a side (no wrap-around on the tile), each 8 times a 7-smooth number. On 2
+    cores MKL's inverse transforms (4 of the first pass and 4 of the second's 256 rows) of
+    odd or singly even lengths took 1.4-2.4× the time per sample of such lengths: 405 and 525
+    6.7 and 5.8 ns, 450 and 490 4.0 and 4.1 ns, against 2.8 ns for 448, 480 and 560."""
+    margin = canvas_margin(side)
+    return tuple(8 * fft_size(-(-(t + 2 * margin) // 8)) for t in tile_hw)
+
+
+def _window_sides(support: int, tile_hw: tuple[int, int]) -> list[int]:
+    """Window sides an eigen-PSF may take, ``support`` first, descending: for each FFT grid of
+    the tiles (:func:`_basis_grid`) the largest side it holds, each grid's area at most
+    ``WINDOW_STEP`` of the one before (a few grids, each one more set of canvas transforms per
+    capture)."""
+
+    def area(side: int) -> int:
+        return math.prod(_basis_grid(side, tile_hw))
+
+    sides = [support]
+    for side in range(support - 2, 0, -2):
+        if area(side) <= WINDOW_STEP * area(sides[-1]) and (side == 1 or area(side - 2) < area(side)):
+            sides.append(side)
+    return sides
+
+
+def _windows(kernels: torch.Tensor, maps: torch.Tensor, support: int, tile_hw, budget: float):
+    """Each eigen-PSF's window side (terms,) on the host, from :func:`_window_sides`, and the
+    squared error the windows add, at most ``budget`` (squared PSF-field norm): the least FFT
+    work whose cuts sum within it (a Lagrangian search over one price of error). Cutting a
+    kernel (unit norm) to its central s × s pixels and taking its mean there (zero sum kept)
+    costs the pixels its coefficients' squared norm over the tile times the squared norm of
+    the part left out plus s² times that mean squared; the cuts of different eigen-PSFs add
+    (their coefficient maps are nearly orthogonal over the tile)."""
+    sides = _window_sides(support, tile_hw)
+    if not len(kernels) or len(sides) == 1 or budget <= 0:
+        return torch.full((len(kernels),), support, dtype=torch.long), 0.0
+    k = torch.arange(support) - support // 2
+    ring = torch.maximum(k[:, None].abs(), k[None, :].abs()).flatten().to(kernels.device)
+    rings = torch.zeros(len(kernels), support // 2 + 1, dtype=torch.float64, device=kernels.device)
+    sums = torch.zeros_like(rings)
+    rings.index_add_(1, ring, kernels.double() ** 2)
+    sums.index_add_(1, ring, kernels.double())
+    radii = torch.tensor([s // 2 for s in sides], device=kernels.device)
+    inside, held = sums.cumsum(1)[:, radii], rings.cumsum(1)[:, radii]  # (terms, sides)
+    side = torch.tensor(sides, dtype=torch.float64, device=kernels.device)
+    left = (rings.sum(1, keepdim=True) - held + inside**2 / side**2).clamp_min(0)
+    left[:, 0] = 0  # the whole support: nothing cut
+    cost = (left * (maps.double() ** 2).sum((1, 2))[:, None]).cpu()
+    work = torch.tensor([math.prod(_basis_grid(s, tile_hw)) for s in sides], dtype=torch.float64)
+    terms = torch.arange(len(cost))
+
+    def chosen(price: float) -> tuple[torch.Tensor, float]:
+        pick = (work + price * cost).argmin(1)
+        return pick, float(cost[terms, pick].sum())
+
+    positive = cost[cost > 0]
+    lo = 0.0
+    hi = float(work[0]) / (float(positive.min()) if len(positive) else 1.0)  # every cut costs more than it saves
+    if chosen(lo)[1] > budget:
+        for _ in range(60):  # the lowest price of error whose cuts fit the budget
+            mid = math.sqrt(max(lo, hi * 1e-18) * hi)
+            lo, hi = (mid, hi) if chosen(mid)[1] > budget else (lo, mid)
+        lo = hi
+    pick, cut = chosen(lo)
+    return torch.tensor(sides)[pick], cut
+
+
+def _windowed(kernels: torch.Tensor, sides: torch.Tensor, support: int) -> torch.Tensor:
+    """Eigen-PSFs (terms, S·S) cut to their central ``sides`` × ``sides`` pixels (zero outside)
+    less their mean there: zero sum and each one's parity under y → −y kept."""
+    k = torch.arange(support, device=kernels.device) - support // 2
+    ring = torch.maximum(k[:, None].abs(), k[None, :].abs()).flatten()
+    inside = (ring[None, :] <= (sides.to(kernels.device)[:, None] // 2)).to(kernels.dtype)
+    cut = kernels * inside
+    return cut - inside * cut.sum(1, keepdim=True) / inside.sum(1, keepdim=True)
+
+
+def _bases(kernels: torch.Tensor, sides: torch.Tensor, support: int, tile_hw) -> tuple[EigenBasis, ...]:
+    """:class:`EigenBasis` groups of eigen-PSFs (terms, S·S) by their window ``sides`` (host,
+    descending, grouped), each transformed a chunk at a time (the padded kernels of one chunk
+    are the only transient)."""
+    bases, start = [], 0
+    for side, count in zip(*(x.tolist() for x in torch.unique_consecutive(sides, return_counts=True))):
+        group = _cropped(kernels[start : start + count].unflatten(-1, (support, support)), side)
+        start += count
+        shape = _basis_grid(side, tile_hw)
+        step = max(1, CHUNK_VALUES * 8 // (shape[0] * (shape[1] // 2 + 1)))
+        spectrum = torch.cat(
+            [torch.fft.rfft2(_placed(group[k : k + step], shape)).transpose(-1, -2).contiguous()
+             for k in range(0, count, step)]
+        )  # fmt: skip
+        bases.append(EigenBasis(spectrum, tuple(tile_hw), canvas_margin(side), shape))
+    return tuple(bases)
 
 
 def _append_terms(basis, grids, interpolation, tile: int, tile_hw, terms) -> None:
@@ -807,26 +926,34 @@ def _tile_canvases(canvas: torch.Tensor, margin: int, t: FieldTransform) -> torc
     return torch.stack(tiles, dim=-4)
 
 
-def _spectra(tiles: torch.Tensor, margin: int, t: FieldTransform) -> tuple[torch.Tensor, torch.Tensor]:
-    """rfft2 of the tiles' canvases on the means' FFT grid and on the eigen-PSFs' (smaller) one."""
-    spectrum = _canvas_spectrum(tiles, margin, t.mean)
-    return spectrum, _canvas_spectrum(tiles, margin, t.basis) if len(t.basis.spectrum) else spectrum
+def _kept_transposed(product: torch.Tensor, basis: EigenBasis) -> torch.Tensor:
+    """:func:`formation._kept` of a transposed spectrum (..., L1 // 2 + 1, L0): the tile (..., T0, T1)."""
+    h, w = basis.sensor_hw
+    rows = torch.fft.ifft(product, dim=-1)[..., basis.margin : basis.margin + h]
+    return torch.fft.irfft(rows.transpose(-1, -2), n=basis.fft_shape[1], dim=-1)[..., basis.margin : basis.margin + w]
 
 
-def _gather(spectra: tuple[torch.Tensor, torch.Tensor], t: FieldTransform) -> torch.Tensor:
-    """P̄ ∗ in + Σ a ⊙ (e ∗ in) on the sensor from the tiles' spectra (..., tiles, C or 1, L0, L1')
-    on the means' and the eigen-PSFs' FFT grids (:func:`_spectra`)."""
-    spectrum, fine = spectra
-    out = _kept(spectrum * t.mean.spectrum, t.mean)  # (..., tiles, C, T0, T1)
+def _gather(spectrum_of, t: FieldTransform) -> torch.Tensor:
+    """P̄ ∗ in + Σ a ⊙ (e ∗ in) on the sensor; ``spectrum_of(transform)``: the tiles' spectra
+    (..., tiles, C or 1, L0, L1 // 2 + 1) on the FFT grid of ``t.mean`` or of one of ``t.bases``."""
+    out = _kept(spectrum_of(t.mean) * t.mean.spectrum, t.mean)  # (..., tiles, C, T0, T1)
     channels = out.shape[-3]
-    flat = fine.expand(*fine.shape[:-3], channels, *fine.shape[-2:]).flatten(-4, -3)
-    index = t.term_tile * channels + t.term_channel
     out = out.flatten(-4, -3)
-    step = max(1, CHUNK_VALUES // flat[..., :1, :, :].numel())
-    for k in range(0, len(index), step):
-        chunk = slice(k, k + step)
-        planes = _kept(flat.index_select(-3, index[chunk]) * t.basis.spectrum[chunk], t.basis)
-        out.index_add_(-3, index[chunk], planes * t.maps[chunk].to(planes.dtype))
+    index = (t.term_tile * channels + t.term_channel).tolist()
+    first = 0  # the basis's first term
+    for basis in t.bases:
+        fine = spectrum_of(basis).transpose(-1, -2).contiguous()  # (..., tiles, C or 1, L1 // 2 + 1, L0)
+        step = max(1, CHUNK_VALUES // fine[..., :1, :1, :, :].numel())
+        end, k = first + len(basis.spectrum), first
+        while k < end:  # a run of terms of one tile and channel, a chunk at a time
+            g, stop = index[k], k + 1
+            while stop < end and stop - k < step and index[stop] == g:
+                stop += 1
+            plane = fine[..., g // channels, g % channels if fine.shape[-3] > 1 else 0, None, :, :]
+            planes = _kept_transposed(plane * basis.spectrum[k - first : stop - first], basis)
+            out[..., g, :, :] += (planes * t.maps[k:stop].to(planes.dtype)).sum(-3)
+            k = stop
+        first = end
     return _assembled(out.unflatten(-3, (-1, channels)), t.tile_rows, t.tile_cols)
 
 
@@ -835,7 +962,8 @@ def field_convolve(canvas: torch.Tensor, psfs, margin: int, *, tolerance: float 
     PSFs ``psfs`` (:class:`FieldPsfSet` or :class:`FieldTransform`); C broadcasts as in
     :func:`formation.convolve`."""
     t = _field_transform(psfs, _sensor_hw(canvas, margin), tolerance)
-    return _gather(_spectra(_tile_canvases(canvas, margin, t), margin, t), t)
+    tiles = _tile_canvases(canvas, margin, t)
+    return _gather(lambda grid: _canvas_spectrum(tiles, margin, grid), t)
 
 
 def form_image_field(
@@ -859,9 +987,12 @@ def form_image_field(
     near, far = _field_transform(near, sensor, tolerance), _field_transform(far, sensor, tolerance)
     channels = obstruction.shape[-3]
     # one batched transform of [I_obs or m ⊙ I_obs, m] per grid; the mask's spectrum meets each channel's PSF
-    pairs = []
-    for f in _spectra(_tile_canvases(torch.cat([emitted, mask], dim=-3), margin, near), margin, near):
-        pairs.append(torch.stack(torch.broadcast_tensors(f[..., :channels, :, :], f[..., channels:, :, :]), dim=-5))
-    near_light, blurred_mask = _gather(tuple(pairs), near).unbind(-4)
-    unobstructed = _gather(_spectra(_tile_canvases(clean, margin, far), margin, far), far)
+    tiles = _tile_canvases(torch.cat([emitted, mask], dim=-3), margin, near)
+
+    def pairs(grid) -> torch.Tensor:
+        f = _canvas_spectrum(tiles, margin, grid)
+        return torch.stack(torch.broadcast_tensors(f[..., :channels, :, :], f[..., channels:, :, :]), dim=-5)
+
+    near_light, blurred_mask = _gather(pairs, near).unbind(-4)
+    unobstructed = field_convolve(clean, far, margin)
     return _composite(near_light, blurred_mask, unobstructed, formation, alpha_gain)

@@ -448,7 +448,13 @@ def _capture_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:
             transforms.append(field_transform(s, sensor, tolerance=psfs.field_tolerance, max_bytes=limit))
         transforms = tuple(transforms)
         psfs.field_test["expansion"] = {
-            which: {"error": t.error, "tolerance": t.tolerance, "eigen_psfs": len(t.term_tile), "support_px": t.support}
+            which: {
+                "error": t.error,
+                "tolerance": t.tolerance,
+                "eigen_psfs": len(t.term_tile),
+                "support_px": t.support,
+                "windows_px": {str(side): count for side, count in t.windows.items()},
+            }
             for which, t in zip(("near", "far"), transforms)
         }
         psfs.field_test["expansion"]["seconds"] = time.perf_counter() - start

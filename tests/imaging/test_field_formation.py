@@ -437,3 +437,43 @@ def test_pixel_energies_are_what_leaving_a_component_out_costs_the_pixels():
         # to 1e-5 of the whole: the components of eigenvalues near rounding are not quite orthonormal
         assert abs(slow - float(energies[order[kept:]].sum())) < 1e-5 * total
         assert float(values[order[kept:]].sum()) > 1.1 * slow
+
+
+def test_eigen_psf_windows_cost_what_they_estimate(monkeypatch):
+    """Each eigen-PSF's own window (``_windows``): the squared error the cuts add, summed over a
+    tile's pixels the slow way (every pixel's coefficients times the cut-off kernels), is the
+    estimate within 5 % (cuts of different eigen-PSFs nearly orthogonal) and within the budget;
+    the cut kernels keep zero sums and parities; a budget of 0 cuts nothing."""
+    from metalens_cli.imaging import field_formation
+    from metalens_cli.imaging.field_formation import (
+        _components,
+        _node_psfs,
+        _node_weights,
+        _principal,
+        _tile_nodes,
+        _windowed,
+        _windows,
+    )
+
+    monkeypatch.setattr(field_formation, "WINDOW_STEP", 0.95)  # more sides than a 32-px tile's grids give
+    psfs, support = field_set(), N
+    ys, xs, interpolation = _tile_nodes(HEIGHTS, (0, 0), (32, 32), (48, 45), 1.0, support)
+    root = _node_weights(interpolation).clamp_min(1e-12).sqrt()[:, None]
+    residual = _node_psfs(psfs, ys, xs, support, field_psf(psfs, xs, ys).mean(0), 1) * root
+    values, vectors, parities = _principal(residual, support)
+    e = _components(residual, support, values[:40], vectors[:, :40], parities[:40])
+    pixels = torch.sparse.mm(interpolation, residual / root)  # (P, S·S): each pixel's residual
+    a = pixels @ e.T  # each pixel's coefficients
+    total = float((pixels**2).sum())
+    for share in (1e-3, 1e-2):
+        sides, cut = _windows(e, a.T.reshape(-1, 32, 32), support, (32, 32), share * total)
+        cut_kernels = _windowed(e, sides, support)
+        slow = float(((a @ (e - cut_kernels)) ** 2).sum())
+        assert 0 < cut <= share * total
+        assert slow == pytest.approx(cut, rel=0.05)
+        assert float(cut_kernels.sum(1).abs().max()) < 1e-12
+        mirrored = parities[:40, None, None] * cut_kernels.unflatten(1, (N, N)).flip(1)
+        assert torch.allclose(cut_kernels.unflatten(1, (N, N)), mirrored, atol=1e-15)
+    assert len(set(sides.tolist())) > 2  # a window between the whole support and the smallest
+    sides, cut = _windows(e, a.T.reshape(-1, 32, 32), support, (32, 32), 0.0)
+    assert cut == 0 and set(sides.tolist()) == {support}
