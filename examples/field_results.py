@@ -323,8 +323,8 @@ def write(path: Path, results: dict[str, tuple[dict, dict]], on_axis: dict, over
     lines += ["", "What the field model cost and how accurate it is, per design (from `evaluate`'s JSON):", ""]
     lines += [
         "| design | model | heights (px) | windows near / far (px) | set (s) | sampling error "
-        "| spectral error near / far | expansion error near / far (tolerance) | eigen-PSFs near / far (window, px) "
-        "| expansion (s) | a capture (s, median) |",
+        "| spectral error near / far | expansion error near / far (tolerance) "
+        "| eigen-PSFs near / far (largest window, px) | expansion (s) | a capture (s, median) |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for entry in [e for e in over_field["psfs"] if e["seed"] == 0]:
