@@ -157,6 +157,7 @@ def test_eigen_psfs_keep_a_smaller_window_where_the_variation_is_compact():
     psfs = haloed_set()
     prepared = field_transform(psfs, (48, 45))
     assert 0 < prepared.support < 45
+    assert max(prepared.windows) == prepared.support and sum(prepared.windows.values()) == len(prepared.term_tile)
     assert prepared.error <= prepared.tolerance
     margin = 61 // 2
     scene = canvas((48 + 2 * margin, 45 + 2 * margin))
