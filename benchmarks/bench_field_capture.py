@@ -122,8 +122,9 @@ def main() -> None:
     lines = [
         f"## A space-variant capture, cpu (`{command}`)",
         "",
-        "The paper's hyperbolic lens at 45 mm (near) and 5 m (far) on a 512² sensor, field PSF sets from the disk "
-        f"cache, {args.threads} threads, run alone, each configuration in a process of its own, one after another. "
+        "The paper's hyperbolic lens at 45 mm (near) and 5 m (far) on a 512² sensor, field PSF sets (computed "
+        f"once, then read from the disk cache; not timed), {args.threads} threads, run alone, each configuration in "
+        "a process of its own, one after another. "
         "Eigen-PSFs near + far, their windows (count × side in px, near / far), the measured PSF-field error "
         "(near / far, tolerance 1 %), the expansion's preparation (s), the process's peak RSS (GB), the median of "
         f"{args.captures} captures (s; the obstructed and unobstructed images of a photograph behind dirt) and the "
