@@ -527,6 +527,13 @@ class _Coarse:
     rings: torch.Tensor
 
 
+def _rings(n: int, device) -> torch.Tensor:
+    """The Chebyshev radius (pixels from the centre pixel, max of |row|, |col|) of each pixel of
+    an n × n window (n odd), flattened row-major."""
+    k = torch.arange(n, device=device) - n // 2
+    return torch.maximum(k[:, None].abs(), k[None, :].abs()).flatten()
+
+
 def _coarse(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw) -> _Coarse:
     p = psf_set.psfs
     rows, cols = (
@@ -537,8 +544,7 @@ def _coarse(psf_set: FieldPsfSet, origin, tile_hw, sensor_hw) -> _Coarse:
     full = field_psf(psf_set, xs, ys)
     mean = full.mean(0)
     n = full.shape[-1]
-    k = torch.arange(n, device=full.device) - n // 2
-    ring = torch.maximum(k[:, None].abs(), k[None, :].abs()).flatten()  # Chebyshev radius of each pixel
+    ring = _rings(n, full.device)
     varying = ((full - mean).double() ** 2).sum((0, 1)).flatten()
     rings = torch.bincount(ring, varying, minlength=n // 2 + 1).cpu()
     return _Coarse(mean, float((full.double() ** 2).sum()) / len(xs), rings)
@@ -786,8 +792,7 @@ def _windows(kernels: torch.Tensor, maps: torch.Tensor, support: int, tile_hw, b
     sides = _window_sides(support, tile_hw)
     if not len(kernels) or len(sides) == 1 or budget <= 0:
         return torch.full((len(kernels),), support, dtype=torch.long), 0.0
-    k = torch.arange(support) - support // 2
-    ring = torch.maximum(k[:, None].abs(), k[None, :].abs()).flatten().to(kernels.device)
+    ring = _rings(support, kernels.device)
     rings = torch.zeros(len(kernels), support // 2 + 1, dtype=torch.float64, device=kernels.device)
     sums = torch.zeros_like(rings)
     rings.index_add_(1, ring, kernels.double() ** 2)
@@ -820,8 +825,7 @@ def _windows(kernels: torch.Tensor, maps: torch.Tensor, support: int, tile_hw, b
 def _windowed(kernels: torch.Tensor, sides: torch.Tensor, support: int) -> torch.Tensor:
     """Eigen-PSFs (terms, S·S) cut to their central ``sides`` × ``sides`` pixels (zero outside)
     less their mean there: zero sum and each one's parity under y → −y kept."""
-    k = torch.arange(support, device=kernels.device) - support // 2
-    ring = torch.maximum(k[:, None].abs(), k[None, :].abs()).flatten()
+    ring = _rings(support, kernels.device)
     inside = (ring[None, :] <= (sides.to(kernels.device)[:, None] // 2)).to(kernels.dtype)
     cut = kernels * inside
     return cut - inside * cut.sum(1, keepdim=True) / inside.sum(1, keepdim=True)
