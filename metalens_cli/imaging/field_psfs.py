@@ -122,21 +122,21 @@ def field_dependence(design, sensor_pixels: int, pixel_pitch_m: float, wavelengt
     }
 
 
-def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths_m) -> tuple[int, float]:
+def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths_m, wavelengths_m) -> tuple[int, float]:
     """(peak bytes, seconds) of :func:`field_channel_psfs` at ``depths_m`` (near, far), when not
     cached: each off-axis height's PSFs (``optics.field.estimate_field_psf``, the set's margin, at
-    ``DEFAULT_WAVELENGTHS_PER_CHANNEL`` wavelengths a channel spread over 400-700 nm) in the window
-    the set will use (the on-axis rule's or the corner's rays') and the corner's check with the
-    doubled margin."""
+    the set's wavelengths, :func:`field_strata`) in a window no smaller than the set's (the rays'
+    window of the on-axis rule at ``wavelengths_m``, the on-axis quadrature's, or of the corner's
+    rays) and the corner's check with the doubled margin."""
     from metalens_cli.optics.blur import psf_window
     from metalens_cli.optics.field import estimate_field_psf
 
     heights = field_heights(sensor_pixels)[1:]
     d, lens = design.focal_length_m, design.lens
-    lams = list(np.linspace(400e-9, 700e-9, 3 * DEFAULT_WAVELENGTHS_PER_CHANNEL))
+    lams = [float(x) for x in field_strata(design).wavelengths_m]
     corner = math.atan2(heights[-1] * pixel_pitch_m, d)
     window = max(
-        field_window(lens, lams[::4], z, corner, d, pixel_pitch_m, psf_window(lens, lams, [z], d, pixel_pitch_m))
+        field_window(lens, lams, z, corner, d, pixel_pitch_m, psf_window(lens, wavelengths_m, [z], d, pixel_pitch_m))
         for z in depths_m
     )
     common = dict(distance_m=d, force=True)
@@ -153,7 +153,8 @@ def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths
         )
         for h in heights
     ]
-    costs.append(estimate_field_psf(lens, [530e-9], [depths_m[-1]], window, pixel_pitch_m, corner, **common))
+    middle = lams[len(lams) // 2]
+    costs.append(estimate_field_psf(lens, [middle], [depths_m[-1]], window, pixel_pitch_m, corner, **common))
     return max(c.memory_bytes for c in costs), sum(c.seconds for c in costs)
 
 

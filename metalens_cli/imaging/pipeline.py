@@ -305,7 +305,9 @@ def estimate_capture_runs(
 
         for i, design in enumerate(setup.designs):
             if field_dependence(design, setup.pixels, setup.pixel_pitch_m)["field_dependent"]:
-                memory, seconds = estimate_field_psfs(design, setup.pixels, setup.pixel_pitch_m, depths_m)
+                memory, seconds = estimate_field_psfs(
+                    design, setup.pixels, setup.pixel_pitch_m, depths_m, setup.wavelengths_m
+                )
                 costs[i] = (max(costs[i][0], memory), costs[i][1] + seconds, costs[i][2])
     return Estimate(
         what,

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from metalens_cli.errors import InputError
-from metalens_cli.imaging.field_psfs import corner_pixels, field_channel_psfs, field_dependence
+from metalens_cli.imaging.field_psfs import corner_pixels, estimate_field_psfs, field_channel_psfs, field_dependence
 from metalens_cli.imaging.pipeline import capture_psfs, channel_psfs, simulate_captures
 from metalens_cli.io.designs import resolve_design
 from metalens_cli.optics import lens as L
@@ -54,6 +54,34 @@ def test_field_set_is_pixel_aligned_cached_and_on_axis_at_its_centre(tmp_path, m
     again = field_channel_psfs(design, 0.01, 1.0, LAMS, PITCH, 64, wavelengths_per_channel=2)
     assert again.cached and torch.equal(again.far.psfs, first.far.psfs)
     assert again.sampling_error == first.sampling_error
+
+
+def test_field_set_estimate_plans_the_psfs_the_set_computes(tmp_path, monkeypatch):
+    """The estimate plans each off-axis PSF at the set's wavelengths (not 400-700 nm, which refused a
+    learned lens whose set fits), field angles and margin, in a window at least the set's."""
+    import metalens_cli.optics.field as field
+
+    monkeypatch.setenv("METALENS_CACHE", str(tmp_path))
+    calls = {"set": [], "estimate": []}
+
+    def spy(name, run):
+        def wrapped(lens, lams, depths, pixels, pitch, angle, **kw):
+            calls[name].append(([float(x) for x in lams], list(depths), pixels, angle, kw.get("oversample", 1.0)))
+            return run(lens, lams, depths, pixels, pitch, angle, **kw)
+
+        return wrapped
+
+    monkeypatch.setattr(field, "field_psf", spy("set", field.field_psf))
+    monkeypatch.setattr(field, "estimate_field_psf", spy("estimate", field.estimate_field_psf))
+    design = small()
+    field_channel_psfs(design, 0.01, 1.0, LAMS, PITCH, 64)
+    estimate_field_psfs(design, 64, PITCH, [0.01, 1.0], LAMS)
+    assert len(calls["set"]) == len(calls["estimate"]) == 2  # one off-axis height and the corner's check
+    assert max(calls["set"][0][0]) < 680e-9  # the strata's longest wavelength, not the band's edge
+    for planned, computed in zip(calls["estimate"], calls["set"]):
+        assert planned[0] == pytest.approx(computed[0], rel=1e-12) and planned[1] == computed[1]
+        assert planned[3] == pytest.approx(computed[3]) and planned[4] == computed[4]
+        assert planned[2] >= computed[2]
 
 
 def test_field_set_refuses_a_2d_design():
