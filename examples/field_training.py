@@ -4,15 +4,17 @@ One off-axis training step of the paper's lens is 18 PSFs through the whole 2.5-
 each forward on 2 CPU cores, about as much again backward): minutes a step. So this study trains the
 paper's camera scaled down 4× (examples/scaled-split-spectrum.toml: f = 1 mm, D = 0.629 mm, the same
 NA and field of view on a 128² sensor, depths and obstructions / 16), where an off-axis step costs
-15-32 s (38 min for the field run).
+15-32 s (34-46 min a run over the field).
 
 1. ``metalens optimize`` of that preset on axis (runs/scaled-axis) and with ``[optimize]
-   field_angles`` 0°, 4.75°, 9.5° (runs/scaled-field), the same seed and a schedule of ``STEPS``
-   steps (presets written to runs/<run>.toml; ``--reuse`` keeps finished runs).
-2. ``metalens psf-scan --field-angles`` of both and of the same camera's hyperbolic lens at the
+   field_angles`` 0°, 4.75°, 9.5° (runs/scaled-field: the axis, half-way and the corner) and 3.1°,
+   5.4°, 7.0° (runs/scaled-field-area: the middles of the three thirds of the sensor's pixels by
+   field angle, so every pixel weighs the same), the same seed and a schedule of ``STEPS`` steps
+   (presets written to runs/<run>.toml; ``--reuse`` keeps finished runs).
+2. ``metalens psf-scan --field-angles`` of the three runs and of the same camera's hyperbolic lens at the
    filter's centre wavelengths, source at infinity, to the sensor's corner; ``metalens mtf``:
    tangential and sagittal MTF50 per field.
-3. ``metalens evaluate`` of the three on the photographs at 128², once with the on-axis model and
+3. ``metalens evaluate`` of the four on the photographs at 128², once with the on-axis model and
    once with ``--field auto`` (fixed depths 2.8 mm and 31.25 cm, the 45 mm and 5 m of docs/field.md
    over 16): each design's scores, the paired differences field-trained − axis-trained, and
    field − on-axis per design.
@@ -32,11 +34,15 @@ from field_results import WAVELENGTHS, _lpmm, field_differences, metalens
 ROOT = Path(__file__).resolve().parents[1]
 PRESET = "examples/scaled-split-spectrum.toml"
 STEPS = 100  # a third of the quick schedule: an off-axis step of the learned lens costs 23-32 s on 2 cores
-FIELD_ANGLES_DEG = (0.0, 4.75, 9.5)  # trained: the axis, half-way and the 128² sensor's corner (atan(90.5 px · p / f))
-FIELDS_DEG = (0.0, 2.25, 4.75, 6.75, 9.5)  # scanned: the trained ones and the sensor's edge
+FIELD_RUNS = {  # trained over the field: run → field angles (deg)
+    "runs/scaled-field": (0.0, 4.75, 9.5),  # the axis, half-way and the 128² sensor's corner (atan(90.5 px · p / f))
+    "runs/scaled-field-area": (3.1, 5.4, 7.0),  # the 1/6, 1/2 and 5/6 quantiles of the pixels' field angles
+}
+FIELDS_DEG = (0.0, 2.25, 4.75, 6.75, 9.5)  # scanned: the axis to the corner, the sensor's edge (6.75°) among them
 DESIGNS = {
     "runs/scaled-axis": "trained on axis",
     "runs/scaled-field": "trained over the field",
+    "runs/scaled-field-area": "trained over the field by area",
     "hyperbolic:532nm": "hyperbolic 532 nm",
 }
 EVALUATE = ["--preset", PRESET, "--images", "photos", "--obstruction", "dirt,fence", "--seed", "0:2",
@@ -46,16 +52,15 @@ OUT = ROOT / "docs" / "field_training.md"
 
 
 def train(reuse: bool) -> None:
-    """Both runs, from presets written to runs/ (``STEPS`` steps, the cosine schedule over them)."""
+    """The runs, from presets written to runs/ (``STEPS`` steps, the cosine schedule over them)."""
     from metalens_cli.io.presets import load_preset, to_toml
 
     preset = load_preset(ROOT / PRESET)
     schedule = {"steps": STEPS, "t_max": STEPS}
-    angles = tuple(math.radians(a) for a in FIELD_ANGLES_DEG)
-    for run, settings in (
-        ("runs/scaled-axis", schedule),
-        ("runs/scaled-field", {**schedule, "field_angles_rad": angles}),
-    ):
+    runs = {"runs/scaled-axis": schedule}
+    for run, angles in FIELD_RUNS.items():
+        runs[run] = {**schedule, "field_angles_rad": tuple(math.radians(a) for a in angles)}
+    for run, settings in runs.items():
         if reuse and (ROOT / run / "run.json").is_file():
             continue
         if (ROOT / run).exists():
@@ -90,14 +95,14 @@ def _ci(d: dict, digits: int) -> str:
     return f"{d['mean']:+.{digits}f} [{d['ci'][0]:+.{digits}f}, {d['ci'][1]:+.{digits}f}]"
 
 
-def _between(report: dict, metric: str) -> dict[str, dict]:
-    """condition → evaluate's paired difference, trained over the field − trained on axis."""
+def _between(report: dict, metric: str, run: str) -> dict[str, dict]:
+    """condition → evaluate's paired difference, ``run`` (trained over the field) − trained on axis."""
     out = {}
     for c in report["comparisons"]:
         if c["capture"] != "raw" or c["metric"] != metric or c["condition"] not in ("unobstructed", "obstructed"):
             continue
         pair = (c["design"], c["versus"])
-        sign = {("runs/scaled-field", "runs/scaled-axis"): 1, ("runs/scaled-axis", "runs/scaled-field"): -1}.get(pair)
+        sign = {(run, "runs/scaled-axis"): 1, ("runs/scaled-axis", run): -1}.get(pair)
         if sign:
             condition = c["condition"] if c["condition"] == "unobstructed" else c["obstruction"]
             lo, hi = sorted(sign * x for x in c["ci"])
@@ -106,19 +111,25 @@ def _between(report: dict, metric: str) -> dict[str, dict]:
 
 
 def write(mtfs: dict[str, dict], on_axis: dict, field: dict) -> None:
-    runs = {name: json.loads((ROOT / name / "run.json").read_text()) for name in list(DESIGNS)[:2]}
+    trained = [name for name in DESIGNS if name.startswith("runs/")]
+    runs = {name: json.loads((ROOT / name / "run.json").read_text()) for name in trained}
     lines = [
         "# Training over the field of view",
         "",
         "Generated by `python examples/field_training.py` (do not edit by hand). The paper trains on axis. "
         "`[optimize] field_angles` draws a field angle per step and trains with that field point's PSFs "
         "(docs/training.md). At the paper's lens an off-axis step costs minutes on 2 CPU cores, so this "
-        f"compares two lenses of the paper's camera scaled down 4× (`{PRESET}`: f = 1 mm, D = 0.629 mm, "
+        f"compares lenses of the paper's camera scaled down 4× (`{PRESET}`: f = 1 mm, D = 0.629 mm, "
         "the same NA 0.3 and ±6.75° to the 128² sensor's edge, 9.5° to its corner; depths and obstructions "
         "/ 16, the same defocus in waves; 4× fewer waves of coma than the paper's lens): the same preset, "
-        "schedule and seed, one trained on axis and one with `field_angles = "
-        + ", ".join(f"{a:g}°" for a in FIELD_ANGLES_DEG)
-        + "` (each step one of them, equally likely).",
+        "schedule and seed, one trained on axis and two over the field (each step one of its angles, equally "
+        "likely): "
+        + "; ".join(
+            f"{DESIGNS[run]}, `field_angles = " + ", ".join(f"{a:g}°" for a in angles) + "`"
+            for run, angles in FIELD_RUNS.items()
+        )
+        + ". The first weighs the sensor's corner like its axis; the second puts each angle at the middle of a "
+        "third of the sensor's pixels, so every pixel weighs the same.",
         "",
         "| run | steps | s/step (median) | training (min) |",
         "| --- | --- | --- | --- |",
@@ -182,29 +193,37 @@ def write(mtfs: dict[str, dict], on_axis: dict, field: dict) -> None:
         "",
         "Trained over the field − trained on axis, paired over the same units (PSNR dB / SSIM):",
         "",
-        "| condition | on-axis model | field model |",
-        "| --- | --- | --- |",
+        "| run | condition | on-axis model | field model |",
+        "| --- | --- | --- | --- |",
     ]
-    between = {m: (_between(on_axis, m), _between(field, m)) for m in ("psnr_db", "ssim")}
-    for condition in ("unobstructed", "dirt", "fence"):
-        cells = [
-            f"{_ci(between['psnr_db'][i][condition], 2)} / {_ci(between['ssim'][i][condition], 3)}" for i in (0, 1)
-        ]
-        lines.append(f"| {condition} | " + " | ".join(cells) + " |")
-    lines += ["", _verdict(between["psnr_db"][1], differences)]
+    over_field = {}
+    for run in FIELD_RUNS:
+        between = {m: (_between(on_axis, m, run), _between(field, m, run)) for m in ("psnr_db", "ssim")}
+        for condition in ("unobstructed", "dirt", "fence"):
+            cells = [
+                f"{_ci(between['psnr_db'][i][condition], 2)} / {_ci(between['ssim'][i][condition], 3)}" for i in (0, 1)
+            ]
+            lines.append(f"| {DESIGNS[run]} | {condition} | " + " | ".join(cells) + " |")
+        over_field[run] = between["psnr_db"][1]["unobstructed"]
+    lines += ["", _verdict(over_field, differences)]
     OUT.write_text("\n".join(lines) + "\n")
 
 
 def _verdict(over_field: dict[str, dict], differences: dict) -> str:
-    """One sentence on the question, from the field model's paired differences."""
-    unobstructed = over_field["unobstructed"]
-    lo, hi = unobstructed["ci"]
-    outcome = "beats" if lo > 0 else "loses to" if hi < 0 else "does not resolvably differ from"
-    cost = {spec: differences[spec, "unobstructed", "psnr_db"]["mean"] for spec in list(DESIGNS)[:2]}
+    """Two sentences on the question, from each run's paired difference against the lens trained
+    on axis (``over_field``: run → the field model's unobstructed PSNR difference)."""
+    outcomes = []
+    for run, between in over_field.items():
+        lo, hi = between["ci"]
+        outcome = "beats it" if lo > 0 else "loses to it" if hi < 0 else "does not resolvably differ from it"
+        outcomes.append(f"the lens {DESIGNS[run]} {outcome}, {_ci(between, 2)} dB")
+    cost = {spec: -differences[spec, "unobstructed", "psnr_db"]["mean"] for spec in ("runs/scaled-axis", *over_field)}
     return (
-        f"Over the whole field (the field model, unobstructed) the lens trained over the field {outcome} the one "
-        f"trained on axis: {_ci(unobstructed, 2)} dB. The on-axis model overstates them by "
-        f"{-cost['runs/scaled-axis']:.2f} and {-cost['runs/scaled-field']:.2f} dB."
+        "Over the whole field (the field model, unobstructed photographs), against the lens trained on axis: "
+        + "; ".join(outcomes)
+        + f". The on-axis model overstates the lens trained on axis by {cost['runs/scaled-axis']:.2f} dB, "
+        + " and ".join(f"the one {DESIGNS[run]} by {cost[run]:.2f} dB" for run in over_field)
+        + "."
     )
 
 
