@@ -157,7 +157,9 @@ def psf_scan(
         estimate = estimate_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, **psf_options)
     else:
         psf_options.pop("propagator")
-        estimate = estimate_field_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, angles, **psf_options)
+        estimate = estimate_field_scan(
+            design, wavelengths_m, depths_m, pixels, pixel_pitch_m, angles, azimuth_rad=field_azimuth, **psf_options
+        )
     announce(estimate, max_memory, output, run_device)
     efficiency = efficiency_used(design.preset, quiet)
     with progress_bar("psf-scan", quiet) as update:

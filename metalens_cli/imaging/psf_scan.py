@@ -338,11 +338,12 @@ def estimate_field_scan(
     pixel_pitch_m: float,
     angles_rad: list[float],
     *,
+    azimuth_rad: float = 0.0,
     dtype: torch.dtype = torch.float32,
     force: bool = False,
 ) -> Estimate:
     """Peak memory and time of :func:`run_field_scan`: an on-axis field as :func:`estimate_scan`,
-    each other field as ``optics.field.estimate_field_psf``."""
+    each other field as ``optics.field.estimate_field_psf`` at ``azimuth_rad``."""
     from metalens_cli.optics.field import estimate_field_psf
 
     axis = estimate_psf(
@@ -353,8 +354,8 @@ def estimate_field_scan(
     memory, seconds = axis.memory_bytes, axis.seconds if len(off) < len(angles_rad) else 0.0
     for angle in off:
         tilted = estimate_field_psf(
-            design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, angle, distance_m=design.focal_length_m,
-            dtype=dtype, force=force,
+            design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, angle, azimuth_rad=azimuth_rad,
+            distance_m=design.focal_length_m, dtype=dtype, force=force,
         )  # fmt: skip
         memory, seconds = max(memory, tilted.memory_bytes), seconds + tilted.seconds
     count = len(wavelengths_m) * len(depths_m) * len(angles_rad)

@@ -128,6 +128,7 @@ def asm_transfer_shifted(
     centre_m: tuple[float, float],
     dtype: torch.dtype = torch.complex64,
     device: str | torch.device = "cpu",
+    nonnegative_v: bool = False,
 ):
     """Transfer function of the shifted angular spectrum for a field g = U·exp(−i·2π(u0·x + v0·y))
     whose carrier (u0, v0) = ``carrier`` (cycles/m) was taken out, onto the window centred at
@@ -140,7 +141,8 @@ def asm_transfer_shifted(
     S/2 of xc (and likewise in y), the band limit of the recentred kernel: its sampling in
     frequency then resolves it, and rays from the pupil to the window all pass (the grid's side S
     is at least 2a + W). Built in float64 a block of rows at a time (its transient memory is one
-    block's, not five float64 arrays of the band's size).
+    block's, not five float64 arrays of the band's size). ``nonnegative_v``: the rows v ≥ 0 alone,
+    (K + 1, 2K + 1), for ``asm_propagate_even_y`` (H is even in v when v0 = yc = 0).
     """
     u0, v0 = carrier
     xc, yc = centre_m
@@ -150,10 +152,13 @@ def asm_transfer_shifted(
     column = (1.0 / wavelength_m**2 - u**2)[None, :]
     ramp_x = (2 * math.pi * xc) * f[None, :]
     real_dtype = torch.float32 if dtype == torch.complex64 else torch.float64
-    out = torch.empty(f.numel(), f.numel(), dtype=dtype, device=device)
+    if nonnegative_v and (v0 != 0 or yc != 0):
+        raise ValueError("the transfer function is even in v only without a carrier or window offset in y")
+    f_rows = f[k_max:] if nonnegative_v else f
+    out = torch.empty(f_rows.numel(), f.numel(), dtype=dtype, device=device)
     step = max(1, BLOCK_BYTES // (8 * f.numel()))
-    for a in range(0, f.numel(), step):  # a block of rows (v) at a time: float64 work of one block
-        fv = f[a : a + step, None]
+    for a in range(0, f_rows.numel(), step):  # a block of rows (v) at a time: float64 work of one block
+        fv = f_rows[a : a + step, None]
         v = fv + v0
         w = column - v**2  # w² first, reused in place
         keep = w > 0
@@ -202,14 +207,24 @@ def _blocks(rows: int, length: int, itemsize: int) -> list[slice]:
     return [slice(a, min(a + step, rows)) for a in range(0, rows, step)]
 
 
-def _band_fft(x: torch.Tensor, size: int, k_max: int) -> torch.Tensor:
+def _band_fft(x: torch.Tensor, size: int, k_max: int, nonnegative: bool = False, mirror: bool = False) -> torch.Tensor:
     """DFT of length ``size`` (zero padded) along the last axis, keeping frequencies −K..K in
-    increasing order; returned transposed in its last two axes: (..., r, n) → (..., 2K+1, r)."""
-    out = x.new_empty(*x.shape[:-2], 2 * k_max + 1, x.shape[-2])
-    for rows in _blocks(x.shape[-2], size, x.element_size()):
+    increasing order (0..K with ``nonnegative``); returned transposed in its last two axes:
+    (..., r, n) → (..., 2K+1, r). ``mirror``: the rows are those at offsets 0..r−1 of a set even
+    about its first row, returned whole: (..., 2K+1, 2r−1), row j at columns r−1 ± j."""
+    low, r = (0 if nonnegative else k_max), x.shape[-2]
+    axis = r - 1 if mirror else 0
+    out = x.new_empty(*x.shape[:-2], low + k_max + 1, axis + r)
+    for rows in _blocks(r, size, x.element_size()):
         spec = torch.fft.fft(x[..., rows, :], n=size, dim=-1)
-        out[..., :k_max, rows] = spec[..., size - k_max :].transpose(-1, -2)
-        out[..., k_max:, rows] = spec[..., : k_max + 1].transpose(-1, -2)
+        placed = [(slice(axis + rows.start, axis + rows.stop), spec)]
+        if mirror and rows.stop > 1:
+            first = max(rows.start, 1)
+            placed.append((slice(axis - rows.stop + 1, axis - first + 1), spec[..., first - rows.start :, :].flip(-2)))
+        for columns, block in placed:
+            if low:
+                out[..., :low, columns] = block[..., size - low :].transpose(-1, -2)
+            out[..., low:, columns] = block[..., : k_max + 1].transpose(-1, -2)
     return out
 
 
@@ -232,19 +247,29 @@ def _turns(k: torch.Tensor, x: torch.Tensor | int, size: int, sign: float, dtype
     return torch.polar(torch.ones_like(turns), turns * (sign * 2 * math.pi / size))
 
 
-def _window_ifft(band: torch.Tensor, size: int, k_max: int, start: int, count: int) -> torch.Tensor:
+def _window_ifft(
+    band: torch.Tensor, size: int, k_max: int, start: int, count: int, twist: torch.Tensor | None = None
+) -> torch.Tensor:
     """Inverse DFT of length ``size`` along the last axis of coefficients for k = −K..K,
     at outputs x = start..start+count−1 (mod size), transposed: (..., r, 2K+1) → (..., count, r).
+    ``twist`` (r − 1 factors t_j): the rows are those at offsets j = 0..r−1 of a set whose row −j
+    is t_j times row j, returned whole: (..., count, 2r−1), row j at column r−1 + j.
 
     The band is fed as k + K = 0..2K (zero padding at the end, native to the FFT) and the
     resulting shift is undone by the ramp exp(−i·2π·K·x/size) on the kept outputs only.
     """
     x = torch.remainder(torch.arange(start, start + count, device=band.device), size)
     ramp = _turns(torch.tensor(k_max, device=band.device), x, size, -1.0, band.real.dtype)
-    out = band.new_empty(*band.shape[:-2], count, band.shape[-2])
-    for rows in _blocks(band.shape[-2], size, band.element_size()):
+    r = band.shape[-2]
+    axis = 0 if twist is None else r - 1
+    out = band.new_empty(*band.shape[:-2], count, axis + r)
+    for rows in _blocks(r, size, band.element_size()):
         kept = torch.fft.ifft(band[..., rows, :], n=size, dim=-1).index_select(-1, x) * ramp
-        out[..., :, rows] = kept.transpose(-1, -2)
+        out[..., :, axis + rows.start : axis + rows.stop] = kept.transpose(-1, -2)
+        if twist is not None and rows.stop > 1:
+            first = max(rows.start, 1)
+            mirrored = kept[..., first - rows.start :, :] * twist[first - 1 : rows.stop - 1, None]
+            out[..., :, axis - rows.stop + 1 : axis - first + 1] = mirrored.flip(-2).transpose(-1, -2)
     return out
 
 
@@ -277,6 +302,75 @@ def _asm_adjoint(window: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_max: in
         _band_fft_adjoint(spec, grid.size, k_max, grid.input_size), grid.size, k_max, grid.input_size
     )
     return field.mul_(grid.upsample**2)
+
+
+def asm_propagate_even_y(half: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tuple]) -> torch.Tensor:
+    """``asm_propagate`` of a field even in y (rows), given by its rows y ≥ 0 (..., n//2 + 1, n)
+    (n = ``grid.input_size``, odd: row 0 is the axis), through a transfer function even in v,
+    given by its rows v ≥ 0: ``transfer()`` returns (H, K), H of shape (K + 1, 2K + 1) (e.g.
+    ``asm_transfer_shifted(..., nonnegative_v=True)``, no carrier or window offset in y).
+
+    The window of ``asm_propagate`` of the whole field, for about three quarters of its FFT work:
+    the first forward and the first inverse pass run over half the rows. The spectrum of the
+    zero-padded even field obeys X(−v) = exp(i·4π·v·c/S)·X(v) (c = n//2 the axis row, S the grid
+    size), and so does each column of the first inverse pass, which so fills its rows v < 0.
+    Differentiable in ``half`` through its adjoint, like ``asm_propagate``.
+    """
+    return _AsmPropagateEvenY.apply(half, grid, transfer)
+
+
+def asm_propagate_even_y_adjoint(window: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tuple]) -> torch.Tensor:
+    """Adjoint of ``asm_propagate_even_y``: window field (..., w, w) → rows y ≥ 0 (..., n//2 + 1, n)."""
+    return _asm_adjoint_even_y(window, grid, *transfer())
+
+
+def _mirror_twist(grid: AsmGrid, k_max: int, device, dtype) -> torch.Tensor:
+    """exp(i·4π·k·c/S), k = 1..K: X(−k) = twist_k·X(k) for an even field whose axis is input row c."""
+    k = torch.arange(1, k_max + 1, device=device)
+    return _turns(k, 2 * (grid.input_size // 2), grid.size, 1.0, dtype)
+
+
+def _asm_apply_even_y(half: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_max: int) -> torch.Tensor:
+    if grid.input_size % 2 == 0 or half.shape[-2] != grid.input_size // 2 + 1:
+        raise ValueError("an even field needs an odd input size and its rows from the axis on")
+    n_up, start, count = grid.upsampled_size, grid.window_start, grid.window_samples
+    columns = _band_fft(half, grid.size, k_max, mirror=True)  # (..., 2K+1 [u], n [y = −c..c])
+    spec = _band_fft(columns, grid.size, k_max, nonnegative=True).mul_(h)  # (..., K+1 [v ≥ 0], 2K+1 [u])
+    del columns
+    twist = _mirror_twist(grid, k_max, spec.device, spec.real.dtype)
+    rows = _window_ifft(spec, n_up, k_max, start, count, twist)  # (..., w [x], 2K+1 [v = −K..K])
+    del spec
+    return _window_ifft(rows, n_up, k_max, start, count).mul_(grid.upsample**2)
+
+
+def _asm_adjoint_even_y(window: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_max: int) -> torch.Tensor:
+    n_up, start, c = grid.upsampled_size, grid.window_start, grid.input_size // 2
+    rows = _window_ifft_adjoint(window, n_up, k_max, start)  # (..., w, 2K+1)
+    twist = _mirror_twist(grid, k_max, rows.device, rows.real.dtype)
+    folded = rows[..., k_max:].clone()
+    folded[..., 1:] += rows[..., :k_max].flip(-1) * twist.conj()
+    del rows
+    spec = _window_ifft_adjoint(folded, n_up, k_max, start).mul_(h.conj())  # (..., K+1, 2K+1)
+    spec = torch.cat([spec.new_zeros(*spec.shape[:-2], k_max, spec.shape[-1]), spec], dim=-2)
+    columns = _band_fft_adjoint(spec, grid.size, k_max, grid.input_size)  # (..., 2K+1, n)
+    del spec
+    folded = columns[..., c:].clone()
+    folded[..., 1:] += columns[..., :c].flip(-1)
+    del columns
+    return _band_fft_adjoint(folded, grid.size, k_max, grid.input_size).mul_(grid.upsample**2)
+
+
+class _AsmPropagateEvenY(torch.autograd.Function):
+    """``_AsmPropagate`` for a field even in y (``asm_propagate_even_y``)."""
+
+    @staticmethod
+    def forward(ctx, half, grid, transfer):
+        ctx.grid, ctx.transfer = grid, transfer
+        return _asm_apply_even_y(half, grid, *transfer())
+
+    @staticmethod
+    def backward(ctx, grad):
+        return _asm_adjoint_even_y(grad, ctx.grid, *ctx.transfer()), None, None
 
 
 class _AsmPropagate(torch.autograd.Function):

@@ -114,6 +114,18 @@ def test_radial_lens_psf_is_mirror_symmetric_about_the_meridional_plane():
     assert_allclose(psf.numpy(), psf.flip(0).numpy(), rtol=0, atol=1e-12 * psf.max().item())
 
 
+@pytest.mark.parametrize("depth", [math.inf, 0.003])
+def test_mirrored_half_equals_the_whole_pupil(depth):
+    """On the +x axis a radial lens's pupil field is even in y and half its rows serve; at ψ = 2π
+    (sin ψ ≠ 0 in floating point) the whole pupil is propagated: the same PSF to rounding."""
+    kw = dict(pixels=31, pixel_pitch_m=1e-6, angle_rad=math.radians(10), **F64)
+    half = field_psf(small(), [532e-9], [depth], azimuth_rad=0.0, **kw)
+    whole = field_psf(small(), [532e-9], [depth], azimuth_rad=2 * math.pi, **kw)
+    assert half.grid["mirror_y"] and not whole.grid["mirror_y"]
+    assert half.centre_px == whole.centre_px
+    assert rel(half.psf, whole.psf) < 1e-12
+
+
 def test_rotating_lens_and_azimuth_rotates_the_psf():
     """A 2-D lens without rotational symmetry (hyperbolic plus astigmatism): turning the map and
     the field by 90° turns the PSF by 90°, sensor pixel for sensor pixel."""
