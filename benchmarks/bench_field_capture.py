@@ -17,15 +17,12 @@ Rewrites its section of docs/benchmarks.md: ``field-capture``.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
-from report import write_section
+from report import run_in_checkout, write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 # run in the checkout under test, through the API both this checkout and older ones have
@@ -71,18 +68,7 @@ print(json.dumps({
 
 def run(checkout: Path, label: str, threads: int, captures: int, constants: dict, folder: Path) -> dict:
     options = {"threads": threads, "captures": captures, "constants": constants, "capture": str(folder / label)}
-    print(f"{label} ...", file=sys.stderr, flush=True)
-    done = subprocess.run(
-        [sys.executable, "-c", WORKER, json.dumps(options)],
-        cwd=checkout,
-        env={**os.environ, "PYTHONPATH": str(checkout)},
-        check=True,
-        capture_output=True,
-        text=True,
-    )
-    result = json.loads(done.stdout.strip().splitlines()[-1])
-    if not result["module"].startswith(str(checkout)):
-        raise SystemExit(f"{label}: imported {result['module']}, not the checkout's")
+    result = run_in_checkout(checkout, WORKER, options, label)
     return {**result, "label": label, "image": np.load(folder / f"{label}.npy")}
 
 

@@ -17,15 +17,12 @@ Rewrites its section of docs/benchmarks.md: ``field-set`` (``field-set-cuda`` on
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
-from report import write_section
+from report import run_in_checkout, write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 HEIGHT_PX, WINDOW_PX, PITCH = 363, 705, 1.85e-6  # the corner of a 512² sensor; the set's window for this lens
@@ -61,18 +58,7 @@ print(json.dumps({"seconds": seconds, "timing": result.timing_s, "grid": result.
 
 def run(checkout: Path, label: str, options: dict, folder: Path) -> dict:
     out = folder / f"{len(list(folder.glob('*.npy')))}.npy"
-    print(f"{label} ...", file=sys.stderr, flush=True)
-    done = subprocess.run(
-        [sys.executable, "-c", WORKER, json.dumps({**options, "out": str(out)})],
-        cwd=checkout,
-        env={**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(checkout), os.environ.get("PYTHONPATH")]))},
-        check=True,
-        capture_output=True,
-        text=True,
-    )
-    result = json.loads(done.stdout.strip().splitlines()[-1])
-    if not result["module"].startswith(str(checkout)):
-        raise SystemExit(f"{label}: imported {result['module']}, not the checkout's")
+    result = run_in_checkout(checkout, WORKER, {**options, "out": str(out)}, label)
     return {**result, "label": label, "psf": np.load(out)}
 
 

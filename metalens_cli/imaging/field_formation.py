@@ -218,6 +218,25 @@ def field_psf(psf_set: FieldPsfSet, x: torch.Tensor, y: torch.Tensor, support: i
     return out.reshape(out_shape)
 
 
+def height_check(psf_set: FieldPsfSet) -> dict:
+    """How well the model interpolates between the set's heights, from the set alone: each interior
+    height left out, its unit-sum PSFs against :func:`field_psf` of the set without it there (an
+    interpolation across twice the step). ``error``: per interior height (``heights_px``) the
+    relative L2 per channel, a white-noise scene's (the metric of the tolerance). Where the PSFs
+    change smoothly with height this is about 4× the model's error midway between heights; where
+    their detail moves by more than its own width, about that error. On the paper's hyperbolic lens
+    (512², 5 m) it gave 35/45/77 % (R/G/B) at 91 px and 40/43/47 % at 272 px, against 9/54/53 % and
+    46/29/41 % measured midway in the first and last intervals (docs/field.md, "Between the
+    heights"): 0.8-1.5×, 3.9× in the red of the first, where the PSF changes smoothly."""
+    heights, errors = psf_set.heights_px, []
+    for k in range(1, len(heights) - 1):
+        rest = FieldPsfSet(heights[:k] + heights[k + 1 :], torch.cat([psf_set.psfs[:k], psf_set.psfs[k + 1 :]]))
+        model = field_psf(rest, torch.tensor(float(heights[k])), torch.tensor(0.0)).double()
+        true = unit_sum(psf_set.psfs[k]).double()
+        errors.append(((model - true).norm(dim=(-2, -1)) / true.norm(dim=(-2, -1))).tolist())
+    return {"heights_px": list(heights[1:-1]), "error": errors}
+
+
 def _cropped(psfs: torch.Tensor, support: int) -> torch.Tensor:
     """The central ``support`` × ``support`` pixels of (..., N, N) windows (N, support odd)."""
     a = (psfs.shape[-1] - support) // 2

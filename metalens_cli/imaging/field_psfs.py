@@ -31,13 +31,13 @@ from __future__ import annotations
 import hashlib
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from metalens_cli.errors import InputError
-from metalens_cli.imaging.field_formation import FieldPsfSet
+from metalens_cli.imaging.field_formation import FieldPsfSet, height_check
 from metalens_cli.io.cache import cached, check_array, input_key
 from metalens_cli.optics.field import ON_AXIS_MARGIN, field_window
 from metalens_cli.optics.window import crop_window
@@ -67,6 +67,7 @@ class FieldPsfs:
     seconds: float
     cached: bool
     cache_path: str | None = None
+    height_error: dict = field(default_factory=dict)
 
     @property
     def margin(self) -> int:
@@ -82,6 +83,7 @@ class FieldPsfs:
             "field_psf_energy": self.kept,
             "spectral_error": self.spectral_error,
             "sampling_error": self.sampling_error,
+            "height_error": self.height_error,
             "field_psf_seconds": self.seconds,
             "field_psf_cached": self.cached,
             "field_psf_cache": self.cache_path,
@@ -273,6 +275,7 @@ def field_channel_psfs(
     return FieldPsfs(
         sets[0], sets[1], z_near_m, z_far_m, angles, lams, error, float(entry.arrays["sampling_error"][0]), kept,
         time.perf_counter() - start, entry.hit, None if entry.path is None else str(entry.path),
+        {"near": height_check(sets[0]), "far": height_check(sets[1])},
     )  # fmt: skip
 
 

@@ -316,7 +316,7 @@ def asm_propagate_even_y(half: torch.Tensor, grid: AsmGrid, transfer: Callable[[
     size), and so does each column of the first inverse pass, which so fills its rows v < 0.
     Differentiable in ``half`` through its adjoint, like ``asm_propagate``.
     """
-    return _AsmPropagateEvenY.apply(half, grid, transfer)
+    return _AsmPropagate.apply(half, grid, transfer, _asm_apply_even_y, _asm_adjoint_even_y)
 
 
 def asm_propagate_even_y_adjoint(window: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tuple]) -> torch.Tensor:
@@ -360,32 +360,19 @@ def _asm_adjoint_even_y(window: torch.Tensor, grid: AsmGrid, h: torch.Tensor, k_
     return _band_fft_adjoint(folded, grid.size, k_max, grid.input_size).mul_(grid.upsample**2)
 
 
-class _AsmPropagateEvenY(torch.autograd.Function):
-    """``_AsmPropagate`` for a field even in y (``asm_propagate_even_y``)."""
-
-    @staticmethod
-    def forward(ctx, half, grid, transfer):
-        ctx.grid, ctx.transfer = grid, transfer
-        return _asm_apply_even_y(half, grid, *transfer())
-
-    @staticmethod
-    def backward(ctx, grad):
-        return _asm_adjoint_even_y(grad, ctx.grid, *ctx.transfer()), None, None
-
-
 class _AsmPropagate(torch.autograd.Function):
-    """The propagation is linear in the field: its gradient is the adjoint propagation of the
-    output gradient, so nothing is saved between the passes (the transfer function is fetched
-    again through ``transfer``)."""
+    """A propagation ``apply(field, grid, H, K)`` is linear in the field: its gradient is the
+    adjoint propagation ``adjoint(grad, grid, H, K)`` of the output gradient, so nothing is saved
+    between the passes (the transfer function is fetched again through ``transfer``)."""
 
     @staticmethod
-    def forward(ctx, field, grid, transfer):
-        ctx.grid, ctx.transfer = grid, transfer
-        return _asm_apply(field, grid, *transfer())
+    def forward(ctx, field, grid, transfer, apply, adjoint):
+        ctx.grid, ctx.transfer, ctx.adjoint = grid, transfer, adjoint
+        return apply(field, grid, *transfer())
 
     @staticmethod
     def backward(ctx, grad):
-        return _asm_adjoint(grad, ctx.grid, *ctx.transfer()), None, None
+        return ctx.adjoint(grad, ctx.grid, *ctx.transfer()), None, None, None, None
 
 
 def asm_propagate(field: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tuple]) -> torch.Tensor:
@@ -398,7 +385,7 @@ def asm_propagate(field: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tup
     (zero padding of the spectrum) and the window crop happen inside 1-D passes along the last
     axis, a block of rows at a time, so no padded full-size 2-D array is formed.
     """
-    return _AsmPropagate.apply(field, grid, transfer)
+    return _AsmPropagate.apply(field, grid, transfer, _asm_apply, _asm_adjoint)
 
 
 def asm_propagate_adjoint(window: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tuple]) -> torch.Tensor:

@@ -16,6 +16,7 @@ from metalens_cli.imaging.field_formation import (
     field_psf,
     field_transform,
     form_image_field,
+    height_check,
 )
 from metalens_cli.imaging.formation import canvas_margin, coverage_alpha, form_image
 
@@ -104,6 +105,25 @@ def test_field_psf_interpolates_linearly_in_height_and_keeps_the_last():
         field_psf(psfs, 15.0, 0.0).numpy(), unit(p[2] * 5 / 8 + p[3] * 3 / 8).numpy(), atol=1e-14
     )
     np.testing.assert_allclose(field_psf(psfs, 40.0, 0.0).numpy(), p[-1].numpy(), atol=1e-14)
+
+
+def test_height_check_leaves_each_interior_height_out():
+    """PSFs linear in height (equal sums) are interpolated exactly: no error. A point that jumps to
+    another pixel and back at the middle height: the model there is the ends' point, the error
+    ‖δ_a − δ_b‖/‖δ_b‖ = √2 in every channel."""
+    g = torch.Generator().manual_seed(3)
+    a = torch.rand(2, 9, 9, generator=g, dtype=torch.float64) + 1
+    b = torch.randn(2, 9, 9, generator=g, dtype=torch.float64)
+    b = (b - b.mean((-2, -1), keepdim=True)) / 40  # zero sum: every height sums to a's sum
+    heights = (0, 3, 7, 12)
+    linear = FieldPsfSet(heights, torch.stack([a + h * b for h in heights]))
+    check = height_check(linear)
+    assert check["heights_px"] == [3, 7] and np.max(check["error"]) < 1e-13
+    point = torch.zeros(3, 2, 9, 9, dtype=torch.float64)
+    point[0, :, 4, 4] = point[2, :, 4, 4] = 1
+    point[1, :, 4, 6] = 1
+    np.testing.assert_allclose(height_check(FieldPsfSet((0, 5, 10), point))["error"], [[math.sqrt(2)] * 2])
+    assert height_check(FieldPsfSet((0, 5), point[:2])) == {"heights_px": [], "error": []}
 
 
 def test_field_psf_at_an_oblique_azimuth_is_the_rotated_closed_form():

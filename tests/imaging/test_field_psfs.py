@@ -51,6 +51,7 @@ def test_field_set_is_pixel_aligned_cached_and_on_axis_at_its_centre(tmp_path, m
     assert min(min(k) for k in first.kept["far"]) > 0.99
     # the set's single angle margin against field_psf's doubled one, measured at the corner
     assert 0 < first.sampling_error < 2e-3 and first.report()["sampling_error"] == first.sampling_error
+    assert first.report()["height_error"]["far"] == {"heights_px": [], "error": []}  # no height between
     again = field_channel_psfs(design, 0.01, 1.0, LAMS, PITCH, 64, wavelengths_per_channel=2)
     assert again.cached and torch.equal(again.far.psfs, first.far.psfs)
     assert again.sampling_error == first.sampling_error
