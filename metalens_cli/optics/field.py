@@ -164,10 +164,12 @@ def field_psf(
     return FieldPsf(psf, *common, propagator, grid, timing)
 
 
-# Rates of the shifted angular spectrum on 2 CPU cores (benchmarks/bench_field.py, the paper's lens)
+# Rates of the shifted angular spectrum on 2 CPU cores (benchmarks/bench_field.py and bench_field_set.py,
+# the paper's lens: one PSF in a 255-px window, and a set's height of 24 wavelengths × 2 depths at 705 px)
 SITE_SECONDS = 2.3e-8  # per meta-atom site: the lens phase on the whole grid, the pupil, the sources
+PHASE_SECONDS = 3.2e-8  # per site held, (wavelength, finite depth): the source's phase joined, the field formed
 TRANSFER_SECONDS = 2.8e-8  # per element of the kept band: one shifted transfer function (float64 build)
-FFT_LENGTH_RATE = 4.2e9  # rows × length × log2(length) per second through the 1-D FFT passes
+FFT_LENGTH_RATE = 3.3e9  # rows × length × log2(length) per second through the 1-D FFT passes
 MEMORY_SLACK = 1.5  # peak RSS over the arrays counted: 1.35-1.55 measured (FFT work buffers, the allocator)
 
 
@@ -188,7 +190,8 @@ def estimate_field_psf(
 ) -> PsfCost:
     """What :func:`field_psf` (asm) will cost, from the same plans (a :class:`SamplingError` here
     is the one it would raise): the site grid once, per wavelength one shifted transfer function,
-    per (wavelength, depth) the band FFT passes over the pupil and the window's inverse passes;
+    per (wavelength, depth) the band FFT passes over the pupil and the window's inverse passes
+    (and for a finite depth the pupil field formed with its source's phase);
     ``setup_seconds`` is the site grid's. Peak memory: the site arrays (float64 phase, per finite
     depth its path, the pupil field) and the propagation's arrays at the largest band; with
     ``backward`` (PSFs differentiated in θ), twice that and what autograd keeps per (wavelength,
@@ -204,7 +207,8 @@ def estimate_field_psf(
     rays = [chief_ray(lens, lam, angle_rad, azimuth_rad, d) for lam in lams]
     share = 0.5 if _mirror_even(lens, angle_rad, azimuth_rad, round(rays[len(rays) // 2][1] / pixel_pitch_m)) else 1.0
     site_count = m * math.ceil(share * m)  # held; the time is the lens phase's over its quadrant and the mirroring
-    seconds, band_max, window = SITE_SECONDS * m**2, 0, 0
+    finite = sum(1 for z in zs if math.isfinite(z))
+    seconds, band_max, window = SITE_SECONDS * m**2 + PHASE_SECONDS * site_count * finite * len(lams), 0, 0
     for lam in lams:
         grid, k_max = sampling.plan_field_asm(lens, lam, d, pixels, pixel_pitch_m, f_g, sin_a, oversample)
         band, n, up = 2 * k_max + 1, grid.size, grid.upsampled_size
@@ -212,7 +216,6 @@ def estimate_field_psf(
         seconds += TRANSFER_SECONDS * share * band**2 + len(zs) * passes / FFT_LENGTH_RATE
         band_max, window = max(band_max, band), grid.window_samples
     real = 4 if dtype == torch.float32 else 8
-    finite = sum(1 for z in zs if math.isfinite(z))
     sites = site_count * (8 + 1 + 2 * real + (real + 8) * finite)  # lens phase, pupil, fields, per finite depth
     # the transfer function and the band's spectrum, the first pass's band × sites, the window's
     # band × samples, three blocks of FFT rows, and the PSFs
