@@ -113,6 +113,14 @@ def chief_ray(
     return distance_m * sx / cos, distance_m * sy / cos
 
 
+def _chief_rays(lens: Metalens, lams, angle: float, azimuth: float, d: float, pitch: float):
+    """The chief ray's landing per wavelength (m), the middle wavelength's, and the window's centre
+    pixel (column, row) from the axis pixel: where that one lands."""
+    rays = tuple(chief_ray(lens, lam, angle, azimuth, d) for lam in lams)
+    middle = rays[len(rays) // 2]
+    return rays, middle, (round(middle[0] / pitch), round(middle[1] / pitch))
+
+
 def field_psf(
     lens: Metalens,
     wavelengths_m,
@@ -146,9 +154,7 @@ def field_psf(
         raise InputError("field angle", f"{angle_rad!r} rad", f"an angle from 0 to {math.degrees(MAX_FIELD_ANGLE):g}°")
     if not math.isfinite(azimuth_rad):
         raise InputError("azimuth", f"{azimuth_rad!r} rad", "a finite angle")
-    rays = tuple(chief_ray(lens, lam, angle_rad, azimuth_rad, d) for lam in lams)
-    middle = rays[len(rays) // 2]
-    centre = (round(middle[0] / pixel_pitch_m), round(middle[1] / pixel_pitch_m))
+    rays, middle, centre = _chief_rays(lens, lams, angle_rad, azimuth_rad, d, pixel_pitch_m)
     common = (tuple(lams), tuple(zs), pixel_pitch_m, d, angle_rad, azimuth_rad, middle, rays, centre)
     if angle_rad == 0 and centre == (0, 0) and propagator == "asm":
         axis = compute_psf(
@@ -204,8 +210,8 @@ def estimate_field_psf(
     validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, "auto", dtype, oversample)
     f_g = _carrier_free_frequency(lens, lams, zs, angle_rad, azimuth_rad, force)
     sin_a, m = math.sin(angle_rad), lens.grid_size
-    rays = [chief_ray(lens, lam, angle_rad, azimuth_rad, d) for lam in lams]
-    share = 0.5 if _mirror_even(lens, angle_rad, azimuth_rad, round(rays[len(rays) // 2][1] / pixel_pitch_m)) else 1.0
+    centre = _chief_rays(lens, lams, angle_rad, azimuth_rad, d, pixel_pitch_m)[2]
+    share = 0.5 if _mirror_even(lens, angle_rad, azimuth_rad, centre[1]) else 1.0
     site_count = m * math.ceil(share * m)  # held; the time is the lens phase's over its quadrant and the mirroring
     finite = sum(1 for z in zs if math.isfinite(z))
     seconds, band_max, window = SITE_SECONDS * m**2 + PHASE_SECONDS * site_count * finite * len(lams), 0, 0
