@@ -113,6 +113,8 @@ def main() -> None:
         f"The paper's hyperbolic lens, the set's corner height ({HEIGHT_PX} px of {PITCH * 1e6:g} µm behind f = 4 mm), "
         f"its {results[0]['wavelengths']} wavelengths at 45 mm and 5 m in a {WINDOW_PX}-pixel window "
         f"(`optics.field.field_psf`, on-axis angle margin), {machine}, each configuration in a process of its own. "
+        "FFT grid: the largest of the wavelengths' (since 2026-11-27 sized by the light that can reach the window, "
+        "`sampling.plan_field_asm`; before, the larger of that reach without a guard and every wave of the kept band). "
         "Half pupil: the mirror symmetry about the meridional plane used (`propagate.asm_propagate_even_y`). "
         "Seconds in all, then kernels (site grid, pixel operator, transfer functions) / sources / propagation; "
         f"peak memory ({'GPU' if gpu else 'RSS'}); the PSFs' relative L2 from the first row's. "

@@ -47,7 +47,7 @@ HEIGHT_STEP_PX = 90  # default spacing of the image points from the axis to the 
 # the photographs −0.14 dB PSNR (hyperbolic) and +0.00-0.01 dB (learned) against every 5 nm (docs/field.md)
 DEFAULT_WAVELENGTHS_PER_CHANNEL = 8
 CACHE_KIND = "field-psfs"
-CACHE_VERSION = 2  # bump when the computation changes
+CACHE_VERSION = 3  # bump when the computation changes
 
 
 @dataclass

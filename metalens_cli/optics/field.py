@@ -14,12 +14,13 @@ lens's own phase gradient there, s = sin α·(cos ψ, sin ψ) + (λ/2π)·∇φ(
 Method: off axis even a radial lens has only a mirror symmetry, so the pupil field is built on the
 whole meta-atom grid (radial lenses: one quadrant of the lens phase, mirrored), its carrier (the
 linear phase of the tilt) taken out, and propagated with the shifted band-limited angular spectrum
-onto the window around the chief ray (``propagate.asm_transfer_shifted``): the FFT grid is the
-on-axis one measured from the chief ray (``sampling.plan_field_asm``), so the cost barely grows with
-α. A radial lens's field point on the +x axis (ψ = 0, every field PSF set's) keeps the mirror
-symmetry y → −y: its pupil field is built on the rows y ≥ 0 alone and propagated by
-``propagate.asm_propagate_even_y`` (the same PSF to rounding, 1.4× faster and 40 % less memory on
-the paper's lens; ``benchmarks/bench_field_set.py``). α = 0 is the on-axis PSF
+onto the window around the chief ray (``propagate.asm_transfer_shifted``): the FFT grid holds the
+light that can reach the window, the aperture plus the window and a guard measured from the chief
+ray (``sampling.plan_field_asm``), so the cost does not grow with α. A radial lens's field point
+on the +x axis (ψ = 0, every field PSF set's) keeps the mirror symmetry y → −y: its pupil field
+is built on the rows y ≥ 0 alone and propagated by ``propagate.asm_propagate_even_y`` (the same
+PSF to rounding, 1.4× faster and 40 % less memory on the paper's lens;
+``benchmarks/bench_field_set.py``). α = 0 is the on-axis PSF
 (``optics.psf.compute_psf``, bit for bit). ``propagator="rs"`` is the slow reference: the direct
 Rayleigh-Sommerfeld sum over the same sites of the full tilted field (carrier included), sharing
 none of the above but the pupil's sites.
@@ -38,7 +39,7 @@ from metalens_cli.errors import InputError, SamplingError
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.lens import Metalens
-from metalens_cli.optics.psf import PsfCost, compute_psf, validate_psf_arguments
+from metalens_cli.optics.psf import PsfCost, compute_psf, pixel_psf, validate_psf_arguments
 from metalens_cli.optics.sensor import GridPixels, grid_pixel_matrix
 from metalens_cli.optics.source import (
     field_direction,
@@ -209,14 +210,14 @@ def estimate_field_psf(
     d = distance_m if distance_m is not None else lens.focal_length_m
     validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, "auto", dtype, oversample)
     f_g = _carrier_free_frequency(lens, lams, zs, angle_rad, azimuth_rad, force)
-    sin_a, m = math.sin(angle_rad), lens.grid_size
+    m = lens.grid_size
     centre = _chief_rays(lens, lams, angle_rad, azimuth_rad, d, pixel_pitch_m)[2]
     share = 0.5 if _mirror_even(lens, angle_rad, azimuth_rad, centre[1]) else 1.0
     site_count = m * math.ceil(share * m)  # held; the time is the lens phase's over its quadrant and the mirroring
     finite = sum(1 for z in zs if math.isfinite(z))
     seconds, band_max, window = SITE_SECONDS * m**2 + PHASE_SECONDS * site_count * finite * len(lams), 0, 0
     for lam in lams:
-        grid, k_max = sampling.plan_field_asm(lens, lam, d, pixels, pixel_pitch_m, f_g, sin_a, oversample)
+        grid, k_max = sampling.plan_field_asm(lens, lam, d, pixels, pixel_pitch_m, f_g, oversample)
         band, n, up = 2 * k_max + 1, grid.size, grid.upsampled_size
         passes = (share * m + band) * n * math.log2(n) + (share * band + grid.window_samples) * up * math.log2(up)
         seconds += TRANSFER_SECONDS * share * band**2 + len(zs) * passes / FFT_LENGTH_RATE
@@ -288,8 +289,7 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
     rows = torch.where(y > 0, 2.0, 1.0) if even else torch.ones_like(y)  # each row y > 0 stands for ±y
     centre_m = (centre[0] * pitch, centre[1] * pitch)
     complex_dtype = torch.complex64 if dtype == torch.float32 else torch.complex128
-    sin_a = math.sin(angle)
-    grids = {lam: sampling.plan_field_asm(lens, lam, d, pixels, pitch, f_g, sin_a, oversample) for lam in lams}
+    grids = {lam: sampling.plan_field_asm(lens, lam, d, pixels, pitch, f_g, oversample) for lam in lams}
     grid = grids[lams[0]][0]
     to_pixels = GridPixels.build(grid.window_coords().numpy(), pixels, pitch, device, dtype)
     timing["kernels"] = time.perf_counter() - clock
@@ -322,7 +322,7 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
                 field_g = torch.polar(source, phase.to(dtype))
             propagate = prop.asm_propagate_even_y if even else prop.asm_propagate
             window = propagate(field_g, g, lambda t=transfer: t)
-            out[i, j] = to_pixels(window.abs().pow(2)) / power.to(dtype)
+            out[i, j] = pixel_psf(window, to_pixels, power.to(dtype))
         timing["propagate"] = timing.get("propagate", 0.0) + time.perf_counter() - clock
     info = {
         "kind": "asm-shifted",
