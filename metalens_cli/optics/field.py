@@ -172,11 +172,12 @@ def field_psf(
 
 
 # Rates of the shifted angular spectrum on 2 CPU cores (benchmarks/bench_field.py and bench_field_set.py,
-# the paper's lens: one PSF in a 255-px window, and a set's height of 24 wavelengths × 2 depths at 705 px)
+# the paper's lens: one PSF in a 255-px window, and a set's height of 24 wavelengths × 2 depths at 705 px; refitted to
+# the grids sized by the light that reaches the window: 0.86-1.0× of one PSF, 0.98-1.02× of a height, 0.95× of a set)
 SITE_SECONDS = 2.3e-8  # per meta-atom site: the lens phase on the whole grid, the pupil, the sources
 PHASE_SECONDS = 3.2e-8  # per site held, (wavelength, finite depth): the source's phase joined, the field formed
 TRANSFER_SECONDS = 2.8e-8  # per element of the kept band: one shifted transfer function (float64 build)
-FFT_LENGTH_RATE = 3.3e9  # rows × length × log2(length) per second through the 1-D FFT passes
+FFT_LENGTH_RATE = 2.6e9  # rows × length × log2(length) per second through the 1-D FFT passes, and what scales so
 MEMORY_SLACK = 1.5  # peak RSS over the arrays counted: 1.35-1.55 measured (FFT work buffers, the allocator)
 
 
@@ -217,7 +218,9 @@ def estimate_field_psf(
     finite = sum(1 for z in zs if math.isfinite(z))
     seconds, band_max, window = SITE_SECONDS * m**2 + PHASE_SECONDS * site_count * finite * len(lams), 0, 0
     for lam in lams:
-        grid, k_max = sampling.plan_field_asm(lens, lam, d, pixels, pixel_pitch_m, f_g, oversample)
+        carrier = tuple(c / lam for c in field_direction(angle_rad, azimuth_rad))
+        centre_m = (centre[0] * pixel_pitch_m, centre[1] * pixel_pitch_m)
+        grid, k_max = sampling.plan_field_asm(lens, lam, d, pixels, pixel_pitch_m, f_g, carrier, centre_m, oversample)
         band, n, up = 2 * k_max + 1, grid.size, grid.upsampled_size
         passes = (share * m + band) * n * math.log2(n) + (share * band + grid.window_samples) * up * math.log2(up)
         seconds += TRANSFER_SECONDS * share * band**2 + len(zs) * passes / FFT_LENGTH_RATE
@@ -289,7 +292,11 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
     rows = torch.where(y > 0, 2.0, 1.0) if even else torch.ones_like(y)  # each row y > 0 stands for ±y
     centre_m = (centre[0] * pitch, centre[1] * pitch)
     complex_dtype = torch.complex64 if dtype == torch.float32 else torch.complex128
-    grids = {lam: sampling.plan_field_asm(lens, lam, d, pixels, pitch, f_g, oversample) for lam in lams}
+    carriers = {lam: tuple(c / lam for c in field_direction(angle, azimuth)) for lam in lams}
+    grids = {
+        lam: sampling.plan_field_asm(lens, lam, d, pixels, pitch, f_g, carriers[lam], centre_m, oversample)
+        for lam in lams
+    }
     grid = grids[lams[0]][0]
     to_pixels = GridPixels.build(grid.window_coords().numpy(), pixels, pitch, device, dtype)
     timing["kernels"] = time.perf_counter() - clock
@@ -310,8 +317,7 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
     for j, lam in enumerate(lams):
         clock = time.perf_counter()
         g, k_max = grids[lam]
-        carrier = tuple(c / lam for c in field_direction(angle, azimuth))
-        transfer = prop.asm_transfer_shifted(g, lam, d, k_max, carrier, centre_m, complex_dtype, device, even)
+        transfer = prop.asm_transfer_shifted(g, lam, d, k_max, carriers[lam], centre_m, complex_dtype, device, even)
         timing["kernels"] += time.perf_counter() - clock
         clock = time.perf_counter()
         for i, (source, power, path) in enumerate(sources):

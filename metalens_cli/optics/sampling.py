@@ -192,6 +192,8 @@ def plan_field_asm(
     n_pixels: int,
     pixel_pitch_m: float,
     f_max: float,
+    carrier: tuple[float, float],
+    centre_m: tuple[float, float],
     oversample: float = 1.0,
     upsample: int = 2,
 ) -> tuple[AsmGrid, int]:
@@ -208,7 +210,10 @@ def plan_field_asm(
     that travel at most S/2, so the band's steeper waves, which miss the window from every pupil
     point, are left out instead of padded for (the guard holds the diffraction at that cut). On the
     paper's lens at the sensor's corner this grid is 0.7-0.9× as wide as one holding every wave of
-    the band (2·d·tan of its spread), and the PSFs ≤ 6e-5 apart.
+    the band (2·d·tan of its spread), and the PSFs ≤ 6e-5 apart. The band stops where that travel
+    does (``carrier`` (u0, v0), cycles/m, and the window's centre ``centre_m``, m, as
+    ``asm_transfer_shifted`` takes them): beyond it the transfer function is zero, so a smaller
+    window's narrower band is exact, not a cut.
     """
     p, a, m = lens.pitch_m, lens.radius_m, lens.grid_size
     width = 2 * (n_pixels // 2 + 0.5) * pixel_pitch_m
@@ -224,7 +229,16 @@ def plan_field_asm(
         )
     half = math.ceil((width / 2) / (p / upsample)) + 3
     grid = AsmGrid(size=size, pitch_m=p, input_size=m, window_half=half, upsample=upsample)
-    return grid, min(math.floor(s / wavelength_m * size * p), (size - 1) // 2)
+    # the largest |u − u0| (and |v − v0|) whose travel d·u/w can land within S/2 of the window's centre c: at the other
+    # frequency 0, where w is largest, travel t ↔ u = t/(λ·√(t² + d²)); |travel| only grows with the other frequency,
+    # so the range holds every kept u, and 0 with it (a window beyond S/2 from the axis: u of its sign, not yet there at
+    # 0, may travel there at another)
+    reach = max(
+        abs(t / (wavelength_m * math.hypot(t, distance_m)) - u0)
+        for u0, c in zip(carrier, centre_m)
+        for t in (min(c - size * p / 2, 0.0), max(c + size * p / 2, 0.0))
+    )
+    return grid, min(math.floor(s / wavelength_m * size * p), math.ceil(reach * size * p) + 1, (size - 1) // 2)
 
 
 def plan_rs(

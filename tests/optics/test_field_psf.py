@@ -10,9 +10,11 @@ from numpy.testing import assert_allclose
 
 from metalens_cli.errors import InputError
 from metalens_cli.optics import lens as L
+from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.field import chief_ray, field_angle, field_psf
 from metalens_cli.optics.psf import compute_psf
+from metalens_cli.optics.source import field_direction
 
 # NA 0.29 on 153² sites (the small lens of tests/optics/test_psf_physics.py)
 SMALL = dict(lambda_d_m=532e-9, focal_length_m=100e-6, aperture_m=60e-6, pitch_m=395e-9)
@@ -93,6 +95,29 @@ def test_grid_sized_by_the_light_that_reaches_the_window(monkeypatch):
     assert wide.grid["fft_size"] > 1.5 * fitted.grid["fft_size"]
     for k in range(2):
         assert rel(fitted.psf[k], wide.psf[k]) < 5e-4
+
+
+@pytest.mark.parametrize("azimuth", [0.0, 0.7])
+def test_band_stops_where_the_transfer_function_does(azimuth):
+    """Beyond the planned half-width K the shifted transfer function keeps no wave (each would
+    travel more than S/2 from the window's centre), so the narrower band is exact; here (NA 0.05)
+    that travel, not the angle margin, sets K."""
+    lens = L.hyperbolic(532e-9, 400e-6, 40e-6, 395e-9)
+    lam, angle, pitch = 480e-9, math.radians(4), 1e-6
+    carrier = tuple(c / lam for c in field_direction(angle, azimuth))
+    x, y = chief_ray(lens, lam, angle, azimuth, lens.focal_length_m)
+    centre_m = (round(x / pitch) * pitch, round(y / pitch) * pitch)
+    f_max = sampling.lens_frequency(lens)[0]
+    grid, k_max = sampling.plan_field_asm(lens, lam, lens.focal_length_m, 21, pitch, f_max, carrier, centre_m)
+    assert k_max < math.floor(sampling.sin_limit(f_max, [lam], 2.0) / lam * grid.extent_m)
+    whole = (grid.size - 1) // 2
+    h, _ = prop.asm_transfer_shifted(grid, lam, lens.focal_length_m, whole, carrier, centre_m, torch.complex128)
+    kept = h.abs() > 0
+    outside = torch.ones_like(kept)
+    outside[whole - k_max : whole + k_max + 1, whole - k_max : whole + k_max + 1] = False
+    assert not kept[outside].any()
+    rows, columns = torch.nonzero(kept, as_tuple=True)
+    assert int(torch.maximum((rows - whole).abs(), (columns - whole).abs()).max()) >= k_max - 2  # and no wider
 
 
 @pytest.mark.parametrize("depth", [math.inf, 0.01])
