@@ -203,14 +203,14 @@ def plan_field_asm(
     ``f_max``: the carrier-free field's largest local frequency (cycles/m). The kept band is the
     carrier-free field's, |u|, |v| ≤ sin θ_lim/λ, with the angle margin doubled (the default
     margin cut 1.5e-3 of edge-diffracted light off a 40 µm lens at 10°, against the direct
-    Rayleigh-Sommerfeld sum; doubled, 6e-4). The side is the reach of the light
-    that can land in the window and a guard, S ≥ 2a + W + 2·``REACH_FRESNEL``·√(λd): light from a
-    pupil point (|x| ≤ a) into the window (W wide about the chief ray) travels at most a + W/2
-    sideways from the window's centre, and ``propagate.asm_transfer_shifted`` keeps the frequencies
-    that travel at most S/2, so the band's steeper waves, which miss the window from every pupil
-    point, are left out instead of padded for (the guard holds the diffraction at that cut). On the
-    paper's lens at the sensor's corner this grid is 0.7-0.9× as wide as one holding every wave of
-    the band (2·d·tan of its spread), and the PSFs ≤ 6e-5 apart. The band stops where that travel
+    Rayleigh-Sommerfeld sum; doubled, 6e-4). The side is the reach of the light that can land in
+    the window and a guard, S ≥ 2a + W + 2·``REACH_FRESNEL``·√(λd): light from a pupil point
+    (|x| ≤ a) into the window (W wide about the chief ray) travels at most a + W/2 sideways from the
+    window's centre, and ``propagate.asm_transfer_shifted`` keeps the frequencies that travel at
+    most S/2, so the band's steeper waves, which miss the window from every pupil point, are left
+    out instead of padded for (the guard holds the diffraction at that cut). On the paper's lens at
+    the sensor's corner this grid is 0.7-0.9× as wide as one holding every wave of the band
+    (2·d·tan of its spread), and the PSFs ≤ 7e-5 apart. The band stops where that travel
     does (``carrier`` (u0, v0), cycles/m, and the window's centre ``centre_m``, m, as
     ``asm_transfer_shifted`` takes them): beyond it the transfer function is zero, so a smaller
     window's narrower band is exact, not a cut.
