@@ -217,10 +217,11 @@ def estimate_field_psf(
     site_count = m * math.ceil(share * m)  # held; the time is the lens phase's over its quadrant and the mirroring
     finite = sum(1 for z in zs if math.isfinite(z))
     seconds, band_max, window = SITE_SECONDS * m**2 + PHASE_SECONDS * site_count * finite * len(lams), 0, 0
-    for lam in lams:
-        carrier = tuple(c / lam for c in field_direction(angle_rad, azimuth_rad))
-        centre_m = (centre[0] * pixel_pitch_m, centre[1] * pixel_pitch_m)
-        grid, k_max = sampling.plan_field_asm(lens, lam, d, pixels, pixel_pitch_m, f_g, carrier, centre_m, oversample)
+    carriers, centre_m = _carriers(lams, angle_rad, azimuth_rad), (centre[0] * pixel_pitch_m, centre[1] * pixel_pitch_m)
+    for lam in lams:  # every one given, as field_psf computes them
+        grid, k_max = sampling.plan_field_asm(
+            lens, lam, d, pixels, pixel_pitch_m, f_g, carriers[lam], centre_m, oversample
+        )
         band, n, up = 2 * k_max + 1, grid.size, grid.upsampled_size
         passes = (share * m + band) * n * math.log2(n) + (share * band + grid.window_samples) * up * math.log2(up)
         seconds += TRANSFER_SECONDS * share * band**2 + len(zs) * passes / FFT_LENGTH_RATE
@@ -234,6 +235,11 @@ def estimate_field_psf(
     if backward:
         memory = 2 * memory + len(lams) * len(zs) * (site_count * (2 * real + 8) + window**2 * 3 * real)
     return PsfCost(int(memory), seconds, SITE_SECONDS * m**2)
+
+
+def _carriers(lams, angle: float, azimuth: float) -> dict[float, tuple[float, float]]:
+    """Per wavelength the tilt's carrier (u0, v0) = (sin α·cos ψ, sin α·sin ψ)/λ (cycles/m)."""
+    return {lam: tuple(c / lam for c in field_direction(angle, azimuth)) for lam in lams}
 
 
 def _carrier_free_frequency(lens, lams, zs, angle, azimuth, force) -> float:
@@ -292,7 +298,7 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
     rows = torch.where(y > 0, 2.0, 1.0) if even else torch.ones_like(y)  # each row y > 0 stands for ±y
     centre_m = (centre[0] * pitch, centre[1] * pitch)
     complex_dtype = torch.complex64 if dtype == torch.float32 else torch.complex128
-    carriers = {lam: tuple(c / lam for c in field_direction(angle, azimuth)) for lam in lams}
+    carriers = _carriers(lams, angle, azimuth)
     grids = {
         lam: sampling.plan_field_asm(lens, lam, d, pixels, pitch, f_g, carriers[lam], centre_m, oversample)
         for lam in lams
