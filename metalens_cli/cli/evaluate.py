@@ -7,7 +7,9 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
+    LightLevels,
     MetalensCommand,
+    Number,
     OutputFile,
     SeedList,
     announce,
@@ -113,6 +115,35 @@ PAIRS_OPTIONS = {
     help="--photons counts the light before each design's filter: its channels get their filter's throughput of it "
     "(designs with different filters compared at the same light).",
 )
+@click.option(
+    "--light",
+    "light_levels",
+    type=LightLevels(),
+    help="One table per light level, every design under the same camera: electrons a full-scale pixel collects "
+    "before the filter through an ideal lens (η = 1), e.g. 250,2000,20000, names dim, indoor, daylight, or none "
+    "(noise-free); each design's filter and nanofin efficiency take their share, shot and read noise follow, and "
+    "its zero-order light is imaged. With 2+ levels, verdicts say below which level the first design stops winning.",
+)
+@click.option(
+    "--read-electrons",
+    type=Number(0, 1000),
+    default=2.5,  # imaging.camera.DEFAULT_READ_ELECTRONS (not imported: it pulls in numpy)
+    show_default=True,
+    help="--light: read noise, electrons rms.",
+)
+@click.option(
+    "--zero-order-leak",
+    type=Number(0, 1),
+    default=0.01,  # imaging.camera.DEFAULT_ZERO_ORDER_LEAK
+    show_default=True,
+    help="--light: the fraction of the unconverted (co-polarised) light the analyzer passes; 1 without one.",
+)
+@click.option(
+    "--wiener",
+    is_flag=True,
+    help="Add Wiener rows: the oracle linear restoration from each design's far PSFs, its regularisation chosen per "
+    "design and light level on held-out charts.",
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @max_memory_option
 @json_option
@@ -150,6 +181,10 @@ def evaluate(
     align,
     refine,
     photons_before_filter,
+    light_levels,
+    read_electrons,
+    zero_order_leak,
+    wiener,
     quiet,
     max_memory,
     as_json,
@@ -195,8 +230,16 @@ def evaluate(
         psf_window=psf_pixels,
         field_model=field_model,
         field_tolerance=field_tolerance,
+        light_levels=light_levels,
+        read_electrons=read_electrons,
+        zero_order_leak=zero_order_leak if light_levels else None,
+        wiener=wiener,
         **formation_options,
     )
+    if light_levels and (photons or read_noise or photons_before_filter):
+        from metalens_cli.errors import InputError
+
+        raise InputError("--light", "with --photons, --read-noise or --photons-before-filter", "one of the two cameras")
     reconstructors = _reconstructors(recon_runs, s.designs, s.device)
     count = image_count(images, limit)
     what = (
@@ -206,7 +249,15 @@ def evaluate(
     # PSFs once per design and seed (the depths are the seed's), captures per obstruction kind too
     depths = (s.z_near_interval_m[0], s.z_far_interval_m[0])
     estimate = estimate_capture_runs(
-        s, what, depths, count, window=psf_pixels, seeds=len(seeds), kinds=len(kinds), field_model=field_model
+        s,
+        what,
+        depths,
+        count,
+        window=psf_pixels,
+        seeds=len(seeds),
+        kinds=len(kinds),
+        field_model=field_model,
+        zero_order=bool(light_levels) and zero_order_leak > 0,
     )
     announce(estimate, max_memory, device=s.device)
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s.designs}
@@ -227,8 +278,11 @@ def evaluate(
         "formation": formation,
         "recon": [None if r is None else r.source for r in reconstructors],
         "efficiency": efficiency,
+        "cameras": result.cameras,
+        "verdicts": result.verdicts,
+        **({"camera": {"read_electrons": read_electrons, "zero_order_leak": zero_order_leak}} if light_levels else {}),
     }
-    title = _title(result, seeds, reconstructors)
+    title = _title(result, seeds, [*reconstructors, wiener or None])
     _report(result, [d.spec for d in s.designs], kinds, metrics, notes, csv_path, plot_path, as_json, extra, title)
 
 
@@ -248,9 +302,11 @@ def _lpips(weights) -> tuple[object, list[str]]:
 
 
 def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, extra: dict, title: str) -> None:
-    """Notes and warnings on stderr, the CSV and figure, then the JSON or the tables."""
+    """Notes and warnings on stderr, the CSV and figure, then the JSON or the tables (one per
+    light level, then the verdicts)."""
     from metalens_cli.imaging.evaluation import evaluation_report, write_rows_csv
 
+    notes = [*notes, *result.notes]
     render.say(notes, "note")
     render.say(result.warnings)
     if csv_path:
@@ -263,30 +319,45 @@ def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, 
         render.emit_json(evaluation_report(result, extra, notes, csv_path, plot_path))
         return
     con = render.console()
-    con.print(
-        render.table(
-            title,
-            ["design", "condition"] + [f"{k} {_short(m)}" for k in kinds for m in metrics],
-            _table_rows(result, kinds, metrics),
-        )
-    )
-    pairs = [c for c in result.comparisons if c["metric"] == "psnr_db" and c["condition"] in ("obstructed", "delta")]
-    if pairs:
+    for light in dict.fromkeys(r.get("light") for r in result.rows):
+        where = "" if light is None else f", light {light}"
         con.print(
             render.table(
-                "Paired PSNR differences (design − versus, same units), dB [95 % CI]",
-                ["design", "versus", "obstruction", "condition", "difference", "CI width"],
-                [
+                title + where,
+                ["design", "condition"] + [f"{k} {_short(m)}" for k in kinds for m in metrics],
+                _table_rows(result, kinds, metrics, light),
+            )
+        )
+        pairs = [
+            c
+            for c in result.comparisons
+            if c["metric"] == "psnr_db" and c["condition"] in ("obstructed", "delta") and c.get("light") == light
+        ]
+        if pairs:
+            con.print(
+                render.table(
+                    f"Paired PSNR differences (design − versus, same units){where}, dB [95 % CI]",
+                    ["design", "versus", "obstruction", "condition", "difference", "CI width"],
                     [
-                        f"{c['design']} ({c['capture']})",
-                        f"{c['versus']} ({c['versus_capture']})",
-                        c["obstruction"],
-                        LABELS[c["condition"]],
-                        _ci(c["difference"], c["ci"], 2, lines=False),
-                        f"{c['ci'][1] - c['ci'][0]:.2f}",
-                    ]
-                    for c in pairs
-                ],
+                        [
+                            f"{c['design']} ({c['capture']})",
+                            f"{c['versus']} ({c['versus_capture']})",
+                            c["obstruction"],
+                            LABELS[c["condition"]],
+                            _ci(c["difference"], c["ci"], 2, lines=False),
+                            f"{c['ci'][1] - c['ci'][0]:.2f}",
+                        ]
+                        for c in pairs
+                    ],
+                )
+            )
+    verdicts = [v for v in result.verdicts if "verdict" in v]
+    if verdicts:
+        con.print(
+            render.table(
+                "Verdicts: obstructed PSNR, first design − versus, over the light levels",
+                ["design", "versus", "capture", "obstruction", "verdict"],
+                [[v["design"], v["versus"], v["capture"], v["obstruction"], v["verdict"]] for v in verdicts],
             )
         )
 
@@ -402,26 +473,26 @@ def _ci(mean: float, ci, digits: int, lines: bool = True) -> str:
     return f"{f.format(mean)}{chr(10) if lines else ' '}[{f.format(ci[0])}, {f.format(ci[1])}]"
 
 
-def _table_rows(result, kinds, metrics) -> list[list[str]]:
-    """The paper's Suppl. table layout: per design, rows Raw (and Recon) Unobs., Obs., Δ; columns
-    per obstruction and metric."""
+def _table_rows(result, kinds, metrics, light=None) -> list[list[str]]:
+    """The paper's Suppl. table layout: per design, rows Raw (Wiener, Recon) Unobs., Obs., Δ;
+    columns per obstruction and metric; the rows of one ``light`` level (None: without levels)."""
     digits = {"psnr_db": 2, "ssim": 3, "lpips": 3}
     table = []
-    for design, capture in dict.fromkeys((r["design"], r["capture"]) for r in result.rows):
+    rows = [r for r in result.rows if r.get("light") == light]
+    deltas = [x for x in result.deltas if x.get("light") == light]
+    for design, capture in dict.fromkeys((r["design"], r["capture"]) for r in rows):
         for condition in ("unobstructed", "obstructed", "delta"):
             cells = []
             for kind in kinds:
                 if condition == "delta":
                     d = next(
-                        x
-                        for x in result.deltas
-                        if (x["design"], x["capture"], x["obstruction"]) == (design, capture, kind)
+                        x for x in deltas if (x["design"], x["capture"], x["obstruction"]) == (design, capture, kind)
                     )
                     cells += [_ci(d[f"delta_{m}"], d[f"delta_{m}_ci"], digits[m]) for m in metrics]
                 else:
                     r = next(
                         x
-                        for x in result.rows
+                        for x in rows
                         if (x["design"], x["capture"], x["obstruction"], x["condition"])
                         == (design, capture, kind, condition)
                     )

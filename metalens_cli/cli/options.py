@@ -177,6 +177,34 @@ class SeedList(click.ParamType):
         return [seed for lo, hi in bounds for seed in range(lo, hi + 1)]
 
 
+class LightLevels(click.ParamType):
+    """Light levels (``imaging.camera``): electrons at full scale before the filter, or a name
+    (dim, indoor, daylight), or ``none`` (noise-free), comma-separated → sorted floats, None first."""
+
+    name = "light"
+
+    def convert(self, value, param, ctx):
+        from metalens_cli.imaging.camera import LIGHT_NAMES
+
+        if isinstance(value, list):
+            return value
+        levels = []
+        for part in str(value).split(","):
+            word = part.strip().lower()
+            try:
+                level = None if word in ("none", "noise-free") else LIGHT_NAMES.get(word) or float(word)
+            except ValueError:
+                level = -1.0
+            if level is not None and not (math.isfinite(level) and level > 0):
+                names = ", ".join(f"{k} ({v:g})" for k, v in LIGHT_NAMES.items())
+                self.fail(
+                    f"{part!r} (expected electrons > 0, none, or one of {names}; e.g. 250,2000,20000)", param, ctx
+                )
+            if level not in levels:
+                levels.append(level)
+        return sorted(levels, key=lambda v: -1.0 if v is None else v)
+
+
 class Number(click.FloatRange):
     """A finite float in a range: ``click.FloatRange`` lets ``nan`` and ``inf`` through."""
 

@@ -213,8 +213,8 @@ def evaluate_pairs(
             f"({', '.join(grey_names[:3])}{', …' if len(grey_names) > 3 else ''}): their captures are compared in "
             "luminance (Rec. 709 Y of linear RGB)"
         )
-    recon = [layout.has_recon(design) or None for design in layout.designs]
-    summarise(out, layout.designs, recon, layout.kinds, [0], len(layout.names), metrics, scores)
+    captures_of = [["raw", "recon"] if layout.has_recon(design) else ["raw"] for design in layout.designs]
+    summarise(out, layout.designs, captures_of, layout.kinds, [0], len(layout.names), metrics, scores)
     warn_few_units(out, len(layout.names), f"{len(layout.names)} scene(s)", "capture more scenes")
     return out
 

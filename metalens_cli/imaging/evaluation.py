@@ -14,18 +14,25 @@ recon and raw captures.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
+import torch
+
 from metalens_cli.analysis.statistics import mean_ci, paired_difference_ci
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.camera import DEFAULT_READ_ELECTRONS, Camera
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
 from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.pipeline import (
     CaptureSetup,
     ChannelPsfs,
+    attach_zero_order,
     capture_psfs,
     draw_depths,
     score,
@@ -40,7 +47,14 @@ MIN_UNITS = 20  # fewer units per cell: a warning (bootstrap CIs of a handful of
 @dataclass
 class EvaluationSettings:
     """What every unit shares: sensor, depth intervals (m), wavelengths (m), image source,
-    obstruction parameters, formation and scoring options."""
+    obstruction parameters, formation and scoring options, and the camera.
+
+    The camera: ``light_levels`` (``imaging.camera``: electrons at full scale before each
+    design's filter, None for noise-free; one table per level, the same noise draws at every
+    level), ``read_electrons`` and ``zero_order_leak`` (None: no zero-order light). Without
+    ``light_levels``, ``photons`` (full-well electrons of the capture, or before the filter with
+    ``photons_before_filter``) and ``read_noise`` (a fraction of full scale) set the noise.
+    ``wiener``: add the oracle Wiener rows (``imaging.wiener``)."""
 
     pixels: int
     pixel_pitch_m: float
@@ -60,6 +74,10 @@ class EvaluationSettings:
     device: object = "cpu"
     field_model: str = "on-axis"  # "auto": PSFs over the field where the sensor outgrows the isoplanatic patch
     field_tolerance: float = DEFAULT_TOLERANCE  # the space-variant formation's (imaging.field_formation)
+    light_levels: list | None = None
+    read_electrons: float = DEFAULT_READ_ELECTRONS
+    zero_order_leak: float | None = None
+    wiener: bool = False
 
     @classmethod
     def from_setup(cls, setup: CaptureSetup, **options) -> EvaluationSettings:
@@ -76,22 +94,34 @@ class EvaluationSettings:
             **options,
         )
 
+    def cameras(self) -> list[Camera] | None:
+        """One camera per light level (None without ``light_levels``)."""
+        if self.light_levels is None:
+            return None
+        leak = self.zero_order_leak or 0.0
+        return [Camera(level, self.read_electrons, leak) for level in self.light_levels]
+
 
 @dataclass
 class Evaluation:
-    """Results: ``rows`` (design, capture, obstruction, condition, metric means, ``<metric>_ci``, n),
-    ``deltas``, ``comparisons`` (paired design differences), ``units`` (every score), ``psfs``
-    (per design and seed: depths, windows, kept light), ``images`` (names), ``panels`` (first
-    image and seed, for figures), ``warnings`` and, for captured pairs, ``alignments``."""
+    """Results: ``rows`` (design, capture, obstruction, condition, metric means, ``<metric>_ci``, n;
+    ``light`` with light levels), ``deltas``, ``comparisons`` (paired design differences),
+    ``verdicts`` (per pair of designs over the light levels, :func:`verdicts`), ``units`` (every
+    score), ``psfs`` (per design and seed: depths, windows, kept light), ``images`` (names),
+    ``panels`` (first image and seed, for figures), ``warnings``, ``notes``, ``cameras`` (each
+    level's label, the designs' budgets and Wiener μ) and, for captured pairs, ``alignments``."""
 
     rows: list[dict] = field(default_factory=list)
     deltas: list[dict] = field(default_factory=list)
     comparisons: list[dict] = field(default_factory=list)
+    verdicts: list[dict] = field(default_factory=list)
     units: list[dict] = field(default_factory=list)
     psfs: list[dict] = field(default_factory=list)
     images: list[str] = field(default_factory=list)
     panels: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    cameras: list[dict] = field(default_factory=list)
     alignments: list[dict] = field(default_factory=list)
 
 
@@ -115,6 +145,46 @@ def delta(metric: str, unobstructed: float, obstructed: float) -> float:
     return unobstructed - obstructed if metric == "lpips" else obstructed - unobstructed
 
 
+HELD_OUT_SCENES = 4  # dead-leaves charts the Wiener μ is chosen on
+HELD_OUT_FIRST = 10_000  # their chart indices: far from any evaluated chart's
+
+
+def expose(image: np.ndarray, counts, read_electrons: float, generator: int) -> np.ndarray:
+    """A noise-free linear capture (3, H, W) exposed with ``counts`` (3,) electrons at full scale
+    per channel (None: returned as it is) and ``read_electrons`` rms, seeded by ``generator``."""
+    if counts is None:
+        return image
+    from metalens_cli.imaging.formation import add_noise
+
+    x = torch.as_tensor(image, dtype=torch.float64)
+    n = torch.as_tensor(np.asarray(counts, dtype=float), dtype=torch.float64).reshape(-1, 1, 1)
+    return add_noise(x, n, read_noise=read_electrons / n, generator=generator).numpy().astype(np.float32)
+
+
+def held_out_wiener(design, psfs: ChannelPsfs, cameras, budget, settings: EvaluationSettings) -> list:
+    """One :class:`~metalens_cli.imaging.wiener.WienerFilter` per camera (None: noise-free) for ``design``: its far
+    PSFs, μ chosen on ``HELD_OUT_SCENES`` dead-leaves charts captured through it (unobstructed,
+    the evaluation's formation, noise drawn apart from the evaluation's)."""
+    from metalens_cli.imaging.camera import electrons
+    from metalens_cli.imaging.images import chart
+    from metalens_cli.imaging.wiener import WienerFilter, choose_mu
+
+    sensor = (settings.pixels, settings.pixels)
+    scenes = [chart(HELD_OUT_FIRST + k, sensor, psfs.margin) for k in range(HELD_OUT_SCENES)]
+    clear = [
+        c.unobstructed
+        for c in simulate_captures(scenes, "fence", psfs, design.focal_length_m, settings.pixel_pitch_m, 0)
+    ]
+    filters = []
+    for camera in cameras:
+        counts = None if camera is None else electrons(budget, camera)
+        noisy = [expose(x, counts, camera and camera.read_electrons, 10**6 + k) for k, x in enumerate(clear)]
+        wiener = WienerFilter.of(psfs.far, sensor)
+        wiener.mu, _ = choose_mu(wiener, noisy, [scene.sensor for scene in scenes])
+        filters.append(wiener)
+    return filters
+
+
 def evaluate(
     designs,
     kinds: list[str],
@@ -125,31 +195,50 @@ def evaluate(
     on_progress: Callable[[int, int], None] | None = None,
     reconstructors: list | None = None,
 ) -> Evaluation:
-    """Score every design on the same (image, seed) units for every obstruction kind.
+    """Score every design on the same (image, seed) units for every obstruction kind, under every
+    camera of ``settings``.
 
     ``reconstructors``: one per design, a callable mapping a linear (3, H, W) capture to its
     reconstruction (``imaging.restore.Reconstructor``) or None; designs with one are scored on
-    their ``recon`` captures as well as their ``raw`` ones.
+    their ``recon`` captures as well as their ``raw`` ones (and ``wiener`` ones with
+    ``settings.wiener``). Designs without a preset are imaged with the nanofin efficiency of the
+    first design that has one (``imaging.camera.efficiency_sources``).
     """
+    from metalens_cli.imaging.camera import channel_budget, efficiency_sources, electrons
+
+    if settings.wiener and settings.light_levels is None and (settings.photons or settings.read_noise):
+        raise InputError(
+            "--wiener", "with --photons or --read-noise", "--light LEVELS (the camera the filter is chosen for)"
+        )
     out = Evaluation()
+    shared, warnings, notes = efficiency_sources(designs)
+    out.warnings += warnings
+    out.notes += notes
+    designs = [dataclasses.replace(d, efficiency=shared) if d.preset is None else d for d in designs]
     recon = list(reconstructors) if reconstructors is not None else [None] * len(designs)
+    cameras = settings.cameras()
+    levels = cameras or [None]  # None: the legacy noise of photons and read_noise, inside the captures
+    budgets = [channel_budget(d, settings.zero_order_leak or 0.0) for d in designs]
     psfs: dict[tuple[int, int], ChannelPsfs] = {}
     for d, design in enumerate(designs):
         at_depths: dict[tuple[float, float], ChannelPsfs] = {}  # seeds drawing the same depths share them
         for seed in seeds:
             z_near, z_far = draw_depths(settings.z_near_interval_m, settings.z_far_interval_m, seed)
-            p = at_depths.get((z_near, z_far)) or capture_psfs(
-                design,
-                z_near,
-                z_far,
-                settings.wavelengths_m,
-                settings.pixel_pitch_m,
-                settings.pixels,
-                field_model=settings.field_model,
-                field_tolerance=settings.field_tolerance,
-                device=settings.device,
-                window=settings.psf_window,
-            )
+            p = at_depths.get((z_near, z_far))
+            if p is None:
+                p = capture_psfs(
+                    design,
+                    z_near,
+                    z_far,
+                    settings.wavelengths_m,
+                    settings.pixel_pitch_m,
+                    settings.pixels,
+                    field_model=settings.field_model,
+                    field_tolerance=settings.field_tolerance,
+                    device=settings.device,
+                    window=settings.psf_window,
+                )
+                attach_zero_order(p, design, settings.pixel_pitch_m, settings.zero_order_leak or 0.0)
             psfs[d, seed] = at_depths[z_near, z_far] = p
             out.psfs.append(
                 {
@@ -167,12 +256,29 @@ def evaluate(
     images = load_images(settings.images, (settings.pixels, settings.pixels), settings.limit, margin)
     out.images = [image.name for image in images]
     metrics = metric_names(lpips_model)
+    captures_of = [
+        ["raw", *(["wiener"] if settings.wiener else []), *(["recon"] if r is not None else [])] for r in recon
+    ]
     scores: dict[tuple, dict] = {}
     total, done = len(designs) * len(kinds) * len(seeds), 0
     out.panels = {design.spec: [] for design in designs}
     obstructions: dict = {}  # generated once, shared by the designs (same seed, depths and canvas)
     units: dict[tuple, list] = {}  # (kind, seed, design) → its units, listed in that order at the end
     for d, design in enumerate(designs):  # one design's capture transforms held at a time
+        chosen = held_out_wiener(design, psfs[d, seeds[0]], levels, budgets[d], settings) if settings.wiener else None
+        # μ per camera from the first seed's PSFs; each seed's own far PSFs in its filters
+        wieners = None if chosen is None else {(seeds[0], li): w for li, w in enumerate(chosen)}
+        for seed in seeds[1:] if chosen else []:
+            for li, w in enumerate(chosen):
+                wieners[seed, li] = w if psfs[d, seed] is psfs[d, seeds[0]] else _for_seed(w, psfs[d, seed])
+        out.cameras.append(
+            {
+                "design": design.spec,
+                "throughput": budgets[d].throughput.tolist(),
+                "zero_order": budgets[d].zero_order.tolist() if settings.zero_order_leak else [0.0, 0.0, 0.0],
+                **({"wiener_mu": [w.mu.tolist() for w in chosen]} if chosen else {}),
+            }
+        )
         for kind in kinds:
             for seed in seeds:
                 captures = simulate_captures(
@@ -185,46 +291,67 @@ def evaluate(
                     params=settings.obstruction_params,
                     formation=settings.formation,
                     alpha_gain=settings.alpha_gain,
-                    photons=photons[d],
-                    read_noise=settings.read_noise,
+                    photons=None if cameras else photons[d],
+                    read_noise=0.0 if cameras else settings.read_noise,
                     obstructions=obstructions,
                 )
                 for index, c in enumerate(captures):
-                    estimates = {"raw": (c.unobstructed, c.obstructed)}
-                    if recon[d] is not None:
-                        clear_key = ("recon", d, "unobstructed", seed, index)
-                        estimates["recon"] = (
-                            None if clear_key in scores else recon[d](c.unobstructed),
-                            recon[d](c.obstructed),
-                        )
-                    for capture, (clear, obstructed) in estimates.items():
-                        key = (capture, d, "unobstructed", seed, index)  # the same for every obstruction kind
-                        if key not in scores:
-                            scores[key] = score(clear, c.clean, lpips_model, settings.match)
-                        scores[capture, d, kind, seed, index] = score(obstructed, c.clean, lpips_model, settings.match)
-                        units.setdefault((kind, seed, d), []).append(
-                            {
-                                "design": design.spec,
-                                "capture": capture,
-                                "obstruction": kind,
-                                "seed": seed,
-                                "image": c.name,
-                                "unobstructed": scores[key],
-                                "obstructed": scores[capture, d, kind, seed, index],
-                            }
-                        )
-                        if seed == seeds[0] and index == 0:
-                            panels = out.panels[design.spec]
-                            if capture == "raw" and not panels:
-                                panels += [("clean", c.clean), ("unobstructed", c.unobstructed)]
-                            panels.append((f"{'recon, ' if capture == 'recon' else ''}obstructed: {kind}", obstructed))
+                    for li, camera in enumerate(levels):
+                        if camera is None:
+                            clear, obstructed = c.unobstructed, c.obstructed
+                        else:
+                            counts = electrons(budgets[d], camera)
+                            noise = seed * 1000 + 2 * index  # the same draws at every level and for every design
+                            clear = expose(c.unobstructed, counts, camera.read_electrons, noise + 1)
+                            obstructed = expose(c.obstructed, counts, camera.read_electrons, noise)
+                        estimates = {"raw": lambda x: x}
+                        if wieners is not None:
+                            estimates["wiener"] = wieners[seed, li]
+                        if recon[d] is not None:
+                            estimates["recon"] = recon[d]
+                        for capture, restore in estimates.items():
+                            key = (li, capture, d, "unobstructed", seed, index)  # the same for every obstruction kind
+                            if key not in scores:
+                                scores[key] = score(restore(clear), c.clean, lpips_model, settings.match)
+                            estimate = restore(obstructed)
+                            scores[li, capture, d, kind, seed, index] = score(
+                                estimate, c.clean, lpips_model, settings.match
+                            )
+                            units.setdefault((kind, seed, d), []).append(
+                                {
+                                    "design": design.spec,
+                                    "capture": capture,
+                                    "obstruction": kind,
+                                    "seed": seed,
+                                    "image": c.name,
+                                    **({} if camera is None else {"light": camera.label()}),
+                                    "unobstructed": scores[key],
+                                    "obstructed": scores[li, capture, d, kind, seed, index],
+                                }
+                            )
+                            if seed == seeds[0] and index == 0 and li == len(levels) - 1:
+                                panels = out.panels[design.spec]
+                                if capture == "raw" and not panels:
+                                    panels += [("clean", c.clean), ("unobstructed", clear)]
+                                prefix = "" if capture == "raw" else f"{capture}, "
+                                panels.append((f"{prefix}obstructed: {kind}", estimate))
                 done += 1
                 if on_progress is not None:
                     on_progress(done, total)
         for seed in seeds:
             psfs[d, seed].transforms.clear()
     out.units = [unit for kind in kinds for seed in seeds for d in range(len(designs)) for unit in units[kind, seed, d]]
-    summarise(out, [design.spec for design in designs], recon, kinds, seeds, len(images), metrics, scores)
+    specs = [design.spec for design in designs]
+    for li, camera in enumerate(levels):
+        view = {key[1:]: value for key, value in scores.items() if key[0] == li}
+        first = (len(out.rows), len(out.deltas), len(out.comparisons))
+        summarise(out, specs, captures_of, kinds, seeds, len(images), metrics, view)
+        if camera is not None:
+            for entries, start in zip((out.rows, out.deltas, out.comparisons), first):
+                for entry in entries[start:]:
+                    entry["light"] = camera.label()
+    if cameras:
+        out.verdicts = verdicts(specs, captures_of, kinds, seeds, len(images), cameras, scores)
     warn_few_units(
         out,
         len(images) * len(seeds),
@@ -232,6 +359,64 @@ def evaluate(
         "add seeds (--seed 0:4) or images",
     )
     return out
+
+
+def _for_seed(wiener, psfs: ChannelPsfs):
+    """``wiener``'s μ with the far PSFs of another seed's depths."""
+    from metalens_cli.imaging.wiener import WienerFilter
+
+    return WienerFilter.of(psfs.far, wiener.sensor_hw, wiener.mu)
+
+
+def verdicts(specs, captures_of, kinds, seeds, n_images: int, cameras, scores) -> list[dict]:
+    """The first design against each other one, per capture both have and obstruction kind: the
+    paired obstructed PSNR difference at every finite light level and where it stops being
+    positive (``analysis.statistics.crossover``), with the noise-free difference beside it."""
+    from metalens_cli.analysis.statistics import crossover, paired_difference_ci
+
+    finite = sorted((c.light, li) for li, c in enumerate(cameras) if c.light is not None)
+    free = [li for li, c in enumerate(cameras) if c.light is None]
+    units = [(seed, index) for seed in seeds for index in range(n_images)]
+    out = []
+    for other in range(1, len(specs)):
+        for capture in [c for c in captures_of[0] if c in captures_of[other]]:
+            for kind in kinds:
+
+                def difference(li, capture=capture, kind=kind, other=other):
+                    return [
+                        scores[li, capture, 0, kind, s, i]["psnr_db"]
+                        - scores[li, capture, other, kind, s, i]["psnr_db"]
+                        for s, i in units
+                    ]
+
+                entry = {"design": specs[0], "versus": specs[other], "capture": capture, "obstruction": kind}
+                entry["metric"], entry["condition"] = "psnr_db", "obstructed"
+                if free:
+                    stats = paired_difference_ci(difference(free[0]), [0.0] * len(units), metric="psnr_db")
+                    entry["noise_free"] = {"difference": stats["mean"], "ci": stats["ci"]}
+                if len(finite) >= 2:
+                    entry.update(crossover([level for level, _ in finite], [difference(li) for _, li in finite]))
+                    entry["verdict"] = verdict_text(entry)
+                out.append(entry)
+    return out
+
+
+def verdict_text(entry: dict) -> str:
+    """One line: at which light levels the first design wins (its paired CI above 0)."""
+    levels, wins = entry["levels"], entry["wins"]
+    span = f"{levels[0]:g}-{levels[-1]:g} e⁻"
+    lo, hi = entry["crossover_ci"]
+    if all(wins):
+        return f"wins at every light level ({span}; whole CI above 0)"
+    if entry["above"]:
+        return f"does not win at any light level of {span} (mean difference ≤ 0 at {levels[-1]:g} e⁻)"
+    if entry["below"]:
+        won = [f"{v:g}" for v, w in zip(levels, wins) if w]
+        return f"ahead at every light level of {span} in the mean; CI above 0 at {', '.join(won) or 'none'} e⁻"
+    return (
+        f"wins above {entry['crossover']:.0f} e⁻ [95 % CI {lo:.0f}, {hi:.0f}] (the crossover); "
+        f"at {levels[0]:g} e⁻ the difference is {entry['means'][0]:+.2f} dB"
+    )
 
 
 def warn_few_units(out: Evaluation, units: int, what: str, advice: str) -> None:
@@ -243,10 +428,14 @@ def warn_few_units(out: Evaluation, units: int, what: str, advice: str) -> None:
         )
 
 
-def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_images: int, metrics, scores) -> None:
+def summarise(
+    out: Evaluation, specs: list[str], captures_of: list, kinds, seeds, n_images: int, metrics, scores
+) -> None:
     """Fill ``out.rows``, ``deltas`` and ``comparisons`` from ``scores[(capture, design index,
     condition or "unobstructed", seed, image index)]`` (metric dicts) over the units (seed,
-    image); designs named ``specs``, those whose ``recon`` entry is not None also scored as recon."""
+    image); designs named ``specs``, each scored on the captures ``captures_of[d]`` lists ("raw",
+    then "wiener" and "recon" where they were made). Design against design on the same capture;
+    each design's restorations against its raw capture (and recon against wiener)."""
     from metalens_cli.imaging.metrics import PSNR_CEILING_DB
 
     exact = sum(1 for value in scores.values() if value["psnr_db"] >= PSNR_CEILING_DB)
@@ -256,12 +445,7 @@ def summarise(out: Evaluation, specs: list[str], recon: list, kinds, seeds, n_im
             "ceiling"
         )
     units = [(seed, index) for seed in seeds for index in range(n_images)]
-    cells = [
-        (capture, d)
-        for d in range(len(specs))
-        for capture in ("raw", "recon")
-        if capture == "raw" or recon[d] is not None
-    ]
+    cells = [(capture, d) for d in range(len(specs)) for capture in captures_of[d]]
 
     def values(capture, d, kind, condition, metric):
         return [
@@ -342,18 +526,23 @@ def evaluation_report(result: Evaluation, extra: dict, notes: list[str], csv_pat
 
 
 def write_rows_csv(path: str | os.PathLike[str], rows: list[dict], metrics=("psnr_db", "ssim")) -> None:
-    """The rows of an evaluation as CSV, atomically: design, capture, obstruction, condition, n,
-    then per metric its mean and the bounds of its confidence interval."""
-    columns = ["design", "capture", "obstruction", "condition", "n"] + [
-        c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")
+    """The rows of an evaluation as CSV, atomically: (light, when rows have one,) design, capture,
+    obstruction, condition, n, then per metric its mean and the bounds of its confidence interval."""
+    keys = (["light"] if any("light" in row for row in rows) else []) + [
+        "design",
+        "capture",
+        "obstruction",
+        "condition",
+        "n",
     ]
+    columns = keys + [c for m in metrics for c in (m, f"{m}_lo", f"{m}_hi")]
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     for row in rows:
         writer.writerow(
             {
-                **{k: row[k] for k in ("design", "capture", "obstruction", "condition", "n")},
+                **{k: row[k] for k in keys},
                 **{
                     c: v
                     for m in metrics

@@ -213,6 +213,43 @@ def _composite(
     return Capture(obstruction_light + (1 - alpha) * unobstructed, unobstructed, obstruction_light, alpha)
 
 
+def canvas_coverage(mask: torch.Tensor, psf_near: torch.Tensor) -> torch.Tensor:
+    """m ∗ P̂_near over the whole canvas (..., C, H + 2M, W + 2M), the mask taken as 0 beyond it,
+    clamped to 0..1: the fraction of each far point's cone the cover blocks, wherever on the
+    canvas (its outer N//2 pixels see no mask beyond the canvas and are underestimated)."""
+    kernel = unit_sum(psf_near)
+    h, w = mask.shape[-2:]
+    shape = (fft_size(h + kernel.shape[-2]), fft_size(w + kernel.shape[-1]))
+    spectrum = torch.fft.rfft2(mask.to(kernel.dtype), s=shape) * torch.fft.rfft2(_placed(kernel, shape))
+    return torch.fft.irfft2(spectrum, s=shape)[..., :h, :w].clamp(0.0, 1.0)
+
+
+def zero_order_light(
+    clean: torch.Tensor,
+    obstruction: torch.Tensor,
+    mask: torch.Tensor,
+    psf_near: torch.Tensor,
+    zero_near,
+    zero_far,
+    margin: int,
+    *,
+    formation: str = "physical",
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The unconverted light of the lens on the sensor (``optics.zero_order``), (obstructed,
+    unobstructed), each (..., 3, H, W), per unit of the focused light (scale by ζ_c):
+    Z_near ∗ (m ⊙ I_obs) + Z_far ∗ ((1 − α̃) ⊙ I_clean) and Z_far ∗ I_clean.
+
+    The cover blocks a far point's zero-order light in the same cone as its focused light (α̃ =
+    m ∗ P̂_near at the point, :func:`canvas_coverage`), but that light lands over a disc around it,
+    hence the product before the blur. ``zero_near``, ``zero_far``: unit-sum (1, N, N) PSFs or
+    their :class:`PsfTransform`; ``psf_near`` the focused near PSFs (3, N, N); canvases as
+    :func:`form_image`, with a margin that holds the zero-order discs."""
+    emitted, mask = _obstruction_canvases(obstruction, mask, formation)
+    passed = (1 - canvas_coverage(mask, psf_near)) * clean
+    obstructed = convolve(emitted, zero_near, margin) + convolve(passed, zero_far, margin)
+    return obstructed, convolve(clean, zero_far, margin)
+
+
 def add_noise(
     image: torch.Tensor,
     photons: float | torch.Tensor | None = None,
@@ -227,7 +264,7 @@ def add_noise(
     units). ``photons`` None or 0 means no shot noise; a tensor gives one count per channel
     (shape (3, 1, 1): a filter passes each channel its own share of the light, differentiably).
     ``generator``: a seed or a ``torch.Generator`` on the image's device; the same seed gives the
-    same noise.
+    same noise. ``read_noise`` may be a tensor too (one σ per channel, (3, 1, 1)).
     """
     if isinstance(generator, int):
         generator = torch.Generator(device=image.device).manual_seed(generator)
@@ -236,7 +273,7 @@ def add_noise(
         if bool((torch.as_tensor(photons) <= 0).any()):
             raise InputError("--photons", f"{photons!r}", "a positive full-well count")
         variance = image.clamp_min(0) / photons
-    if read_noise < 0:
+    if bool((torch.as_tensor(read_noise) < 0).any()):
         raise InputError("--read-noise", f"{read_noise!r}", "a non-negative standard deviation")
     variance = variance + read_noise**2
     noise = torch.randn(image.shape, generator=generator, dtype=image.dtype, device=image.device)

@@ -17,7 +17,7 @@ import torch
 from metalens_cli.constants import PAPER_Z_FAR_M, PAPER_Z_NEAR_M
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE, field_transform, form_image_field
-from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
+from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform, zero_order_light
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
 from metalens_cli.io.presets import ObstructionConfig
@@ -49,6 +49,16 @@ class CaptureSetup:
 
 
 @dataclass
+class ZeroOrder:
+    """The zero-order light of a design's captures: ``scale`` ζ_c (3, 1, 1) of the focused signal
+    and the unit-sum discs ``near``, ``far`` (1, N, N) (``imaging.camera``, ``optics.zero_order``)."""
+
+    scale: torch.Tensor
+    near: torch.Tensor
+    far: torch.Tensor
+
+
+@dataclass
 class ChannelPsfs:
     """R, G, B PSFs (torch, (3, N, N), fractions of the aperture power) at the near and far
     depths, each in the window its light needs (``optics.blur``), and what the windows kept."""
@@ -67,11 +77,14 @@ class ChannelPsfs:
     transforms: dict = field(default_factory=dict, repr=False)  # sensor (H, W) → (near, far), made once
     field_tolerance: float = DEFAULT_TOLERANCE  # of the field transforms (imaging.field_formation)
     formation_seconds: list = field(default_factory=list, repr=False)  # each capture's (simulate_captures)
+    zero_order: ZeroOrder | None = None  # the unconverted light (attach_zero_order)
 
     @property
     def margin(self) -> int:
         """Canvas margin (pixels) these PSFs need around the sensor."""
         own = canvas_margin(self.near.shape[-1], self.far.shape[-1])
+        if self.zero_order is not None:
+            own = max(own, canvas_margin(self.zero_order.near.shape[-1], self.zero_order.far.shape[-1]))
         return own if self.field_psfs is None else max(own, self.field_psfs.margin)
 
     def report(self) -> dict:
@@ -106,14 +119,16 @@ def draw_depths(z_near_m: tuple[float, float], z_far_m: tuple[float, float], see
 
 
 def design_sensitivity(design):
-    """S^c of a design: its preset's (filter × camera × η), or the default camera without a filter."""
+    """S^c of a design: its preset's (filter × camera × η), or the default camera without a filter
+    and with the design's ``efficiency`` (η = 1 without one)."""
     from metalens_cli.io.preset_spectra import preset_sensitivity
     from metalens_cli.optics.spectra import camera_response, spectral_sensitivity, wavelength_grid
 
     if design.preset is not None:
         return preset_sensitivity(design.preset)
     grid = wavelength_grid()
-    return spectral_sensitivity(grid, camera_response(grid))
+    efficiency = None if design.efficiency is None else design.efficiency.at(grid)
+    return spectral_sensitivity(grid, camera_response(grid), efficiency=efficiency)
 
 
 def channel_weights(design, wavelengths_m):
@@ -243,6 +258,26 @@ def capture_psfs(
     return psfs
 
 
+def attach_zero_order(psfs: ChannelPsfs, design, pixel_pitch_m: float, zero_order_leak: float) -> ChannelPsfs:
+    """Give ``psfs`` the zero-order light of ``design`` behind an analyzer that passes
+    ``zero_order_leak`` of it (``imaging.camera.channel_budget``); 0 gives none."""
+    from metalens_cli.imaging.camera import channel_budget
+    from metalens_cli.optics.zero_order import zero_order_psf
+
+    if zero_order_leak == 0:
+        return psfs
+    budget = channel_budget(design, zero_order_leak)
+    dev, dt = psfs.near.device, psfs.near.dtype
+    discs = [
+        torch.as_tensor(zero_order_psf(design.lens.aperture_m, design.focal_length_m, z, pixel_pitch_m), dtype=dt)
+        .to(dev)
+        .unsqueeze(0)
+        for z in (psfs.z_near_m, psfs.z_far_m)
+    ]
+    psfs.zero_order = ZeroOrder(torch.as_tensor(budget.zero_order, dtype=dt, device=dev).reshape(3, 1, 1), *discs)
+    return psfs
+
+
 def estimate_captures(
     design,
     z_near_m: float,
@@ -253,28 +288,36 @@ def estimate_captures(
     images: int,
     *,
     window: int | None = None,
+    zero_order: bool = False,
 ) -> tuple[int, float, float]:
     """(peak bytes, seconds of :func:`channel_psfs`, seconds of :func:`simulate_captures`) for
     ``images`` images of ``pixels``² on the sensor, from the PSF plan (``optics.psf.estimate_psf``) and the
     canvas the windows need: each image's canvas holds about a dozen float32 planes of 3 channels
     (scene, obstruction, α, their spectra, the captures) while it is formed, and costs about two
     canvas FFT passes per channel with its obstruction (0.42 s measured for a 1414² canvas against
-    0.63 s estimated; ten passes, the old rate, estimated 3.2 s)."""
+    0.63 s estimated; ten passes, the old rate, estimated 3.2 s). ``zero_order``: the zero-order
+    discs widen the canvas and add four passes (α over the canvas, three disc blurs)."""
     from metalens_cli.optics.blur import psf_window
     from metalens_cli.optics.psf import FFT_RATE, estimate_psf
+    from metalens_cli.optics.zero_order import zero_order_radius_m
 
     d = design.focal_length_m
     windows = [
         window or psf_window(design.lens, list(wavelengths_m), [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)
     ]
     psf = estimate_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, distance_m=d)
-    canvas = pixels + 2 * canvas_margin(*windows)
+    margin = canvas_margin(*windows)
+    if zero_order:
+        disc = zero_order_radius_m(design.lens.aperture_m, d, z_near_m)
+        margin = max(margin, math.ceil(disc / pixel_pitch_m))
+    canvas = pixels + 2 * margin
     planes = 12 * 3 * canvas**2 * 8
     kept = 6 * 3 * pixels**2 * 4 * images
+    passes = 2 + (4 if zero_order else 0)
     return (
         psf.memory_bytes + planes + kept,
         psf.seconds,
-        images * 2 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE,
+        images * passes * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE,
     )
 
 
@@ -288,15 +331,24 @@ def estimate_capture_runs(
     seeds: int = 1,
     kinds: int = 1,
     field_model: str = "on-axis",
+    zero_order: bool = False,
 ) -> Estimate:
     """The cost of capturing ``images`` images through every design of ``setup`` at ``depths_m``
     (near, far) for each of ``seeds`` seeds and ``kinds`` obstruction kinds (:func:`estimate_captures`):
     the PSFs once per design and seed, the captures per kind too; the memory of the largest
     design. ``what`` names the job; ``window``: :func:`channel_psfs`'s; ``field_model`` "auto" adds
-    the field PSF sets where the isoplanatic test asks for them (an upper bound: they may be cached)."""
+    the field PSF sets where the isoplanatic test asks for them (an upper bound: they may be cached);
+    ``zero_order``: the captures image the zero-order light too."""
     costs = [
         estimate_captures(
-            design, *depths_m, setup.wavelengths_m, setup.pixel_pitch_m, setup.pixels, images, window=window
+            design,
+            *depths_m,
+            setup.wavelengths_m,
+            setup.pixel_pitch_m,
+            setup.pixels,
+            images,
+            window=window,
+            zero_order=zero_order,
         )
         for design in setup.designs
     ]
@@ -395,6 +447,18 @@ def simulate_captures(
                 alpha_gain=alpha_gain,
             )
             obstructed, unobstructed = capture.obstructed, capture.unobstructed
+            if psfs.zero_order is not None:
+                zero = psfs.zero_order
+                stray = zero_order_light(
+                    torch.as_tensor(image.linear, dtype=dt, device=dev),
+                    torch.as_tensor(obstruction.rgb, dtype=dt, device=dev),
+                    torch.as_tensor(obstruction.mask, dtype=dt, device=dev),
+                    psfs.near,
+                    *_zero_order_transforms(psfs, tuple(sensor)),
+                    image.margin,
+                    formation=formation,
+                )
+                obstructed, unobstructed = obstructed + zero.scale * stray[0], unobstructed + zero.scale * stray[1]
             if np.any(photons) or read_noise:
                 obstructed = add_noise(obstructed, counts, read_noise=read_noise, generator=seed * 1000 + 2 * index)
                 unobstructed = add_noise(
@@ -428,6 +492,16 @@ def _record_formation(psfs: ChannelPsfs, seconds: float) -> None:
             "captures": len(psfs.formation_seconds),
             "median_seconds": float(np.median(psfs.formation_seconds)),
         }
+
+
+def _zero_order_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:
+    """The transforms of the zero-order discs for ``sensor`` images, made once (``psfs.transforms``)."""
+    key = ("zero-order", sensor)
+    if key not in psfs.transforms:
+        psfs.transforms[key] = tuple(
+            psf_transform(disc, sensor) for disc in (psfs.zero_order.near, psfs.zero_order.far)
+        )
+    return psfs.transforms[key]
 
 
 def _capture_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:

@@ -38,6 +38,7 @@ class Design:
     focal_length_m: float
     preset: Preset | None
     lambda_d_m: float | None = None
+    efficiency: object = None  # io.preset_spectra.FinEfficiency a design without a preset is imaged with (None: η = 1)
 
     def describe(self) -> dict:
         """JSON-ready summary for file headers and reports."""

@@ -234,15 +234,13 @@ def channel_throughput(preset) -> np.ndarray:
     return preset_sensitivity(preset, grid).values.sum(axis=1) / bare
 
 
-def preset_sensitivity(preset, wavelengths_m: np.ndarray | None = None) -> SpectralSensitivity:
-    """S^c of a preset's camera: its camera response (a colour-science name or a CSV) × its
-    filter (bands or CSV; none: 1) × the nanofin efficiency η (:func:`preset_efficiency`).
-
-    ``wavelengths_m`` defaults to a 1 nm grid over 380-780 nm.
-    """
-    grid = wavelength_grid() if wavelengths_m is None else np.asarray(wavelengths_m, dtype=float)
+def camera_factors(preset, wavelengths_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The three factors of a preset's S^c on ``wavelengths_m`` (L,): the camera response (3, L),
+    the filter's transmission (L,; ones without a filter) and the nanofin efficiency η (L,)
+    (:func:`preset_efficiency`)."""
+    grid = np.asarray(wavelengths_m, dtype=float)
     band_filter = preset.filter
-    transmission = None
+    transmission = np.ones(grid.size)
     if band_filter is not None and band_filter.csv is not None:
         transmission = filter_from_csv(band_filter.csv, grid)
     elif band_filter is not None:
@@ -256,4 +254,14 @@ def preset_sensitivity(preset, wavelengths_m: np.ndarray | None = None) -> Spect
     efficiency = preset_efficiency(preset.nanofin, preset.sensor.wavelength_range_m).at(grid)
     camera = preset.sensor.camera_response
     crf = camera_from_csv(camera, grid) if camera.lower().endswith(".csv") else camera_response(grid, camera)
-    return spectral_sensitivity(grid, crf, transmission, efficiency)
+    return crf, transmission, efficiency
+
+
+def preset_sensitivity(preset, wavelengths_m: np.ndarray | None = None) -> SpectralSensitivity:
+    """S^c of a preset's camera: its camera response (a colour-science name or a CSV) × its
+    filter (bands or CSV; none: 1) × the nanofin efficiency η (:func:`camera_factors`).
+
+    ``wavelengths_m`` defaults to a 1 nm grid over 380-780 nm.
+    """
+    grid = wavelength_grid() if wavelengths_m is None else np.asarray(wavelengths_m, dtype=float)
+    return spectral_sensitivity(grid, *camera_factors(preset, grid))
