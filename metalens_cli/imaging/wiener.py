@@ -71,12 +71,16 @@ class WienerFilter:
         """rfft2 of the mirrored capture (3, H, W) on the filter's grid."""
         return torch.fft.rfft2(_mirrored(capture.to(torch.float64), self.margin), s=self.fft_shape)
 
+    def gain(self, mu) -> torch.Tensor:
+        """The filter H*/(|H|² + μ(ν/ν_N)²) (3, L0, L1//2 + 1) for ``mu`` (3,)."""
+        mu = torch.as_tensor(np.asarray(mu, dtype=float), dtype=torch.float64, device=self.transfer.device)
+        h = self.transfer
+        denominator = h.real**2 + h.imag**2 + mu.reshape(3, 1, 1) * self.weight
+        return h.conj() / denominator.clamp_min(torch.finfo(torch.float64).tiny)
+
     def restore_spectrum(self, spectrum: torch.Tensor, mu) -> torch.Tensor:
         """The restored sensor crop (3, H, W) from a capture's :meth:`spectrum`, with ``mu`` (3,)."""
-        mu = torch.as_tensor(np.asarray(mu, dtype=float), dtype=torch.float64, device=spectrum.device).reshape(3, 1, 1)
-        h = self.transfer
-        gain = h.conj() / (h.real**2 + h.imag**2 + mu * self.weight).clamp_min(torch.finfo(torch.float64).tiny)
-        full = torch.fft.irfft2(spectrum * gain, s=self.fft_shape)
+        full = torch.fft.irfft2(spectrum * self.gain(mu), s=self.fft_shape)
         m, (rows, cols) = self.margin, self.sensor_hw
         return full[..., m : m + rows, m : m + cols]
 
@@ -89,14 +93,26 @@ class WienerFilter:
 def choose_mu(wiener: WienerFilter, captures, cleans, grid=MU_GRID) -> tuple[np.ndarray, np.ndarray]:
     """μ (3,) from ``grid`` with the least mean squared error per channel of the restored
     ``captures`` against ``cleans`` (lists of linear (3, H, W) held-out images), and that error
-    (3, len(grid))."""
+    (3, len(grid)). The error is taken over the mirrored FFT grid, in the frequency domain
+    (Parseval: no inverse transform per μ); the mirrored margins repeat the sensor's error."""
+    columns = torch.full((wiener.fft_shape[1] // 2 + 1,), 2.0, dtype=torch.float64, device=wiener.transfer.device)
+    columns[0] = 1.0
+    if wiener.fft_shape[1] % 2 == 0:
+        columns[-1] = 1.0  # the half spectrum's columns 0 (and Nyquist) stand for one column, the others for two
+    pixels = wiener.fft_shape[0] * wiener.fft_shape[1]
+    spectra = [
+        (
+            wiener.spectrum(torch.as_tensor(np.asarray(y), dtype=torch.float64, device=columns.device)),
+            wiener.spectrum(torch.as_tensor(np.asarray(x), dtype=torch.float64, device=columns.device)),
+        )
+        for y, x in zip(captures, cleans)
+    ]
     errors = np.zeros((3, len(grid)))
-    for capture, clean in zip(captures, cleans):
-        x = torch.as_tensor(np.asarray(capture), dtype=torch.float64, device=wiener.transfer.device)
-        truth = torch.as_tensor(np.asarray(clean), dtype=torch.float64, device=x.device)
-        spectrum = wiener.spectrum(x)
-        for k, mu in enumerate(grid):
-            restored = wiener.restore_spectrum(spectrum, [mu] * 3)
-            errors[:, k] += ((restored - truth) ** 2).mean(dim=(-2, -1)).cpu().numpy()
-    errors /= max(len(captures), 1)
+    for k, mu in enumerate(grid):
+        gain = wiener.gain([mu] * 3)
+        for y, x in spectra:
+            residual = gain * y - x
+            power = (residual.real**2 + residual.imag**2) * columns
+            errors[:, k] += power.sum(dim=(-2, -1)).cpu().numpy() / pixels**2
+    errors /= max(len(spectra), 1)
     return np.asarray(grid)[errors.argmin(axis=1)], errors
