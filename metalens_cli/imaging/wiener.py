@@ -17,7 +17,7 @@ exactly. The obstruction is unknown to the filter.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -53,6 +53,7 @@ class WienerFilter:
     fft_shape: tuple[int, int]
     sensor_hw: tuple[int, int]
     mu: np.ndarray
+    _power: torch.Tensor | None = field(default=None, repr=False)  # |H|², made once
 
     @classmethod
     def of(cls, psf_far: torch.Tensor, sensor_hw: tuple[int, int], mu=(0.0, 0.0, 0.0)) -> WienerFilter:
@@ -75,7 +76,9 @@ class WienerFilter:
         """The filter H*/(|H|² + μ(ν/ν_N)²) (3, L0, L1//2 + 1) for ``mu`` (3,)."""
         mu = torch.as_tensor(np.asarray(mu, dtype=float), dtype=torch.float64, device=self.transfer.device)
         h = self.transfer
-        denominator = h.real**2 + h.imag**2 + mu.reshape(3, 1, 1) * self.weight
+        if self._power is None:
+            self._power = h.real**2 + h.imag**2
+        denominator = self._power + mu.reshape(3, 1, 1) * self.weight
         return h.conj() / denominator.clamp_min(torch.finfo(torch.float64).tiny)
 
     def restore_spectrum(self, spectrum: torch.Tensor, mu) -> torch.Tensor:
@@ -92,27 +95,17 @@ class WienerFilter:
 
 def choose_mu(wiener: WienerFilter, captures, cleans, grid=MU_GRID) -> tuple[np.ndarray, np.ndarray]:
     """μ (3,) from ``grid`` with the least mean squared error per channel of the restored
-    ``captures`` against ``cleans`` (lists of linear (3, H, W) held-out images), and that error
-    (3, len(grid)). The error is taken over the mirrored FFT grid, in the frequency domain
-    (Parseval: no inverse transform per μ); the mirrored margins repeat the sensor's error."""
-    columns = torch.full((wiener.fft_shape[1] // 2 + 1,), 2.0, dtype=torch.float64, device=wiener.transfer.device)
-    columns[0] = 1.0
-    if wiener.fft_shape[1] % 2 == 0:
-        columns[-1] = 1.0  # the half spectrum's columns 0 (and Nyquist) stand for one column, the others for two
-    pixels = wiener.fft_shape[0] * wiener.fft_shape[1]
-    spectra = [
-        (
-            wiener.spectrum(torch.as_tensor(np.asarray(y), dtype=torch.float64, device=columns.device)),
-            wiener.spectrum(torch.as_tensor(np.asarray(x), dtype=torch.float64, device=columns.device)),
-        )
-        for y, x in zip(captures, cleans)
-    ]
+    ``captures`` against ``cleans`` (lists of linear (3, H, W) held-out images) over the sensor,
+    and that error (3, len(grid)). (Over the whole mirrored FFT grid instead, by Parseval without
+    an inverse transform per μ, the zero-padded edge of the grid rings and μ comes out 10²-10⁴
+    times too large: 18.6 against 41.4 dB noise-free on the split lens's photographs.)"""
     errors = np.zeros((3, len(grid)))
-    for k, mu in enumerate(grid):
-        gain = wiener.gain([mu] * 3)
-        for y, x in spectra:
-            residual = gain * y - x
-            power = (residual.real**2 + residual.imag**2) * columns
-            errors[:, k] += power.sum(dim=(-2, -1)).cpu().numpy() / pixels**2
-    errors /= max(len(spectra), 1)
+    for capture, clean in zip(captures, cleans):
+        x = torch.as_tensor(np.asarray(capture), dtype=torch.float64, device=wiener.transfer.device)
+        truth = torch.as_tensor(np.asarray(clean), dtype=torch.float64, device=x.device)
+        spectrum = wiener.spectrum(x)
+        for k, mu in enumerate(grid):
+            restored = wiener.restore_spectrum(spectrum, [mu] * 3)
+            errors[:, k] += ((restored - truth) ** 2).mean(dim=(-2, -1)).cpu().numpy()
+    errors /= max(len(captures), 1)
     return np.asarray(grid)[errors.argmin(axis=1)], errors
