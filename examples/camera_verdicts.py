@@ -306,6 +306,14 @@ def write(runs: Path, results: dict[str, tuple[dict, list[str], float]]) -> None
         warnings = [w for w in report["warnings"] if "units per cell" not in w]
         if warnings:
             lines += ["Warnings:", "", *[f"- {w}" for w in warnings], ""]
+    if "field" not in results:
+        lines += [
+            "## Over the whole field",
+            "",
+            "Not in this file yet: `python examples/camera_verdicts.py --reuse --cases on-axis,field` adds it (each "
+            "learned lens's field PSF set takes about 25 min on 2 cores, then is cached).",
+            "",
+        ]
     if "on-axis" in results:
         lines += [
             "## The learned broadband baseline against criteria physics allows",
