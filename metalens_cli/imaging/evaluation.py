@@ -175,13 +175,16 @@ def held_out_wiener(design, psfs: ChannelPsfs, cameras, budget, settings: Evalua
         c.unobstructed
         for c in simulate_captures(scenes, "fence", psfs, design.focal_length_m, settings.pixel_pitch_m, 0)
     ]
+    base = WienerFilter.of(psfs.far, sensor)  # the transfer function once; μ per camera
     filters = []
     for camera in cameras:
-        counts = None if camera is None else electrons(budget, camera)
-        noisy = [expose(x, counts, camera and camera.read_electrons, 10**6 + k) for k, x in enumerate(clear)]
-        wiener = WienerFilter.of(psfs.far, sensor)
-        wiener.mu, _ = choose_mu(wiener, noisy, [scene.sensor for scene in scenes])
-        filters.append(wiener)
+        if camera is None:
+            noisy = clear
+        else:
+            counts = electrons(budget, camera)
+            noisy = [expose(x, counts, camera.read_electrons, 10**6 + k) for k, x in enumerate(clear)]
+        mu, _ = choose_mu(base, noisy, [scene.sensor for scene in scenes])
+        filters.append(dataclasses.replace(base, mu=mu))
     return filters
 
 
@@ -372,7 +375,7 @@ def verdicts(specs, captures_of, kinds, seeds, n_images: int, cameras, scores) -
     """The first design against each other one, per capture both have and obstruction kind: the
     paired obstructed PSNR difference at every finite light level and where it stops being
     positive (``analysis.statistics.crossover``), with the noise-free difference beside it."""
-    from metalens_cli.analysis.statistics import crossover, paired_difference_ci
+    from metalens_cli.analysis.statistics import crossover
 
     finite = sorted((c.light, li) for li, c in enumerate(cameras) if c.light is not None)
     free = [li for li, c in enumerate(cameras) if c.light is None]
@@ -392,7 +395,7 @@ def verdicts(specs, captures_of, kinds, seeds, n_images: int, cameras, scores) -
                 entry = {"design": specs[0], "versus": specs[other], "capture": capture, "obstruction": kind}
                 entry["metric"], entry["condition"] = "psnr_db", "obstructed"
                 if free:
-                    stats = paired_difference_ci(difference(free[0]), [0.0] * len(units), metric="psnr_db")
+                    stats = mean_ci(difference(free[0]), metric="psnr_db difference")
                     entry["noise_free"] = {"difference": stats["mean"], "ci": stats["ci"]}
                 if len(finite) >= 2:
                     entry.update(crossover([level for level, _ in finite], [difference(li) for _, li in finite]))

@@ -214,14 +214,16 @@ def _composite(
 
 
 def canvas_coverage(mask: torch.Tensor, psf_near: torch.Tensor) -> torch.Tensor:
-    """m ∗ P̂_near over the whole canvas (..., C, H + 2M, W + 2M), the mask taken as 0 beyond it,
-    clamped to 0..1: the fraction of each far point's cone the cover blocks, wherever on the
-    canvas (its outer N//2 pixels see no mask beyond the canvas and are underestimated)."""
+    """m ∗ P̂_near over the whole canvas (..., C, H + 2M, W + 2M), clamped to 0..1: the fraction
+    of each far point's cone the cover blocks, wherever on the canvas. Beyond the canvas the
+    mask is taken to continue as its edge pixels (as the canvas's scene is extended)."""
     kernel = unit_sum(psf_near)
     h, w = mask.shape[-2:]
-    shape = (fft_size(h + kernel.shape[-2]), fft_size(w + kernel.shape[-1]))
-    spectrum = torch.fft.rfft2(mask.to(kernel.dtype), s=shape) * torch.fft.rfft2(_placed(kernel, shape))
-    return torch.fft.irfft2(spectrum, s=shape)[..., :h, :w].clamp(0.0, 1.0)
+    n0, n1 = (n // 2 for n in kernel.shape[-2:])
+    padded = torch.nn.functional.pad(mask.to(kernel.dtype), (n1, n1, n0, n0), mode="replicate")
+    shape = (fft_size(h + 2 * n0), fft_size(w + 2 * n1))
+    spectrum = torch.fft.rfft2(padded, s=shape) * torch.fft.rfft2(_placed(kernel, shape))
+    return torch.fft.irfft2(spectrum, s=shape)[..., n0 : n0 + h, n1 : n1 + w].clamp(0.0, 1.0)
 
 
 def zero_order_light(

@@ -120,15 +120,12 @@ def draw_depths(z_near_m: tuple[float, float], z_far_m: tuple[float, float], see
 
 def design_sensitivity(design):
     """S^c of a design: its preset's (filter × camera × η), or the default camera without a filter
-    and with the design's ``efficiency`` (η = 1 without one)."""
-    from metalens_cli.io.preset_spectra import preset_sensitivity
-    from metalens_cli.optics.spectra import camera_response, spectral_sensitivity, wavelength_grid
+    and with the design's ``efficiency`` (η = 1 without one) (``imaging.camera.design_factors``)."""
+    from metalens_cli.imaging.camera import design_factors
+    from metalens_cli.optics.spectra import spectral_sensitivity, wavelength_grid
 
-    if design.preset is not None:
-        return preset_sensitivity(design.preset)
     grid = wavelength_grid()
-    efficiency = None if design.efficiency is None else design.efficiency.at(grid)
-    return spectral_sensitivity(grid, camera_response(grid), efficiency=efficiency)
+    return spectral_sensitivity(grid, *design_factors(design, grid))
 
 
 def channel_weights(design, wavelengths_m):

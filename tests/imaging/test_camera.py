@@ -130,3 +130,31 @@ def test_mixed_efficiency_sources_warn_and_a_bare_design_takes_the_tables_fin():
     np.testing.assert_allclose(
         channel_budget(dataclasses.replace(bare, efficiency=shared)).throughput, channel_budget(a).throughput
     )
+
+
+def test_through_the_whole_camera_a_grey_wall_stays_grey_and_an_opaque_cover_hides_the_scene():
+    """simulate_captures with the zero-order light attached (leak 1: no analyzer, ζ_c ≈ 0.3-0.45):
+    a grey wall g images as the uniform g·(1 + ζ_c) (focused and unconverted light both sum to
+    one), and a fully opaque dark cover leaves nothing of the scene, focused or unconverted."""
+    from metalens_cli.imaging.images import CleanImage
+    from metalens_cli.imaging.obstructions import Obstruction
+    from metalens_cli.imaging.pipeline import attach_zero_order, capture_psfs, simulate_captures
+
+    design = resolve_design(
+        "hyperbolic:532nm", load_preset("presets/hyperbolic-532.toml"), f_m=None, aperture_m=0.3e-3, pitch_m=None
+    )
+    psfs = capture_psfs(design, 0.045, 1.0, [450e-9, 530e-9, 610e-9, 690e-9], 1.85e-6, 16)
+    attach_zero_order(psfs, design, 1.85e-6, 1.0)
+    zeta = psfs.zero_order.scale.flatten().numpy()
+    assert np.all((zeta > 0.2) & (zeta < 0.6)), zeta
+    margin = psfs.margin
+    side = 16 + 2 * margin
+    wall = CleanImage("wall", np.full((3, side, side), 0.3, dtype=np.float32), margin)
+    opaque = Obstruction(
+        "cover", np.zeros((3, side, side), np.float32), np.ones((1, side, side), np.float32), 0.045, {}
+    )
+    key = ("cover", 0, 0, psfs.z_near_m, design.focal_length_m)
+    (capture,) = simulate_captures([wall], "cover", psfs, design.focal_length_m, 1.85e-6, 0, obstructions={key: opaque})
+    expected = 0.3 * (1 + zeta)[:, None, None] * np.ones((3, 16, 16))
+    np.testing.assert_allclose(capture.unobstructed, expected, rtol=1e-4)
+    np.testing.assert_allclose(capture.obstructed, 0.0, atol=1e-6)
