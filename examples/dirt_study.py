@@ -397,13 +397,16 @@ def figures(results: dict, summary: dict) -> list[str]:
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.4), sharey=False)
-    for ax, label in zip(axes, ("default", "cells 0.3 mm")):
+    panels = (("all parts", None), ("its shadow alone", "shadow"))
+    for ax, (title, part) in zip(axes, panels):
         width = 0.27
         for j, name in enumerate(DESIGNS):
-            bands = np.array(summary[label][name]["bands"]) * 1e4
+            row = summary["default"][name]
+            bands = np.array(row["part_bands"][part] if part else row["bands"]) * 1e4
             ax.bar(np.arange(len(bands)) + (j - 1) * width, bands, width, color=colours[name], label=SHORT[name])
-        ax.set_xticks(range(len(BAND_NAMES)), [f"period {b}" for b in BAND_NAMES])
-        ax.set_title(f"dirt: {label}")
+        ax.set_xticks(range(len(BAND_NAMES)), BAND_NAMES)
+        ax.set_xlabel("period on the sensor")
+        ax.set_title(f"default dirt: {title}")
         ax.set_ylabel("added error per band (linear MSE × 10⁴)")
         ax.axhline(0, color="black", lw=0.6)
     axes[0].legend()
