@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from metalens_cli.imaging.images import LUMA_709
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from quick_results import DESIGNS, LABELS, PAPER_PSNR, ROOT, train  # noqa: E402
 
@@ -83,28 +85,28 @@ GREY = 0.18
 
 
 def near_report(psfs) -> dict:
-    """Per channel: the near and far PSFs' 5 × 5 core energy and half-light radius (px), and
-    the near MTF (radial mean of |OTF|) at the band centres."""
+    """Per channel: the near and far PSFs' 5 × 5 core energy, half-light radius (px) and
+    encircled-energy curve, and the radial MTF at the band centres (``analysis.psf_metrics``,
+    ``analysis.mtf``; pixel units)."""
+    from metalens_cli.analysis.mtf import mtf_at, psf_mtf, radial_grid
+    from metalens_cli.analysis.psf_metrics import central_energy, encircled_radius
+
+    centres = [np.sqrt(lo * hi) if lo else hi / 2 for lo, hi in zip(EDGES[:-1], EDGES[1:])]
+    fractions = np.linspace(0.02, 0.98, 25)
     out = {}
     for depth in ("near", "far"):
         psf = getattr(psfs, depth).double().cpu().numpy()
         psf = psf / psf.sum(axis=(-2, -1), keepdims=True)
         n = psf.shape[-1]
-        c = n // 2
-        y, x = np.mgrid[:n, :n] - c
-        r = np.hypot(y, x).ravel()
-        order = np.argsort(r)
-        cumulative = np.cumsum(psf.reshape(3, -1)[:, order], axis=1)
+        radii = [[encircled_radius(psf[k], 1.0, (0.0, 0.0), f) for f in fractions] for k in range(3)]
+        mtf = psf_mtf(psf, radial_grid(n, 1.0))  # rings at k/n cycles per pixel
         out[depth] = {
             "window_px": n,
-            "core": psf[:, c - 2 : c + 3, c - 2 : c + 3].sum(axis=(-2, -1)).tolist(),
-            "r50_px": [float(r[order][np.searchsorted(cumulative[k], 0.5)]) for k in range(3)],
-            "encircled": {"r": r[order][:: max(1, n // 8)].tolist(), "e": cumulative[:, :: max(1, n // 8)].tolist()},
+            "core": central_energy(psf).tolist(),
+            "r50_px": [encircled_radius(psf[k], 1.0, (0.0, 0.0), 0.5) for k in range(3)],
+            "encircled": {"fraction": fractions.tolist(), "r": radii},
+            "mtf": mtf_at(np.arange(mtf.shape[-1]) / n, mtf, centres).tolist(),
         }
-        otf = np.abs(np.fft.fft2(np.fft.ifftshift(psf, axes=(-2, -1))))
-        nu = np.hypot(*np.meshgrid(np.fft.fftfreq(n), np.fft.fftfreq(n), indexing="ij"))
-        centres = [np.sqrt(lo * hi) if lo else hi / 2 for lo, hi in zip(EDGES[:-1], EDGES[1:])]
-        out[depth]["mtf"] = [[float(otf[k][np.abs(nu - f) < 0.5 / n].mean()) for f in centres] for k in range(3)]
     return out
 
 
@@ -113,7 +115,7 @@ def obstruction_canvas(obstruction, image, setting: dict) -> tuple[np.ndarray, n
     mask = obstruction.mask * setting["opacity"]
     present = (obstruction.mask > 0).astype(np.float32)
     scene_mean = image.linear.reshape(3, -1).mean(axis=1)[:, None, None]
-    luminance = float(np.dot([0.2126, 0.7152, 0.0722], scene_mean.ravel()))
+    luminance = float(np.dot(LUMA_709, scene_mean.ravel()))
     light = setting["light"]
     if light == "soil":
         rgb = obstruction.rgb
@@ -286,9 +288,10 @@ def compute(runs: Path, pixels: int, n_images: int, seeds: int, kept: dict | Non
         "images": [i.name for i in images],
         "seeds": seeds,
         "psf_seconds": psf_seconds,
-        "psfs": {name: near_report(raw_psfs[name, BASE_FAR_M]) for name in DESIGNS},
         "settings": {},
     }
+    if "psfs" not in results:
+        results["psfs"] = {name: near_report(raw_psfs[name, BASE_FAR_M]) for name in DESIGNS}
     if "registration_512" not in results:
         results["registration_512"] = registration_check(
             designs, {name: raw_psfs[name, BASE_FAR_M] for name in DESIGNS}, 512, len(images)
@@ -384,7 +387,7 @@ def figures(results: dict, summary: dict) -> list[str]:
     for k, ax in enumerate(axes):
         for name in DESIGNS:
             enc = results["psfs"][name]["near"]["encircled"]
-            ax.plot(np.maximum(enc["r"], 0.5), enc["e"][k], color=colours[name], label=SHORT[name])
+            ax.plot(np.maximum(enc["r"][k], 0.5), enc["fraction"], color=colours[name], label=SHORT[name])
         ax.axvline(2.5, color="grey", lw=0.8, ls=":")
         ax.set_xscale("log")
         ax.set_title(f"{'RGB'[k]} channel, dirt at 45 mm")
@@ -697,7 +700,7 @@ def main() -> None:
     if (
         results is None
         or set(results["settings"]) != {lbl for lbl, _, _ in VARIATIONS}
-        or "registration_512" not in results
+        or not {"psfs", "registration_512"} <= set(results)
     ):
         results = compute(args.runs, args.pixels, args.images, args.seeds, results)
         kept.write_text(json.dumps(results))
