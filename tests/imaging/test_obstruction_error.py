@@ -108,3 +108,35 @@ def test_a_uniform_veil_adds_no_error_after_the_match_and_a_local_shadow_does():
     half[..., :8] = 0.3
     parts, base = error_parts(reference, unobstructed, -half * unobstructed, torch.zeros_like(reference))
     assert float(sum(s.mean() for s in added_error(parts, base).values())) > 1e-3
+
+
+def test_parts_of_a_grey_wall_stay_grey_and_an_opaque_cover_hides_it():
+    """Through a lens with its zero-order light (leak 1, ζ_c ≈ 0.3-0.45): a grey wall g with no
+    cover images as the uniform g·(1 + ζ_c) and the cover adds nothing; an opaque cover hides
+    the wall (O = U + S + E + Z = 0 when dark) and, glowing b everywhere, images as b·(1 + ζ_c):
+    each light keeps its energy, focused or not."""
+    from metalens_cli.imaging.obstruction_error import capture_parts
+    from metalens_cli.imaging.pipeline import attach_zero_order, capture_psfs
+    from metalens_cli.io.designs import resolve_design
+    from metalens_cli.io.presets import load_preset
+
+    design = resolve_design(
+        "hyperbolic:532nm", load_preset("presets/hyperbolic-532.toml"), f_m=None, aperture_m=0.3e-3, pitch_m=None
+    )
+    psfs = attach_zero_order(
+        capture_psfs(design, 0.045, 1.0, [450e-9, 530e-9, 610e-9, 690e-9], 1.85e-6, 16), design, 1.85e-6, 1.0
+    )
+    zeta = psfs.zero_order.scale.double()
+    side = 16 + 2 * psfs.margin
+    wall = torch.full((3, side, side), 0.3)
+    clear, opaque = torch.zeros((1, side, side)), torch.ones((1, side, side))
+    dark, glow = torch.zeros((3, side, side)), torch.full((3, side, side), 0.2)
+
+    u, s, e, z = (x.double() for x in capture_parts(wall, dark, clear, psfs, psfs.margin))
+    np.testing.assert_allclose(u.numpy(), (0.3 * (1 + zeta)).expand(3, 16, 16).numpy(), rtol=1e-4)
+    parts, base = error_parts(wall[:, :16, :16].double(), u, s, e, z)
+    assert abs(float(sum(v.mean() for v in added_error(parts, base).values()))) < 1e-10
+    u, s, e, z = capture_parts(wall, dark, opaque, psfs, psfs.margin)
+    np.testing.assert_allclose((u + s + e + z).numpy(), 0.0, atol=1e-6)
+    u, s, e, z = (x.double() for x in capture_parts(wall, glow, opaque, psfs, psfs.margin))
+    np.testing.assert_allclose((u + s + e + z).numpy(), (0.2 * (1 + zeta)).expand(3, 16, 16).numpy(), rtol=1e-4)
