@@ -147,8 +147,12 @@ def test_bad_input(capsys, tmp_path, monkeypatch, args, option):
 
 def test_a_scan_estimated_at_days_is_refused_before_it_starts(capsys, tmp_path):
     """Direct Rayleigh-Sommerfeld integration of the paper's lens over 512² pixels takes hours a
-    PSF: refused by the default --max-time (a day) and by a stricter one, with the estimate."""
+    PSF: refused by the default --max-time (a day) and by a stricter one, with the estimate.
+    --max-memory is set so that the time check is what refuses, whatever memory the host has free
+    (the 512² scan needs ~15 GiB)."""
     lens = [
+        "--max-memory",
+        "64GiB",
         "--design",
         "hyperbolic:532nm",
         "--f",
