@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from quick_results import DESIGNS, LABELS, ROOT, metalens, train  # noqa: E402
+from quick_results import DESIGNS, LABELS, ROOT, broadband_lines, metalens, train  # noqa: E402
 
 LIGHT = "none,250,2000,20000"
 OBSTRUCTIONS = ("dirt", "fence")
@@ -235,38 +235,6 @@ def findings(report: dict) -> list[str]:
     return lines
 
 
-def broadband_lines(runs: Path, report: dict) -> list[str]:
-    """The learned broadband lens against the criteria physics allows (``analysis.broadband_criteria``;
-    docs/training.md): coverage, band mean, colour balance from its far PSFs at 1 nm, and the
-    recoverable quality from this evaluation's Wiener rows (unobstructed, paired against the
-    hyperbolic lens), per light level."""
-    from metalens_cli.analysis.broadband_criteria import design_criteria
-    from metalens_cli.io.designs import resolve_design
-
-    broadband, hyperbolic = (str(runs / name) for name in ("quick-broadband", "hyperbolic-532"))
-    criteria = design_criteria(resolve_design(broadband))
-    lines = ["| criterion | value | threshold | verdict |", "|---|---|---|---|"]
-    for c in criteria.criteria:
-        if c.passed is not None:
-            lines.append(
-                f"| {c.name} | {c.meaning}: {c.value:.4g} | {c.threshold:g} | {'met' if c.passed else 'not met'} |"
-            )
-    for light in dict.fromkeys(r["light"] for r in report["rows"]):
-        pair = next(
-            c
-            for c in report["comparisons"]
-            if (c["design"], c["versus"], c["capture"], c["versus_capture"])
-            == (broadband, hyperbolic, "wiener", "wiener")
-            and (c["light"], c["obstruction"], c["condition"], c["metric"])
-            == (light, OBSTRUCTIONS[0], "unobstructed", "psnr_db")
-        )
-        judged = criteria.with_recoverable({"wiener": (pair["difference"], *pair["ci"])}).recoverable
-        lines.append(
-            f"| recoverable ({light}) | {judged.meaning} | CI above 0 | {'met' if judged.passed else 'not met'} |"
-        )
-    return lines
-
-
 def write(runs: Path, results: dict[str, tuple[dict, list[str], float]]) -> None:
     lines = [
         "# Verdicts under one camera: light, nanofin efficiency, the whole field",
@@ -341,7 +309,7 @@ def write(runs: Path, results: dict[str, tuple[dict, list[str], float]]) -> None
             "hyperbolic lens's, colour balance, and what a linear back end recovers from its captures (the on-axis "
             "Wiener rows above, unobstructed, learned broadband − hyperbolic):",
             "",
-            *broadband_lines(runs, results["on-axis"][0]),
+            *broadband_lines(runs, results["on-axis"][0], OBSTRUCTIONS[0])[0],
             "",
         ]
     OUT.write_text("\n".join(lines), encoding="utf-8")
