@@ -204,14 +204,17 @@ def split_conditions(
 
 
 def incidence_factor(max_incidence_rad: float, n_eff: float) -> float:
-    """k = √(1 − sin²θ/n_eff²): the factor by which a filter's bands move for rays at θ (≤ 1)."""
+    """k = √(1 − sin²θ/n_eff²): the factor by which a filter's bands move for rays at θ (≤ 1).
+
+    Evaluated as √(n_eff² − 1 + cos²θ)/n_eff, which keeps its relative precision where k → 0
+    (θ → 90° with n_eff = 1, where k = cos θ); the difference form rounds k to 0 there."""
     if not (0 <= max_incidence_rad < math.pi / 2 and n_eff >= 1):
         raise InputError(
             "filter.max_incidence",
             f"{math.degrees(max_incidence_rad):g}° with n_eff {n_eff:g}",
             "an angle in [0, 90) degrees and n_eff >= 1",
         )
-    return math.sqrt(1.0 - (math.sin(max_incidence_rad) / n_eff) ** 2)
+    return math.sqrt(n_eff * n_eff - 1.0 + math.cos(max_incidence_rad) ** 2) / n_eff
 
 
 def steepest_incidence(aperture_m: float, sensor_half_diagonal_m: float, f_m: float) -> float:

@@ -1,5 +1,7 @@
 """Split-spectrum conditions and their closed-form windows."""
 
+import math
+
 import pytest
 from numpy.testing import assert_allclose
 
@@ -96,3 +98,21 @@ def test_bad_bands_refused():
         m.bands_from_centers([500e-9, 505e-9], [20e-9, 20e-9])
     with pytest.raises(InputError, match="no pass band"):
         m.bands_from_transmission([400e-9, 500e-9], [0.1, 0.2])
+
+
+@pytest.mark.parametrize("degrees", [0.0, 30.0, 89.99999, 89.999999999])
+def test_incidence_factor_is_cos_theta_at_n_eff_one(degrees):
+    """Closed form: with n_eff = 1 the band factor is cos θ, to full relative precision near 90°
+    (the difference form 1 − sin²θ rounded it to 0 at 89.999999999°)."""
+    theta = math.radians(degrees)
+    assert m.incidence_factor(theta, 1.0) == pytest.approx(math.cos(theta), rel=1e-12)
+    assert m.incidence_factor(theta, 1.5) == pytest.approx(math.sqrt(1 - (math.sin(theta) / 1.5) ** 2), rel=1e-12)
+
+
+def test_grazing_incidence_fails_the_conditions_without_an_error():
+    """Rays at 89.999999999° on a filter with n_eff = 1 move every band's short edge to ~0 nm:
+    the conditions fail and there is no window (it was a ZeroDivisionError)."""
+    bands = m.bands_from_centers([457e-9, 530e-9, 628e-9], [22e-9, 20e-9, 28e-9])
+    k = m.incidence_factor(math.radians(89.999999999), 1.0)
+    report = m.check_bands(bands, 4e-3, (0.040, 0.050), incidence=k)
+    assert not report.ok and report.z_near_window_m is None and report.f_window_m is None
