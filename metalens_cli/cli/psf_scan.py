@@ -184,6 +184,7 @@ def psf_scan(
 
 def _field_angles(angles, heights, focal_length_m, propagator) -> list[float] | None:
     """The field angles (rad) from --field-angles or --field-heights (atan(h/f)), or None."""
+    from metalens_cli.analysis.psf_compare import FIELD_ANGLE_TOLERANCE_RAD
     from metalens_cli.errors import InputError
     from metalens_cli.optics.field import field_angle
 
@@ -195,8 +196,14 @@ def _field_angles(angles, heights, focal_length_m, propagator) -> list[float] | 
         angles = [field_angle(h, focal_length_m) for h in heights]
     if not angles:
         return None
-    if len(set(angles)) != len(angles):
-        raise InputError("--field-angles", "the fields repeat an angle", "distinct field angles")
+    ordered = sorted(angles)
+    if any(b - a <= FIELD_ANGLE_TOLERANCE_RAD for a, b in zip(ordered, ordered[1:])):
+        option, what = ("--field-heights", "height") if heights else ("--field-angles", "angle")
+        raise InputError(
+            option,
+            f"the fields repeat a{'n' if what == 'angle' else ''} {what}",
+            f"distinct fields (angles more than {FIELD_ANGLE_TOLERANCE_RAD:g} rad apart, as psf compare matches them)",
+        )
     if propagator not in ("auto", "asm"):
         raise InputError(
             "--propagator", f"{propagator} with off-axis fields", "auto or asm (off axis: the shifted angular spectrum)"

@@ -139,7 +139,13 @@ def parse_length(text: str, field: str, *, allow_inf: bool = False) -> float:
     return math.inf if parsed is None else parsed[0]
 
 
-def _expand_range(text: str, field: str, limit: int) -> list[float]:
+def _is_zero(number: str) -> bool:
+    """Whether a typed number is zero (``0``, ``0.0``, ``+.0``)."""
+    return bool(re.fullmatch(r"\+?0*\.?0*", number)) and "0" in number
+
+
+def _expand_range(text: str, field: str, limit: int, *, zero_start: bool = False) -> list[float]:
+    """:func:`parse_range` with at most ``limit`` values; ``zero_start``: START may be zero."""
     # spaces around the colons only; a regex \s*:\s* was quadratic on a long run of spaces
     s = ":".join(part.strip() for part in str(text).strip().split(":"))
     m = _RANGE_RE.fullmatch(s)
@@ -147,7 +153,10 @@ def _expand_range(text: str, field: str, limit: int) -> list[float]:
         raise InputError(field, f"{_quote(text)} is not a range", LIST_FORM)
     start_n, start_u, stop_n, stop_u, step_n, unit = m.groups()
     parts = []
-    for number, own_unit in ((start_n, start_u), (stop_n, stop_u), (step_n, unit)):
+    for index, (number, own_unit) in enumerate(((start_n, start_u), (stop_n, stop_u), (step_n, unit))):
+        if zero_start and index == 0 and _is_zero(number) and (own_unit or unit) in UNITS_M:
+            parts.append((0.0, "0", 0))
+            continue
         parsed = _parse_length(number + (own_unit or unit), field, False)
         assert parsed is not None  # allow_inf=False
         if len(parsed[1]) > MAX_RANGE_DIGITS:
@@ -217,8 +226,12 @@ def parse_height_list(text: str, field: str) -> list[float]:
     values: list[float] = []
     for item in str(text).split(","):
         m = _LENGTH_RE.fullmatch(item.strip())
-        zero = m is not None and m.group(2) in UNITS_M and re.fullmatch(r"\+?0*\.?0*", m.group(1)) and "0" in m.group(1)
-        values += [0.0] if zero else parse_length_list(item, field)
+        if m is not None and m.group(2) in UNITS_M and _is_zero(m.group(1)):
+            values.append(0.0)
+        elif item.count(":") == 2:
+            values += _expand_range(item, field, MAX_LIST_VALUES - len(values), zero_start=True)
+        else:
+            values += parse_length_list(item, field)
     return values
 
 

@@ -116,3 +116,13 @@ def test_bad_durations_name_the_field_and_form(text):
     with pytest.raises(InputError, match=r"--max-time: .*") as info:
         units.parse_duration(text, "--max-time")
     assert "90s, 30min or 2h" in info.value.expected
+
+
+def test_height_ranges_may_start_on_the_axis():
+    """``0:40:10um`` as ``0um,10um,…,40um`` (a single ``0um`` was accepted, its range refused);
+    a zero step or stop is still refused."""
+    assert units.parse_height_list("0:40:10um", "--field-heights") == pytest.approx([0, 10e-6, 20e-6, 30e-6, 40e-6])
+    assert units.parse_height_list("0um:0.2mm:100um", "--field-heights") == pytest.approx([0, 100e-6, 200e-6])
+    for bad in ("0:40:0um", "-10:40:10um"):
+        with pytest.raises(InputError, match="--field-heights"):
+            units.parse_height_list(bad, "--field-heights")
