@@ -145,13 +145,7 @@ def check_output_file(path: str | os.PathLike[str], field: str, *, suffixes: Ite
         raise InputError(field, f"{str(path)!r} names a folder", "a file path")
     _check_name_lengths(target, field)
     if suffixes is not None:
-        allowed = tuple(suffixes)
-        if target.suffix.lower() not in allowed:
-            raise InputError(
-                field,
-                f"{target.name!r} does not end in {_either(allowed)}",
-                f"a file name ending in {_either(allowed)}",
-            )
+        check_suffix(target, field, tuple(suffixes))
     if not target.parent.is_dir():
         raise InputError(field, f"folder {str(target.parent)!r} does not exist", "a file in an existing folder")
     if target.is_symlink():  # replacing it would cut the link; writing through it, surprise its target
@@ -213,6 +207,22 @@ def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return os.path.realpath(a) == os.path.realpath(b)
+
+
+def check_suffix(
+    path: str | os.PathLike[str], field: str, allowed: tuple[str, ...], expected: str = "a file name"
+) -> str:
+    """The lower-case suffix of ``path`` if it is one of ``allowed``, else an InputError naming
+    ``field``; a bare suffix (``.exr``, which pathlib reads as a hidden file without one) is told
+    so."""
+    name, suffix = Path(path).name, Path(path).suffix.lower()
+    if suffix in allowed:
+        return suffix
+    if name.lower() in allowed:
+        raise InputError(
+            field, f"{name!r} has no name before its suffix", f"{expected} ending in {_either(allowed)}, e.g. out{name}"
+        )
+    raise InputError(field, f"{name!r} does not end in {_either(allowed)}", f"{expected} ending in {_either(allowed)}")
 
 
 def _either(suffixes: tuple[str, ...]) -> str:

@@ -38,7 +38,7 @@ import numpy as np
 
 import metalens_cli
 from metalens_cli.errors import InputError
-from metalens_cli.io.atomic import atomic_write
+from metalens_cli.io.atomic import atomic_write, check_suffix
 from metalens_cli.io.exr import (
     DEFAULT_NORMALIZATION,
     RGB_CHANNELS,
@@ -67,20 +67,9 @@ MAT_ITEM_BYTES |= {"uint16": 2, "int8": 1, "uint8": 1, "logical": 1, "char": 4} 
 _EXPECTED = "a PSF cube as described in docs/formats.md"
 
 
-def _either(suffixes: tuple[str, ...]) -> str:
-    return ", ".join(suffixes[:-1]) + " or " + suffixes[-1]
-
-
 def cube_suffix(path: str | os.PathLike[str], field: str) -> str:
     """The lower-case suffix of a cube file, or an InputError naming ``field`` and the accepted suffixes."""
-    suffix = Path(path).suffix.lower()
-    if suffix not in CUBE_SUFFIXES:
-        raise InputError(
-            field,
-            f"{Path(path).name!r} does not end in {_either(CUBE_SUFFIXES)}",
-            f"a PSF cube file ending in {_either(CUBE_SUFFIXES)}",
-        )
-    return suffix
+    return check_suffix(path, field, CUBE_SUFFIXES, "a PSF cube file")
 
 
 def check_cube_size(

@@ -125,6 +125,8 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
     "psf-scan -o in /proc (unwritable)": ([*SCAN, "-o", "/proc/x.exr"], 2, "cannot write in folder"),
     "psf-scan -o name too long": ([*SCAN, "-o", "{tmp}/" + "a" * 300 + ".exr"], 2, "bytes"),
     "psf-scan -o without .exr": ([*SCAN, "-o", "{tmp}/x.png"], 2, "does not end in .exr"),
+    "psf-scan -o a bare suffix": ([*SCAN, "-o", "{tmp}/.exr"], 2, "'.exr' has no name before its suffix"),
+    "psf-scan --plot a bare suffix": ([*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/.png"], 2, "no name before"),
     "psf-scan --plot in a missing folder": (
         [*SCAN, "-o", "{tmp}/y.exr", "--plot", "{tmp}/nope/p.png"],
         2,
