@@ -61,9 +61,8 @@ DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
     "--field-azimuth",
     "field_azimuth",
     type=Azimuth(),
-    default="0deg",
-    show_default=True,
-    help="Azimuth of the fields, counter-clockwise from the sensor's +x axis.",
+    help="Azimuth of the fields, counter-clockwise from the sensor's +x axis [0deg]; needs --field-angles or "
+    "--field-heights.",
 )
 @click.option("--pixels", type=click.IntRange(1, 8192), help="Sensor window N × N [preset's, else 512].")
 @click.option("--pixel-pitch", "pixel_pitch_m", type=Length(), help="Sensor pixel pitch [preset's, else 1.85um].")
@@ -129,6 +128,7 @@ def psf_scan(
     """
     import torch
 
+    from metalens_cli.errors import InputError
     from metalens_cli.imaging.psf_scan import (
         check_scan_size,
         estimate_field_scan,
@@ -150,6 +150,9 @@ def psf_scan(
     wavelengths_m = flatten(wavelengths) or parse_length_list("430:645:5nm", "--wavelengths")
     depths_m = flatten(depths) or [0.045, math.inf]
     angles = _field_angles(field_angles, field_heights, design.focal_length_m, propagator)
+    if field_azimuth is not None and angles is None:
+        raise InputError("--field-azimuth", "given without fields", "--field-angles or --field-heights beside it")
+    field_azimuth = field_azimuth or 0.0
     check_scan_size(output, wavelengths_m, depths_m, pixels, field_cube=angles is not None)
     run_device = torch_device(device)  # resolved before the estimate: a CUDA job is checked against the GPU's memory
     psf_options = dict(propagator=propagator, dtype=getattr(torch, dtype), force=force)

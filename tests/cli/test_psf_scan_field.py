@@ -69,6 +69,7 @@ def test_field_heights_are_chief_ray_positions(capsys, tmp_path):
         (["--field-angles", "95deg", "-o", "{tmp}/f.exr"], "--field-angles"),
         (["--field-angles", "0:5deg", "-o", "{tmp}/f.exr"], "--field-angles"),
         (["--field-angles", "5deg", "--field-azimuth", "400deg", "-o", "{tmp}/f.exr"], "--field-azimuth"),
+        (["--field-azimuth", "90deg", "-o", "{tmp}/f.exr"], "--field-azimuth: given without fields"),
     ],
 )
 def test_field_scan_refusals(capsys, tmp_path, args, message):
