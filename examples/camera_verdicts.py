@@ -19,13 +19,11 @@ Each evaluation's JSON is kept in ``RUNS/verdicts/`` and reused with ``--reuse``
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from quick_results import DESIGNS, LABELS, ROOT, broadband_lines, metalens, train  # noqa: E402
+from quick_results import DESIGNS, LABELS, ROOT, broadband_lines, kept, train  # noqa: E402
 
 LIGHT = "none,250,2000,20000"
 OBSTRUCTIONS = ("dirt", "fence")
@@ -63,15 +61,7 @@ def evaluation(runs: Path, case: str, reuse: bool) -> tuple[dict, list[str], flo
         *CASES[case],
         "--quiet",
     ]
-    kept = runs / "verdicts" / f"{case}.json"
-    stored = json.loads(kept.read_text()) if reuse and kept.is_file() else {}
-    if stored.get("args") == args:  # kept only for the same command (designs, light levels, field)
-        return stored["report"], args, stored["seconds"]
-    start = time.perf_counter()
-    report = metalens(*args)
-    seconds = time.perf_counter() - start
-    kept.parent.mkdir(parents=True, exist_ok=True)
-    kept.write_text(json.dumps({"report": report, "seconds": seconds, "args": args}))
+    report, seconds = kept(runs / "verdicts" / f"{case}.json", args, reuse)  # the same command only
     return report, args, seconds
 
 

@@ -187,15 +187,22 @@ def evaluate_camera(runs: Path, seeds: int, reuse: bool) -> tuple[dict, list[str
         ",".join(str(runs / f"recon-{n}") for n in DESIGNS),
         "--quiet",
     ]
-    saved = runs / "evaluate_camera_512.json"
+    report, seconds = kept(runs / "evaluate_camera_512.json", args, reuse)
+    return {**report, "wall_s": seconds}, args
+
+
+def kept(saved: Path, args: list[str], reuse: bool) -> tuple[dict, float]:
+    """The JSON of ``metalens ARGS`` and the seconds it took, kept with its command in ``saved``
+    (``reuse`` reads it back for the same command only)."""
     stored = json.loads(saved.read_text()) if reuse and saved.is_file() else {}
     if stored.get("args") == args:
-        return stored["report"], args
+        return stored["report"], stored["seconds"]
     start = time.perf_counter()
     report = metalens(*args)
-    report["wall_s"] = time.perf_counter() - start
-    saved.write_text(json.dumps({"report": report, "args": args}), encoding="utf-8")
-    return report, args
+    seconds = time.perf_counter() - start
+    saved.parent.mkdir(parents=True, exist_ok=True)
+    saved.write_text(json.dumps({"report": report, "seconds": seconds, "args": args}), encoding="utf-8")
+    return report, seconds
 
 
 def evaluate_medium(runs: Path, seeds: int, reuse: bool) -> dict:
