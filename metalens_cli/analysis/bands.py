@@ -1,27 +1,10 @@
-"""Split-spectrum conditions for a multi-band filter, a focal length f and a near depth.
+"""``bands check``: the split-spectrum conditions of a filter at a focal length f and a near
+depth range, with the closed-form windows of z_near and f where the paper's inequalities hold.
 
-A lens that focuses pass-band light from far away focuses the same light from the near
-depth z_near at wavelengths scaled by s = 1 + f/z_near (depth-wavelength symmetry). The
-filter removes that sharp near-depth light when every shifted pass band lands in a stop
-band or outside the sensor. For bands c = 1..N in ascending order (B, G, R for three), the
-paper's inequalities (Suppl. Note 1) are
-
-    min Λpass^c · s > min Λstop^c   (= max Λpass^c, the first stopped wavelength above c)
-    max Λpass^c · s < min Λpass^{c+1}          for c < N
-
-and together they say the shifted band c lies between pass band c and pass band c + 1.
-The general condition they stand for, checked as well: each band, shifted by every s in
-the z_near range, overlaps no pass band inside the sensor's wavelength range.
-
-With a z_near range [z_lo, z_hi] each condition is checked at its worst depth: the
-lower-bound conditions at z_hi (smallest s), the upper-bound ones at z_lo (largest s).
-
-An interference filter's bands move blue for oblique rays: λ(θ) = λ0·√(1 − sin²θ/n_eff²).
-Over a cone of rays up to θ_max a band [lo, hi] passes, for some ray, [k·lo, hi] with
-k = √(1 − sin²θ_max/n_eff²) (:func:`incidence_factor`); the conditions are checked on those
-widened bands (k = 1: normal incidence, the paper's check). A filter on the sensor sees rays up
-to atan((a + h)/f), from the aperture's rim to the opposite sensor corner (:func:`steepest_incidence`).
-All values in metres. Pure Python: answers instantly.
+The conditions themselves (the depth-wavelength shift s = 1 + f/z, the paper's inequalities and
+the general clear-of-pass-bands condition, oblique rays) are ``optics.split_spectrum``; this
+module builds bands from centres, widths or a measured transmission and reports on them. All
+values in metres. Pure Python: answers instantly.
 """
 
 from __future__ import annotations
@@ -30,34 +13,18 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from metalens_cli.analysis.symmetry import shift_factor
 from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io.tables import TRANSMISSION_TABLE, as_fractions, read_table_csv
-
-THREE_BAND_LABELS = ("B", "G", "R")
-
-
-@dataclass(frozen=True)
-class Band:
-    """One pass band [lo_m, hi_m] with a label (B, G, R for a three-band filter)."""
-
-    label: str
-    lo_m: float
-    hi_m: float
-
-
-@dataclass(frozen=True)
-class Condition:
-    """``lhs relation rhs``; ``margin_m`` > 0 when it holds (rhs − lhs for '<', lhs − rhs for '>')."""
-
-    name: str
-    lhs_m: float
-    relation: str
-    rhs_m: float
-    depth_m: float
-    margin_m: float
-    ok: bool
+from metalens_cli.optics.split_spectrum import (
+    Band,
+    Condition,
+    label_bands,
+    oblique_bands,
+    sensed_bands,
+    shift_factor,
+    split_conditions,
+)
 
 
 @dataclass(frozen=True)
@@ -83,13 +50,6 @@ class BandsReport:
 def _round(value_m: float) -> float:
     """Round to 12 significant digits: 457nm − 11nm gives 4.46e-07, not 4.4600000000000003e-07."""
     return float(f"{value_m:.12g}")
-
-
-def label_bands(intervals: list[tuple[float, float]]) -> tuple[Band, ...]:
-    """Sort intervals and label them B, G, R (three bands) or band1..bandN."""
-    ordered = sorted(intervals)
-    labels = THREE_BAND_LABELS if len(ordered) == 3 else tuple(f"band{i + 1}" for i in range(len(ordered)))
-    return tuple(Band(label, lo, hi) for label, (lo, hi) in zip(labels, ordered))
 
 
 def bands_from_centers(centers_m: list[float], widths_m: list[float], field: str = "--band") -> tuple[Band, ...]:
@@ -151,98 +111,6 @@ def filter_bands(config) -> tuple[Band, ...]:
     return bands_from_centers(list(config.centers_m), list(config.widths_m), field="filter.centers")
 
 
-def _condition(name: str, lhs: float, relation: str, rhs: float, depth: float) -> Condition:
-    margin = lhs - rhs if relation == ">" else rhs - lhs
-    return Condition(name, lhs, relation, rhs, depth, margin, margin > 0)
-
-
-def _paper_conditions(bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float) -> list[Condition]:
-    """The paper's named inequalities, each at its worst depth of the z_near range."""
-    s_min, s_max = shift_factor(f_m, z_hi), shift_factor(f_m, z_lo)
-    out = []
-    for i, band in enumerate(bands):
-        out.append(_condition(f"{band.label}.min_into_stop", band.lo_m * s_min, ">", band.hi_m, z_hi))
-        if i + 1 < len(bands):
-            nxt = bands[i + 1]
-            out.append(_condition(f"{band.label}.max_below_{nxt.label}", band.hi_m * s_max, "<", nxt.lo_m, z_lo))
-    return out
-
-
-def _clear_of_pass_bands(
-    band: Band, bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float, sensor: tuple[float, float]
-) -> Condition:
-    """General condition: the band swept over s in [s(z_hi), s(z_lo)] overlaps no pass band in the sensor range."""
-    name = f"{band.label}.clear_of_pass_bands"
-    lo = band.lo_m * shift_factor(f_m, z_hi)
-    hi = band.hi_m * shift_factor(f_m, z_lo)
-    if lo >= sensor[1]:
-        return _condition(name, lo, ">", sensor[1], z_hi)  # shifted beyond the sensor's response
-    best: Condition | None = None
-    for other in bands:
-        p_lo, p_hi = max(other.lo_m, sensor[0]), min(other.hi_m, sensor[1])
-        if p_hi <= p_lo:
-            continue
-        # Whichever side of the pass band the shifted band is nearer to decides the relation.
-        candidate = (
-            _condition(name, hi, "<", p_lo, z_lo) if p_lo - hi >= lo - p_hi else _condition(name, lo, ">", p_hi, z_hi)
-        )
-        if best is None or candidate.margin_m < best.margin_m:
-            best = candidate
-    return best if best is not None else _condition(name, lo, ">", sensor[0], z_hi)
-
-
-def split_conditions(
-    bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float, sensor_range_m: tuple[float, float]
-) -> list[Condition]:
-    """The paper's inequalities and the general condition of every band, at their worst depths.
-
-    Band edges may be 0-d torch tensors (a filter being learned, ``design.filter_learning``):
-    the margins are then differentiable in them; the arithmetic is the same.
-    """
-    conditions = _paper_conditions(bands, f_m, z_lo, z_hi)
-    return conditions + [_clear_of_pass_bands(b, bands, f_m, z_lo, z_hi, sensor_range_m) for b in bands]
-
-
-def incidence_factor(max_incidence_rad: float, n_eff: float) -> float:
-    """k = √(1 − sin²θ/n_eff²): the factor by which a filter's bands move for rays at θ (≤ 1).
-
-    Evaluated as √(n_eff² − 1 + cos²θ)/n_eff, which keeps its relative precision where k → 0
-    (θ → 90° with n_eff = 1, where k = cos θ); the difference form rounds k to 0 there."""
-    if not (0 <= max_incidence_rad < math.pi / 2 and n_eff >= 1):
-        raise InputError(
-            "filter.max_incidence",
-            f"{math.degrees(max_incidence_rad):g}° with n_eff {n_eff:g}",
-            "an angle in [0, 90) degrees and n_eff >= 1",
-        )
-    return math.sqrt(n_eff * n_eff - 1.0 + math.cos(max_incidence_rad) ** 2) / n_eff
-
-
-def steepest_incidence(aperture_m: float, sensor_half_diagonal_m: float, f_m: float) -> float:
-    """The steepest ray (rad) on a filter at the sensor: atan((a + h)/f), aperture radius a."""
-    return math.atan((aperture_m / 2 + sensor_half_diagonal_m) / f_m)
-
-
-def preset_incidence_factor(preset) -> float:
-    """k of a preset's ``[filter]``: ``max_incidence`` "auto" (:func:`steepest_incidence` for its
-    lens and sensor) or an angle, with its ``n_eff``; 1 without a filter."""
-    from metalens_cli.io.units import parse_angle
-
-    band_filter = preset.filter
-    if band_filter is None:
-        return 1.0
-    if band_filter.max_incidence == "auto":
-        half_diagonal = math.sqrt(2) * preset.sensor.pixels * preset.sensor.pixel_pitch_m / 2
-        angle = steepest_incidence(preset.lens.aperture_m, half_diagonal, preset.lens.focal_length_m)
-    else:
-        angle = parse_angle(band_filter.max_incidence, "filter.max_incidence")
-    return incidence_factor(angle, band_filter.n_eff)
-
-
-def oblique_bands(bands: tuple[Band, ...], factor: float) -> tuple[Band, ...]:
-    """What each band passes for some ray of the cone: [factor·lo, hi] (``factor`` ≤ 1)."""
-    return tuple(Band(b.label, b.lo_m * factor, b.hi_m) for b in bands)
-
-
 def windows(bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float):
     """Closed-form windows where every paper condition holds.
 
@@ -278,7 +146,7 @@ def check_bands(
     z_lo, z_hi = z_near_m
     if math.isinf(z_hi):
         raise InputError("--z-near", "must be finite", "a length or LO:HI interval, e.g. 45mm or 40mm:50mm")
-    active = tuple(b for b in bands if b.hi_m > sensor_range_m[0] and b.lo_m < sensor_range_m[1])
+    active = sensed_bands(bands, sensor_range_m)
     ignored = tuple(b for b in bands if b not in active)
     if not active:
         raise InputError(

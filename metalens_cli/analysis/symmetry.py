@@ -128,8 +128,3 @@ def symmetry_table(
     focused = [(z, wavelength_for_depth(z, lambda_d_m, f_m)) for z in depths_m]
     delta = None if delta_z_m is None else delta_wavelength(delta_z_m, at_depth_m, lambda_d_m, f_m)
     return SymmetryTable(f_m, lambda_d_m, rows, focused, delta)
-
-
-def shift_factor(f_m: float, depth_m: float) -> float:
-    """s = 1 + f/z: a wavelength focused from infinity is focused from depth z at λ·s."""
-    return 1.0 + f_m / depth_m

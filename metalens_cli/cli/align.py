@@ -16,6 +16,7 @@ from metalens_cli.cli.options import (
     OutputFile,
     OutputFolder,
     check_output_unused,
+    hold_folder,
     json_option,
     overwrite_option,
 )
@@ -190,6 +191,7 @@ def _check_outputs(is_folder: bool, output: str, warp_out: str | None, pairs, ov
             ):
                 raise InputError(option, f"{value!r} names a file, but REFERENCE and TARGET are folders", kind)
             if value is not None:
+                hold_folder(value, option)
                 check_output_unused(value, overwrite, option)
         return
     if Path(output).suffix.lower() not in OUTPUT_SUFFIXES:

@@ -23,14 +23,17 @@ from metalens_cli.cli.options import (
 from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io.units import INTERVAL_FORM, LENGTH_FORM, format_length
+from metalens_cli.optics.split_spectrum import incidence_factor
 
 
 def _incidence(preset, max_incidence, n_eff) -> float:
     """The bands' blue-shift factor: the options, else the preset's [filter], else normal incidence."""
     if max_incidence is None and n_eff is None and preset is not None:
-        return model.preset_incidence_factor(preset)
+        from metalens_cli.io.presets import preset_incidence_factor
+
+        return preset_incidence_factor(preset)
     band_filter = preset.filter if preset is not None else None
-    return model.incidence_factor(
+    return incidence_factor(
         max_incidence if max_incidence is not None else 0.0,
         n_eff if n_eff is not None else (band_filter.n_eff if band_filter is not None else 1.8),
     )

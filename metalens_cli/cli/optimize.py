@@ -12,6 +12,7 @@ from metalens_cli.cli.options import (
     MetalensCommand,
     OutputFolder,
     announce,
+    hold_folder,
     max_memory_option,
     torch_device,
     training_options,
@@ -43,6 +44,7 @@ def optimize(preset_path, output, steps, seed, device, resume, threads, quiet, a
         torch.set_num_threads(threads)
     preset = load_preset(preset_path)
     run_dir = Path(output) if output else Path("runs") / preset.name
+    hold_folder(run_dir, "--output")  # -o is held already; the default run directory here
     run = RunDirectory(run_dir)
     if not resume:
         run.check_fresh()

@@ -384,6 +384,9 @@ class MetalensCommand(click.Command):
                         f"{output!r} is also an input ({path!r}); it would be overwritten",
                         "an output path apart from the inputs",
                     )
+        for param, output in outputs:
+            if isinstance(param.type, OutputFolder):
+                hold_folder(output, _option_name(param))
         try:
             return super().invoke(ctx)
         except InputError as exc:  # the core names its argument (wavelengths): name the option (--wavelengths)
@@ -514,6 +517,20 @@ overwrite_option = click.option(
     help="Write into an output folder that already holds files, replacing same-named ones "
     "(without it such a folder is refused).",
 )
+
+
+def hold_folder(path: str | os.PathLike[str], field: str) -> None:
+    """Hold the output folder ``path`` until the command ends (``io.atomic.claim_folder``: a
+    second run into it meanwhile is refused); once per folder; under torchrun by rank 0 only,
+    the rank that writes."""
+    from metalens_cli.io.atomic import claim_folder
+
+    ctx = click.get_current_context()
+    held = ctx.find_root().meta.setdefault("metalens.held_folders", set())
+    key = os.path.realpath(path)
+    if key not in held and os.environ.get("RANK", "0") == "0":
+        ctx.with_resource(claim_folder(path, field))
+        held.add(key)
 
 
 def check_output_unused(output: str, overwrite: bool, field: str = "--output") -> None:

@@ -30,21 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from metalens_cli.analysis.bands import (
-    Band,
-    BandsReport,
-    bands_from_centers,
-    check_bands,
-    label_bands,
-    oblique_bands,
-    preset_incidence_factor,
-    split_conditions,
-)
+from metalens_cli.analysis.bands import BandsReport, bands_from_centers, check_bands
 from metalens_cli.errors import InputError, ResultFailed
 from metalens_cli.io.filter_catalogue import CatalogueFilter, read_catalogue
 from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
-from metalens_cli.io.presets import to_toml
+from metalens_cli.io.presets import catalogue_candidates, preset_incidence_factor, to_toml
 from metalens_cli.optics.spectra import bandpass_transmission, wavelength_grid
+from metalens_cli.optics.split_spectrum import Band, label_bands, oblique_bands, split_conditions
 
 NM = 1e-9
 FINE_STEP_M = 0.1e-9  # the weights' integration grid: a 2 nm edge's logistic scale (0.46 nm) over 4.6 samples
@@ -94,12 +86,17 @@ class LearnedFilter(torch.nn.Module):
     @torch.no_grad()
     def project(self, config, sensor_range_m: tuple[float, float]) -> None:
         """Back within the limits of ``config`` (a ``FilterConfig``): FWHM in [min_width,
-        max_width], edge ≥ min_edge_width and ≤ 1/0.81 of the narrowest band (the smooth model's
-        own limit), then the centres moved as little as a forward and a backward sweep need for
-        gaps ≥ min_gap between bands and every band inside the sensor range."""
+        max_width] (narrowed, each in proportion to its width above min_width, where the bands and
+        gaps would not fit in the sensor range; preset loading refuses limits where even the
+        narrowest do not), edge ≥ min_edge_width and ≤ 1/0.81 of the narrowest band (the smooth
+        model's own limit), then the centres moved as little as a forward and a backward sweep
+        need for gaps ≥ min_gap between bands and every band inside the sensor range."""
         w = self.widths_nm.clamp_(config.min_width_m / NM, config.max_width_m / NM)
+        c, gap, narrowest = self.centres_nm, config.min_gap_m / NM, config.min_width_m / NM
+        excess = float(w.sum()) + (w.shape[0] - 1) * gap - (sensor_range_m[1] - sensor_range_m[0]) / NM
+        if excess > 0:  # wider bands than the range holds: each gives up its share of the width above min_width
+            w.sub_(excess * (w - narrowest) / float((w - narrowest).sum()))
         self.edge_nm.clamp_(config.min_edge_width_m / NM, float(w.min()) / 0.81)
-        c, gap = self.centres_nm, config.min_gap_m / NM
         floor = sensor_range_m[0] / NM
         for i in range(c.shape[0]):
             c[i] = torch.clamp(c[i], min=floor + w[i] / 2)
@@ -286,21 +283,11 @@ def refuse_failing(report: BandsReport, what: str) -> None:
 
 def snap_to_catalogue(config, catalogue: list[CatalogueFilter], preset) -> tuple[CatalogueFilter, float]:
     """The listed filter nearest to ``config`` (RMS over its bands of the centre and FWHM
-    differences, nm) among those with as many bands that meet the split-spectrum conditions at
-    the preset's f, z_near and incidence; and that distance. InputError when none does."""
+    differences, nm) among those the preset may snap to (``io.presets.catalogue_candidates``:
+    as many bands, meeting the split-spectrum conditions), and that distance. Preset loading
+    refuses a catalogue without one; InputError if there is none."""
     fits = []
-    for entry in catalogue:
-        if len(entry.centers_m) != len(config.centers_m):
-            continue
-        candidate = dataclasses.replace(
-            config,
-            centers_m=entry.centers_m,
-            widths_m=entry.widths_m,
-            edge_width_m=entry.edge_width_m,
-            peak_transmission=entry.peak_transmission,
-        )
-        if not check_filter(candidate, preset).ok:
-            continue
+    for entry in catalogue_candidates(preset, catalogue):
         diffs = [a - b for a, b in zip(entry.centers_m + entry.widths_m, config.centers_m + config.widths_m)]
         fits.append((math.sqrt(sum(d * d for d in diffs) / len(entry.centers_m)) / NM, entry.name, entry))
     if not fits:
@@ -331,7 +318,7 @@ def learned_filter(run, preset, band_filter: LearnedFilter) -> tuple[object, dic
     refuse_failing(learned, "the learned filter")
     report = {
         "initial": _filter_json(start, preset),
-        "learned": {**_filter_json(config, preset), "conditions": _conditions(learned)},
+        "learned": {**_filter_json(config, preset), "conditions": _conditions(learned, start.split_margin_m)},
         "incidence_factor": learned.incidence_factor,
     }
     if start.catalogue is not None:
@@ -348,7 +335,7 @@ def learned_filter(run, preset, band_filter: LearnedFilter) -> tuple[object, dic
             "name": entry.name,
             "distance_nm": distance,
             **_filter_json(config, preset),
-            "conditions": _conditions(check_filter(config, preset)),
+            "conditions": _conditions(check_filter(config, preset), start.split_margin_m),
         }
     result = dataclasses.replace(preset, filter=config)
     run.write_text("preset.toml", to_toml(result))
@@ -373,5 +360,12 @@ def _filter_json(config, preset) -> dict:
     }
 
 
-def _conditions(report: BandsReport) -> dict:
-    return {"ok": report.ok, "margins_m": {c.name: c.margin_m for c in report.conditions}}
+def _conditions(report: BandsReport, split_margin_m: float) -> dict:
+    """Whether the conditions hold, their margins (m), and whether every margin reaches the
+    preset's ``split_margin`` (a penalty during training, not a guarantee)."""
+    return {
+        "ok": report.ok,
+        "margins_m": {c.name: c.margin_m for c in report.conditions},
+        "split_margin_m": split_margin_m,
+        "split_margin_met": all(c.margin_m >= split_margin_m for c in report.conditions),
+    }

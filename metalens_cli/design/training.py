@@ -36,7 +36,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from metalens_cli.analysis.bands import preset_incidence_factor
 from metalens_cli.design import distributed
 from metalens_cli.design.filter_learning import (
     BandSampler,
@@ -58,7 +57,7 @@ from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
-from metalens_cli.io.presets import WAVELENGTH_MODES, to_toml
+from metalens_cli.io.presets import WAVELENGTH_MODES, preset_incidence_factor, to_toml
 from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import (
     ENCIRCLED_ENERGY,

@@ -5,12 +5,14 @@ A reader never sees a half-written target: it sees the old file (or none) until
 behind. :func:`check_output_file` and :func:`check_output_folder` refuse, before a command
 starts its work, every target that would fail or do harm at the end: a missing or read-only
 folder, a name too long for the file system, a folder, device or FIFO in the target's place;
-:func:`check_folder_unused`, an output folder already holding files.
+:func:`check_folder_unused`, an output folder already holding files; :func:`claim_folder`
+holds an output folder for one run, so that two runs never write into one.
 """
 
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
 import resource
 import secrets
@@ -192,6 +194,49 @@ def check_folder_unused(path: str | os.PathLike[str], field: str) -> None:
             f"folder {str(folder)!r} already holds {held[0]!r}{more}",
             "a new or empty folder, or --overwrite to write into it and replace same-named files",
         )
+
+
+@contextmanager
+def claim_folder(path: str | os.PathLike[str], field: str) -> Iterator[Path]:
+    """Hold the output folder ``path`` for one run, from before its first step to its end: an
+    exclusive ``flock`` on the hidden file ``.NAME.metalens-lock`` beside it (missing parents
+    are created, and removed again if the run leaves them empty). A second run into the folder
+    while this one holds it is an :class:`InputError` naming ``field`` and the folder; the
+    kernel drops the lock when a process dies, so a killed run never blocks the next (its lock
+    file is taken over and removed)."""
+    import fcntl
+
+    folder = Path(path)
+    made = [parent for parent in folder.parents if not parent.exists()]
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    name = folder.name if len(os.fsencode(folder.name)) < 200 else hashlib.sha256(os.fsencode(folder.name)).hexdigest()
+    lock = folder.parent / f".{name}.metalens-lock"
+    while True:
+        handle = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(handle)
+            raise InputError(
+                field,
+                f"folder {str(folder)!r} is being written by another run",
+                "another folder, or this one once that run has ended (with --overwrite to replace its files)",
+            ) from None
+        try:
+            if os.stat(lock).st_ino == os.fstat(handle).st_ino:
+                break  # still the lock file: the last holder removes it before it lets go
+        except FileNotFoundError:
+            pass
+        os.close(handle)
+    try:
+        yield folder
+    finally:
+        with suppress(FileNotFoundError):
+            os.unlink(lock)
+        os.close(handle)
+        for parent in made:  # the parents it made, innermost first, where the run left them empty
+            with suppress(OSError):
+                parent.rmdir()
 
 
 def ensure_folder(path: str | os.PathLike[str], field: str) -> Path:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from metalens_cli.errors import InputError
 from metalens_cli.io.input_files import read_text
+from metalens_cli.optics.band_rules import check_bands
 
 COLUMNS = ("name", "center_nm", "fwhm_nm", "edge_nm", "peak")
 FORM = (
@@ -34,12 +35,14 @@ class CatalogueFilter:
 
 
 def read_catalogue(path: str | Path, field: str = "filter.catalogue") -> list[CatalogueFilter]:
-    """The filters of a catalogue CSV, in the order of their first row."""
+    """The filters of a catalogue CSV, in the order of their first row; a row listed twice, a
+    filter whose bands overlap or are narrower than its edges allow is refused naming its rows."""
     text = read_text(Path(path), field, FORM)
     rows = list(csv.reader(line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")))
     if not rows or [c.strip().lower() for c in rows[0]] != list(COLUMNS):
         raise InputError(field, f"{Path(path).name} does not start with the header {','.join(COLUMNS)}", FORM)
     bands: dict[str, list[tuple[float, float, float, float]]] = {}
+    first_row: dict[tuple, int] = {}
     for number, row in enumerate(rows[1:], start=2):
         if len(row) != len(COLUMNS):
             raise InputError(field, f"{Path(path).name} row {number} has {len(row)} fields", FORM)
@@ -54,6 +57,12 @@ def read_catalogue(path: str | Path, field: str = "filter.catalogue") -> list[Ca
             raise InputError(
                 field, f"{Path(path).name} row {number}: {row}", "positive centre, FWHM and edge (nm), peak in (0, 1]"
             )
+        key = (row[0].strip(), centre, fwhm, edge, peak)
+        if key in first_row:
+            raise InputError(
+                field, f"{Path(path).name} row {number} repeats row {first_row[key]}", "each band of a filter once"
+            )
+        first_row[key] = number
         bands.setdefault(row[0].strip(), []).append((centre * 1e-9, fwhm * 1e-9, edge * 1e-9, peak))
     if not bands:
         raise InputError(field, f"{Path(path).name} lists no filter", FORM)
@@ -64,6 +73,10 @@ def read_catalogue(path: str | Path, field: str = "filter.catalogue") -> list[Ca
             raise InputError(
                 field, f"filter {name!r} has bands with different edges or peaks", "one edge_nm and peak per filter"
             )
+        try:
+            check_bands([e[0] for e in entries], [e[1] for e in entries], entries[0][2], entries[0][3])
+        except InputError as exc:
+            raise InputError(field, f"{Path(path).name}: filter {name!r}: {exc.message}", exc.expected) from None
         out.append(
             CatalogueFilter(
                 name, tuple(e[0] for e in entries), tuple(e[1] for e in entries), entries[0][2], entries[0][3]

@@ -76,6 +76,14 @@ def read_image_file(path: Path, field: str) -> tuple[np.ndarray, list[str], bool
     return pixels / np.float32(full_scale), names, False
 
 
+def check_image_file(path: Path, field: str) -> None:
+    """Refuse an image file that is not one, or is over the pixel limit, reading only its header
+    where the header says so (the pixels are decoded only when the header cannot be parsed)."""
+    path = regular_file(path, field, "an image file")
+    if check_image_size(path, field) == (0, 0):
+        read_image_codes(path, field)
+
+
 def read_image_codes(path: Path, field: str) -> tuple[np.ndarray, list[str], float | None]:
     """:func:`read_image_file` without the scaling: (H, W, C) float32 pixels as stored (the
     integer codes 0..255 or 0..65535 of PNG, JPEG, TIFF; EXR floats), the channel names and the

@@ -22,8 +22,17 @@ from typing import Any
 from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
-from metalens_cli.io.input_files import read_text
+from metalens_cli.io.input_files import read_text, regular_file
 from metalens_cli.optics.nanofin import DEFAULT_HARMONICS
+from metalens_cli.optics.split_spectrum import (
+    incidence_factor,
+    label_bands,
+    largest_margin,
+    oblique_bands,
+    sensed_bands,
+    split_conditions,
+    steepest_incidence,
+)
 
 WAVELENGTH_MODES = ("log_wavelength", "harmonic_wavelength")  # loss.sharp_mode on each wavelength's own core
 SHARP_MODES = ("total", "per_channel", "log", *WAVELENGTH_MODES)  # design.losses.sharp_loss
@@ -500,6 +509,66 @@ def _check_learned_filter(p: Preset) -> None:
             f"{p.optimize.spectral_sampling!r} with filter.learn = true",
             '"bands": wavelengths that follow the learned bands',
         )
+    _check_filter_fits(p)
+
+
+def _nm(value_m: float) -> str:
+    return f"{value_m * 1e9:.4g} nm"
+
+
+def _check_filter_fits(p: Preset) -> None:
+    """The limits of a filter to learn admit one: its bands at their narrowest, with their
+    gaps, fit inside the sensor range, and the split margin asked for is below the largest any
+    such filter keeps (``optics.split_spectrum.largest_margin``); each refusal names the bound."""
+    f, (low, high) = p.filter, p.sensor.wavelength_range_m
+    n, span = len(f.centers_m), high - low
+    if n * f.min_width_m + (n - 1) * f.min_gap_m > span:
+        need = f"{n} bands of at least {_nm(f.min_width_m)} (filter.min_width)"
+        need += f" with gaps of at least {_nm(f.min_gap_m)}" if n > 1 else ""
+        where = f"sensor.wavelength_range {_nm(low)}-{_nm(high)} holds {_nm(span)}"
+        if n * f.min_width_m > span:
+            raise InputError("filter.min_width", f"{need} do not fit: {where}", f"min_width at most {_nm(span / n)}")
+        most = (span - n * f.min_width_m) / (n - 1)
+        raise InputError("filter.min_gap", f"{need} do not fit: {where}", f"min_gap at most {_nm(most)}")
+    k = preset_incidence_factor(p)
+    f_m, z_near = p.lens.focal_length_m, p.scene.z_near_m
+    best = largest_margin(n, f_m, z_near, (low, high), f.min_width_m, f.min_gap_m, k)
+    if f.split_margin_m < best:
+        return
+    gap_binds = largest_margin(n, f_m, z_near, (low, high), f.min_width_m, 0.0, k) > best
+    limits = (
+        f"{n} bands of at least {_nm(f.min_width_m)} (filter.min_width)"
+        + (f", {_nm(f.min_gap_m)} apart (filter.min_gap)" if gap_binds else "")
+        + f" inside sensor.wavelength_range {_nm(low)}-{_nm(high)} at lens.focal_length {f_m * 1e3:g} mm,"
+        + f" scene.z_near {z_near[0] * 1e3:g}-{z_near[1] * 1e3:g} mm"
+        + (f" and the blue shift k = {k:.4f} of filter.max_incidence" if k < 1 else "")
+    )
+    if best <= 0:
+        raise InputError(
+            "filter.learn",
+            f"no filter of {limits} meets the split-spectrum conditions (the best falls short by {_nm(-best)})",
+            "a longer focal length, a nearer z_near, narrower bands or a smaller max_incidence",
+        )
+    raise InputError(
+        "filter.split_margin",
+        f"{_nm(f.split_margin_m)} is more than any filter of {limits} keeps: at most {_nm(best)}",
+        f"split_margin below {_nm(best)}",
+    )
+
+
+def preset_incidence_factor(preset: Preset) -> float:
+    """k of a preset's ``[filter]`` (``optics.split_spectrum.incidence_factor``): ``max_incidence``
+    "auto" (the steepest ray on its sensor, :func:`~metalens_cli.optics.split_spectrum.steepest_incidence`)
+    or an angle, with its ``n_eff``; 1 without a filter."""
+    band_filter = preset.filter
+    if band_filter is None:
+        return 1.0
+    if band_filter.max_incidence == "auto":
+        half_diagonal = math.sqrt(2) * preset.sensor.pixels * preset.sensor.pixel_pitch_m / 2
+        angle = steepest_incidence(preset.lens.aperture_m, half_diagonal, preset.lens.focal_length_m)
+    else:
+        angle = units.parse_angle(band_filter.max_incidence, "filter.max_incidence")
+    return incidence_factor(angle, band_filter.n_eff)
 
 
 def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | None = None) -> Preset:
@@ -550,41 +619,135 @@ def load_preset(path: str | Path) -> Preset:
 
 
 def _resolve_paths(preset: Preset, folder: Path) -> Preset:
-    """File paths in a preset are relative to the preset's folder; refuse missing files."""
+    """File paths in a preset are relative to the preset's folder. Every file the preset names
+    is opened and checked here, before any command does work: tables parsed over the sensor
+    range, images' headers read, a filter catalogue read and required to hold a filter the run
+    can snap to (:func:`_check_catalogue`), a checkpoint's format recognised."""
+    import numpy as np
 
-    def resolved(value: str | None, key: str) -> str | None:
+    from metalens_cli.io.filter_catalogue import read_catalogue
+    from metalens_cli.io.spectra_files import camera_from_csv, efficiency_from_csv, filter_from_csv
+
+    grid = np.linspace(*preset.sensor.wavelength_range_m, 31)
+
+    def resolved(value: str | None, key: str, read=None, expected: str = "a CSV path relative to the preset"):
         if value is None:
             return None
-        full = (folder / value).resolve()
-        if not full.is_file():
-            raise InputError(key, f"no such file {str(full)!r}", "a CSV path relative to the preset")
+        full = regular_file((folder / value).resolve(), key, expected)
+        if read is not None:
+            read(full, grid, key)
         return str(full)
 
     nanofin = dataclasses.replace(
         preset.nanofin,
-        efficiency_csv=resolved(preset.nanofin.efficiency_csv, "nanofin.efficiency_csv"),
+        efficiency_csv=resolved(preset.nanofin.efficiency_csv, "nanofin.efficiency_csv", efficiency_from_csv),
         material=_resolved_material(preset.nanofin.material, folder, "nanofin.material"),
         substrate=_resolved_material(preset.nanofin.substrate, folder, "nanofin.substrate"),
     )
     band_filter = preset.filter
     if band_filter is not None:
-        band_filter = dataclasses.replace(band_filter, csv=resolved(band_filter.csv, "filter.csv"))
+        catalogue = resolved(band_filter.catalogue, "filter.catalogue", expected="a CSV path relative to the preset")
+        band_filter = dataclasses.replace(
+            band_filter, csv=resolved(band_filter.csv, "filter.csv", filter_from_csv), catalogue=catalogue
+        )
     sensor = preset.sensor
     if sensor.camera_response.lower().endswith(".csv"):
-        sensor = dataclasses.replace(sensor, camera_response=resolved(sensor.camera_response, "sensor.camera_response"))
-    loss = dataclasses.replace(
-        preset.loss,
-        domain_adaptation_weights=resolved(preset.loss.domain_adaptation_weights, "loss.domain_adaptation_weights"),
+        camera = resolved(sensor.camera_response, "sensor.camera_response", camera_from_csv)
+        sensor = dataclasses.replace(sensor, camera_response=camera)
+    weights = resolved(preset.loss.domain_adaptation_weights, "loss.domain_adaptation_weights", expected=CHECKPOINT)
+    if weights is not None:
+        _check_checkpoint(Path(weights), "loss.domain_adaptation_weights")
+    loss = dataclasses.replace(preset.loss, domain_adaptation_weights=weights)
+    optimize = dataclasses.replace(
+        preset.optimize,
+        images=None if preset.optimize.images is None else str(_image_folder(folder / preset.optimize.images)),
+        obstructions=tuple(_obstruction(kind, folder) for kind in preset.optimize.obstructions),
     )
-    optimize = preset.optimize
-    if optimize.images is not None:
-        folder_path = (folder / optimize.images).resolve()
-        if not folder_path.is_dir():
-            raise InputError(
-                "optimize.images", f"no such folder {str(folder_path)!r}", "a folder of images relative to the preset"
-            )
-        optimize = dataclasses.replace(optimize, images=str(folder_path))
-    return dataclasses.replace(preset, nanofin=nanofin, filter=band_filter, sensor=sensor, loss=loss, optimize=optimize)
+    result = dataclasses.replace(
+        preset, nanofin=nanofin, filter=band_filter, sensor=sensor, loss=loss, optimize=optimize
+    )
+    if band_filter is not None and band_filter.catalogue is not None:
+        _check_catalogue(result, read_catalogue(band_filter.catalogue))
+    return result
+
+
+CHECKPOINT = "a PyTorch checkpoint (.pth) relative to the preset"
+
+
+def _check_checkpoint(path: Path, key: str) -> None:
+    """A PyTorch checkpoint: a zip archive (``torch.save``) or a pickle (the legacy format);
+    its tensors are read, with ``weights_only``, where the run starts."""
+    with open(path, "rb") as handle:
+        head = handle.read(4)
+    if not (head.startswith(b"PK\x03\x04") or head[:1] == b"\x80"):
+        raise InputError(key, f"{path.name} is not a PyTorch checkpoint", CHECKPOINT)
+
+
+def _image_folder(path: Path) -> Path:
+    """``optimize.images``: a folder holding at least one image, every image's header readable
+    and within the pixel limit (pixels are decoded where the run starts)."""
+    from metalens_cli.io.image_files import check_image_file
+    from metalens_cli.io.input_files import IMAGE_SUFFIXES
+
+    path, form = path.resolve(), f"a folder of {', '.join(IMAGE_SUFFIXES)} images relative to the preset"
+    if not path.is_dir():
+        raise InputError("optimize.images", f"no such folder {str(path)!r}", form)
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    if not files:
+        raise InputError("optimize.images", f"{str(path)!r} holds no images", form)
+    for file in files:
+        check_image_file(file, "optimize.images")
+    return path
+
+
+def _obstruction(kind: str, folder: Path) -> str:
+    """An ``optimize.obstructions`` entry, a ``file:PATH`` resolved against the preset and checked."""
+    if not kind.startswith("file:"):
+        return kind
+    from metalens_cli.io.image_files import check_image_file
+
+    full = regular_file((folder / kind[5:]).resolve(), "optimize.obstructions", "file:PATH.png relative to the preset")
+    check_image_file(full, "optimize.obstructions")
+    return f"file:{full}"
+
+
+def catalogue_candidates(preset: Preset, catalogue: list) -> list:
+    """The filters of ``catalogue`` (``io.filter_catalogue.CatalogueFilter``) a learned filter
+    may snap to: as many bands as ``filter.centers``, meeting the split-spectrum conditions at
+    the preset's f, z_near, sensor range and oblique incidence."""
+    n, k, sensor = len(preset.filter.centers_m), preset_incidence_factor(preset), preset.sensor.wavelength_range_m
+    (z_lo, z_hi), f_m = preset.scene.z_near_m, preset.lens.focal_length_m
+
+    def meets(entry) -> bool:
+        bands = sensed_bands(
+            label_bands([(c - w / 2, c + w / 2) for c, w in zip(entry.centers_m, entry.widths_m)]), sensor
+        )
+        return bool(bands) and all(c.ok for c in split_conditions(oblique_bands(bands, k), f_m, z_lo, z_hi, sensor))
+
+    return [entry for entry in catalogue if len(entry.centers_m) == n and meets(entry)]
+
+
+def _check_catalogue(preset: Preset, catalogue: list) -> None:
+    """A catalogue with at least one filter the run can snap to (:func:`catalogue_candidates`)."""
+    if catalogue_candidates(preset, catalogue):
+        return
+    n, name = len(preset.filter.centers_m), Path(preset.filter.catalogue).name
+    same = [entry for entry in catalogue if len(entry.centers_m) == n]
+    if not same:
+        counts = ", ".join(str(c) for c in sorted({len(entry.centers_m) for entry in catalogue}))
+        raise InputError(
+            "filter.catalogue",
+            f"{name} lists no {n}-band filter (its filters have {counts} bands)",
+            f"a catalogue with {n}-band filters, as many bands as filter.centers",
+        )
+    k, (z_lo, z_hi) = preset_incidence_factor(preset), preset.scene.z_near_m
+    raise InputError(
+        "filter.catalogue",
+        f"none of the {len(same)} {n}-band filters in {name} meets the split-spectrum conditions at "
+        f"lens.focal_length {preset.lens.focal_length_m * 1e3:g} mm, scene.z_near {z_lo * 1e3:g}-{z_hi * 1e3:g} mm"
+        + (f" with the blue shift k = {k:.4f} of filter.max_incidence" if k < 1 else ""),
+        "a catalogue with such a filter, or no catalogue",
+    )
 
 
 def _resolved_material(text: str, folder: Path, key: str) -> str:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from metalens_cli.analysis.bands import bands_from_centers, check_bands, incidence_factor, preset_incidence_factor
+from metalens_cli.analysis.bands import bands_from_centers, check_bands
 from metalens_cli.cli.main import run as run_cli
 from metalens_cli.design.filter_learning import (
     LearnedFilter,
@@ -25,8 +25,9 @@ from metalens_cli.design.filter_learning import (
 from metalens_cli.design.training import train
 from metalens_cli.errors import InputError, ResultFailed
 from metalens_cli.io.filter_catalogue import read_catalogue
-from metalens_cli.io.presets import load_preset, preset_from_dict, read_toml
+from metalens_cli.io.presets import load_preset, preset_from_dict, preset_incidence_factor, read_toml
 from metalens_cli.optics import spectra
+from metalens_cli.optics.split_spectrum import incidence_factor
 
 NM = 1e-9
 TINY = Path(__file__).with_name("tiny.toml")
