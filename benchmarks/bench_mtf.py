@@ -20,7 +20,7 @@ import numpy as np
 from report import write_section
 
 from metalens_cli.analysis.mtf import cube_mtf, diffraction_limited_mtf, psf_mtf, radial_grid
-from metalens_cli.io.exr import PsfCube, read_psf_cube, write_psf_cube
+from metalens_cli.io.exr import PsfCube, read_exr_cube, write_exr_cube
 
 ROOT = Path(__file__).resolve().parents[1]
 N, PITCH = 512, 1.85e-6
@@ -63,7 +63,7 @@ def main() -> None:
     }
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "cube.exr"
-        write_psf_cube(
+        write_exr_cube(
             path,
             psf,
             WAVELENGTHS,
@@ -73,7 +73,7 @@ def main() -> None:
             normalization="peak-one",
             extra={"na": 0.3},
         )
-        cases["`read_psf_cube` (88 × 512² ZIP EXR, not part of the target)"] = lambda: read_psf_cube(path)
+        cases["`read_exr_cube` (88 × 512² ZIP EXR, not part of the target)"] = lambda: read_exr_cube(path)
         load = os.getloadavg()[0]
         rows = [(name, *timed(function, args.repeat)) for name, function in cases.items()]
     lines = [

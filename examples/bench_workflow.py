@@ -66,9 +66,9 @@ def metalens(*args, expect: int = 0) -> dict | None:
 def bench_frames(simulated: Path, folder: Path, rng: np.random.Generator) -> None:
     """Camera frames of the simulated PSFs (see the module docstring) and their manifest."""
     sys.path.insert(0, str(ROOT))
-    from metalens_cli.io.exr import read_psf_cube
+    from metalens_cli.io.exr import read_exr_cube
 
-    cube = read_psf_cube(simulated)
+    cube = read_exr_cube(simulated)
     folder.mkdir(parents=True, exist_ok=True)
     rows = ["file,wavelength,depth,exposure"]
     dark_offset = 800.0

@@ -41,8 +41,8 @@ _EXPORTS = {
     "channel_psf_stack": "optics.channel_psf",
     "crop_window": "optics.window",
     "PsfCube": "io.exr",
-    "read_psf_cube": "io.exr",
-    "write_psf_cube": "io.exr",
+    "read_psf_cube": "io.psf_cube_files",
+    "write_psf_cube": "io.psf_cube_files",
     "run_scan": "imaging.psf_scan",
     # the field of view: off-axis PSFs and captures that vary over the field
     "FieldPsf": "optics.field",
@@ -62,7 +62,7 @@ _EXPORTS = {
     "camera_response": "optics.spectra",
     "bandpass_transmission": "optics.spectra",
     "quadrature_weights": "optics.spectra",
-    "Band": "analysis.bands",
+    "Band": "optics.split_spectrum",
     "BandsReport": "analysis.bands",
     "bands_from_centers": "analysis.bands",
     "check_bands": "analysis.bands",
@@ -195,7 +195,7 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # static checkers and IDEs see the names eagerly
     from metalens_cli import constants
-    from metalens_cli.analysis.bands import Band, BandsReport, bands_from_centers, check_bands
+    from metalens_cli.analysis.bands import BandsReport, bands_from_centers, check_bands
     from metalens_cli.analysis.mtf import (
         RadialGrid,
         cube_mtf,
@@ -219,9 +219,10 @@ if TYPE_CHECKING:  # static checkers and IDEs see the names eagerly
     from metalens_cli.imaging.pipeline import simulate_captures
     from metalens_cli.imaging.psf_scan import run_field_scan, run_scan
     from metalens_cli.io.designs import Design, resolve_design
-    from metalens_cli.io.exr import PsfCube, read_psf_cube, write_psf_cube
+    from metalens_cli.io.exr import PsfCube
     from metalens_cli.io.layout import FinGeometry, export_layout
     from metalens_cli.io.presets import Preset, load_preset
+    from metalens_cli.io.psf_cube_files import read_psf_cube, write_psf_cube
     from metalens_cli.io.units import format_length, parse_angle, parse_length, parse_range
     from metalens_cli.optics.channel_psf import channel_psf_stack
     from metalens_cli.optics.field import FieldPsf, chief_ray, field_angle, field_psf, ray_landings, rms_spot
@@ -236,4 +237,5 @@ if TYPE_CHECKING:  # static checkers and IDEs see the names eagerly
         quadrature_weights,
         spectral_sensitivity,
     )
+    from metalens_cli.optics.split_spectrum import Band
     from metalens_cli.optics.window import crop_window

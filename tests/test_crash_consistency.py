@@ -147,9 +147,9 @@ def _gds_whole(path: Path, reference: Path) -> bool:
 
 def _same_cube(path: Path, reference: Path) -> bool:
     """The reference's PSFs, every pixel (the header's timings differ)."""
-    from metalens_cli.io.exr import read_psf_cube
+    from metalens_cli.io.exr import read_exr_cube
 
-    return np.array_equal(read_psf_cube(path).psf, read_psf_cube(reference).psf)
+    return np.array_equal(read_exr_cube(path).psf, read_exr_cube(reference).psf)
 
 
 FILES = {

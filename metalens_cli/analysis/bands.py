@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from metalens_cli import arguments
 from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io.tables import TRANSMISSION_TABLE, as_fractions, read_table_csv
@@ -52,8 +53,12 @@ def _round(value_m: float) -> float:
     return float(f"{value_m:.12g}")
 
 
-def bands_from_centers(centers_m: list[float], widths_m: list[float], field: str = "--band") -> tuple[Band, ...]:
-    """Pass bands [c − w/2, c + w/2] (w = FWHM); they must not overlap."""
+def bands_from_centers(centers_m: list[float], widths_m: list[float], field: str | None = None) -> tuple[Band, ...]:
+    """Pass bands [c − w/2, c + w/2] (w = FWHM); they must not overlap. Errors name ``field``
+    (the option or key the bands came from), else the parameter."""
+    centers_m = arguments.lengths(centers_m, field or "centers_m")
+    widths_m = arguments.lengths(widths_m, field or "widths_m")
+    field = field or "widths_m"
     if len(centers_m) != len(widths_m):
         raise InputError(field, "needs one width per centre", "CENTER:WIDTH pairs")
     if not centers_m:
@@ -128,6 +133,17 @@ def windows(bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float):
     return z_window, ((f_lo, f_hi) if f_hi > f_lo else None)
 
 
+def _interval(value, name: str) -> tuple[float, float]:
+    """A (lo, hi) pair of positive finite lengths (m) with lo ≤ hi."""
+    pair = arguments.instance(value, name, (tuple, list), "(lo, hi) in m")
+    if len(pair) != 2:
+        raise InputError(name, f"{pair!r}", "(lo, hi) in m")
+    lo, hi = (arguments.positive(v, name) for v in pair)
+    if hi < lo:
+        raise InputError(name, f"{pair!r} ends below its start", "(lo, hi) with lo ≤ hi")
+    return lo, hi
+
+
 def check_bands(
     bands: tuple[Band, ...],
     f_m: float,
@@ -143,9 +159,17 @@ def check_bands(
     factor k of :func:`incidence_factor` (1: normal incidence); the conditions and windows are
     those of :func:`oblique_bands`, the report's ``bands`` the filter's own.
     """
-    z_lo, z_hi = z_near_m
-    if math.isinf(z_hi):
-        raise InputError("--z-near", "must be finite", "a length or LO:HI interval, e.g. 45mm or 40mm:50mm")
+    listed = arguments.instance(bands, "bands", (tuple, list), "Bands (ml.bands_from_centers)")
+    if not listed:
+        raise InputError("bands", "is empty", "at least one Band")
+    for band in listed:
+        arguments.instance(band, "bands", Band, "Bands (ml.bands_from_centers)")
+    arguments.positive(f_m, "f_m")
+    z_lo, z_hi = _interval(z_near_m, "z_near_m")
+    sensor_range_m = _interval(sensor_range_m, "sensor_range_m")
+    if not sensor_range_m[0] < sensor_range_m[1]:
+        raise InputError("sensor_range_m", f"{sensor_range_m!r} is empty", "(lo, hi) with lo < hi, in m")
+    arguments.number(incidence, "incidence", lo=0.0, hi=1.0, open_lo=True, form="a blue-shift factor k in (0, 1]")
     active = sensed_bands(bands, sensor_range_m)
     ignored = tuple(b for b in bands if b not in active)
     if not active:

@@ -51,13 +51,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
+from metalens_cli.io.exr import PsfCube
 
 RGB_NAMES = ("R", "G", "B")
 MTF50_LEVEL = 0.5
 PER_MM = 1e-3  # cycles per metre → line pairs per mm
 DIRECTIONS = ("tangential", "sagittal")
 LINE_DFT_CHUNK = 2**23  # line_mtf's intermediate products hold at most this many values per step
+
+
+GRID_BYTES = 80  # per rfft sample of radial_grid: radii, ring indices, weights, the pixel MTF, the operator's entries
 
 
 @dataclass(frozen=True)
@@ -112,8 +117,9 @@ def radial_grid(n: int, pixel_pitch_m: float) -> RadialGrid:
     """
     from scipy import sparse
 
-    if n < 2:
-        raise InputError("psf", f"{n} × {n} pixels", "at least 2 × 2 pixels for an MTF")
+    arguments.count(n, "n", lo=2)
+    arguments.positive(pixel_pitch_m, "pixel_pitch_m")
+    arguments.fits_in_memory(GRID_BYTES * n * (n // 2 + 1), "n", f"the ring averaging of {n} × {n} images")
     fy = np.fft.fftfreq(n)[:, None]  # cycles per pixel
     fx = np.fft.rfftfreq(n)[None, :]
     radius = np.hypot(fx, fy)
@@ -150,7 +156,7 @@ def psf_mtf(psf: np.ndarray, grid: RadialGrid, *, remove_pixel_mtf: bool = False
     """
     from scipy import fft  # several times faster than numpy.fft here, and multi-threaded
 
-    psf = np.asarray(psf)
+    psf = _psfs(psf, grid, field)
     if psf.shape[-2:] != (grid.n, grid.n):
         raise InputError(field, f"PSFs of shape {psf.shape[-2:]}", f"{grid.n} × {grid.n} pixels")
     otf = fft.rfft2(psf, workers=-1)
@@ -158,6 +164,12 @@ def psf_mtf(psf: np.ndarray, grid: RadialGrid, *, remove_pixel_mtf: bool = False
     _check_power(dc, field)
     reweight = 1.0 / grid.pixel_mtf_2d if remove_pixel_mtf else None
     return grid.average(np.abs(otf), reweight) / dc[..., None]
+
+
+def _psfs(psf, grid, field: str) -> np.ndarray:
+    """PSFs (..., N, N) of finite values as a numpy array, and a :class:`RadialGrid`."""
+    arguments.instance(grid, "grid", RadialGrid, "a RadialGrid (ml.radial_grid)")
+    return np.asarray(arguments.array(psf, field, ndim=tuple(range(2, 9)), form="PSFs (..., N, N)"))
 
 
 def _check_power(dc: np.ndarray, field: str) -> None:
@@ -182,7 +194,8 @@ def line_mtf(
     each point is divided by the pixel MTF |sinc(νx·p)·sinc(νy·p)| there (≥ 4/π² up to Nyquist).
     float32 PSFs give float32 curves, computed in float32 (as the radial ones).
     """
-    psf = np.asarray(psf)
+    psf = _psfs(psf, grid, field)
+    arguments.number(angle_rad, "angle_rad", form="a direction (rad)")
     n = grid.n
     if psf.shape[-2:] != (n, n):
         raise InputError(field, f"PSFs of shape {psf.shape[-2:]}", f"{n} × {n} pixels")
@@ -254,8 +267,9 @@ def diffraction_limited_mtf(
     """
     from scipy import sparse
 
-    if not 0 < na < 1:
-        raise InputError("na", f"{na!r}", "a numerical aperture in (0, 1)")
+    arguments.instance(grid, "grid", RadialGrid, "a RadialGrid (ml.radial_grid)")
+    arguments.number(na, "na", lo=0.0, hi=1.0, open_lo=True, open_hi=True, form="a numerical aperture in (0, 1)")
+    wavelengths_m = arguments.lengths(wavelengths_m, "wavelengths_m")
     radii, which = np.unique(grid.radius_per_m.ravel(), return_inverse=True)
     # The same sum as grid.average(D(|ν|)·pixel), grouped by distinct radius (~4× fewer D values).
     weights = grid.pixel_mtf_2d.ravel() if include_pixel else np.ones(which.size)
@@ -268,7 +282,11 @@ def diffraction_limited_mtf(
 def mtf50(frequencies: np.ndarray, mtf: np.ndarray, *, level: float = MTF50_LEVEL) -> np.ndarray:
     """(...,) frequency where each curve (..., K) first drops below ``level``, linearly
     interpolated between the samples on each side; NaN where it never does."""
-    mtf = np.asarray(mtf, dtype=float)
+    frequencies = np.asarray(arguments.array(frequencies, "frequencies", ndim=1, form="frequencies (K,)"))
+    mtf = np.asarray(arguments.array(mtf, "mtf", form="MTF curves (..., K)"), dtype=float)
+    if mtf.ndim < 1 or mtf.shape[-1] != frequencies.size:
+        raise InputError("mtf", f"shape {mtf.shape} for {frequencies.size} frequencies", "curves (..., K)")
+    arguments.number(level, "level", lo=0.0, hi=1.0, open_lo=True, open_hi=True, form="a level in (0, 1)")
     below = mtf < level
     first = np.argmax(below, axis=-1)
     found = below.any(axis=-1) & (first > 0)
@@ -450,6 +468,8 @@ class FieldMtf:
 def field_mtf(cube, grid: RadialGrid, *, remove_pixel_mtf: bool = False) -> FieldMtf:
     """Tangential and sagittal MTFs (:func:`line_mtf`) of every PSF and channel PSF of a field
     cube (``io.exr.PsfCube``), at the azimuth ψ of its fields, and their MTF50s."""
+    arguments.instance(cube, "cube", PsfCube, "a PsfCube (ml.read_psf_cube)")
+    arguments.instance(grid, "grid", RadialGrid, "a RadialGrid (ml.radial_grid)")
     psi = cube.field_azimuth_rad
     freqs = grid.frequencies_lpmm
     curves = {}
@@ -497,6 +517,7 @@ def cube_mtf(cube, *, at_lpmm=(), na: float | None = None, remove_pixel_mtf: boo
     ``na`` overrides the cube's ``na`` metadata; with neither, no diffraction reference.
     ``at_lpmm``: frequencies (lp/mm, 0 … the last ring) at which to interpolate each curve.
     """
+    arguments.instance(cube, "cube", PsfCube, "a PsfCube (ml.read_psf_cube)")
     grid = radial_grid(cube.psf.shape[-1], cube.pixel_pitch_m)
     freqs = grid.frequencies_lpmm
     at = np.asarray(at_lpmm, dtype=float)

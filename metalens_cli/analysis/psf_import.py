@@ -10,7 +10,7 @@ from pathlib import Path
 
 from metalens_cli.analysis.measured_psf import ImportSettings, MeasuredCube, dark_frame
 from metalens_cli.errors import InputError
-from metalens_cli.io.exr import write_psf_cube
+from metalens_cli.io.exr import write_exr_cube
 from metalens_cli.io.json_files import jsonable
 from metalens_cli.io.psf_manifest import Manifest, frame_shape, read_frame_file
 from metalens_cli.io.resources import Estimate
@@ -115,7 +115,7 @@ def write_measured_cube(
     path: str | os.PathLike[str], cube: MeasuredCube, design: str, normalization: str, metadata: dict
 ) -> None:
     """The cube as an EXR PSF cube (``io.exr``), ``metadata`` in its header."""
-    write_psf_cube(
+    write_exr_cube(
         path,
         cube.psf,
         cube.wavelengths_m,

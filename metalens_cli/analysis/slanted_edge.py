@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from metalens_cli import arguments
 from metalens_cli.analysis.mtf import PER_MM, mtf50
 from metalens_cli.errors import InputError
 from metalens_cli.io.image_files import read_image_file, srgb_to_linear
@@ -111,7 +112,7 @@ def slanted_edge_sfr(
     (32) pixels from both sides (fewer in a narrow image), cut to those pixels around it. Refused (InputError): an ROI
     outside the image or too small, no edge, a curved edge, a tilt within 1° of 0°/90° or of 45°.
     """
-    image = np.asarray(image, dtype=float)
+    image = np.asarray(arguments.array(image, "image", ndim=(2, 3), form="an image (H, W, C) or (H, W)"), dtype=float)
     image = image[..., None] if image.ndim == 2 else image
     if image.ndim != 3 or image.shape[2] != len(channel_names):
         raise InputError(

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 
 DEFAULT_WAVELENGTHS_M = tuple(float(f"{(400 + 10 * i) * 1e-9:.12g}") for i in range(31))  # 400-700 nm
@@ -36,8 +37,15 @@ class DepthRow:
     kind: str
 
 
+def _check_lens(lambda_d_m: float, f_m: float) -> None:
+    arguments.positive(lambda_d_m, "lambda_d_m")
+    arguments.positive(f_m, "f_m")
+
+
 def depth_for_wavelength(wavelength_m: float, lambda_d_m: float, f_m: float) -> DepthRow:
     """z = λd·f/(λ − λd) for one wavelength, classified as real, infinite or virtual."""
+    _check_lens(lambda_d_m, f_m)
+    arguments.positive(wavelength_m, "wavelength_m")
     difference = wavelength_m - lambda_d_m
     # Relative tolerance: a wavelength within 1e-12 of λd is λd (typed values round-trip exactly).
     if abs(difference) <= 1e-12 * lambda_d_m:
@@ -52,8 +60,8 @@ def wavelength_for_depth(depth_m: float, lambda_d_m: float, f_m: float) -> float
 
     ``depth_m = inf`` gives λd.
     """
-    if not depth_m > 0:
-        raise InputError("--depth", f"{depth_m!r} m is not a positive depth", "a positive length or inf")
+    _check_lens(lambda_d_m, f_m)
+    arguments.positive(depth_m, "depth_m", allow_inf=True)
     return lambda_d_m * (1.0 + f_m / depth_m)
 
 

@@ -49,7 +49,7 @@ def _filter_bands(preset, band_specs, filter_csv, threshold):
     if band_specs and filter_csv:
         raise click.UsageError("give either --band or --filter-csv, not both")
     if band_specs:
-        return model.bands_from_centers([c for c, _ in band_specs], [w for _, w in band_specs])
+        return model.bands_from_centers([c for c, _ in band_specs], [w for _, w in band_specs], field="--band")
     if filter_csv:
         return model.bands_from_transmission(*model.read_filter_csv(filter_csv), threshold=threshold)
     if preset is not None and preset.filter is not None:

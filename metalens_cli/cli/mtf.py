@@ -118,9 +118,9 @@ def mtf(cube, edge_path, at_lpmm, na, remove_pixel_mtf, roi, pixel_pitch_m, srgb
 
 def _cube(path, at_lpmm, na, remove_pixel_mtf, csv_path, as_json, plot_path) -> None:
     from metalens_cli.analysis.mtf import cube_mtf
-    from metalens_cli.io.psf_cube_files import read_cube_file
+    from metalens_cli.io.psf_cube_files import read_psf_cube
 
-    result = cube_mtf(read_cube_file(path), at_lpmm=at_lpmm, na=na, remove_pixel_mtf=remove_pixel_mtf)
+    result = cube_mtf(read_psf_cube(path), at_lpmm=at_lpmm, na=na, remove_pixel_mtf=remove_pixel_mtf)
     curves = result.curves()
     fields = result.field_records()
     if csv_path:

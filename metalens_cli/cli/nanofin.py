@@ -151,8 +151,7 @@ def efficiency(
     from metalens_cli.io.units import parse_length_list
     from metalens_cli.optics.nanofin import Fin
 
-    fin = Fin(period_m, height_m, width_m, length_m)
-    fin.check()
+    fin = Fin(period_m, height_m, width_m, length_m)  # checked as it is made
     wavelengths_m = flatten(wavelengths) or parse_length_list("430:660:10nm", "--wavelengths")
     fin_material, substrate_material = _materials(material, substrate)
     n_fin, n_sub = (
@@ -367,7 +366,7 @@ def sweep(
     n_fin = partial(fin_material.index, field="--material")
     n_sub = partial(substrate_material.index, field="--substrate")
     n_fin(waves), n_sub(waves)  # refuse wavelengths outside a material's table before any work
-    Fin(cell.period_m, cell.height_m, min(widths_m), min(lengths_m)).check()
+    Fin(cell.period_m, cell.height_m, min(widths_m), min(lengths_m))  # the grid's sizes, checked as the fin is made
     estimate = _sweep_estimate(widths_m, lengths_m, waves.size, harmonics, max_harmonics, tolerance_m)
     run_device = torch_device(device)
     announce(estimate, max_memory, device=run_device)

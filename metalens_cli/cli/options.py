@@ -260,7 +260,10 @@ class MemorySize(click.ParamType):
         unit = match.group(2).lower() if match else ""
         if not match or unit not in self.UNITS or not 0 < float(match.group(1)) < 1e18:
             self.fail(f"{value!r} is not a memory size (expected e.g. 8GiB, 500MB or bytes)", param, ctx)
-        return int(float(match.group(1)) * self.UNITS[unit])
+        size = int(float(match.group(1)) * self.UNITS[unit])
+        if size < 1:
+            self.fail(f"{value!r} is less than one byte (expected e.g. 8GiB, 500MB or bytes)", param, ctx)
+        return size
 
 
 class Duration(_UnitType):
@@ -603,20 +606,9 @@ def auto_device() -> str:
 
 def torch_device(name: str):
     """A torch.device (``auto`` resolved by :func:`auto_device`), refusing devices this machine
-    does not have."""
-    import torch
+    does not have (``metalens_cli.arguments.device``)."""
+    from metalens_cli.arguments import device
 
     if not re.fullmatch(DEVICE_PATTERN, str(name)):
         raise InputError("--device", f"unknown device {name!r}", DEVICE_FORM)
-    if name == "auto":
-        name = auto_device()
-    device = torch.device(name)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise InputError("--device", "CUDA is not available on this machine", "cpu or auto")
-    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
-        raise InputError(
-            "--device", f"{name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)", "cuda:0 … cuda:N-1"
-        )
-    if device.type == "mps" and not torch.backends.mps.is_available():
-        raise InputError("--device", "MPS is not available on this machine", "cpu or auto")
-    return device
+    return device(auto_device() if name == "auto" else name, "--device")

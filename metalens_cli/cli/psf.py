@@ -253,10 +253,10 @@ def compare(measured, simulated, radii_m, no_interpolate, csv_path, as_json, plo
     """
     from metalens_cli.analysis.psf_compare import compare_cubes
     from metalens_cli.io.atomic import atomic_files
-    from metalens_cli.io.psf_cube_files import read_cube_file
+    from metalens_cli.io.psf_cube_files import read_psf_cube
 
     radii = [r for group in radii_m for r in group] or None
-    result = compare_cubes(read_cube_file(measured), read_cube_file(simulated), radii, not no_interpolate)
+    result = compare_cubes(read_psf_cube(measured), read_psf_cube(simulated), radii, not no_interpolate)
     with atomic_files(csv_path, plot_path) as (csv_file, plot_file):  # both or neither
         if csv_file is not None:
             csv_file.write_text(_compare_csv(result), encoding="utf-8")

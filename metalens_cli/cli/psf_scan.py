@@ -48,14 +48,14 @@ DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
     "--field-angles",
     "field_angles",
     type=AngleList(),
-    help="Off-axis fields as angles, e.g. 0deg,3deg,6.75deg or 0:6:1.5deg: a field cube (.exr), each window "
-    "centred on its chief ray.",
+    help="Off-axis fields as angles from 0 to 60deg, e.g. 0deg,3deg,6.75deg or 0:6:1.5deg: a field cube (.exr), "
+    "each window centred on its chief ray.",
 )
 @click.option(
     "--field-heights",
     "field_heights",
     type=HeightList(),
-    help="Off-axis fields as chief-ray heights on the sensor, e.g. 0um,250um (angle atan(h/f)).",
+    help="Off-axis fields as chief-ray heights on the sensor, e.g. 0um,250um (angle atan(h/f), up to 60deg).",
 )
 @click.option(
     "--field-azimuth",
@@ -189,7 +189,8 @@ def _field_angles(angles, heights, focal_length_m, propagator) -> list[float] | 
     """The field angles (rad) from --field-angles or --field-heights (atan(h/f)), or None."""
     from metalens_cli.analysis.psf_compare import FIELD_ANGLE_TOLERANCE_RAD
     from metalens_cli.errors import InputError
-    from metalens_cli.optics.field import field_angle
+    from metalens_cli.io.units import format_length
+    from metalens_cli.optics.field import MAX_FIELD_ANGLE, field_angle
 
     if angles and heights:
         raise InputError("--field-heights", "given with --field-angles", "one of --field-angles or --field-heights")
@@ -199,6 +200,21 @@ def _field_angles(angles, heights, focal_length_m, propagator) -> list[float] | 
         angles = [field_angle(h, focal_length_m) for h in heights]
     if not angles:
         return None
+    top, steepest = math.degrees(MAX_FIELD_ANGLE), max(angles)
+    if steepest > MAX_FIELD_ANGLE:
+        if heights:
+            highest = focal_length_m * math.tan(MAX_FIELD_ANGLE)
+            raise InputError(
+                "--field-heights",
+                f"{format_length(max(heights))} is a field angle of {math.degrees(steepest):.4g}° at f = "
+                f"{format_length(focal_length_m)}, past the {top:g}° the off-axis model covers",
+                f"heights up to {format_length(highest)} (atan(h/f) ≤ {top:g}°)",
+            )
+        raise InputError(
+            "--field-angles",
+            f"{math.degrees(steepest):.4g}° is past the {top:g}° the off-axis model covers",
+            f"angles from 0 to {top:g}°",
+        )
     ordered = sorted(angles)
     if any(b - a <= FIELD_ANGLE_TOLERANCE_RAD for a, b in zip(ordered, ordered[1:])):
         option, what = ("--field-heights", "height") if heights else ("--field-angles", "angle")

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.design import distributed
 from metalens_cli.design.reconstruct_data import (
     VALIDATION_GENERATION,
@@ -116,7 +117,13 @@ def train_reconstruction(
     pairs instead of simulation. ``lpips_weights``: a folder with the LPIPS weights (else looked
     up as ``evaluate`` does). ``on_step(done, total, row)`` and ``on_stage(text)`` report progress.
     """
-    with distributed.session(torch.device(device)) as ctx:
+    from metalens_cli.io.designs import Design
+
+    arguments.instance(design, "design", Design, "a Design (ml.resolve_design)")
+    arguments.instance(camera, "camera", Camera, "a Camera (imaging.camera)")
+    run_dir = arguments.path(run_dir, "run_dir", "a run directory")
+    device = arguments.device(device)
+    with distributed.session(device) as ctx:
         return _train(
             design,
             camera,

@@ -14,7 +14,7 @@ from metalens_cli.analysis.psf_metrics import central_energy
 from metalens_cli.imaging.pipeline import KEPT_WARNING
 from metalens_cli.imaging.psf_scan import run_scan
 from metalens_cli.io.designs import Design
-from metalens_cli.io.exr import write_psf_cube
+from metalens_cli.io.exr import write_exr_cube
 from metalens_cli.io.json_files import jsonable, write_json
 from metalens_cli.io.preset_spectra import efficiency_report
 from metalens_cli.io.presets import to_dict
@@ -89,7 +89,7 @@ def write_results(
         "grid": scan.grid,
         "seconds": scan.timing_s.get("total"),
     }
-    write_psf_cube(
+    write_exr_cube(
         run.path / "psf.exr",
         scan.psf,
         waves,

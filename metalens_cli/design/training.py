@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.design import distributed
 from metalens_cli.design.filter_learning import (
     BandSampler,
@@ -57,7 +58,7 @@ from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
-from metalens_cli.io.presets import WAVELENGTH_MODES, preset_incidence_factor, to_toml
+from metalens_cli.io.presets import WAVELENGTH_MODES, Preset, preset_incidence_factor, to_toml
 from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import (
     ENCIRCLED_ENERGY,
@@ -441,7 +442,13 @@ def train(
     ``run_dir`` with the preset saved there (``steps`` may extend it). Under torchrun the run is
     data-parallel and only rank 0 writes. ``on_step(done, total, row)`` reports each step.
     """
-    with distributed.session(torch.device(device)) as ctx:
+    arguments.instance(preset, "preset", Preset, "a Preset (ml.load_preset)")
+    run_dir = arguments.path(run_dir, "run_dir", "a run directory")
+    for name, value in (("steps", steps), ("seed", seed)):
+        if value is not None:
+            arguments.count(value, name, lo=0)
+    device = arguments.device(device)
+    with distributed.session(device) as ctx:
         return _train(preset, RunDirectory(run_dir), steps, seed, ctx, resume, on_step)
 
 

@@ -23,10 +23,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.analysis.statistics import mean_ci, paired_difference_ci
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.camera import DEFAULT_READ_ELECTRONS, Camera
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
+from metalens_cli.imaging.formation import FORMATIONS
 from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.pipeline import (
@@ -78,6 +80,27 @@ class EvaluationSettings:
     read_electrons: float = DEFAULT_READ_ELECTRONS
     zero_order_leak: float | None = None
     wiener: bool = False
+
+    def __post_init__(self) -> None:
+        """The sensor, depth intervals and wavelengths, the form and the noise, each checked with
+        its field's name (``metalens_cli.arguments``)."""
+        arguments.count(self.pixels, "pixels")
+        arguments.positive(self.pixel_pitch_m, "pixel_pitch_m")
+        for name, far in (("z_near_interval_m", False), ("z_far_interval_m", True)):
+            pair = arguments.instance(getattr(self, name), name, (tuple, list), "(lo, hi) in m")
+            if len(pair) != 2:
+                raise InputError(name, f"{pair!r}", "(lo, hi) in m")
+            lo, hi = (arguments.positive(v, name, allow_inf=far) for v in pair)
+            if hi < lo:
+                raise InputError(name, f"{pair!r} ends below its start", "(lo, hi) with lo ≤ hi")
+        arguments.lengths(self.wavelengths_m, "wavelengths_m")
+        if self.formation not in FORMATIONS:
+            raise InputError("formation", f"unknown form {self.formation!r}", " or ".join(FORMATIONS))
+        arguments.number(self.read_noise, "read_noise", lo=0.0, form="a standard deviation ≥ 0 (full scale)")
+        for name in ("photons", "alpha_gain", "zero_order_leak"):
+            if getattr(self, name) is not None:
+                arguments.number(getattr(self, name), name, lo=0.0, form="a number ≥ 0")
+        arguments.number(self.read_electrons, "read_electrons", lo=0.0, form="read noise ≥ 0 (e⁻)")
 
     @classmethod
     def from_setup(cls, setup: CaptureSetup, **options) -> EvaluationSettings:
@@ -209,6 +232,9 @@ def evaluate(
     """
     from metalens_cli.imaging.camera import channel_budget, efficiency_sources, electrons
 
+    arguments.instance(settings, "settings", EvaluationSettings, "EvaluationSettings")
+    if not arguments.instance(designs, "designs", (list, tuple), "a list of Designs (ml.resolve_design)"):
+        raise InputError("designs", "is empty", "at least one Design")
     if settings.wiener and settings.light_levels is None and (settings.photons or settings.read_noise):
         raise InputError(
             "--wiener", "with --photons or --read-noise", "--light LEVELS (the camera the filter is chosen for)"

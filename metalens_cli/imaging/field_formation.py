@@ -112,6 +112,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.formation import (
     Capture,
@@ -123,6 +124,7 @@ from metalens_cli.imaging.formation import (
     _placed,
     _sensor_hw,
     canvas_margin,
+    check_capture_inputs,
     psf_transform,
     unit_sum,
 )
@@ -160,7 +162,10 @@ class FieldPsfSet:
     psfs: torch.Tensor
 
     def __post_init__(self):
-        heights = tuple(int(h) for h in self.heights_px)
+        listed = arguments.instance(self.heights_px, "heights_px", (tuple, list), "pixel heights, e.g. (0, 40, 80)")
+        heights = tuple(arguments.count(h, "heights_px", lo=0) for h in listed)
+        arguments.instance(self.psfs, "psfs", torch.Tensor, "a (K, C, N, N) tensor of PSFs")
+        arguments.array(self.psfs, "psfs", form="PSFs (K, C, N, N)")
         if (
             not heights
             or heights[0] != 0
@@ -664,11 +669,14 @@ def field_transform(
     (relative L2, e.g. 0.01). Precompute once per PSF set and reuse. ``max_bytes``: refuse
     (:class:`InputError` on ``--field-tolerance``) before building eigen-PSFs, their coefficient
     maps and spectra that would hold more (:func:`expansion_bytes`)."""
-    if not 0 < tolerance < 1:
-        raise InputError("tolerance", f"{tolerance!r}", "a relative L2 error between 0 and 1")
-    h, w = (int(n) for n in sensor_hw)
-    if h < 1 or w < 1:
-        raise InputError("sensor", f"{tuple(sensor_hw)} pixels", "a positive height and width")
+    arguments.instance(psf_set, "psf_set", FieldPsfSet, "a FieldPsfSet")
+    arguments.number(
+        tolerance, "tolerance", lo=0.0, hi=1.0, open_lo=True, open_hi=True, form="a relative L2 error in (0, 1)"
+    )
+    hw = arguments.instance(sensor_hw, "sensor_hw", (tuple, list), "(height, width) in pixels")
+    if len(hw) != 2:
+        raise InputError("sensor_hw", f"{hw!r}", "(height, width) in pixels")
+    h, w = (arguments.count(n, "sensor_hw") for n in hw)
     with torch.no_grad():
         psf_set = FieldPsfSet(psf_set.heights_px, psf_set.psfs.detach())
         p = psf_set.psfs
@@ -1005,6 +1013,9 @@ def form_image_field(
     (prepared here at ``tolerance``) or a :class:`FieldTransform` (precomputed, reused; it carries
     its own tolerance). The optical axis is the sensor's centre pixel (H//2, W//2); α = m ∗ P̂_near
     and both forms as in ``imaging.formation``, each PSF the one of the output pixel."""
+    check_capture_inputs(clean, obstruction, mask, margin, formation, alpha_gain)
+    for name, psfs in (("near", near), ("far", far)):
+        arguments.instance(psfs, name, (FieldPsfSet, FieldTransform), "a FieldPsfSet or a FieldTransform")
     emitted, mask = _obstruction_canvases(obstruction, mask, formation)
     sensor = _sensor_hw(clean, margin)
     near, far = _field_transform(near, sensor, tolerance), _field_transform(far, sensor, tolerance)

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.field_formation import FieldPsfSet, height_check
 from metalens_cli.io.cache import cached, check_array, input_key
@@ -203,8 +204,16 @@ def field_channel_psfs(
     ``wavelengths_per_channel``: default ``DEFAULT_WAVELENGTHS_PER_CHANNEL``; ``progress(done,
     total)`` after each off-axis height."""
     from metalens_cli.imaging.pipeline import channel_psfs
+    from metalens_cli.io.designs import Design
     from metalens_cli.optics.field import field_psf
 
+    arguments.instance(design, "design", Design, "a Design (ml.resolve_design)")
+    arguments.positive(z_near_m, "z_near_m")
+    arguments.positive(z_far_m, "z_far_m", allow_inf=True)
+    arguments.lengths(wavelengths_m, "wavelengths_m")
+    arguments.positive(pixel_pitch_m, "pixel_pitch_m")
+    arguments.count(sensor_pixels, "sensor_pixels")
+    device = arguments.device(device)
     if not design.lens.radial:
         raise InputError(
             "--field", "a field-dependent capture rotates one radius's PSFs", "a radially symmetric design"

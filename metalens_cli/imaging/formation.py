@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.optics.propagate import fft_size
 
@@ -141,8 +142,7 @@ def coverage_alpha(blurred_coverage: torch.Tensor, alpha_gain: float | None = No
     """α from m ∗ P̂_near, clamped to 0..1 (round-off); with ``alpha_gain`` g the gain-and-clamp
     variant min(g·α, 1) of Shi et al."""
     if alpha_gain is not None:
-        if not alpha_gain > 0:
-            raise InputError("--alpha-gain", f"{alpha_gain!r}", "a positive gain")
+        arguments.positive(alpha_gain, "alpha_gain", unit="gain")
         blurred_coverage = alpha_gain * blurred_coverage
     return blurred_coverage.clamp(0.0, 1.0)
 
@@ -176,6 +176,10 @@ def form_image(
     in 0..1 are canvases with margin ``margin`` = M; PSFs (..., 3, N, N) (any normalisation: each
     is divided by its sum) or :class:`PsfTransform` (precomputed, reused).
     """
+    check_capture_inputs(clean, obstruction, mask, margin, formation, alpha_gain)
+    for name, psf in (("psf_near", psf_near), ("psf_far", psf_far)):
+        if not isinstance(arguments.instance(psf, name, (torch.Tensor, PsfTransform), PSF_FORM), PsfTransform):
+            arguments.array(psf, name, ndim=tuple(range(3, 9)), form=PSF_FORM)
     emitted, mask = _obstruction_canvases(obstruction, mask, formation)
     sensor = _sensor_hw(clean, margin)
     near, far = _transform(psf_near, sensor), _transform(psf_far, sensor)
@@ -188,6 +192,23 @@ def form_image(
     near_light, blurred_mask = planes.split(channels, dim=-3)
     unobstructed = _kept(_canvas_spectrum(clean, margin, far) * far.spectrum, far)
     return _composite(near_light, blurred_mask, unobstructed, formation, alpha_gain)
+
+
+PSF_FORM = "PSFs (..., C, N, N) as a tensor, or a PsfTransform"
+CANVAS_FORM = "a (..., C, H + 2M, W + 2M) tensor"
+
+
+def check_capture_inputs(clean, obstruction, mask, margin: int, formation: str, alpha_gain) -> None:
+    """The canvases (finite tensors), margin, form and α gain of a capture (:func:`form_image`,
+    ``field_formation.form_image_field``), each error naming its parameter."""
+    for name, canvas in (("clean", clean), ("obstruction", obstruction), ("mask", mask)):
+        arguments.instance(canvas, name, torch.Tensor, CANVAS_FORM)
+        arguments.array(canvas, name, ndim=tuple(range(3, 9)), form=CANVAS_FORM)
+    arguments.count(margin, "margin", lo=0)
+    if formation not in FORMATIONS:
+        raise InputError("formation", f"unknown form {formation!r}", " or ".join(FORMATIONS))
+    if alpha_gain is not None:
+        arguments.positive(alpha_gain, "alpha_gain", unit="gain")
 
 
 def _obstruction_canvases(
@@ -268,15 +289,25 @@ def add_noise(
     ``generator``: a seed or a ``torch.Generator`` on the image's device; the same seed gives the
     same noise. ``read_noise`` may be a tensor too (one σ per channel, (3, 1, 1)).
     """
+    arguments.instance(image, "image", torch.Tensor, "an image tensor (..., C, H, W)")
+    arguments.array(image, "image", form="an image tensor")
+    for name, value, form in (
+        ("photons", photons, "a positive full-well count (None or 0: no shot noise)"),
+        ("read_noise", read_noise, "a non-negative standard deviation"),
+    ):
+        if torch.is_tensor(value):
+            arguments.array(value, name, form=form)
+        elif value is not None or name == "read_noise":
+            arguments.number(value, name, lo=0.0, form=form)
     if isinstance(generator, int):
         generator = torch.Generator(device=image.device).manual_seed(generator)
     variance = torch.zeros_like(image)
     if torch.is_tensor(photons) or photons:
         if bool((torch.as_tensor(photons) <= 0).any()):
-            raise InputError("--photons", f"{photons!r}", "a positive full-well count")
+            raise InputError("photons", f"{photons!r}", "a positive full-well count")
         variance = image.clamp_min(0) / photons
     if bool((torch.as_tensor(read_noise) < 0).any()):
-        raise InputError("--read-noise", f"{read_noise!r}", "a non-negative standard deviation")
+        raise InputError("read_noise", f"{read_noise!r}", "a non-negative standard deviation")
     variance = variance + read_noise**2
     noise = torch.randn(image.shape, generator=generator, dtype=image.dtype, device=image.device)
     return image + torch.sqrt(variance) * noise

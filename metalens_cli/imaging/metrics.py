@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.images import LUMA_709
 
@@ -36,8 +37,18 @@ PSNR_CEILING_DB = 100.0  # an exact match: MSE 0 (see reported_psnr)
 def psnr(estimate: torch.Tensor, reference: torch.Tensor, *, data_range: float = 1.0) -> torch.Tensor:
     """10·log10(range² / MSE) in dB, per leading batch entry (the MSE over the last three axes,
     never pooled over the batch): scikit-image's ``peak_signal_noise_ratio`` of each image."""
+    _check_pair(estimate, reference, data_range)
     mse = ((estimate - reference) ** 2).mean(dim=(-3, -2, -1))
     return 10 * torch.log10(data_range**2 / mse)
+
+
+def _check_pair(estimate, reference, data_range) -> None:
+    """Two image tensors (..., C, H, W) of one shape, finite, and a positive data range."""
+    for name, image in (("estimate", estimate), ("reference", reference)):
+        arguments.instance(image, name, torch.Tensor, "an image tensor (..., C, H, W)")
+        arguments.array(image, name, ndim=tuple(range(3, 9)), form="an image tensor (..., C, H, W)")
+    arguments.same_shape(estimate, reference, ("estimate", "reference"))
+    arguments.positive(data_range, "data_range", unit="the images' full scale")
 
 
 def gaussian_window(
@@ -69,12 +80,11 @@ def ssim(
     batch entry. With the default window it equals scikit-image's ``structural_similarity(x, y,
     gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=data_range,
     channel_axis=0)`` to round-off (tests/imaging/test_metrics.py)."""
-    if estimate.shape != reference.shape or estimate.ndim < 3:
-        raise InputError(
-            "images", f"shapes {tuple(estimate.shape)} and {tuple(reference.shape)}", "equal (..., C, H, W) shapes"
-        )
+    _check_pair(estimate, reference, data_range)
+    arguments.count(window, "window")
+    arguments.positive(sigma, "sigma", unit="pixels")
     if min(estimate.shape[-2:]) < window:
-        raise InputError("images", f"{tuple(estimate.shape[-2:])} pixels", f"images at least {window} × {window}")
+        raise InputError("estimate", f"{tuple(estimate.shape[-2:])} pixels", f"images at least {window} × {window}")
     lead = estimate.shape[:-3]
     x = estimate.reshape(-1, *estimate.shape[-3:])
     y = reference.reshape(-1, *reference.shape[-3:]).to(x.dtype)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.constants import PAPER_Z_FAR_M, PAPER_Z_NEAR_M
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE, field_transform, form_image_field
@@ -404,6 +405,10 @@ def simulate_captures(
     and depths), so each obstruction is generated once. ``photons``: full-well electrons, one
     count or one per channel R, G, B (``imaging.formation.add_noise``). ``on_progress(done,
     total)`` is called before the first image and after each one."""
+    arguments.instance(psfs, "psfs", ChannelPsfs, "ChannelPsfs (channel_psfs)")
+    arguments.positive(focal_length_m, "focal_length_m")
+    arguments.positive(pixel_pitch_m, "pixel_pitch_m")
+    arguments.count(seed, "seed", lo=0)
     captures = []
     report = on_progress or (lambda done, total: None)
     report(0, len(images))
@@ -511,7 +516,7 @@ def _capture_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:
     if psfs.field_psfs is None:
         transforms = psf_transform(psfs.near, sensor), psf_transform(psfs.far, sensor)
     else:
-        from metalens_cli.io.resources import device_memory
+        from metalens_cli.machine import device_memory
 
         start = time.perf_counter()
         transforms = []

@@ -26,14 +26,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.analysis.psf_metrics import summarize
 from metalens_cli.errors import InputError
 from metalens_cli.io.designs import Design
 from metalens_cli.io.exr import MAX_DEPTHS, MAX_WAVELENGTHS
 from metalens_cli.io.json_files import jsonable
-from metalens_cli.io.psf_cube_files import check_cube_size, write_cube_file
+from metalens_cli.io.psf_cube_files import check_cube_size, write_psf_cube
 from metalens_cli.io.resources import Estimate
-from metalens_cli.optics.psf import compute_psf, estimate_psf, validate_psf_arguments
+from metalens_cli.optics.psf import compute_psf, estimate_psf, psf_inputs
 
 COVERAGE_WARNING = 0.99
 RS_WINDOW = 9  # central pixels compared with the direct Rayleigh-Sommerfeld reference
@@ -168,6 +169,11 @@ def run_scan(
     time so that ``progress(done, total)`` can report. The channel weights (which refuse a
     wavelength list that cannot integrate S^c) are settled before any PSF is computed."""
     start = time.perf_counter()
+    arguments.instance(design, "design", Design, "a Design (ml.resolve_design)")
+    wavelengths_m, depths_m, _ = psf_inputs(
+        design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, propagator, dtype
+    )
+    device = arguments.device(device)
     timing: dict[str, float] = {}
     warnings: list[str] = []
     weights, spectra = _channel_weights(design, wavelengths_m, warnings) if design.preset is not None else (None, None)
@@ -298,7 +304,7 @@ def scan_metadata(design: Design, scan: ScanResult, dtype: str, efficiency: dict
 def write_scan(path: str | os.PathLike[str], design: Design, scan: ScanResult, metadata: dict) -> None:
     """The scan's cube file, in the format of ``path``'s suffix, atomically, ``metadata`` in its header."""
     fields = scan.fields
-    write_cube_file(
+    write_psf_cube(
         path,
         scan.psf if fields is None else fields.psf,
         scan.wavelengths_m,
@@ -392,7 +398,13 @@ def run_field_scan(
 
     start = time.perf_counter()
     warnings: list[str] = []
-    validate_psf_arguments(wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, "auto", dtype, 1.0)
+    arguments.instance(design, "design", Design, "a Design (ml.resolve_design)")
+    wavelengths_m, depths_m, _ = psf_inputs(
+        design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, dtype=dtype
+    )
+    angles_rad = arguments.numbers_of(angles_rad, "angles_rad", lo=0.0, form="field angles ≥ 0 (rad)")
+    arguments.number(azimuth_rad, "azimuth_rad", form="a finite azimuth (rad)")
+    device = arguments.device(device)
     weights, spectra = _channel_weights(design, wavelengths_m, warnings) if design.preset is not None else (None, None)
     timing: dict[str, float] = {}
     psfs, results = [], []

@@ -51,7 +51,10 @@ def atomic_write(target: str | os.PathLike[str]) -> Iterator[Path]:
         except OSError as exc:
             if exc.filename not in (None, str(temporary)):
                 raise
-            raise OSError(exc.errno, exc.strerror, str(target)) from None
+            cause = exc.errno if exc.errno is not None else _storage_exhausted(temporary)
+            if cause is None:  # a library's own OSError without an errno: its words, the target's name
+                raise OSError(errno.EIO, str(exc) or type(exc).__name__, str(target)) from None
+            raise OSError(cause, exc.strerror if exc.errno is not None else os.strerror(cause), str(target)) from None
         except Exception as exc:
             cause = _storage_exhausted(temporary)
             if cause is None:

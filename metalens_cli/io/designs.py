@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from metalens_cli import arguments
 from metalens_cli.constants import PAPER_PITCH_M
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
@@ -112,7 +113,7 @@ def resolve_design(
     ``radial`` chooses the radial profile for hyperbolic lenses (False: the 2-D map).
     Errors are :class:`InputError` naming ``--design`` (or the missing option).
     """
-    text = str(spec).strip()
+    text = arguments.path(spec, "--design", SPEC_FORM).strip()
     if text.startswith("hyperbolic:"):
         from metalens_cli.optics.lens import hyperbolic
 

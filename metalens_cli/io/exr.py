@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 import metalens_cli
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.input_files import open_exr
@@ -134,7 +135,7 @@ def _field_part(field_index: int) -> str:
     return f"f{field_index:02d}." if field_index else ""
 
 
-def write_psf_cube(
+def write_exr_cube(
     path: str | os.PathLike[str],
     psf: np.ndarray,
     wavelengths_m: np.ndarray,
@@ -148,7 +149,7 @@ def write_psf_cube(
 ) -> None:
     """Write a PSF cube to ``path`` as EXR, atomically (temporary file beside it, then ``os.replace``).
 
-    Arguments as :func:`prepare_cube`, which validates them exactly as ``read_psf_cube`` would,
+    Arguments as :func:`prepare_cube`, which validates them exactly as ``read_exr_cube`` would,
     so an invalid cube raises InputError and writes nothing. ``metalens_cli.io.psf_cube_files``
     writes the same cube as ``.npz``, ``.mat`` or ``.tif`` (an on-axis one: field cubes are EXR only).
     """
@@ -182,7 +183,13 @@ def prepare_cube(
     fields (numpy arrays are taken as their lists), ``psf`` is (F, D, W, N, N) and ``rgb``
     (F, D, 3, N, N) or None; (D, W, N, N) and (D, 3, N, N) are one field.
     """
-    field = str(path)
+    field = arguments.path(path, "path", "a PSF cube file path")
+    arguments.array(psf, "psf", ndim=(4, 5), form="PSFs (D, W, N, N) or (F, D, W, N, N)")
+    if rgb is not None:
+        arguments.array(rgb, "rgb", ndim=(4, 5), form="channel PSFs (D, 3, N, N) or (F, D, 3, N, N)")
+    arguments.lengths(wavelengths_m, "wavelengths_m")
+    arguments.lengths(depths_m, "depths_m", allow_inf=True)
+    arguments.positive(pixel_pitch_m, "pixel_pitch_m")
     clash = sorted(set(extra or {}) & set(WRITTEN_KEYS))
     if clash:
         raise InputError(field, f"extra metadata overrides the keys {clash}", "other key names")
@@ -266,7 +273,7 @@ def _write_exr(path: Path, header_text: str, channels: dict[str, np.ndarray]) ->
         OpenEXR.File(header, channels).write(str(temporary))
 
 
-def read_psf_cube(path: str | os.PathLike[str]) -> PsfCube:
+def read_exr_cube(path: str | os.PathLike[str]) -> PsfCube:
     """Read and validate a PSF cube; InputError with a one-line reason if it breaks the contract."""
     field = str(path)
     exr = open_exr(Path(path), field, _EXPECTED)

@@ -41,6 +41,8 @@ from typing import BinaryIO
 import numpy as np
 
 from metalens_cli import __version__
+from metalens_cli.arguments import count, instance, positive
+from metalens_cli.arguments import path as arguments_path
 from metalens_cli.errors import InputError, MetalensError
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.gdsii import MAX_COORDINATE, GdsStream
@@ -65,6 +67,13 @@ class FinGeometry:
     dbu_m: float = 1e-9
     layer: int = 1
     datatype: int = 0
+
+    def __post_init__(self) -> None:
+        """Positive finite sizes; GDSII layer and datatype numbers in 0-32767."""
+        for name in ("pitch_m", "width_m", "length_m", "dbu_m"):
+            positive(getattr(self, name), name)
+        for name in ("layer", "datatype"):
+            count(getattr(self, name), name, lo=0, hi=32767)
 
     def describe(self) -> dict:
         """JSON-ready summary for file headers and reports."""
@@ -264,11 +273,8 @@ def check_geometry(geometry: FinGeometry, aperture_m: float, angles: int | None)
         )
     if (aperture_m / 2 + g.pitch_m) / g.dbu_m >= MAX_COORDINATE:
         raise InputError("--dbu", f"{g.dbu_m:g} m makes coordinates exceed 32 bits", "a coarser database unit")
-    for name, value in (("layer", g.layer), ("datatype", g.datatype)):
-        if not 0 <= value <= 32767:
-            raise InputError("--layer", f"{name} {value} is out of range", "LAYER/DATATYPE, each 0..32767")
-    if angles is not None and not 2 <= angles <= MAX_LEVELS:
-        raise InputError("--angles", f"{angles} levels", f"exact, or an integer K in 2..{MAX_LEVELS}")
+    if angles is not None:
+        count(angles, "angles", lo=2, hi=MAX_LEVELS)
 
 
 def cell_name(spec: str) -> str:
@@ -479,8 +485,12 @@ def export_layout(
     ``angles`` None writes every fin as its own polygon at its exact θ; K quantises θ into K
     referenced cells. The file is written to a temporary name beside ``path`` and renamed.
     """
+    from metalens_cli.io.designs import Design
+
     start = time.perf_counter()
-    lens = design.lens
+    lens = instance(design, "design", Design, "a Design (ml.resolve_design)").lens
+    instance(geometry, "geometry", FinGeometry, "a FinGeometry")
+    path = arguments_path(path, "path", "an output file path")
     if not math.isclose(geometry.pitch_m, lens.pitch_m, rel_tol=1e-9):
         raise InputError(
             "--pitch",
@@ -490,7 +500,7 @@ def export_layout(
     check_theta_extent(lens)
     check_geometry(geometry, lens.aperture_m, angles)
     if fmt not in FORMATS:
-        raise InputError("--format", f"unknown format {fmt!r}", " or ".join(FORMATS))
+        raise InputError("fmt", f"unknown format {fmt!r}", " or ".join(FORMATS))
     if fmt == "oas":
         require_klayout()
     with atomic_write(path) as temporary:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from metalens_cli import arguments
 from metalens_cli.constants import SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
@@ -609,7 +610,7 @@ def read_toml(path: Path, field: str = "preset") -> dict[str, Any]:
 
 def load_preset(path: str | Path) -> Preset:
     """Read and validate a preset TOML file. Errors name the file and the key path."""
-    path = Path(path)
+    path = Path(arguments.path(path, "path", "a preset TOML file"))
     data = read_toml(path)
     try:
         preset = preset_from_dict(data, name=path.stem, source=str(path))

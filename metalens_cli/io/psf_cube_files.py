@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 import metalens_cli
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write, check_suffix
 from metalens_cli.io.exr import (
@@ -49,9 +50,9 @@ from metalens_cli.io.exr import (
     parse_metadata,
     prepare_cube,
     psf_channel_name,
-    read_psf_cube,
+    read_exr_cube,
     rgb_channel_name,
-    write_psf_cube,
+    write_exr_cube,
 )
 from metalens_cli.io.input_files import MAX_ARRAY_BYTES, regular_file
 
@@ -98,7 +99,7 @@ def check_cube_size(
         )
 
 
-def write_cube_file(
+def write_psf_cube(
     path: str | os.PathLike[str],
     psf: np.ndarray,
     wavelengths_m: np.ndarray,
@@ -114,12 +115,12 @@ def write_cube_file(
     arguments as :func:`metalens_cli.io.exr.prepare_cube`. An invalid cube, a suffix of no
     format, or a field cube in a format but ``.exr`` is an InputError naming ``path``, and
     nothing is written."""
-    suffix = cube_suffix(path, str(path))
-    arguments = (psf, wavelengths_m, depths_m, pixel_pitch_m, design)
+    suffix = cube_suffix(arguments.path(path, "path", "a PSF cube file path"), str(path))
+    values = (psf, wavelengths_m, depths_m, pixel_pitch_m, design)
     if suffix == ".exr":
-        write_psf_cube(path, *arguments, rgb=rgb, normalization=normalization, extra=extra)
+        write_exr_cube(path, *values, rgb=rgb, normalization=normalization, extra=extra)
         return
-    cube, text = prepare_cube(path, *arguments, rgb=rgb, normalization=normalization, extra=extra)
+    cube, text = prepare_cube(path, *values, rgb=rgb, normalization=normalization, extra=extra)
     if cube.is_field_cube:
         raise _field_cube_refused(str(path), suffix)
     _WRITERS[suffix](Path(path), cube, text)
@@ -129,13 +130,13 @@ def _field_cube_refused(field: str, suffix: str) -> InputError:
     return InputError(field, f"a field cube is written as .exr, not {suffix}", "a file ending in .exr for a field cube")
 
 
-def read_cube_file(path: str | os.PathLike[str]) -> PsfCube:
+def read_psf_cube(path: str | os.PathLike[str]) -> PsfCube:
     """Read and validate a PSF cube in the format of its suffix; a file that breaks the contract,
     cannot be parsed or has another suffix is an InputError with a one-line reason naming ``path``."""
-    field = str(path)
+    field = arguments.path(path, "path", "a PSF cube file (.exr, .npz, .mat, .tif)")
     suffix = cube_suffix(path, field)
     if suffix == ".exr":
-        return read_psf_cube(path)
+        return read_exr_cube(path)
     path = regular_file(path, field, _EXPECTED)
     try:
         with _libraries_quiet():

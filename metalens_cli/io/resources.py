@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from metalens_cli.errors import InputError
+from metalens_cli.machine import MEMORY_SHARE, device_memory, format_bytes
 
 LONG_JOB_SECONDS = 60.0  # jobs estimated above this announce their estimate on stderr
-MEMORY_SHARE = 0.9  # of the available memory a job may plan to use
 MAX_SECONDS = 86400.0  # default --max-time: jobs whose longest estimate exceeds a day are refused
 
 
@@ -37,52 +37,14 @@ class Estimate:
     seconds_max: float | None = None
 
     def describe(self) -> str:
-        parts = [f"about {_size(self.memory_bytes)} of memory"]
+        parts = [f"about {format_bytes(self.memory_bytes)} of memory"]
         if self.disk_bytes:
-            parts.append(f"{_size(self.disk_bytes)} on disk")
+            parts.append(f"{format_bytes(self.disk_bytes)} on disk")
         if self.seconds is not None:
             parts.append(f"about {_duration(self.seconds)}")
             if self.seconds_max is not None and self.seconds_max > 1.5 * self.seconds:
                 parts[-1] += f" (up to {_duration(self.seconds_max)})"
         return f"{self.what}: " + ", ".join(parts)
-
-
-def available_memory() -> int | None:
-    """Bytes this process can still allocate: the kernel's MemAvailable, capped by the cgroup
-    (container) limit less its usage; None where neither can be read (not Linux)."""
-    values = []
-    try:
-        with open("/proc/meminfo", encoding="ascii") as handle:
-            for line in handle:
-                if line.startswith("MemAvailable:"):
-                    values.append(int(line.split()[1]) * 1024)
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        if limit != "max":
-            used = int(Path("/sys/fs/cgroup/memory.current").read_text())
-            values.append(max(int(limit) - used, 0))
-    except (OSError, ValueError):
-        pass
-    return min(values) if values else None
-
-
-def device_memory(device=None) -> tuple[int | None, str]:
-    """(bytes free, which memory that is) for a job on ``device`` (a torch.device, a device name
-    or None): a CUDA device's own free memory (``torch.cuda.mem_get_info``, plus what torch's
-    caching allocator holds reserved but unused, which it hands out again), else the host's
-    (:func:`available_memory`; mps shares it). torch is imported only for a CUDA device."""
-    if device is not None and str(device).startswith("cuda"):
-        import torch
-
-        device = torch.device(device)
-        if device.index is None:  # plain "cuda": the current device
-            device = torch.device("cuda", torch.cuda.current_device())
-        free, _total = torch.cuda.mem_get_info(device)
-        cached = torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device)
-        return int(free + cached), f"the free memory of GPU {device}"
-    return available_memory(), "the host RAM available on this machine"
 
 
 def check(
@@ -107,7 +69,7 @@ def check(
         if estimate.memory_bytes > limit:
             raise InputError(
                 estimate.option,
-                f"{estimate.describe()}, over {name} ({_size(limit)})",
+                f"{estimate.describe()}, over {name} ({format_bytes(limit)})",
                 f"a smaller {estimate.option}, or --max-memory if the estimate is too cautious",
             )
     if output is not None and estimate.disk_bytes:
@@ -116,7 +78,7 @@ def check(
         if estimate.disk_bytes > free:
             raise InputError(
                 estimate.option,
-                f"{estimate.describe()}, over the {_size(free)} free in {str(folder)!r}",
+                f"{estimate.describe()}, over the {format_bytes(free)} free in {str(folder)!r}",
                 f"a smaller {estimate.option} or another disk",
             )
     longest = longest_seconds(estimate)
@@ -137,14 +99,6 @@ def is_long(estimate: Estimate) -> bool:
     """Whether the job may take over LONG_JOB_SECONDS (its longest, where it has a range)."""
     longest = longest_seconds(estimate)
     return longest is not None and longest > LONG_JOB_SECONDS
-
-
-def _size(size: float) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
-        if size < 1024 or unit == "PiB":
-            return f"{size:.3g} {unit}"
-        size /= 1024
-    raise AssertionError
 
 
 def _duration(seconds: float) -> str:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import re
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 
 # Decimal exponent of each unit: a length is scaled by shifting its decimal exponent, then
@@ -135,7 +136,7 @@ def parse_length(text: str, field: str, *, allow_inf: bool = False) -> float:
     :class:`InputError` naming ``field`` for a bare number, an unknown unit, NaN, zero, a
     negative value, or a value outside the float range.
     """
-    parsed = _parse_length(text, field, allow_inf)
+    parsed = _parse_length(arguments.instance(text, field, str, LENGTH_FORM), field, allow_inf)
     return math.inf if parsed is None else parsed[0]
 
 
@@ -197,7 +198,7 @@ def parse_range(text: str, field: str) -> list[float]:
     At most :data:`MAX_RANGE_VALUES` values; a step too fine to give distinct floats is
     refused.
     """
-    return _expand_range(text, field, MAX_RANGE_VALUES)
+    return _expand_range(arguments.instance(text, field, str, LIST_FORM), field, MAX_RANGE_VALUES)
 
 
 def parse_length_list(text: str, field: str, *, allow_inf: bool = False) -> list[float]:
@@ -256,6 +257,7 @@ def parse_interval(text: str, field: str, *, allow_inf: bool = False) -> tuple[f
     return lo, hi
 
 
+MIN_DURATION_S = 1e-3  # the shortest limit that means something: estimates are whole milliseconds at best
 DURATION_SECONDS = {"": 1.0, "s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
 DURATION_FORM = "a duration in seconds or with a unit (s, min, h, d), e.g. 90s, 30min or 2h, or inf"
 _DURATION_RE = re.compile(rf"\s*({_NUMBER})\s*([a-z]*)\s*")
@@ -271,6 +273,8 @@ def parse_duration(text: str, field: str) -> float:
     seconds = float(match.group(1)) * DURATION_SECONDS[match.group(2)]
     if not 0 < seconds < math.inf:
         raise InputError(field, f"{_quote(text)} is not a positive, finite duration", DURATION_FORM)
+    if seconds < MIN_DURATION_S:
+        raise InputError(field, f"{_quote(text)} is below {MIN_DURATION_S * 1e3:g} ms", f"{DURATION_FORM}, from 1 ms")
     return seconds
 
 
@@ -280,7 +284,7 @@ _ANGLE_RE = re.compile(rf"\s*({_NUMBER})\s*(deg|rad)\s*")
 
 def parse_angle(text: str, field: str, *, full_circle: bool = False) -> float:
     """``12deg`` or ``0.2rad`` → radians, in [0, π/2) (``full_circle``: in [0, 2π), an azimuth)."""
-    match = _ANGLE_RE.fullmatch(str(text))
+    match = _ANGLE_RE.fullmatch(arguments.instance(text, field, str, ANGLE_FORM))
     if not match:
         raise InputError(field, f"{_quote(text)} is not an angle", ANGLE_FORM)
     value = float(match.group(1)) * (math.pi / 180 if match.group(2) == "deg" else 1.0)
@@ -317,7 +321,12 @@ def parse_angle_list(text: str, field: str, limit: int = 100) -> list[float]:
 
 
 def format_length(value_m: float, unit: str = "auto", digits: int = 4) -> str:
-    """Render metres for humans: ``0.004`` → ``4 mm``; ``inf`` → ``inf``."""
+    """Render metres for humans: ``0.004`` → ``4 mm``; ``inf`` → ``inf``. ``unit``: auto or one
+    of :data:`UNITS_M`; ``digits``: significant digits, 1-17."""
+    value_m = arguments.number(value_m, "value_m", allow_inf=True, form="a length in m")
+    if unit != "auto" and unit not in UNIT_EXPONENTS:
+        raise InputError("unit", f"{unit!r}", "auto or one of " + ", ".join(UNIT_EXPONENTS))
+    digits = arguments.count(digits, "digits", hi=17)
     if math.isinf(value_m):
         return "inf"
     if unit == "auto":

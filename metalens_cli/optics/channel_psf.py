@@ -36,13 +36,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.blur import window_pixels
 from metalens_cli.optics.field import ON_AXIS_MARGIN, field_psf
 from metalens_cli.optics.lens import Metalens
-from metalens_cli.optics.psf import compute_psf, pupil_field, validate_psf_arguments
+from metalens_cli.optics.psf import check_psf_memory, compute_psf, psf_inputs, pupil_field
 from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
 from metalens_cli.optics.window import crop_window
 
@@ -104,9 +105,8 @@ def channel_psf_stack(
     themselves are not).
     """
     start = time.perf_counter()
-    lams = [float(x) for x in np.ravel(wavelengths_m)]
-    zs = [float(x) for x in np.ravel(depths_m)]
-    d = distance_m if distance_m is not None else lens.focal_length_m
+    lams, zs, d = psf_inputs(lens, wavelengths_m, depths_m, 1, pixel_pitch_m, distance_m, dtype=dtype)
+    device = arguments.device(device)
     caps, mix = _capacities_and_mix(capacity, len(zs), weights, len(lams))
     plan_px = int(plan_pixels or max(caps))
     if not 0 < energy < 1:
@@ -117,7 +117,8 @@ def channel_psf_stack(
         raise InputError(
             "core_window", f"{core_window!r} for capacities {caps}", "an odd window no larger than every capacity"
         )
-    validate_psf_arguments(lams, zs, plan_px, pixel_pitch_m, d, "auto", dtype, 1.0)
+    arguments.count(plan_px, "plan_pixels")
+    check_psf_memory(len(lams) * len(zs), plan_px, device)
     if lens.radial:
         stack = _radial_stack(
             lens,

@@ -35,11 +35,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError, SamplingError
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.lens import Metalens
-from metalens_cli.optics.psf import PsfCost, compute_psf, pixel_psf, validate_psf_arguments
+from metalens_cli.optics.psf import PsfCost, check_psf_memory, compute_psf, pixel_psf, psf_inputs
 from metalens_cli.optics.sensor import GridPixels, grid_pixel_matrix
 from metalens_cli.optics.source import (
     field_direction,
@@ -81,7 +82,14 @@ class FieldPsf:
 def field_angle(height_m: float, distance_m: float) -> float:
     """Field angle (rad) whose chief ray lands at ``height_m`` from the axis on a sensor at
     ``distance_m``, for a lens with a flat phase at its centre: atan(h/d)."""
-    return math.atan2(height_m, distance_m)
+    height = arguments.number(height_m, "height_m", lo=0.0, form="a height ≥ 0 (m)")
+    return math.atan2(height, arguments.positive(distance_m, "distance_m"))
+
+
+def _check_field(angle_rad: float, azimuth_rad: float, limit: float = MAX_FIELD_ANGLE) -> None:
+    """A field angle in [0, ``limit``] and a finite azimuth (rad)."""
+    arguments.number(angle_rad, "angle_rad", lo=0.0, hi=limit, form=f"an angle from 0 to {limit:.6g} rad")
+    arguments.number(azimuth_rad, "azimuth_rad", form="a finite azimuth (rad)")
 
 
 def centre_gradient(lens: Metalens) -> tuple[float, float]:
@@ -107,6 +115,7 @@ def chief_ray(
 ) -> tuple[float, float]:
     """Where the ray through the lens centre lands on the sensor (m), from the lens's phase gradient
     there (module docstring)."""
+    _ray_inputs(lens, wavelength_m, angle_rad, azimuth_rad, distance_m)
     ux, uy = field_direction(angle_rad, azimuth_rad)
     gx, gy = centre_gradient(lens)
     sx, sy = ux + wavelength_m * gx / (2 * math.pi), uy + wavelength_m * gy / (2 * math.pi)
@@ -145,16 +154,21 @@ def field_psf(
     small lenses and windows only). α = 0 returns ``compute_psf`` (radial path for a radial lens).
     """
     start = time.perf_counter()
-    lams = [float(x) for x in np.ravel(wavelengths_m)]
-    zs = [float(x) for x in np.ravel(depths_m)]
-    d = distance_m if distance_m is not None else lens.focal_length_m
-    validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, "auto", dtype, oversample)
-    if propagator not in FIELD_PROPAGATORS:
-        raise InputError("propagator", f"unknown off-axis propagator {propagator!r}", "|".join(FIELD_PROPAGATORS))
-    if not (math.isfinite(angle_rad) and 0 <= angle_rad <= MAX_FIELD_ANGLE):
-        raise InputError("field angle", f"{angle_rad!r} rad", f"an angle from 0 to {math.degrees(MAX_FIELD_ANGLE):g}°")
-    if not math.isfinite(azimuth_rad):
-        raise InputError("azimuth", f"{azimuth_rad!r} rad", "a finite angle")
+    lams, zs, d = psf_inputs(
+        lens,
+        wavelengths_m,
+        depths_m,
+        pixels,
+        pixel_pitch_m,
+        distance_m,
+        propagator,
+        dtype,
+        oversample,
+        FIELD_PROPAGATORS,
+    )
+    _check_field(angle_rad, azimuth_rad)
+    device = arguments.device(device)
+    check_psf_memory(len(lams) * len(zs), pixels, device)
     rays, middle, centre = _chief_rays(lens, lams, angle_rad, azimuth_rad, d, pixel_pitch_m)
     common = (tuple(lams), tuple(zs), pixel_pitch_m, d, angle_rad, azimuth_rad, middle, rays, centre)
     if angle_rad == 0 and centre == (0, 0) and propagator == "asm":
@@ -207,9 +221,10 @@ def estimate_field_psf(
     (the seconds stay the forward pass's). On the +x axis of a radial lens half the pupil's rows
     serve (``_mirror_even``): half the sites held, half the transfer function, and half the rows of
     the first pass each way."""
-    lams, zs = [float(x) for x in np.ravel(wavelengths_m)], [float(x) for x in np.ravel(depths_m)]
-    d = distance_m if distance_m is not None else lens.focal_length_m
-    validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, "auto", dtype, oversample)
+    lams, zs, d = psf_inputs(
+        lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m, dtype=dtype, oversample=oversample
+    )
+    _check_field(angle_rad, azimuth_rad)
     f_g = _carrier_free_frequency(lens, lams, zs, angle_rad, azimuth_rad, force)
     m = lens.grid_size
     centre = _chief_rays(lens, lams, angle_rad, azimuth_rad, d, pixel_pitch_m)[2]
@@ -396,6 +411,10 @@ def ray_landings(
     incoming light (from the field point (α, ψ) at ``depth_m``) is bent to by the lens's phase
     gradient, s = s_in + (λ/2π)·∇φ (local grating equation), and travels d·s/√(1 − |s|²) sideways;
     rays whose |s| ≥ 1 are evanescent and dropped. For sizing windows and the isoplanatic test."""
+    _ray_inputs(lens, wavelength_m, angle_rad, azimuth_rad, distance_m)
+    arguments.positive(depth_m, "depth_m", allow_inf=True)
+    arguments.count(samples, "samples", lo=2)
+    arguments.fits_in_memory(LANDING_BYTES * samples**2, "samples", f"{samples}² rays")
     a = lens.radius_m
     u = (np.arange(samples) + 0.5) / samples * 2 - 1
     x, y = np.meshgrid(u * a, u * a)
@@ -415,6 +434,17 @@ def ray_landings(
     cos = np.sqrt(1 - sx[keep] ** 2 - sy[keep] ** 2)
     landings = np.stack([x[keep] + distance_m * sx[keep] / cos, y[keep] + distance_m * sy[keep] / cos], 1)
     return landings, np.array(chief_ray(lens, wavelength_m, angle_rad, azimuth_rad, distance_m))
+
+
+LANDING_BYTES = 160  # per pupil sample: its coordinates, directions, phase radii and landings (float64)
+
+
+def _ray_inputs(lens, wavelength_m, angle_rad, azimuth_rad, distance_m) -> None:
+    """A lens, a wavelength and a distance (m), a field angle below 90° and an azimuth (rad)."""
+    arguments.instance(lens, "lens", Metalens, "a Metalens")
+    arguments.positive(wavelength_m, "wavelength_m")
+    arguments.positive(distance_m, "distance_m")
+    _check_field(angle_rad, azimuth_rad, limit=math.nextafter(math.pi / 2, 0))
 
 
 def _phase_gradient(lens: Metalens, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -453,4 +483,7 @@ def field_window(lens: Metalens, wavelengths_m, depth_m: float, angle_rad: float
 
 def rms_spot(landings: np.ndarray) -> float:
     """RMS radius (m) of ray landings (R, 2) about their centroid."""
+    landings = np.asarray(arguments.array(landings, "landings", ndim=2, form="ray landings (R, 2) in m"))
+    if landings.shape[1] != 2 or landings.shape[0] < 1:
+        raise InputError("landings", f"has shape {landings.shape}", "ray landings (R, 2) in m, R ≥ 1")
     return float(np.sqrt(((landings - landings.mean(axis=0)) ** 2).sum(axis=1).mean()))

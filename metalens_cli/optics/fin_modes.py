@@ -277,8 +277,6 @@ def fin_responses_symmetric(
     batch); ``seconds`` is the whole wall time over fins × wavelengths."""
     start = time.perf_counter()
     check_harmonics(harmonics)
-    for fin in fins:
-        fin.check()
     wavelengths = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
     n_fin = np.broadcast_to(np.asarray(fin_index, dtype=complex), wavelengths.shape)
     n_sub = np.broadcast_to(np.asarray(substrate_index, dtype=complex).real, wavelengths.shape)

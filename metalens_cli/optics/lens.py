@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from metalens_cli.arguments import instance, positive
 from metalens_cli.errors import InputError
 
 
@@ -40,6 +41,19 @@ class Metalens:
     pitch_m: float
     aperture_m: float
     focal_length_m: float | None = None
+
+    def __post_init__(self) -> None:
+        """θ a finite 1-D or 2-D tensor; pitch, aperture and focal length positive lengths."""
+        instance(self.theta, "theta", torch.Tensor, "a 1-D or 2-D tensor of rotation angles (rad)")
+        if self.theta.ndim not in (1, 2):
+            raise InputError("theta", f"is {self.theta.ndim}-D", "a radial profile (1-D) or a square map (2-D)")
+        with torch.no_grad():
+            if not bool(torch.isfinite(self.theta).all()):
+                raise InputError("theta", "holds NaN or infinite angles", "finite angles (rad)")
+        positive(self.pitch_m, "pitch_m")
+        positive(self.aperture_m, "aperture_m")
+        if self.focal_length_m is not None:
+            positive(self.focal_length_m, "focal_length_m")
 
     @property
     def radial(self) -> bool:
@@ -107,7 +121,9 @@ def hyperbolic(
     θ = φ/2, radial profile sampled at k·pitch up to the pupil edge, or the 2-D map on the
     smallest odd grid holding the pupil.
     """
-    _check_positive(lambda_d_m=lambda_d_m, f_m=focal_length_m, aperture_m=aperture_m, pitch_m=pitch_m)
+    sizes = {"lambda_d_m": lambda_d_m, "focal_length_m": focal_length_m, "aperture_m": aperture_m, "pitch_m": pitch_m}
+    for name, value in sizes.items():
+        positive(value, name)
     sites = aperture_m / pitch_m
     if sites > (MAX_RADIAL_SITES if radial else MAX_GRID_SIDE):
         limit = MAX_RADIAL_SITES if radial else MAX_GRID_SIDE
@@ -133,7 +149,8 @@ def from_array(theta: np.ndarray, pitch_m: float, aperture_m: float, focal_lengt
     The 1-D profile must reach the pupil edge (K·pitch ≥ D/2); the 2-D map must hold every site
     within D/2 of its centre site (M//2, M//2). θ must be finite.
     """
-    _check_positive(pitch_m=pitch_m, aperture_m=aperture_m)
+    positive(pitch_m, "pitch_m")
+    positive(aperture_m, "aperture_m")
     theta = np.asarray(theta, dtype=np.float64)
     if not np.all(np.isfinite(theta)):
         raise InputError("design", "θ contains NaN or infinite values", "finite angles in radians")
@@ -161,9 +178,3 @@ def from_array(theta: np.ndarray, pitch_m: float, aperture_m: float, focal_lengt
     else:
         raise InputError("design", f"θ must be 1-D or 2-D, got {theta.ndim}-D", "a radial or 2-D map")
     return Metalens(torch.from_numpy(theta), float(pitch_m), float(aperture_m), focal_length_m)
-
-
-def _check_positive(**values: float) -> None:
-    for name, value in values.items():
-        if not (math.isfinite(value) and value > 0):
-            raise InputError(name, f"must be a positive length, got {value!r}", "> 0 m")

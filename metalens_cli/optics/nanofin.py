@@ -48,6 +48,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from metalens_cli.arguments import array, count, instance, lengths, positive
+from metalens_cli.arguments import device as checked_device
 from metalens_cli.errors import InputError
 
 SOLVER = "fin_modes/1"  # names the numbers a cache entry holds: change it when they change
@@ -76,12 +78,10 @@ class Fin:
     width_m: float
     length_m: float
 
-    def check(self) -> None:
-        """InputError unless every size is positive and finite and the fin fits in its cell."""
+    def __post_init__(self) -> None:
+        """InputError unless every size is a positive finite length and the fin fits in its cell."""
         for name in ("period_m", "height_m", "width_m", "length_m"):
-            value = getattr(self, name)
-            if not 0 < value < math.inf:
-                raise InputError(name.removesuffix("_m"), f"{value!r} m", "a positive length")
+            positive(getattr(self, name), name)
         for name in ("width_m", "length_m"):
             if getattr(self, name) > self.period_m:
                 raise InputError(
@@ -133,7 +133,7 @@ def estimate_bytes(harmonics: int, solver: str = "modes") -> int:
 
 def check_harmonics(harmonics: int) -> None:
     """N must be odd (orders −(N−1)/2 … (N−1)/2 on each axis) and at least 1."""
-    if harmonics < 1 or harmonics % 2 == 0:
+    if count(harmonics, "harmonics") % 2 == 0:
         raise InputError("harmonics", str(harmonics), "an odd number of Fourier harmonics per axis, e.g. 15")
 
 
@@ -153,6 +153,16 @@ def fin_response(
     loss) and N = ``harmonics`` Fourier orders per axis (see the module docstring), by
     ``solver`` "modes" (fin_modes, on torch ``device``) or "meent" (the reference, CPU).
     ``on_progress(done, total)`` is called after each batch of wavelengths."""
+    instance(fin, "fin", Fin, "a Fin")
+    waves = lengths(wavelengths_m, "wavelengths_m")
+    for name, index in (("fin_index", fin_index), ("substrate_index", substrate_index)):
+        values = np.asarray(array(index, name, form="complex refractive indices n + ik"))
+        if values.size not in (1, len(waves)):
+            raise InputError(name, f"{values.size} indices for {len(waves)} wavelengths", "one per wavelength")
+    check_harmonics(harmonics)
+    if solver not in SOLVERS:
+        raise InputError("solver", f"{solver!r}", " or ".join(SOLVERS))
+    device = None if device is None else checked_device(device)
     if solver == "meent":
         return fin_response_meent(fin, fin_index, substrate_index, wavelengths_m, harmonics, on_progress)
     from metalens_cli.optics.fin_modes import fin_response_symmetric
@@ -192,7 +202,6 @@ def fin_response_meent(
     """:func:`fin_response` by meent: one wavelength at a time, on the CPU."""
     import meent
 
-    fin.check()
     check_harmonics(harmonics)
     wavelengths = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
     order = (harmonics - 1) // 2

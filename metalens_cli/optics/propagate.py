@@ -24,6 +24,8 @@ import numpy as np
 import scipy.special as sps
 import torch
 
+from metalens_cli import arguments
+
 # --------------------------------------------------------------------------------------- FFT sizes
 
 
@@ -385,6 +387,10 @@ def asm_propagate(field: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tup
     (zero padding of the spectrum) and the window crop happen inside 1-D passes along the last
     axis, a block of rows at a time, so no padded full-size 2-D array is formed.
     """
+    arguments.instance(field, "field", torch.Tensor, "a complex field tensor (..., n, n)")
+    arguments.instance(grid, "grid", AsmGrid, "an AsmGrid (optics.sampling.plan_asm)")
+    if not callable(transfer):
+        raise TypeError(f"transfer: expected a callable returning (H, K), got {type(transfer).__name__}")
     return _AsmPropagate.apply(field, grid, transfer, _asm_apply, _asm_adjoint)
 
 
@@ -588,6 +594,9 @@ def radial_propagate(
     """Propagate radial fields (Q, B) sampled at the nodes ``kernel.r`` with ``transfer`` (n, B)
     from ``radial_transfer``; returns the fields at the radii of ``out_matrix`` (rows), (J, B).
     All columns (wavelengths × depths) go through one matrix product per stage."""
+    for name, value in (("field_r", field_r), ("transfer", transfer), ("out_matrix", out_matrix)):
+        arguments.instance(value, name, torch.Tensor, "a tensor")
+    arguments.instance(kernel, "kernel", HankelKernel, "a HankelKernel (hankel_kernel)")
     spec = real_matmul(kernel.forward, field_r * kernel.weight[:, None])
     return real_matmul(out_matrix, spec * transfer)
 
@@ -610,6 +619,11 @@ def rayleigh_sommerfeld(
     ``points_xy`` (Q, 2) input nodes in m, ``values`` (Q,) complex field × quadrature weight (m²),
     ``out_xy`` (P, 2) output points in m. Computed in chunks of ``chunk`` node-point pairs.
     """
+    for name, value in (("points_xy", points_xy), ("values", values), ("out_xy", out_xy)):
+        arguments.instance(value, name, torch.Tensor, "a tensor")
+    arguments.positive(wavelength_m, "wavelength_m")
+    arguments.positive(distance_m, "distance_m")
+    arguments.count(chunk, "chunk")
     k = 2 * math.pi / wavelength_m
     out = []
     step = max(1, chunk // max(points_xy.shape[0], 1))

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 import torch.utils.checkpoint
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
@@ -81,10 +82,11 @@ def compute_psf(
     that changes a little between calls keeps the plan (headroom for an optimiser).
     """
     clock = _Clock()
-    lams = [float(x) for x in torch.as_tensor(wavelengths_m, dtype=torch.float64).reshape(-1)]
-    zs = [float(x) for x in torch.as_tensor(depths_m, dtype=torch.float64).reshape(-1)]
-    d = distance_m if distance_m is not None else lens.focal_length_m
-    validate_psf_arguments(lams, zs, pixels, pixel_pitch_m, d, propagator, dtype, oversample)
+    lams, zs, d = psf_inputs(
+        lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m, propagator, dtype, oversample
+    )
+    device = arguments.device(device)
+    check_psf_memory(len(lams) * len(zs), pixels, device)
     if propagator == "auto":
         propagator = "radial" if lens.radial else "asm"
     if propagator == "radial" and not lens.radial:
@@ -95,9 +97,7 @@ def compute_psf(
     plan_zs = zs + [float(x) for x in np.ravel(plan_depths_m if plan_depths_m is not None else [])]
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, force), plan_frequency or 0.0)
     run = {"radial": _radial_psf, "asm": _asm_psf, "rs": _rs_psf}[propagator]
-    psf, grid = run(
-        lens, lams, zs, d, pixels, pixel_pitch_m, f_max, dtype, torch.device(device), oversample, clock, plan_lams
-    )
+    psf, grid = run(lens, lams, zs, d, pixels, pixel_pitch_m, f_max, dtype, device, oversample, clock, plan_lams)
     clock.lap("sensor")
     return PsfResult(psf, tuple(lams), tuple(zs), pixel_pitch_m, d, propagator, grid, clock.times)
 
@@ -143,15 +143,13 @@ def estimate_psf(
 ) -> PsfCost:
     """What :func:`compute_psf` with these arguments will cost, computed from the same plan
     (a :class:`SamplingError` here is the one it would raise) before any large array exists."""
-    lams, zs = [float(x) for x in np.ravel(wavelengths_m)], [float(x) for x in np.ravel(depths_m)]
-    d = distance_m if distance_m is not None else lens.focal_length_m
-    validate_psf_arguments(
-        lams, zs, pixels, pixel_pitch_m, d, propagator if propagator in PROPAGATORS else "?", dtype, oversample
+    lams, zs, d = psf_inputs(
+        lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m, propagator, dtype, oversample
     )
     propagator = ("radial" if lens.radial else "asm") if propagator == "auto" else propagator
     f_max = sampling.check_lens_sampling(lens, lams, zs, force)
     count, real = len(lams) * len(zs), 4 if dtype == torch.float32 else 8
-    out_bytes = 3 * count * pixels**2 * 4
+    out_bytes = psf_stack_bytes(count, pixels)
     octant = (pixels // 2 + 1) * (pixels // 2 + 2) // 2
     if propagator == "radial":
         plan = sampling.plan_radial(lens, lams, zs, d, pixels, pixel_pitch_m, f_max, oversample)
@@ -185,27 +183,47 @@ def estimate_psf(
     )
 
 
-def validate_psf_arguments(lams, zs, pixels, pitch, d, propagator, dtype, oversample) -> None:
-    if propagator not in PROPAGATORS:
-        raise InputError("propagator", f"unknown propagator {propagator!r}", "|".join(PROPAGATORS))
-    if d is None or not (math.isfinite(d) and d > 0):
-        raise InputError(
-            "distance",
-            f"lens-to-sensor distance must be positive, got {d!r}",
-            "a distance in m (or a lens with a focal length)",
-        )
-    if not lams or any(not (math.isfinite(x) and x > 0) for x in lams):
-        raise InputError("wavelengths", "wavelengths must be positive and finite", "metres")
-    if not zs or any(not z > 0 for z in zs):
-        raise InputError("depths", "depths must be positive (math.inf for a plane wave)", "metres")
-    if int(pixels) != pixels or pixels < 1:
-        raise InputError("pixels", f"must be a positive integer, got {pixels!r}")
-    if not (math.isfinite(pitch) and pitch > 0):
-        raise InputError("pixel_pitch", f"must be positive, got {pitch!r}", "metres")
+def psf_inputs(
+    lens,
+    wavelengths_m,
+    depths_m,
+    pixels,
+    pixel_pitch_m,
+    distance_m,
+    propagator="auto",
+    dtype=torch.float32,
+    oversample=1.0,
+    propagators=PROPAGATORS,
+) -> tuple[list[float], list[float], float]:
+    """The checked arguments of a PSF computation (``metalens_cli.arguments``): the wavelengths
+    and depths as lists of floats (depths may be inf), and the lens-to-sensor distance (the
+    lens's focal length when ``distance_m`` is None). Errors name the parameter (unit suffix
+    dropped, as the CLI's options are named)."""
+    arguments.instance(lens, "lens", Metalens, "a Metalens (ml.hyperbolic, ml.resolve_design(...).lens)")
+    lams = arguments.lengths(wavelengths_m, "wavelengths")
+    zs = arguments.lengths(depths_m, "depths", allow_inf=True)
+    arguments.count(pixels, "pixels")
+    arguments.positive(pixel_pitch_m, "pixel_pitch")
+    d = lens.focal_length_m if distance_m is None else distance_m
+    if d is None:
+        raise InputError("distance", "is None and the lens has no focal length", "a lens-to-sensor distance (m)")
+    arguments.positive(d, "distance")
+    if propagator not in propagators:
+        raise InputError("propagator", f"unknown propagator {propagator!r}", "|".join(propagators))
     if dtype not in (torch.float32, torch.float64):
         raise InputError("dtype", f"unsupported {dtype}", "float32 or float64")
-    if not oversample > 0:
-        raise InputError("oversample", f"must be positive, got {oversample!r}")
+    arguments.number(oversample, "oversample", lo=0.0, open_lo=True, form="a positive factor")
+    return lams, zs, float(d)
+
+
+def psf_stack_bytes(count: int, pixels: int) -> int:
+    """The PSF stack of ``count`` (depth, wavelength) pairs on ``pixels``² and its copies (×3), float32."""
+    return 3 * count * pixels**2 * 4
+
+
+def check_psf_memory(count: int, pixels: int, device) -> None:
+    """Refuse PSF stacks larger than ``device``'s free memory before any array exists."""
+    arguments.fits_in_memory(psf_stack_bytes(count, pixels), "pixels", f"{count} PSFs of {pixels}² pixels", device)
 
 
 def _complex(dtype: torch.dtype) -> torch.dtype:

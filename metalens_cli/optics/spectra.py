@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.optics.band_rules import CAMERA_NAMES, check_bands
 
@@ -93,9 +94,10 @@ def camera_response(wavelengths_m: np.ndarray, name: str = DEFAULT_CAMERA) -> np
     :mod:`metalens_cli.io.spectra_files`). Linear interpolation; zero outside the tabulated
     range (no measured response).
     """
+    grid = arguments.array(wavelengths_m, "wavelengths_m", ndim=(0, 1), form="wavelengths (L,) in m")
     if name not in CAMERA_NAMES:
-        raise InputError("camera", f"unknown camera {str(name)!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV file")
-    return tabulated_response(wavelengths_m, *_colour_camera(name))
+        raise InputError("name", f"unknown camera {str(name)!r}", f"one of {', '.join(CAMERA_NAMES)} or a CSV file")
+    return tabulated_response(grid, *_colour_camera(name))
 
 
 def tabulated_response(wavelengths_m: np.ndarray, table_nm: np.ndarray, table: np.ndarray) -> np.ndarray:
@@ -146,10 +148,19 @@ def bandpass_transmission(
 
         grid = torch.as_tensor(wavelengths_m, dtype=centres_m.dtype, device=centres_m.device)
         return _bands(grid, centres_m, widths_m, edge_width_m, peak, torch)
-    centres = np.atleast_1d(np.asarray(centres_m, dtype=float))
-    widths = np.atleast_1d(np.asarray(widths_m, dtype=float))
+    grid = np.asarray(arguments.array(wavelengths_m, "wavelengths_m", form="wavelengths in m"), dtype=float)
+    centres = np.array(arguments.lengths(centres_m, "centres_m"))
+    widths = np.array(arguments.lengths(widths_m, "widths_m"))
+    arguments.positive(edge_width_m, "edge_width_m")
+    arguments.number(peak, "peak", lo=0.0, hi=1.0, open_lo=True, form="a peak transmission in (0, 1]")
+    arguments.fits_in_memory(
+        BAND_BYTES * grid.size * centres.size, "wavelengths_m", f"{grid.size} wavelengths × {centres.size} bands"
+    )
     check_bands(centres.tolist(), widths.tolist(), edge_width_m, peak)
-    return _bands(np.asarray(wavelengths_m, dtype=float), centres, widths, edge_width_m, peak, np)
+    return _bands(grid, centres, widths, edge_width_m, peak, np)
+
+
+BAND_BYTES = 48  # per (wavelength, band): the offsets and the three logistic factors, float64
 
 
 def _is_tensor(value) -> bool:
@@ -219,15 +230,17 @@ def spectral_sensitivity(
     ``crf`` (3, L) R, G, B; ``transmission`` and ``efficiency`` (L,) or None for 1 (no filter,
     ideal conversion). Refuses a channel with no sensitivity anywhere on the grid.
     """
-    grid = np.asarray(wavelengths_m, dtype=float)
-    if grid.ndim != 1 or grid.size < 2 or not np.all(np.diff(grid) > 0):
+    grid = np.asarray(
+        arguments.array(wavelengths_m, "wavelengths_m", ndim=1, form="wavelengths (L,) in m"), dtype=float
+    )
+    if grid.size < 2 or not np.all(np.diff(grid) > 0):
         raise InputError("wavelengths", "the grid must hold at least 2 strictly increasing wavelengths", "metres")
-    values = np.array(crf, dtype=float)
+    values = np.array(arguments.array(crf, "crf", form=f"(3, {grid.size}) responses R, G, B"), dtype=float)
     if values.shape != (3, grid.size):
-        raise InputError("camera", f"response of shape {values.shape}", f"(3, {grid.size}), channels R, G, B")
-    for factor in (transmission, efficiency):
+        raise InputError("crf", f"response of shape {values.shape}", f"(3, {grid.size}), channels R, G, B")
+    for name, factor in (("transmission", transmission), ("efficiency", efficiency)):
         if factor is not None:
-            values = values * _on_grid(factor, grid.size)
+            values = values * _on_grid(factor, grid.size, name)
     for name, row in zip(CHANNELS, values):
         if not _trapezoid(row, grid) > 0:
             raise InputError(
@@ -238,11 +251,11 @@ def spectral_sensitivity(
     return SpectralSensitivity(grid, values)
 
 
-def _on_grid(factor: np.ndarray, size: int) -> np.ndarray:
-    """Check one (L,) factor of S: shape and range 0..1."""
-    factor = np.asarray(factor, dtype=float)
+def _on_grid(factor: np.ndarray, size: int, name: str) -> np.ndarray:
+    """Check one (L,) factor of S, ``name``: finite, shape and range 0..1."""
+    factor = np.asarray(arguments.array(factor, name, form=f"({size},) fractions in 0..1"), dtype=float)
     if factor.shape != (size,) or not (np.all(factor >= 0) and np.all(factor <= 1)):
-        raise InputError("spectra", "a filter or efficiency curve is malformed", f"shape ({size},), values in 0..1")
+        raise InputError(name, "is malformed", f"shape ({size},), values in 0..1")
     return factor
 
 
@@ -262,7 +275,8 @@ def quadrature_weights(sensitivity: SpectralSensitivity, nodes_m: np.ndarray) ->
     sensitivity grid and the nodes, where S^c and hat_j are both linear on every interval, so
     the integral of their product is exact there.
     """
-    nodes = np.atleast_1d(np.asarray(nodes_m, dtype=float))
+    arguments.instance(sensitivity, "sensitivity", SpectralSensitivity, "a SpectralSensitivity")
+    nodes = np.atleast_1d(np.asarray(arguments.array(nodes_m, "wavelengths", form="scan wavelengths (m)"), dtype=float))
     if nodes.ndim != 1 or nodes.size < 2 or not np.all(np.diff(nodes) > 0):
         raise InputError(
             "wavelengths",

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from metalens_cli.arguments import instance, positive
 from metalens_cli.errors import InputError
 
 THREE_BAND_LABELS = ("B", "G", "R")
@@ -36,6 +37,13 @@ class Band:
     label: str
     lo_m: float
     hi_m: float
+
+    def __post_init__(self) -> None:
+        """A text label and edges 0 < lo < hi (m; 0-d tensors while a filter is learned)."""
+        instance(self.label, "label", str, "a text label")
+        lo, hi = positive(self.lo_m, "lo_m"), positive(self.hi_m, "hi_m")
+        if not lo < hi:
+            raise InputError("hi_m", f"{hi:g} m is not above lo_m {lo:g} m", "a band lo_m < hi_m")
 
 
 @dataclass(frozen=True)

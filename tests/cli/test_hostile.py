@@ -335,6 +335,16 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
         "over the host RAM available",
     ),
     "psf-scan over --max-memory": ([*SCAN, "-o", "{tmp}/m.exr", "--max-memory", "1kB"], 2, "--max-memory"),
+    # issue 60: limits that round to nothing are refused as 0 is, not taken as 0
+    "--max-memory 0.5B": ([*SCAN, "-o", "{tmp}/m.exr", "--max-memory", "0.5B"], 2, "less than one byte"),
+    "--max-time 1e-300s": ([*SCAN, "-o", "{tmp}/m.exr", "--max-time", "1e-300s"], 2, "below 1 ms"),
+    # issue 60: the off-axis model's 60° limit, in the option and the unit typed
+    "--field-angles 70deg": ([*SCAN, "--field-angles", "0deg,70deg", "-o", "{tmp}/f.exr"], 2, "--field-angles: 70°"),
+    "--field-heights past 60°": (
+        [*SCAN, "--field-heights", "0um,2mm", "-o", "{tmp}/f.exr"],
+        2,
+        "--field-heights: 2 mm is a field angle of 63.43° at f = 1 mm",
+    ),
     "simulate --psf-pixels 8192": (
         [
             "simulate",

@@ -126,12 +126,12 @@ def test_psf_outputs_are_published_together_or_not_at_all(frames, capsys, monkey
 def test_psf_compare_refuses_a_1_pm_cube(frames, capsys, tmp_path):
     """The cube a 1 pm camera pitch would give (written here as psf import no longer does):
     MTF50 would read 1e8 lp/mm against the simulation's hundred."""
-    from metalens_cli.io.exr import read_psf_cube, write_psf_cube
+    from metalens_cli.io.exr import read_exr_cube, write_exr_cube
 
     cube = frames / "spot.exr"
     assert run(["psf", "import", str(frames / "spot.csv"), "-o", str(cube), "--pixel-pitch", "2um", "--quiet"]) == 0
-    c = read_psf_cube(cube)
-    write_psf_cube(frames / "pm.exr", c.psf, c.wavelengths_m, c.depths_m, 1e-12, "measured")
+    c = read_exr_cube(cube)
+    write_exr_cube(frames / "pm.exr", c.psf, c.wavelengths_m, c.depths_m, 1e-12, "measured")
     capsys.readouterr()
     assert run(["psf", "compare", str(frames / "pm.exr"), str(cube)]) == 2
     _one_line(capsys, 2, "MEASURED: its ", "pixels of 0.001 nm span", "less than half its shortest wavelength (530 nm)")
@@ -226,3 +226,19 @@ def test_a_material_tables_columns_are_read_by_name(tmp_path, capsys):
         )
         efficiency.append(json.loads(capsys.readouterr().out)["conversion_efficiency"])
     assert efficiency[0] == efficiency[1] and efficiency[0][0] > 0.3
+
+
+def test_a_tiff_cube_past_the_file_size_limit_says_so(tmp_path):
+    """tifffile's own OSError carries no errno: it printed "[Errno None] None: 'x.tif'" (issue 60)."""
+    proc = _cli(
+        *"psf-scan --design hyperbolic:532nm --f 1mm --aperture 0.1mm --pixels 128".split(),
+        *"--wavelengths 520nm,540nm --depths inf --quiet -o".split(),
+        str(tmp_path / "x.tif"),
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536)),
+    )
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 1, err
+    assert (
+        err == f"metalens: error: {tmp_path / 'x.tif'}: File too large (the file-size limit, ulimit -f, is reached)\n"
+    )
+    assert _files(tmp_path) == []

@@ -11,7 +11,7 @@ import pytest
 from synthetic import render_edge
 
 from metalens_cli.cli.main import run
-from metalens_cli.io.exr import write_psf_cube
+from metalens_cli.io.exr import write_exr_cube
 
 PITCH = 1.85e-6
 WAVELENGTHS = [450e-9, 530e-9, 630e-9]
@@ -29,7 +29,7 @@ def cube_file(tmp_path):
     y, x = np.mgrid[:32, :32] - 16
     psf = np.array([[np.exp(-(x**2 + y**2) / (2 * (1 + i + 0.5 * j) ** 2)) for j in range(3)] for i in range(2)])
     path = tmp_path / "cube.exr"
-    write_psf_cube(
+    write_exr_cube(
         path, psf, WAVELENGTHS, [0.045, math.inf], PITCH, "gaussian test cube", rgb=psf[:, ::-1], extra={"na": 0.3}
     )
     return path
@@ -135,7 +135,7 @@ def field_file(tmp_path):
         "window_centre_px": [[round(c / PITCH), 0] for c, _ in chief],
     }
     path = tmp_path / "field.exr"
-    write_psf_cube(
+    write_exr_cube(
         path, psf, WAVELENGTHS, [0.045, math.inf], PITCH, "field test cube", rgb=psf[:, :, ::-1], extra=extra
     )
     return path, sigmas
@@ -186,12 +186,12 @@ def test_field_cube_json_csv_plot(capsys, tmp_path, field_file):
 def test_a_field_cube_reads_as_its_field_0_on_axis(capsys, tmp_path, field_file):
     """The radial curves of a field cube are those of an on-axis cube holding its field 0, whose
     output has no field keys (the on-axis output is unchanged)."""
-    from metalens_cli.io.exr import read_psf_cube
+    from metalens_cli.io.exr import read_exr_cube
 
     path, _ = field_file
-    cube = read_psf_cube(path)
+    cube = read_exr_cube(path)
     plain = tmp_path / "plain.exr"
-    write_psf_cube(plain, cube.psf, WAVELENGTHS, [0.045, math.inf], PITCH, "field 0", rgb=cube.rgb, extra={"na": 0.3})
+    write_exr_cube(plain, cube.psf, WAVELENGTHS, [0.045, math.inf], PITCH, "field 0", rgb=cube.rgb, extra={"na": 0.3})
     field_data = json.loads(invoke(capsys, "mtf", path, "--json")[1])
     plain_data = json.loads(invoke(capsys, "mtf", plain, "--json")[1])
     assert field_data["curves"] == plain_data["curves"]

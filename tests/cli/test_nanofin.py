@@ -261,9 +261,9 @@ def test_one_fin_for_optics_and_layout(capsys, tmp_path):
         capsys, *scan, "--preset", PRESETS / "quick-split-spectrum.toml", "-o", tmp_path / "table.exr"
     )
     assert code == 0 and json.loads(out)["efficiency"]["source"] == "table"
-    from metalens_cli.io.exr import read_psf_cube
+    from metalens_cli.io.exr import read_exr_cube
 
-    rcwa_rgb, table_rgb = (read_psf_cube(tmp_path / name).rgb for name in ("rcwa.exr", "table.exr"))
+    rcwa_rgb, table_rgb = (read_exr_cube(tmp_path / name).rgb for name in ("rcwa.exr", "table.exr"))
     assert (
         abs(rcwa_rgb - table_rgb).max() > 5e-3 * table_rgb.max()
     )  # another η weighs each channel's wavelengths differently

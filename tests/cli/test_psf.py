@@ -198,9 +198,9 @@ def test_json_reaches_a_pipe(bench):
 
 def _write_cube(path, planes, pitch_m):
     """A one-depth (inf), one-wavelength (530 nm) cube of ``planes`` (N × N)."""
-    from metalens_cli.io.exr import write_psf_cube
+    from metalens_cli.io.exr import write_exr_cube
 
-    write_psf_cube(
+    write_exr_cube(
         path, np.asarray(planes, np.float32)[None, None], np.array([530e-9]), np.array([np.inf]), pitch_m, "test"
     )
 
@@ -231,7 +231,7 @@ def test_compare_refuses_a_3x3_window_and_does_not_report_encircled_energy_beyon
 
 def _write_field_cube(path, planes, angles, centres, pitch_m=1.85e-6):
     """A field cube of one depth (inf) and one wavelength (530 nm): ``planes`` (F, N, N)."""
-    from metalens_cli.io.exr import write_psf_cube
+    from metalens_cli.io.exr import write_exr_cube
 
     extra = {
         "field_angles_rad": angles,
@@ -240,7 +240,7 @@ def _write_field_cube(path, planes, angles, centres, pitch_m=1.85e-6):
         "window_centre_px": centres,
     }
     psf = np.asarray(planes, np.float32)[:, None, None]
-    write_psf_cube(path, psf, np.array([530e-9]), np.array([np.inf]), pitch_m, "test", extra=extra)
+    write_exr_cube(path, psf, np.array([530e-9]), np.array([np.inf]), pitch_m, "test", extra=extra)
 
 
 def test_compare_field_cubes_per_field(capsys, tmp_path):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from metalens_cli.cli.main import run
-from metalens_cli.io.exr import read_psf_cube
+from metalens_cli.io.exr import read_exr_cube
 
 PRESETS = Path(__file__).parents[2] / "presets"
 SMALL = [
@@ -59,7 +59,7 @@ def test_scan_writes_contract_and_json(capsys, tmp_path):
         "fwhm_m",
     }
     assert report["timing_s"]["total"] > 0 and report["propagator"] == "radial"
-    cube = read_psf_cube(out_file)
+    cube = read_exr_cube(out_file)
     assert cube.psf.shape == (2, 4, 33, 33) and math.isinf(cube.depths_m[1])
     assert cube.rgb is None  # no preset: no spectra
     # Energy: a NA-0.04 lens puts nearly all power inside 33 × 1.85 µm (Airy radius 8 µm).
@@ -86,7 +86,7 @@ def test_scan_with_preset_writes_rgb(capsys, tmp_path):
         "--quiet",
     )
     assert code == 0
-    cube = read_psf_cube(out_file)
+    cube = read_exr_cube(out_file)
     assert cube.rgb.shape == (1, 3, 33, 33)
     # Each channel PSF is a convex mix of the monochromatic ones: its energy lies within theirs.
     energies = cube.psf.sum(axis=(-2, -1))[0]

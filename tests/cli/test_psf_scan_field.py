@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from metalens_cli.cli.main import run
-from metalens_cli.io.exr import read_psf_cube
+from metalens_cli.io.exr import read_exr_cube
 
 SMALL = ["--design", "hyperbolic:532nm", "--f", "200um", "--aperture", "100um", "--pixels", "31"]
 SMALL += ["--pixel-pitch", "1um", "--wavelengths", "500nm,560nm", "--depths", "10mm,inf"]
@@ -26,7 +26,7 @@ def test_field_scan_writes_a_field_cube_whose_field_zero_is_the_on_axis_scan(cap
     report = json.loads(out)
     assert [round(f["angle_deg"], 9) for f in report["fields"]] == [0, 4, 8]
     assert invoke(capsys, "psf-scan", *SMALL, "-o", axis_file)[0] == 0
-    cube, axis = read_psf_cube(field_file), read_psf_cube(axis_file)
+    cube, axis = read_exr_cube(field_file), read_exr_cube(axis_file)
     assert cube.field_psf.shape == (3, 2, 2, 31, 31)
     np.testing.assert_array_equal(cube.psf, axis.psf)  # field 0 is what on-axis readers read
     np.testing.assert_allclose(cube.field_angles_rad, np.radians([0, 4, 8]), rtol=1e-12)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from metalens_cli.cli.main import run
-from metalens_cli.io.psf_cube_files import read_cube_file
+from metalens_cli.io.psf_cube_files import read_psf_cube
 
 PRESETS = Path(__file__).parents[2] / "presets"
 SCAN = [
@@ -49,10 +49,10 @@ def cubes(tmp_path_factory):
 
 
 def test_every_format_holds_the_exr_cube_exactly(cubes):
-    reference = read_cube_file(cubes[".exr"])
+    reference = read_psf_cube(cubes[".exr"])
     assert reference.psf.shape == (2, 3, 17, 17) and reference.rgb.shape == (2, 3, 17, 17)
     for suffix in SUFFIXES[1:]:
-        cube = read_cube_file(cubes[suffix])
+        cube = read_psf_cube(cubes[suffix])
         assert cube.psf.dtype == np.float32 and np.array_equal(cube.psf, reference.psf), suffix
         assert np.array_equal(cube.rgb, reference.rgb), suffix
         assert np.array_equal(cube.wavelengths_m, reference.wavelengths_m), suffix

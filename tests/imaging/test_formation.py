@@ -150,7 +150,7 @@ def test_transforms_reuse_gradients_and_gain_clamp():
     assert psf.grad is not None and torch.isfinite(psf.grad).all() and psf.grad.abs().sum() > 0
     clamped = form_image(clean, obs, mask, psf.detach(), far, margin, alpha_gain=10.0)
     assert clamped.alpha.max() <= 1.0 and clamped.alpha.mean() > direct.alpha.mean()
-    with pytest.raises(InputError, match="alpha-gain"):
+    with pytest.raises(InputError, match="alpha_gain"):
         form_image(clean, obs, mask, psf.detach(), far, margin, alpha_gain=0.0)
     with pytest.raises(InputError, match="formation"):
         form_image(clean, obs, mask, psf.detach(), far, margin, formation="literal")

@@ -13,8 +13,8 @@ import pytest
 import metalens_cli
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
-from metalens_cli.io.exr import FORMAT, read_psf_cube, write_psf_cube
-from metalens_cli.io.psf_cube_files import check_cube_size, read_cube_file, write_cube_file
+from metalens_cli.io.exr import FORMAT, read_exr_cube, write_exr_cube
+from metalens_cli.io.psf_cube_files import check_cube_size, read_psf_cube, write_psf_cube
 
 WAVELENGTHS = np.array([450e-9, 530e-9, 630e-9])
 DEPTHS = np.array([0.045, math.inf])
@@ -36,7 +36,7 @@ def write_example(path, **changes):
         psf=psf, wavelengths_m=WAVELENGTHS, depths_m=DEPTHS, pixel_pitch_m=PITCH, design="hyperbolic:532nm", rgb=rgb
     )
     arguments.update(changes)
-    write_psf_cube(path, **arguments)
+    write_exr_cube(path, **arguments)
     return arguments
 
 
@@ -73,7 +73,7 @@ def one_channel(n=5, value=0.01):
 def test_round_trip_is_exact(tmp_path):
     path = tmp_path / "cube.exr"
     arguments = write_example(path, extra={"na": 0.3, "f_m": 4e-3, "accuracy": {"rel_l2": 1e-3}})
-    cube = read_psf_cube(path)
+    cube = read_exr_cube(path)
     assert cube.psf.dtype == np.float32 and cube.rgb.dtype == np.float32
     # Lossless compression of float32: bit-exact.
     assert np.array_equal(cube.psf, arguments["psf"])
@@ -98,14 +98,14 @@ def test_file_layout_follows_the_contract(tmp_path):
     metadata = json.loads(header["metalens"])
     assert metadata["format"] == "metalens-psf-cube/1"
     assert metadata["design"] == {"kind": "hyperbolic", "wavelength_m": 532e-9}
-    assert read_psf_cube(path).rgb is None
+    assert read_exr_cube(path).rgb is None
 
 
 def test_float64_input_is_stored_as_float32(tmp_path):
     path = tmp_path / "cube.exr"
     psf = np.random.default_rng(1).random((2, 3, 4, 4))
     write_example(path, psf=psf, rgb=None)
-    assert np.array_equal(read_psf_cube(path).psf, psf.astype(np.float32))
+    assert np.array_equal(read_exr_cube(path).psf, psf.astype(np.float32))
 
 
 # ---------------------------------------------------------------------------- refusing broken files
@@ -145,7 +145,7 @@ def test_broken_files_are_refused_with_one_line(tmp_path, metadata, channels, re
     path = tmp_path / "broken.exr"
     write_raw(path, channels, metadata)
     with pytest.raises(InputError, match=re.escape(reason)) as caught:
-        read_psf_cube(path)
+        read_exr_cube(path)
     assert "\n" not in str(caught.value)
     assert str(caught.value).startswith(str(path))
 
@@ -155,7 +155,7 @@ def test_a_cube_without_design_and_version_is_read(tmp_path):
     path = tmp_path / "measured.exr"
     metadata = {k: v for k, v in valid_metadata(normalization="peak-one").items() if k not in ("design", "version")}
     write_raw(path, one_channel(), metadata)
-    cube = read_psf_cube(path)
+    cube = read_exr_cube(path)
     assert "design" not in cube.metadata and cube.psf.shape == (1, 1, 5, 5)
 
 
@@ -163,16 +163,16 @@ def test_lossy_compression_is_refused(tmp_path):
     path = tmp_path / "lossy.exr"
     write_raw(path, one_channel(16), valid_metadata(), {"compression": OpenEXR.PXR24_COMPRESSION})
     with pytest.raises(InputError, match="PXR24_COMPRESSION is lossy"):
-        read_psf_cube(path)
+        read_exr_cube(path)
 
 
 def test_non_exr_and_missing_files_are_refused(tmp_path):
     garbage = tmp_path / "garbage.exr"
     garbage.write_bytes(b"not an image")
     with pytest.raises(InputError, match="not a readable OpenEXR file"):
-        read_psf_cube(garbage)
+        read_exr_cube(garbage)
     with pytest.raises(InputError, match="no such file"):
-        read_psf_cube(tmp_path / "missing.exr")
+        read_exr_cube(tmp_path / "missing.exr")
 
 
 def test_writer_refuses_what_the_reader_would(tmp_path):
@@ -272,14 +272,14 @@ def write_field_example(path, fields=3, **changes):
         extra={**field_extra(angles), "field_kept": np.full((fields, 2, 3), 0.9).tolist()},
     )
     arguments.update(changes)
-    write_psf_cube(path, **arguments)
+    write_exr_cube(path, **arguments)
     return arguments
 
 
 def test_field_cube_round_trip_is_exact(tmp_path):
     path = tmp_path / "field.exr"
     arguments = write_field_example(path)
-    cube = read_psf_cube(path)
+    cube = read_exr_cube(path)
     assert cube.is_field_cube and cube.field_count == 3
     assert np.array_equal(cube.field_psf, arguments["psf"]) and np.array_equal(cube.field_rgb, arguments["rgb"])
     assert cube.field_psf.dtype == np.float32 and cube.field_rgb.dtype == np.float32
@@ -301,10 +301,10 @@ def test_an_on_axis_reader_reads_field_0(tmp_path):
     arguments = write_field_example(path)
     channels = OpenEXR.File(str(path), separate_channels=True).channels()
     on_axis = np.array([[channels[f"psf.d{i:02d}.w{j:03d}"].pixels for j in range(3)] for i in range(2)])
-    assert np.array_equal(on_axis, arguments["psf"][0]) and np.array_equal(read_psf_cube(path).psf, on_axis)
+    assert np.array_equal(on_axis, arguments["psf"][0]) and np.array_equal(read_exr_cube(path).psf, on_axis)
     plain = tmp_path / "plain.exr"
     write_example(plain)
-    cube = read_psf_cube(plain)
+    cube = read_exr_cube(plain)
     assert not cube.is_field_cube and cube.field_psf is None and cube.field_rgb is None and cube.field_count == 1
     assert cube.field_angles_rad.tolist() == [0.0] and cube.window_centre_px.tolist() == [[0, 0]]
     assert np.array_equal(cube.psf_by_field[0], cube.psf) and np.array_equal(cube.rgb_by_field[0], cube.rgb)
@@ -314,7 +314,7 @@ def test_a_4d_psf_with_field_keys_is_a_field_cube_of_one_field(tmp_path):
     path = tmp_path / "one.exr"
     psf, rgb = random_cube()
     write_example(path, psf=psf, rgb=rgb, extra=field_extra((0.2,)))
-    cube = read_psf_cube(path)
+    cube = read_exr_cube(path)
     assert cube.is_field_cube and cube.field_psf.shape == (1, 2, 3, 9, 9) and np.array_equal(cube.field_psf[0], psf)
     assert sorted(OpenEXR.File(str(path), separate_channels=True).channels()) == sorted(
         [f"psf.d{i:02d}.w{j:03d}" for i in range(2) for j in range(3)]
@@ -368,7 +368,7 @@ def test_broken_field_cubes_are_refused_with_one_line(tmp_path, metadata, channe
     path = tmp_path / "broken.exr"
     write_raw(path, channels, metadata)
     with pytest.raises(InputError, match=re.escape(reason)) as caught:
-        read_psf_cube(path)
+        read_exr_cube(path)
     assert "\n" not in str(caught.value) and str(caught.value).startswith(str(path))
 
 
@@ -376,7 +376,7 @@ def test_a_valid_raw_field_cube_is_read(tmp_path):
     """The reader's rules above, met by a file written with OpenEXR directly (as docs/formats.md shows)."""
     path = tmp_path / "raw.exr"
     write_raw(path, field_channels(), field_metadata(field_kept=[[[0.9]], [[0.8]]]))
-    assert read_psf_cube(path).field_psf.shape == (2, 1, 1, 5, 5)
+    assert read_exr_cube(path).field_psf.shape == (2, 1, 1, 5, 5)
 
 
 def test_the_field_cube_writer_refuses_what_the_reader_would(tmp_path):
@@ -394,7 +394,7 @@ def test_the_field_cube_writer_refuses_what_the_reader_would(tmp_path):
         write_example(path, psf=psf, rgb=rgb, extra={"field_angles_rad": [0.0, 0.1, 0.2]})
     assert list(tmp_path.iterdir()) == []
     write_example(path, psf=psf, rgb=None, extra=field_extra(window_centre_px=np.array([[0, 0], [108, 0], [216, 0]])))
-    assert read_psf_cube(path).window_centre_px[2].tolist() == [216, 0]  # numpy field keys taken as their lists
+    assert read_exr_cube(path).window_centre_px[2].tolist() == [216, 0]  # numpy field keys taken as their lists
 
 
 @pytest.mark.parametrize("suffix", [".npz", ".mat", ".tif"])
@@ -403,12 +403,12 @@ def test_other_formats_refuse_a_field_cube(tmp_path, suffix):
     path = tmp_path / f"cube{suffix}"
     arguments = (psf, WAVELENGTHS, DEPTHS, PITCH, "x")
     with pytest.raises(InputError, match=re.escape(f"a field cube is written as .exr, not {suffix}")):
-        write_cube_file(path, *arguments, rgb=rgb, extra=field_extra())
+        write_psf_cube(path, *arguments, rgb=rgb, extra=field_extra())
     with pytest.raises(InputError, match="a field cube is written as .exr"):
-        write_cube_file(path, psf[0], *arguments[1:], extra=field_extra((0.0,)))  # one field too
+        write_psf_cube(path, psf[0], *arguments[1:], extra=field_extra((0.0,)))  # one field too
     with pytest.raises(InputError, match="a field cube is written as .exr"):
         check_cube_size(path, "-o", 2, 3, 9, field_cube=True)
     assert list(tmp_path.iterdir()) == []
     check_cube_size(tmp_path / "cube.exr", "-o", 2, 3, 9, field_cube=True)
-    write_cube_file(tmp_path / "cube.exr", *arguments, rgb=rgb, extra=field_extra())
-    assert np.array_equal(read_cube_file(tmp_path / "cube.exr").field_rgb, rgb)
+    write_psf_cube(tmp_path / "cube.exr", *arguments, rgb=rgb, extra=field_extra())
+    assert np.array_equal(read_psf_cube(tmp_path / "cube.exr").field_rgb, rgb)

@@ -15,7 +15,7 @@ import metalens_cli
 from metalens_cli.errors import InputError
 from metalens_cli.io import psf_cube_files
 from metalens_cli.io.exr import FORMAT
-from metalens_cli.io.psf_cube_files import CUBE_SUFFIXES, check_cube_size, read_cube_file, write_cube_file
+from metalens_cli.io.psf_cube_files import CUBE_SUFFIXES, check_cube_size, read_psf_cube, write_psf_cube
 
 WAVELENGTHS = np.array([450e-9, 530e-9, 630e-9])
 DEPTHS = np.array([0.045, math.inf])
@@ -38,7 +38,7 @@ def write_example(path, **changes):
         psf=psf, wavelengths_m=WAVELENGTHS, depths_m=DEPTHS, pixel_pitch_m=PITCH, design="hyperbolic:532nm", rgb=rgb
     )
     arguments.update(changes)
-    write_cube_file(path, **arguments, extra={"na": 0.3, "accuracy": {"rel_l2": 1e-3}, "note": "µm ✓"})
+    write_psf_cube(path, **arguments, extra={"na": 0.3, "accuracy": {"rel_l2": 1e-3}, "note": "µm ✓"})
     return arguments
 
 
@@ -55,7 +55,7 @@ def metadata_text(**changes):
 
 def refused(path, reason):
     with pytest.raises(InputError, match=re.escape(reason)) as caught:
-        read_cube_file(path)
+        read_psf_cube(path)
     assert "\n" not in str(caught.value) and str(caught.value).startswith(str(path))
     return str(caught.value)
 
@@ -72,7 +72,7 @@ def test_the_suffixes_are_the_formats():
 def test_round_trip_is_exact_and_equals_the_exr_one(tmp_path, suffix, with_rgb):
     arguments = write_example(tmp_path / f"cube{suffix}", **({} if with_rgb else {"rgb": None}))
     write_example(tmp_path / "reference.exr", **({} if with_rgb else {"rgb": None}))
-    cube, reference = read_cube_file(tmp_path / f"cube{suffix}"), read_cube_file(tmp_path / "reference.exr")
+    cube, reference = read_psf_cube(tmp_path / f"cube{suffix}"), read_psf_cube(tmp_path / "reference.exr")
     assert cube.psf.dtype == np.float32 and cube.psf.shape == (2, 3, 9, 9)
     assert np.array_equal(cube.psf.view(np.uint32), arguments["psf"].view(np.uint32))  # bit for bit
     if with_rgb:
@@ -149,7 +149,7 @@ def test_a_matlab_style_file_is_read(tmp_path):
     arrays = {"psf": psf[0, 0], "wavelengths_m": np.array([[530e-9]]), "depths_m": np.array([[np.inf]])}
     arrays |= {"pixel_pitch_m": PITCH, "metadata": metadata_text(), "notes": "another variable"}
     scipy.io.savemat(path, arrays, do_compression=True, oned_as="row")
-    cube = read_cube_file(path)
+    cube = read_psf_cube(path)
     assert cube.psf.shape == (1, 1, 1, 1) and cube.psf[0, 0, 0, 0] == 0.5 and np.isinf(cube.depths_m[0])
 
 
@@ -157,14 +157,14 @@ def test_a_compressed_big_endian_tiff_is_read(tmp_path):
     path = tmp_path / "other.tiff"
     plane = np.arange(25, dtype=np.float32).reshape(5, 5) / 25
     tifffile.imwrite(path, plane, byteorder=">", compression="zlib", description=metadata_text(), metadata=None)
-    assert np.array_equal(read_cube_file(path).psf[0, 0], plane)
+    assert np.array_equal(read_psf_cube(path).psf[0, 0], plane)
 
 
 def test_a_big_endian_npz_is_read(tmp_path):
     path = tmp_path / "other.npz"
     plane = np.linspace(0, 1, 16, dtype=">f4").reshape(1, 1, 4, 4)
     np.savez(path, psf=plane, wavelengths_m=[530e-9], depths_m=[np.inf], pixel_pitch_m=PITCH, metadata=metadata_text())
-    cube = read_cube_file(path)
+    cube = read_psf_cube(path)
     assert cube.psf.dtype == np.float32 and np.array_equal(cube.psf, plane)
 
 
@@ -192,7 +192,7 @@ def test_corrupt_files_are_refused_with_one_line(tmp_path, suffix, reason, damag
     path = tmp_path / f"bad{suffix}"
     path.write_bytes(data)
     with pytest.raises(InputError) as caught:
-        read_cube_file(path)
+        read_psf_cube(path)
     assert "\n" not in str(caught.value) and str(caught.value).startswith(str(path))
     if damage != "truncated" or suffix != ".tif":  # a truncated TIFF may still list whole pages
         assert reason in str(caught.value)

@@ -2,9 +2,10 @@
 
 import pytest
 
+from metalens_cli import machine
 from metalens_cli.errors import InputError
-from metalens_cli.io import resources
-from metalens_cli.io.resources import LONG_JOB_SECONDS, Estimate, check, device_memory, is_long
+from metalens_cli.io.resources import LONG_JOB_SECONDS, Estimate, check, is_long
+from metalens_cli.machine import device_memory
 
 
 def test_a_range_is_said_only_when_the_longest_differs_and_counts_as_long():
@@ -26,7 +27,7 @@ def test_memory_over_the_limit_is_refused_naming_the_option_and_the_estimate():
 
 def test_max_memory_given_replaces_the_free_memory_default(monkeypatch):
     """The refusal's advice works: a --max-memory above what is free lets a cautious estimate run."""
-    monkeypatch.setattr(resources, "available_memory", lambda: 2**30)
+    monkeypatch.setattr(machine, "available_memory", lambda: 2**30)
     job = Estimate("evaluate", 2 * 2**30, "--pixels", 1.0)
     with pytest.raises(InputError, match=r"over the host RAM available on this machine \(922 MiB\)"):
         check(job)
@@ -65,7 +66,7 @@ def test_a_cuda_job_is_checked_against_the_gpu_s_free_memory(monkeypatch):
         check(job, device="cuda")  # plain cuda: the current device
     assert asked[-1] == torch.device("cuda", 0)
     check(Estimate("psf-scan", 2**29, "--pixels", 1.0), device=torch.device("cuda", 0))  # 0.5 GiB fits 90 % of 1
-    monkeypatch.setattr(resources, "available_memory", lambda: 64 * 2**30)
+    monkeypatch.setattr(machine, "available_memory", lambda: 64 * 2**30)
     check(job, device="cpu")  # the host's 64 GiB of RAM, not the GPU's 1 GiB
     assert len(asked) == 3
 
@@ -82,7 +83,7 @@ def test_memory_torch_holds_cached_but_unused_counts_as_free_on_a_gpu(monkeypatc
 
 
 def test_a_host_job_is_checked_against_the_host_ram_and_says_so(monkeypatch):
-    monkeypatch.setattr(resources, "available_memory", lambda: 2**30)
+    monkeypatch.setattr(machine, "available_memory", lambda: 2**30)
     for device in (None, "cpu", "mps"):
         assert device_memory(device) == (2**30, "the host RAM available on this machine")
         with pytest.raises(InputError, match=r"over the host RAM available on this machine \(922 MiB\)"):
