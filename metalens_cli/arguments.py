@@ -41,7 +41,7 @@ def number(
         raise InputError(name, "is None", form)
     if isinstance(value, bool) or not _is_real(value):
         raise TypeError(f"{name}: expected a number ({form}), got {type(value).__name__}")
-    x = float(value)
+    x = float(value.detach() if hasattr(value, "detach") else value)  # a learned band edge: its value
     if math.isnan(x):
         raise InputError(name, "is NaN", form)
     if math.isinf(x) and not allow_inf:

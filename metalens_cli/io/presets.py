@@ -661,8 +661,12 @@ def _resolve_paths(preset: Preset, folder: Path) -> Preset:
     loss = dataclasses.replace(preset.loss, domain_adaptation_weights=weights)
     optimize = dataclasses.replace(
         preset.optimize,
-        images=None if preset.optimize.images is None else str(_image_folder(folder / preset.optimize.images)),
-        obstructions=tuple(_obstruction(kind, folder) for kind in preset.optimize.obstructions),
+        images=None
+        if preset.optimize.images is None
+        else str(image_folder(folder / preset.optimize.images, "optimize.images")),
+        obstructions=tuple(
+            obstruction_file(kind, folder, "optimize.obstructions") for kind in preset.optimize.obstructions
+        ),
     )
     result = dataclasses.replace(
         preset, nanofin=nanofin, filter=band_filter, sensor=sensor, loss=loss, optimize=optimize
@@ -684,31 +688,33 @@ def _check_checkpoint(path: Path, key: str) -> None:
         raise InputError(key, f"{path.name} is not a PyTorch checkpoint", CHECKPOINT)
 
 
-def _image_folder(path: Path) -> Path:
-    """``optimize.images``: a folder holding at least one image, every image's header readable
-    and within the pixel limit (pixels are decoded where the run starts)."""
+def image_folder(path: Path, key: str) -> Path:
+    """A preset's folder of images (``key``: ``optimize.images``, ``data.images``): at least one
+    image, every image's header readable and within the pixel limit (pixels are decoded where the
+    run starts)."""
     from metalens_cli.io.image_files import check_image_file
     from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
     path, form = path.resolve(), f"a folder of {', '.join(IMAGE_SUFFIXES)} images relative to the preset"
     if not path.is_dir():
-        raise InputError("optimize.images", f"no such folder {str(path)!r}", form)
+        raise InputError(key, f"no such folder {str(path)!r}", form)
     files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
     if not files:
-        raise InputError("optimize.images", f"{str(path)!r} holds no images", form)
+        raise InputError(key, f"{str(path)!r} holds no images", form)
     for file in files:
-        check_image_file(file, "optimize.images")
+        check_image_file(file, key)
     return path
 
 
-def _obstruction(kind: str, folder: Path) -> str:
-    """An ``optimize.obstructions`` entry, a ``file:PATH`` resolved against the preset and checked."""
+def obstruction_file(kind: str, folder: Path, key: str) -> str:
+    """An obstruction entry of a preset (``key``), a ``file:PATH`` resolved against the preset's
+    ``folder`` and its image checked; other kinds as they are."""
     if not kind.startswith("file:"):
         return kind
     from metalens_cli.io.image_files import check_image_file
 
-    full = regular_file((folder / kind[5:]).resolve(), "optimize.obstructions", "file:PATH.png relative to the preset")
-    check_image_file(full, "optimize.obstructions")
+    full = regular_file((folder / kind[5:]).resolve(), key, "file:PATH.png relative to the preset")
+    check_image_file(full, key)
     return f"file:{full}"
 
 

@@ -22,7 +22,16 @@ from pathlib import Path
 
 from metalens_cli.constants import OBSTRUCTION_KINDS, SENSOR_PIXELS
 from metalens_cli.errors import InputError
-from metalens_cli.io.presets import as_str, build_section, check_name, read_toml, toml_field, toml_key
+from metalens_cli.io.presets import (
+    as_str,
+    build_section,
+    check_name,
+    image_folder,
+    obstruction_file,
+    read_toml,
+    toml_field,
+    toml_key,
+)
 from metalens_cli.io.tables import check_wavelengths
 
 # generated training scenes (``design.reconstruct_data``): "natural" the procedural scenes with text, tilings, flat
@@ -156,23 +165,24 @@ def reconstruct_preset_from_dict(data: dict, name: str = "reconstruct", source: 
 
 
 def load_reconstruct_preset(path: str | Path) -> ReconstructPreset:
-    """Read and validate a reconstruction preset; ``data.images`` is relative to the file."""
+    """Read and validate a reconstruction preset; ``data.images`` and ``file:`` obstructions are
+    relative to the file, and checked as :func:`~metalens_cli.io.presets.load_preset` checks its own."""
     path = Path(path)
     data = read_toml(path, "--preset")
     try:
         preset = reconstruct_preset_from_dict(data, name=path.stem, source=str(path))
     except InputError as exc:
         raise InputError(f"{path.name}: {exc.field}", exc.message, exc.expected) from None
-    if preset.data.images is not None:
-        folder = (path.parent / preset.data.images).resolve()
-        if not folder.is_dir():
-            raise InputError(
-                f"{path.name}: data.images",
-                f"no such folder {str(folder)!r}",
-                "a folder of images relative to the preset",
-            )
-        preset = dataclasses.replace(preset, data=dataclasses.replace(preset.data, images=str(folder)))
-    return preset
+    try:  # the files it names, resolved against its folder and checked now (io.presets)
+        images = preset.data.images
+        data = dataclasses.replace(
+            preset.data,
+            images=None if images is None else str(image_folder(path.parent / images, "data.images")),
+            obstructions=tuple(obstruction_file(k, path.parent, "data.obstructions") for k in preset.data.obstructions),
+        )
+    except InputError as exc:
+        raise InputError(f"{path.name}: {exc.field}", exc.message, exc.expected) from None
+    return dataclasses.replace(preset, data=data)
 
 
 def reconstruct_to_toml(preset: ReconstructPreset, **overrides: dict) -> str:

@@ -174,3 +174,17 @@ def test_the_learned_report_says_whether_the_margin_asked_for_was_kept(tmp_path)
     assert min(report["margins_m"].values()) == pytest.approx(5.2e-9, abs=1e-11)
     assert _conditions(check_filter(joint.filter, joint, incidence=1.0), 0.5e-9)["split_margin_met"]
     assert json.dumps(report)
+
+
+def test_a_reconstruction_presets_images_and_masks_are_checked_at_load(tmp_path):
+    from metalens_cli.io.reconstruct_presets import load_reconstruct_preset
+
+    text = (PRESETS / "quick-reconstruct.toml").read_text().replace("[data]", '[data]\nimages = "photos"', 1)
+    preset = tmp_path / "r.toml"
+    preset.write_text(text)
+    (tmp_path / "photos").mkdir()
+    with pytest.raises(InputError, match="data.images: .* holds no images"):
+        load_reconstruct_preset(preset)
+    (tmp_path / "photos" / "a.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    with pytest.raises(InputError, match="data.images: .*not a readable image"):
+        load_reconstruct_preset(preset)
