@@ -24,8 +24,9 @@ import numpy as np
 import torch
 from report import write_section
 
+from metalens_cli.optics.fin import Fin
 from metalens_cli.optics.materials import FUSED_SILICA, SINX
-from metalens_cli.optics.nanofin import Fin, converge, convergence_seconds, estimate_seconds, fin_response
+from metalens_cli.optics.nanofin import converge, convergence_seconds, estimate_seconds, fin_response
 
 FIN = Fin(395e-9, 700e-9, 305e-9, 125e-9)
 REFERENCE = 41

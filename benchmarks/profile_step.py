@@ -32,6 +32,7 @@ def main() -> None:
     from metalens_cli.design import distributed
     from metalens_cli.design.training import _one_step, _session
     from metalens_cli.io.presets import load_preset
+    from metalens_cli.runtime import Stopwatch
 
     torch.set_num_threads(args.threads)
     preset = load_preset(args.preset)
@@ -40,14 +41,14 @@ def main() -> None:
     with distributed.session(device) as ctx:
         session = _session(preset, ctx)
         for step in range(args.warmup):
-            _one_step(session, preset, step, ctx, {})
-        timing: dict[str, float] = {}
+            _one_step(session, preset, step, ctx, Stopwatch(device))
+        watch = Stopwatch(device)
         start = time.perf_counter()
         with profile(activities=activities, record_shapes=True) as prof:
             for step in range(args.warmup, args.warmup + args.steps):
-                _one_step(session, preset, step, ctx, timing)
+                _one_step(session, preset, step, ctx, watch)
         seconds = (time.perf_counter() - start) / args.steps
-    stages = ", ".join(f"{k} {v / args.steps:.3f}" for k, v in timing.items() if not k.startswith("psf_"))
+    stages = ", ".join(f"{k} {v / args.steps:.3f}" for k, v in watch.times.items() if not k.startswith("psf_"))
     print(f"{args.preset} on {device}: {seconds:.3f} s/step under the profiler; windows {session.windows}")
     print(f"stages (s/step): {stages}")
     key = "self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total"

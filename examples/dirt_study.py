@@ -263,8 +263,9 @@ def registration_check(designs: dict, psf_sets: dict, pixels: int, n_images: int
 
 def compute(runs: Path, pixels: int, n_images: int, seeds: int, kept: dict | None = None) -> dict:
     """The study's raw results; with ``kept`` (an earlier run's, same sizes) only the variations it lacks."""
+    from metalens_cli.imaging.channel_psfs import channel_psfs
     from metalens_cli.imaging.images import load_images
-    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, attach_zero_order, channel_psfs
+    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, attach_zero_order
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.io.units import parse_length_list
 

@@ -145,10 +145,11 @@ def spectral_check(spec: str) -> dict[str, list[dict]]:
     could make, and how converged the on-axis quadrature itself is."""
     import torch
 
+    from metalens_cli.imaging.channel_psfs import channel_psfs
     from metalens_cli.imaging.field_psfs import field_strata, strata_channel_psfs
     from metalens_cli.imaging.formation import convolve
     from metalens_cli.imaging.images import load_images
-    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, channel_psfs, score
+    from metalens_cli.imaging.pipeline import DEFAULT_WAVELENGTHS, score
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.io.units import parse_length_list
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from metalens_cli.constants import __version__
 
 # public name → the module that defines it (relative to this package)
 _EXPORTS = {
@@ -69,8 +69,8 @@ _EXPORTS = {
     "depth_for_wavelength": "analysis.symmetry",
     "wavelength_for_depth": "analysis.symmetry",
     # the meta-atom
-    "Fin": "optics.nanofin",
-    "FinResponse": "optics.nanofin",
+    "Fin": "optics.fin",
+    "FinResponse": "optics.fin",
     "fin_response": "optics.nanofin",
     # image formation and metrics
     "Capture": "imaging.formation",
@@ -226,8 +226,9 @@ if TYPE_CHECKING:  # static checkers and IDEs see the names eagerly
     from metalens_cli.io.units import format_length, parse_angle, parse_length, parse_range
     from metalens_cli.optics.channel_psf import channel_psf_stack
     from metalens_cli.optics.field import FieldPsf, chief_ray, field_angle, field_psf, ray_landings, rms_spot
+    from metalens_cli.optics.fin import Fin, FinResponse
     from metalens_cli.optics.lens import Metalens, hyperbolic
-    from metalens_cli.optics.nanofin import Fin, FinResponse, fin_response
+    from metalens_cli.optics.nanofin import fin_response
     from metalens_cli.optics.propagate import asm_propagate, radial_propagate, rayleigh_sommerfeld
     from metalens_cli.optics.psf import PsfResult, compute_psf, estimate_psf
     from metalens_cli.optics.spectra import (

@@ -1,4 +1,5 @@
-"""Process-wide settings that the command-line app applies once at start-up (never on import).
+"""Process-wide settings that the command-line app applies once at start-up (never on import),
+and the one stopwatch every timed stage report uses (:class:`Stopwatch`).
 
 The core allocates its FFT work arrays afresh on every call (tens of MB for a 512 × 512
 capture). glibc's malloc hands blocks that large back to the kernel when they are freed (mmap
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import ctypes
 import sys
+import time
 
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
@@ -30,3 +32,34 @@ def retain_freed_memory() -> bool:
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
     return bool(mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) & bool(mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
+
+
+class Stopwatch:
+    """Seconds per named stage, summed over laps (``times``: what reports print).
+
+    :meth:`lap` adds the time since the previous lap (or the start, or :meth:`restart`) to a
+    stage; with a CUDA ``device`` it first waits for the device, so that queued work counts in
+    the stage that queued it. :meth:`add` sums in stages timed elsewhere (a PSF call's
+    ``timing_s``), their names after ``prefix``."""
+
+    def __init__(self, device=None):
+        self.times: dict[str, float] = {}
+        self.device = device
+        self._t = time.perf_counter()
+
+    def restart(self) -> None:
+        """The next lap starts now."""
+        self._t = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        if getattr(self.device, "type", None) == "cuda":
+            import torch
+
+            torch.cuda.synchronize(self.device)
+        now = time.perf_counter()
+        self.times[name] = self.times.get(name, 0.0) + now - self._t
+        self._t = now
+
+    def add(self, times: dict[str, float], prefix: str = "") -> None:
+        for stage, seconds in times.items():
+            self.times[prefix + stage] = self.times.get(prefix + stage, 0.0) + seconds

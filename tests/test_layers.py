@@ -37,3 +37,53 @@ def test_imports_point_downward():
 def test_layers_that_share_a_rank_do_not_import_each_other_both_ways():
     pairs = {(layer, other) for layer, other, _, _ in imports() if layer != other and RANK[layer] == RANK[other]}
     assert not any((other, layer) in pairs for layer, other in pairs), sorted(pairs)
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {_module_name(path): path for path in PACKAGE.rglob("*.py")}
+
+
+def module_imports() -> dict[str, set[str]]:
+    """Module → the package's modules it imports, at module level or inside functions alike
+    (an import inside a function still makes the two modules need each other)."""
+    graph = {}
+    for name, path in MODULES.items():
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("metalens_cli"):
+                for alias in node.names:
+                    full = f"{node.module}.{alias.name}"
+                    targets.add(full if full in MODULES else node.module)
+            elif isinstance(node, ast.Import):
+                targets |= {a.name for a in node.names if a.name.startswith("metalens_cli")}
+        graph[name] = {t for t in targets if t in MODULES and t != name}
+    return graph
+
+
+def test_no_module_imports_itself_through_a_circle():
+    graph = module_imports()
+    circles = []
+    for start in graph:  # a path from a module's imports back to it
+        seen, frontier = set(), list(graph[start])
+        while frontier:
+            module = frontier.pop()
+            if module == start:
+                circles.append(start)
+                break
+            if module not in seen:
+                seen.add(module)
+                frontier += graph[module]
+    assert circles == []
+
+
+def test_no_module_imports_the_package_root():
+    """The root (``metalens_cli/__init__.py``) is the API that imports everything; a module that
+    imports a name from it (``__version__`` was one) points back up. Its submodules are fine."""
+    upward = [
+        name for name, imported in module_imports().items() if name != "metalens_cli" and "metalens_cli" in imported
+    ]
+    assert upward == []

@@ -19,6 +19,7 @@ from metalens_cli.cli.options import (
     hold_folder,
     json_option,
     overwrite_option,
+    quiet_option,
 )
 from metalens_cli.constants import REFINEMENTS
 from metalens_cli.errors import InputError
@@ -69,9 +70,7 @@ class FileOrFolder(OutputFile):
     help="Reapply this saved warp (WARP.npz) to every target instead of registering.",
 )
 @overwrite_option
-@click.option(
-    "--quiet", is_flag=True, help="No table, progress or 'wrote' lines (warnings and errors still go to stderr)."
-)
+@quiet_option("No table, progress or 'wrote' lines (warnings and errors still go to stderr).")
 @json_option
 @click.pass_context
 def align(ctx, reference, target, output, refine, warp_out, warp_path, overwrite, quiet, as_json):

@@ -17,6 +17,7 @@ from metalens_cli.cli.options import (
     lpips_weights_option,
     max_memory_option,
     plot_option,
+    quiet_option,
     refuse_overwriting,
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
@@ -144,7 +145,7 @@ PAIRS_OPTIONS = {
     help="Add Wiener rows: the oracle linear restoration from each design's far PSFs, its regularisation chosen per "
     "design and light level on held-out charts.",
 )
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @max_memory_option
 @json_option
 @plot_option

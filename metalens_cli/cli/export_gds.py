@@ -15,6 +15,7 @@ from metalens_cli.cli.options import (
     load_preset_option,
     max_memory_option,
     pick,
+    quiet_option,
 )
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.io import units
@@ -72,7 +73,7 @@ class AnglesSpec(click.ParamType):
     is_flag=True,
     help="Read the file back with KLayout and check count and a random sample of fins; exit 1 on mismatch.",
 )
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @max_memory_option
 @json_option
 @click.pass_context

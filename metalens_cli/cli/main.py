@@ -19,7 +19,7 @@ from contextlib import suppress
 
 import click
 
-from metalens_cli import __version__
+from metalens_cli.constants import __version__
 from metalens_cli.errors import MetalensError, ResultFailed, Terminated
 from metalens_cli.runtime import retain_freed_memory
 

@@ -22,6 +22,7 @@ from metalens_cli.cli.options import (
     max_memory_option,
     overwrite_option,
     plot_option,
+    quiet_option,
     torch_device,
 )
 from metalens_cli.cli.progress import progress_bar
@@ -117,7 +118,7 @@ def nanofin():
 )
 @solver_option
 @device_option
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @max_memory_option
 @json_option
 @plot_option
@@ -149,7 +150,7 @@ def efficiency(
     """
     from metalens_cli.design.fin_efficiency import efficiency_report, fin_efficiency
     from metalens_cli.io.units import parse_length_list
-    from metalens_cli.optics.nanofin import Fin
+    from metalens_cli.optics.fin import Fin
 
     fin = Fin(period_m, height_m, width_m, length_m)  # checked as it is made
     wavelengths_m = flatten(wavelengths) or parse_length_list("430:660:10nm", "--wavelengths")
@@ -315,7 +316,7 @@ def _check_bands(bands: tuple[tuple[float, float], ...]) -> None:
 )
 @overwrite_option
 @device_option
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @max_memory_option
 @json_option
 def sweep(
@@ -350,7 +351,7 @@ def sweep(
 
     from metalens_cli.design.fin_choice import band_wavelengths, sweep_cell, sweep_fins
     from metalens_cli.design.fin_files import sweep_report, write_sweep
-    from metalens_cli.optics.nanofin import Fin
+    from metalens_cli.optics.fin import Fin
 
     check_output_unused(output, overwrite)
     preset = load_preset_option(preset_path)

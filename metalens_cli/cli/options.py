@@ -493,7 +493,7 @@ def training_options(section: str):
                     callback=_usable_threads,
                     help="CPU threads for torch, at most the cores this process may use [torch's default].",
                 ),
-                click.option("--quiet", is_flag=True, help="No progress bar or progress lines."),
+                quiet_option("No progress bar or progress lines."),
                 json_option,
             ],
         )
@@ -512,6 +512,11 @@ def _usable_threads(ctx, param, threads: int | None) -> int | None:
             "--threads", f"{threads} threads on the {cores} CPU core(s) this process may use", f"at most {cores}"
         )
     return threads
+
+
+def quiet_option(help_text: str = "No progress bar."):
+    """``--quiet``, declared once for every command; ``help_text`` says what else it silences."""
+    return click.option("--quiet", is_flag=True, help=help_text)
 
 
 overwrite_option = click.option(

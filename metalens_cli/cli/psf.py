@@ -19,6 +19,7 @@ from metalens_cli.cli.options import (
     json_option,
     max_memory_option,
     plot_option,
+    quiet_option,
     refuse_overwriting,
 )
 from metalens_cli.cli.progress import progress_bar
@@ -99,7 +100,7 @@ def _hot_sigma(ctx, param, value: float) -> float:
 @click.option(
     "--design", help="What was measured, stored as the cube's design [manifest's design, else 'measured: MANIFEST']."
 )
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @max_memory_option
 @json_option
 @plot_option

@@ -24,6 +24,7 @@ from metalens_cli.cli.options import (
     load_preset_option,
     max_memory_option,
     plot_option,
+    quiet_option,
     torch_device,
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
@@ -89,7 +90,7 @@ DEFAULT_PIXELS, DEFAULT_PIXEL_PITCH_M = 512, 1.85e-6  # the paper's sensor
     help="Output cube, format by suffix: .exr, .npz (numpy), .mat (MATLAB v5) or .tif/.tiff (float32 stack, one page "
     "per PSF); see docs/formats.md.",
 )
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @max_memory_option
 @json_option
 @plot_option

@@ -21,6 +21,7 @@ from metalens_cli.cli.options import (
     json_option,
     lpips_weights_option,
     overwrite_option,
+    quiet_option,
     torch_device,
     training_options,
 )
@@ -227,7 +228,7 @@ def _inputs(paths) -> list[Path]:
     help="torch.compile the network: ~30 s more for the first image (and each new size), then 0.7-0.85× the time "
     "per image; for many captures.",
 )
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @json_option
 def apply(run, inputs, output, overwrite, device, memory_mib, compile_net, quiet, as_json):
     """Clean captures with the network of RUN: INPUT is PNG/JPEG/TIFF/EXR files or folders.

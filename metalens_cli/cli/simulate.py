@@ -26,6 +26,7 @@ from metalens_cli.cli.options import (
     load_preset_option,
     max_memory_option,
     overwrite_option,
+    quiet_option,
     torch_device,
 )
 from metalens_cli.cli.progress import efficiency_used, progress_bar
@@ -199,7 +200,7 @@ def setup_from(spec_list, params: dict) -> CaptureSetup:
 @click.option("--obstruction", default="dirt", show_default=True, help="dirt, fence, drops, rain or file:PATH.png.")
 @click.option("-o", "--output", type=OutputFolder(), required=True, help="Output folder (created).")
 @overwrite_option
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @max_memory_option
 @json_option
 def simulate(

@@ -20,6 +20,7 @@ from metalens_cli.cli.options import (
     pick,
     plot_option,
     preset_option,
+    quiet_option,
 )
 from metalens_cli.cli.progress import progress_bar
 from metalens_cli.io.units import LENGTH_FORM, format_length
@@ -63,7 +64,7 @@ NOTES = {
     help="Check the model against the on-axis Rayleigh-Sommerfeld intensity of the hyperbolic lens (needs --aperture).",
 )
 @click.option("--aperture", "aperture_m", type=Length(), help="Lens diameter D for --validate, e.g. 2.516mm.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 @max_memory_option
 @json_option
 @plot_option

@@ -31,8 +31,9 @@ from metalens_cli.constants import PAPER_BANDS_M, PAPER_FIN_HEIGHT_M, PAPER_PITC
 from metalens_cli.errors import InputError
 from metalens_cli.io import cache
 from metalens_cli.io.presets import NanofinConfig
+from metalens_cli.optics.fin import Fin
 from metalens_cli.optics.fin_modes import fin_responses_symmetric
-from metalens_cli.optics.nanofin import FIRST_HARMONICS, SOLVER, Fin, converge
+from metalens_cli.optics.nanofin import FIRST_HARMONICS, SOLVER, converge
 
 BAND_SAMPLES = 8  # 3 bands × 8: the 24 wavelengths of issue 17's benchmark
 NEAR = 1 + 1e-9  # a grid fin at ± the tolerance, to rounding, is a neighbour

@@ -7,7 +7,8 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from metalens_cli.optics.nanofin import FIRST_HARMONICS, SOLVERS, Fin, FinResponse, converge, fin_response
+from metalens_cli.optics.fin import Fin, FinResponse
+from metalens_cli.optics.nanofin import FIRST_HARMONICS, SOLVERS, converge, fin_response
 
 
 @dataclass(frozen=True)

@@ -98,12 +98,27 @@ def training_loss(
         from metalens_cli.design.features import feature_l1
 
         parts["domain_adaptation"] = feature_l1(features, captured, clean)
+    parts["bright"] = bright_loss(psf_far)
+    parts["sharp"] = sharp_loss(psf_far, weights.sharp_window, weights.sharp_mode, cores_far)
+    image, psf = weighted_terms(parts, weights)
+    parts["total"] = image + psf
+    return image_share * image + psf_share * psf, parts
+
+
+def weighted_terms(parts: dict, weights) -> tuple:
+    """(image, PSF): the weighted sums of the image terms (L1, 1 − SSIM, L_DA when present) and of
+    the PSF terms (L_bright, L_sharp) of ``parts`` (tensors or floats), ``weights`` a ``LossConfig``."""
     image = weights.l1 * parts["l1"] + weights.ssim * parts["ssim"]
     if "domain_adaptation" in parts:
         image = image + weights.domain_adaptation * parts["domain_adaptation"]
-    parts["bright"] = bright_loss(psf_far)
-    parts["sharp"] = sharp_loss(psf_far, weights.sharp_window, weights.sharp_mode, cores_far)
-    psf = weights.bright * parts["bright"] + weights.sharp * parts["sharp"]
-    total = image_share * image + psf_share * psf
-    parts["total"] = image + psf
-    return total, parts
+    return image, weights.bright * parts["bright"] + weights.sharp * parts["sharp"]
+
+
+def weighted_total(parts: dict, weights, band_filter=None) -> float:
+    """A step's reported total: its weighted image and PSF terms (:func:`weighted_terms`) and, for
+    a filter learned with θ (``band_filter``, a ``FilterConfig``), its split and light penalties."""
+    image, psf = weighted_terms(parts, weights)
+    total = image + psf
+    if band_filter is not None and "split" in parts:
+        total = total + band_filter.split_weight * parts["split"] + band_filter.light_weight * parts["light"]
+    return total

@@ -31,10 +31,10 @@ import numpy as np
 import torch
 
 from metalens_cli.errors import InputError
+from metalens_cli.imaging.channel_psfs import ChannelPsfs, channel_psfs
 from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform
 from metalens_cli.imaging.network import pixel_positions
 from metalens_cli.imaging.obstructions import make_obstruction
-from metalens_cli.imaging.pipeline import ChannelPsfs, channel_psfs
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 VALIDATION_GENERATION = 2**40  # the held-out pool's generation, far from any training generation

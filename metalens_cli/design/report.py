@@ -9,9 +9,10 @@ import time
 import numpy as np
 import torch
 
-from metalens_cli import __version__
 from metalens_cli.analysis.psf_metrics import central_energy
-from metalens_cli.imaging.pipeline import KEPT_WARNING
+from metalens_cli.constants import __version__
+from metalens_cli.design.model import build_model
+from metalens_cli.imaging.channel_psfs import KEPT_WARNING
 from metalens_cli.imaging.psf_scan import run_scan
 from metalens_cli.io.designs import Design
 from metalens_cli.io.exr import write_exr_cube
@@ -114,8 +115,6 @@ def write_results(
         filter_figure(run.path / "filter.png", summary.history, preset.sensor.wavelength_range_m)
     initial = None
     if theta.ndim == 1:
-        from metalens_cli.design.training import build_model
-
         initial = build_model(preset).full_theta().detach().numpy()
     theta_figure(run.path / "theta.png", theta, pitch, initial)
     kept = kept_summary(summary.history)

@@ -48,8 +48,9 @@ from metalens_cli.design.filter_learning import (
     make_feasible,
     split_penalty,
 )
-from metalens_cli.design.losses import training_loss
-from metalens_cli.design.parameterization import initial_parameterization
+from metalens_cli.design.losses import training_loss, weighted_total
+from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_frequency, plan_range
+from metalens_cli.design.report import write_results
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.scenes import training_scene
 from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides, update
@@ -62,24 +63,23 @@ from metalens_cli.io.presets import WAVELENGTH_MODES, Preset, preset_incidence_f
 from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import (
     ENCIRCLED_ENERGY,
+    MAX_WINDOW,
     ChannelPsfStack,
     channel_psf_stack,
     field_channel_stack,
+    grow_until_held,
 )
 from metalens_cli.optics.field import ON_AXIS_MARGIN, estimate_field_psf, field_window
 from metalens_cli.optics.psf import PsfCost
-from metalens_cli.optics.sampling import check_lens_sampling
 from metalens_cli.optics.sensor import larger_window
 from metalens_cli.optics.spectra import sample_wavelengths
 from metalens_cli.optics.window import crop_window
+from metalens_cli.runtime import Stopwatch
 
-DEFAULT_LAMBDA_D_M = 532e-9
-PLAN_HEADROOM = 1.25
 FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and per-term gradient
 # norms (2 × 2 draws) at θ_init and θ_final, the results' PSF scan: 53 (quick preset) and 66 (tests' tiny) measured
 THETA_GRID_COPIES = 12  # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
 LARGE_GRID_BYTES = 1 << 30  # a 2-D θ grid above this is estimated (and refused) before it is built
-MAX_PLAN_WINDOW = 4097  # planned windows stop growing here (pixels): the step then reports what it kept
 FIELD_COLUMNS = ("field_angle_deg", "field_azimuth_deg")  # loss.csv columns of a run with field angles
 # an off-axis step's PSF seconds over their forward pass: its backward is one adjoint propagation per PSF
 # (7.7 s forward, 7.4 s backward measured on examples/scaled-split-spectrum.toml at 6.75°, 2 cores)
@@ -159,41 +159,10 @@ def spectral_source(preset, band_filter=None):
     return preset_sensitivity(preset)
 
 
-def _lambda_d(preset) -> float:
-    return preset.lens.design_wavelength_m or DEFAULT_LAMBDA_D_M
-
-
-def build_model(preset):
-    o = preset.optimize
-    return initial_parameterization(
-        preset.lens.parameterization,
-        "hyperbolic" if preset.lens.design == "hyperbolic" else o.init,
-        _lambda_d(preset),
-        preset.lens.focal_length_m,
-        preset.lens.aperture_m,
-        preset.nanofin.pitch_m,
-        design_grid=o.design_grid,
-        seed=o.seed,
-        basis=o.theta_basis,
-    )
-
-
 def _scheduler(optimizer, o):
     if o.scheduler == "cosine":
         return torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=o.t_max)
     return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda _: 1.0)
-
-
-def plan_range(preset) -> tuple[list[float], list[float]]:
-    """Wavelengths and depths the run's sampling plan covers: the sensor range, the nearest depth."""
-    return list(preset.sensor.wavelength_range_m), [preset.scene.z_near_m[0]]
-
-
-def plan_frequency(preset) -> float:
-    """The run's planned field frequency (cycles/m): the initial design's, plus ``PLAN_HEADROOM``,
-    so that kernels are rebuilt only if the learned lens steepens beyond it."""
-    plan_l, plan_z = plan_range(preset)
-    return PLAN_HEADROOM * check_lens_sampling(build_model(preset).lens(), plan_l, plan_z, force=False)
 
 
 @dataclass(frozen=True)
@@ -211,10 +180,10 @@ class Windows:
 
     @classmethod
     def fitted(cls, near: int, far: int, plan: int) -> Windows:
-        """Capacities ``near``, ``far`` (at most ``MAX_PLAN_WINDOW``) in ``plan``, grown if they pass it."""
-        near, far = min(near, MAX_PLAN_WINDOW), min(far, MAX_PLAN_WINDOW)
+        """Capacities ``near``, ``far`` (at most ``MAX_WINDOW``) in ``plan``, grown if they pass it."""
+        near, far = min(near, MAX_WINDOW), min(far, MAX_WINDOW)
         if max(near, far) > plan:
-            plan = min(larger_window(max(near, far), PLAN_HEADROOM), MAX_PLAN_WINDOW)
+            plan = min(larger_window(max(near, far), PLAN_HEADROOM), MAX_WINDOW)
         return cls(near, far, plan)
 
     @property
@@ -300,11 +269,11 @@ def estimate_field_psf_step(preset, windows: Windows, wavelengths_m) -> PsfCost:
 def _field_capacities(lens, preset, wavelengths_m, depths_m, angle: float, windows: Windows) -> list[int]:
     """Windows (pixels) for the PSFs of the field point at ``angle`` at each of the two depths:
     the run's near and far capacities, grown to hold the geometric rays of the shortest and
-    longest wavelength (``optics.field.field_window``), at most ``MAX_PLAN_WINDOW``."""
+    longest wavelength (``optics.field.field_window``), at most ``MAX_WINDOW``."""
     ends = [min(wavelengths_m), max(wavelengths_m)]
     d, pitch = preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
     return [
-        min(MAX_PLAN_WINDOW, field_window(lens, ends, z, angle, d, pitch, cap))
+        min(MAX_WINDOW, field_window(lens, ends, z, angle, d, pitch, cap))
         for z, cap in zip(depths_m, (windows.near, windows.far))
     ]
 
@@ -320,7 +289,13 @@ def far_cores(stack: ChannelPsfStack) -> torch.Tensor | None:
 
 
 def step_psfs(
-    lens, preset, draw: StepDraw, windows: Windows, device, timing: dict | None = None, frequency: float | None = None
+    lens,
+    preset,
+    draw: StepDraw,
+    windows: Windows,
+    device,
+    watch: Stopwatch | None = None,
+    frequency: float | None = None,
 ) -> tuple[ChannelPsfStack, Windows]:
     """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
     (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ, the
@@ -336,36 +311,36 @@ def step_psfs(
             preset.sensor.pixel_pitch_m, draw.field_angle_rad, azimuth_rad=draw.azimuth_rad,
             distance_m=preset.lens.focal_length_m, device=device, core_window=core_window(preset),
         )  # fmt: skip
-        _add_psf_timing(timing, stack)
+        _add_psf_timing(watch, stack)
         return stack, windows
     plan_l, plan_z = plan_range(preset)
-    while True:
+
+    def stack_at(w: Windows) -> ChannelPsfStack:
         stack = channel_psf_stack(
             lens,
             draw.wavelengths_m,
             [draw.z_near_m, draw.z_far_m],
             draw.weights,
-            (windows.near, windows.far),
+            (w.near, w.far),
             preset.sensor.pixel_pitch_m,
             preset.lens.focal_length_m,
-            plan_pixels=windows.plan,
+            plan_pixels=w.plan,
             device=device,
             plan_wavelengths_m=plan_l,
             plan_depths_m=plan_z,
             plan_frequency=frequency,
             core_window=core_window(preset),
         )
-        _add_psf_timing(timing, stack)
-        if not stack.outgrown.any() or max(windows.near, windows.far) >= MAX_PLAN_WINDOW:
-            break
-        windows = windows.grown(stack.outgrown)
+        _add_psf_timing(watch, stack)
+        return stack
+
+    stack, windows = grow_until_held(stack_at, windows, Windows.grown)
     return stack, windows.following(stack)
 
 
-def _add_psf_timing(timing: dict | None, stack: ChannelPsfStack) -> None:
-    if timing is not None:
-        for stage, seconds in stack.timing_s.items():
-            timing[f"psf_{stage}"] = timing.get(f"psf_{stage}", 0.0) + seconds
+def _add_psf_timing(watch: Stopwatch | None, stack: ChannelPsfStack) -> None:
+    if watch is not None:
+        watch.add(stack.timing_s, "psf_")
 
 
 def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
@@ -529,12 +504,12 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> di
         session = _session(preset, ctx)
         if ctx.device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(ctx.device)
-        timing: dict[str, float] = {}
+        watch = Stopwatch(ctx.device)
         seconds = []
         row: dict = {}
         for step in range(steps):
             t0 = time.perf_counter()
-            row = _one_step(session, preset, step, ctx, timing)[0]
+            row = _one_step(session, preset, step, ctx, watch)[0]
             if ctx.device.type == "cuda":
                 torch.cuda.synchronize(ctx.device)
             seconds.append(time.perf_counter() - t0)
@@ -542,7 +517,7 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> di
             "steps": steps,
             "first_step_s": seconds[0],
             "seconds_per_step": statistics.median(seconds[1:] or seconds),
-            "seconds_by_stage": timing,
+            "seconds_by_stage": watch.times,
             "parameters": sum(p.numel() for p in session.model.parameters()),
             "windows_px": {"near": row.get("window_near"), "far": row.get("window_far")},
             "device": str(ctx.device),
@@ -581,13 +556,13 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
         lambda state: _load_windows(session, state),
     )
     loop.resume(checkpoint, to_toml(preset) if resume and given else None)
-    timing: dict[str, float] = {}
+    watch = Stopwatch(ctx.device)
     grid: dict = {}
     sample = None
 
     def one_step(step: int) -> dict:
         nonlocal grid, sample
-        row, grid, sample = _one_step(session, preset, step, ctx, timing)
+        row, grid, sample = _one_step(session, preset, step, ctx, watch)
         return row
 
     def after_step(done: int) -> None:
@@ -614,20 +589,30 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
             },
         }
         summary.report = _finish(
-            run, learned, model, summary, grid, timing, session.notes, ctx, validation, session.windows, filter_report
+            run,
+            learned,
+            model,
+            summary,
+            grid,
+            watch.times,
+            session.notes,
+            ctx,
+            validation,
+            session.windows,
+            filter_report,
         )
     return summary
 
 
-def _one_step(session: _Session, preset, step, ctx, timing):
+def _one_step(session: _Session, preset, step, ctx, watch: Stopwatch):
     o = preset.optimize
     model, optimizer, shard = session.model, session.optimizer, session.shard
     draw = draw_step(preset, session.sensitivity, o.seed, step)
     optimizer.zero_grad(set_to_none=True)
-    t = time.perf_counter()
+    watch.restart()
     windows = session.windows
     try:
-        stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, timing, session.frequency)
+        stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, watch, session.frequency)
     except SamplingError as error:  # the initial design passed these checks: the learned θ outgrew them
         raise InputError(
             "optimize.learning_rate",
@@ -637,9 +622,9 @@ def _one_step(session: _Session, preset, step, ctx, timing):
         ) from error
     near, far = stack.psfs
     margin = canvas_margin(near.shape[-1], far.shape[-1])
-    t = _lap(timing, "psf", t, ctx.device)
+    watch.lap("psf")
     clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, margin, ctx.device)
-    t = _lap(timing, "scenes", t, ctx.device)
+    watch.lap("scenes")
     capture = form_image(clean, colour, mask, near, far, margin).obstructed
     if o.photons or o.read_noise:
         light = draw.throughput if draw.throughput is not None else session.throughput
@@ -672,7 +657,7 @@ def _one_step(session: _Session, preset, step, ctx, timing):
             + (preset.filter.split_weight * parts["split"] + preset.filter.light_weight * parts["light"]).to(loss.dtype)
             / ctx.world
         )
-    t = _lap(timing, "formation_loss", t, ctx.device)
+    watch.lap("formation_loss")
     if not torch.isfinite(loss):
         raise InputError(
             "optimize.learning_rate",
@@ -680,28 +665,16 @@ def _one_step(session: _Session, preset, step, ctx, timing):
             "a smaller learning rate or loss weights",
         )
     loss.backward()
-    t = _lap(timing, "backward", t, ctx.device)
+    watch.lap("backward")
     names = sorted(parts)
     image_terms = {"l1", "ssim", "domain_adaptation", "total"}
     reported = torch.stack([parts[k].detach() * (share if k in image_terms else 1 / ctx.world) for k in names]).double()
     update(optimizer, session.scheduler, reported, ctx)  # 'total' mixes shares: recomputed from the parts below
     if session.band_filter is not None:
         session.band_filter.project(preset.filter, preset.sensor.wavelength_range_m)
-    _lap(timing, "update", t, ctx.device)
+    watch.lap("update")
     values = dict(zip(names, reported.tolist()))
-    w = preset.loss
-    values["total"] = (
-        w.l1 * values["l1"]
-        + w.ssim * values["ssim"]
-        + w.domain_adaptation * values.get("domain_adaptation", 0.0)
-        + w.bright * values["bright"]
-        + w.sharp * values["sharp"]
-        + (
-            preset.filter.split_weight * values["split"] + preset.filter.light_weight * values["light"]
-            if "split" in values
-            else 0.0
-        )
-    )
+    values["total"] = weighted_total(values, preset.loss, preset.filter)
     kept = {
         f"kept_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.kept[i])
     }
@@ -821,16 +794,6 @@ def validation_loss(model, preset, draws: int = 4, device="cpu", frequency: floa
     return sum(totals) / len(totals)
 
 
-def _lap(timing: dict, name: str, t: float, device: torch.device) -> float:
-    """Add the seconds since ``t`` to the stage ``name``; on CUDA after waiting for the device, so
-    that each stage's work is counted in its own stage."""
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-    now = time.perf_counter()
-    timing[name] = timing.get(name, 0.0) + now - t
-    return now
-
-
 def _modules(session: _Session) -> dict:
     """What a checkpoint holds the state dicts of: θ, the learned filter, optimiser and schedule."""
     learned = {"filter": session.band_filter} if session.band_filter is not None else {}
@@ -885,8 +848,6 @@ def _finish(
     filter_report: dict | None,
 ) -> dict:
     """theta, psf.exr, loss.csv/png, theta.png, filter.png and run.json."""
-    from metalens_cli.design.report import write_results
-
     return write_results(
         run,
         preset,

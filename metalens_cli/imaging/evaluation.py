@@ -27,13 +27,13 @@ from metalens_cli import arguments
 from metalens_cli.analysis.statistics import mean_ci, paired_difference_ci
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.camera import DEFAULT_READ_ELECTRONS, Camera
+from metalens_cli.imaging.channel_psfs import ChannelPsfs
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
 from metalens_cli.imaging.formation import FORMATIONS
 from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.pipeline import (
     CaptureSetup,
-    ChannelPsfs,
     attach_zero_order,
     capture_psfs,
     draw_depths,

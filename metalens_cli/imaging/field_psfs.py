@@ -38,6 +38,7 @@ import torch
 
 from metalens_cli import arguments
 from metalens_cli.errors import InputError
+from metalens_cli.imaging.channel_psfs import channel_psfs, design_sensitivity
 from metalens_cli.imaging.field_formation import FieldPsfSet, height_check
 from metalens_cli.io.cache import cached, check_array, input_key
 from metalens_cli.optics.field import ON_AXIS_MARGIN, field_window
@@ -165,7 +166,6 @@ def field_strata(design, wavelengths_per_channel: int | None = None):
     """The wavelengths and weights (``optics.spectra.sample_wavelengths``) the off-axis PSFs of a
     set use: the midpoints of ``wavelengths_per_channel`` (default
     ``DEFAULT_WAVELENGTHS_PER_CHANNEL``) equal-mass strata of each channel's S^c."""
-    from metalens_cli.imaging.pipeline import design_sensitivity
     from metalens_cli.optics.spectra import sample_wavelengths
 
     return sample_wavelengths(
@@ -203,7 +203,6 @@ def field_channel_psfs(
     points from the axis to the corner (default one per ``HEIGHT_STEP_PX``, 2 to 5);
     ``wavelengths_per_channel``: default ``DEFAULT_WAVELENGTHS_PER_CHANNEL``; ``progress(done,
     total)`` after each off-axis height."""
-    from metalens_cli.imaging.pipeline import channel_psfs
     from metalens_cli.io.designs import Design
     from metalens_cli.optics.field import field_psf
 

@@ -35,6 +35,7 @@ from metalens_cli.io.json_files import jsonable
 from metalens_cli.io.psf_cube_files import check_cube_size, write_psf_cube
 from metalens_cli.io.resources import Estimate
 from metalens_cli.optics.psf import compute_psf, estimate_psf, psf_inputs
+from metalens_cli.runtime import Stopwatch
 
 COVERAGE_WARNING = 0.99
 RS_WINDOW = 9  # central pixels compared with the direct Rayleigh-Sommerfeld reference
@@ -174,7 +175,7 @@ def run_scan(
         design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, propagator, dtype
     )
     device = arguments.device(device)
-    timing: dict[str, float] = {}
+    watch = Stopwatch()
     warnings: list[str] = []
     weights, spectra = _channel_weights(design, wavelengths_m, warnings) if design.preset is not None else (None, None)
     batched = propagator == "radial" or (propagator == "auto" and design.lens.radial)
@@ -194,8 +195,7 @@ def run_scan(
             force=force,
         )
         parts.append(result.psf.detach().to("cpu", torch.float32))
-        for stage, seconds in result.timing_s.items():
-            timing[stage] = timing.get(stage, 0.0) + seconds
+        watch.add(result.timing_s)
         if progress is not None:
             progress(done, len(groups))
     psf = torch.cat(parts, dim=1).numpy()
@@ -214,7 +214,7 @@ def run_scan(
             for c, name in enumerate(spectra["channels"])
         ]
     )
-    timing["total"] = time.perf_counter() - start
+    watch.times["total"] = time.perf_counter() - start
     scan = ScanResult(
         psf,
         rgb,
@@ -223,7 +223,7 @@ def run_scan(
         pixel_pitch_m,
         result.propagator,
         result.grid,
-        timing,
+        watch.times,
         metrics,
         channel_metrics,
         spectra,
@@ -406,7 +406,7 @@ def run_field_scan(
     arguments.number(azimuth_rad, "azimuth_rad", form="a finite azimuth (rad)")
     device = arguments.device(device)
     weights, spectra = _channel_weights(design, wavelengths_m, warnings) if design.preset is not None else (None, None)
-    timing: dict[str, float] = {}
+    watch = Stopwatch()
     psfs, results = [], []
     steps: list[tuple[int, list[float]]] = []  # (field, wavelengths): an on-axis radial field is one batch
     for k, angle in enumerate(angles_rad):
@@ -421,9 +421,7 @@ def run_field_scan(
         parts[k].append(result.psf.detach().to("cpu", torch.float32))
         if len(parts[k]) == 1:
             results.append(result)
-        for stage, seconds in result.timing_s.items():
-            if stage != "total":
-                timing[stage] = timing.get(stage, 0.0) + seconds
+        watch.add({stage: seconds for stage, seconds in result.timing_s.items() if stage != "total"})
         if progress is not None:
             progress(done, len(steps))
     for k in range(len(angles_rad)):
@@ -461,7 +459,7 @@ def run_field_scan(
                 f"field {k} ({math.degrees(angle):.3g}°): the {pixels}-pixel window keeps as little as "
                 f"{kept.min():.3f} of the light; widen --pixels"
             )
-    timing["total"] = time.perf_counter() - start
+    watch.times["total"] = time.perf_counter() - start
     axis_metrics = [
         {"depth_m": z, "wavelength_m": w, **summarize(psf[0, i, j], pixel_pitch_m)}
         for i, z in enumerate(depths_m)
@@ -475,7 +473,7 @@ def run_field_scan(
         pixel_pitch_m,
         results[-1].propagator,
         results[-1].grid,
-        timing,
+        watch.times,
         axis_metrics,
         [],
         spectra,

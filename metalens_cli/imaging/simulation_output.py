@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from metalens_cli.imaging.pipeline import CaptureSetup, ChannelPsfs, SimulatedCapture
+from metalens_cli.imaging.channel_psfs import ChannelPsfs
+from metalens_cli.imaging.pipeline import CaptureSetup, SimulatedCapture
 from metalens_cli.io.image_files import linear_to_srgb, write_exr_rgb, write_png
 
 

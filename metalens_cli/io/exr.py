@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-import metalens_cli
 from metalens_cli import arguments
+from metalens_cli.constants import __version__
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.input_files import open_exr
@@ -208,7 +208,7 @@ def prepare_cube(
         "pixel_pitch_m": float(pixel_pitch_m),
         "normalization": normalization,
         "design": design,
-        "version": metalens_cli.__version__,
+        "version": __version__,
         **extra,
     }
     psf = np.asarray(psf, dtype=np.float32)

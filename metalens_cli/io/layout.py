@@ -40,9 +40,9 @@ from typing import BinaryIO
 
 import numpy as np
 
-from metalens_cli import __version__
 from metalens_cli.arguments import count, instance, positive
 from metalens_cli.arguments import path as arguments_path
+from metalens_cli.constants import __version__
 from metalens_cli.errors import InputError, MetalensError
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.gdsii import MAX_COORDINATE, GdsStream

@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-import metalens_cli
 from metalens_cli import arguments
+from metalens_cli.constants import __version__
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write, check_suffix
 from metalens_cli.io.exr import (
@@ -325,7 +325,7 @@ def _write_tiff(path: Path, cube: PsfCube, text: str) -> None:
                 compression=None,
                 description=text if k == 0 else None,
                 metadata=None,
-                software=f"metalens {metalens_cli.__version__}" if k == 0 else None,
+                software=f"metalens {__version__}" if k == 0 else None,
                 extratags=[(TIFF_PAGE_NAME, "s", 0, name, True)],
             )
 

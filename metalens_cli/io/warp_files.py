@@ -26,8 +26,7 @@ from pathlib import Path
 import numpy as np
 from numpy.lib import format as npy_format
 
-import metalens_cli
-from metalens_cli.constants import REFINEMENTS
+from metalens_cli.constants import REFINEMENTS, __version__
 from metalens_cli.errors import InputError
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.io.input_files import MAX_IMAGE_PIXELS, regular_file
@@ -63,7 +62,7 @@ def write_warp_file(
     nodes = np.zeros((0, 0, 2), np.float32) if flow_nodes is None else np.asarray(flow_nodes, np.float32)
     arrays = {
         "format": np.array(FORMAT),
-        "created_by": np.array(f"metalens {metalens_cli.__version__}"),
+        "created_by": np.array(f"metalens {__version__}"),
         "homography": np.asarray(homography, np.float64),
         "reference_shape": np.asarray(reference_shape, np.int64),
         "target_shape": np.asarray(target_shape, np.int64),

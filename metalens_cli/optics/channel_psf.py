@@ -76,6 +76,21 @@ class ChannelPsfStack:
         return self.kept / np.maximum(self.on_sensor, 1e-30)
 
 
+MAX_WINDOW = 4097  # windows (pixels) stop growing here; the stack's kept fractions then tell what they lose
+
+
+def grow_until_held(stack_at, capacity, grow):
+    """``stack_at(capacity)`` (a :class:`ChannelPsfStack`), computed again in ``grow(capacity,
+    outgrown)`` while its light outgrows its windows and they are below ``MAX_WINDOW``; returns
+    the last stack and the capacity it was computed in. ``capacity`` is whatever ``stack_at`` and
+    ``grow`` take (windows per depth; a training run's ``Windows`` with their plan)."""
+    while True:
+        stack = stack_at(capacity)
+        if not stack.outgrown.any() or max(stack.capacity) >= MAX_WINDOW:
+            return stack, capacity
+        capacity = grow(capacity, stack.outgrown)
+
+
 def channel_psf_stack(
     lens: Metalens,
     wavelengths_m,

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from metalens_cli.optics.nanofin import Fin, FinResponse, check_harmonics
+from metalens_cli.optics.fin import Fin, FinResponse, check_harmonics
 
 CHUNK_ELEMENTS = 500_000  # problems per batch × unknowns²: ~8 MB per batched matrix (30% faster than 64 MB)
 COMPLEX = torch.complex128

@@ -44,13 +44,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from metalens_cli.arguments import array, count, instance, lengths, positive
+from metalens_cli.arguments import array, instance, lengths
 from metalens_cli.arguments import device as checked_device
 from metalens_cli.errors import InputError
+from metalens_cli.optics.fin import NM, Fin, FinResponse, check_harmonics
 
 SOLVER = "fin_modes/1"  # names the numbers a cache entry holds: change it when they change
 SOLVERS = {  # the solvers fin_response takes, as reports name them
@@ -65,47 +65,6 @@ MEENT_SECONDS_PER_UNKNOWN_CUBED = 7e-9  # meent, per (2·N²)³: 1.3 s at N = 17
 FIRST_HARMONICS = 5  # converge's first N: N = 5, 7, 9 are the fewest whose η can be compared with N − 2 and N − 4
 DEFAULT_HARMONICS = 25  # η of the paper's fin within 8e-4 of N = 41 at 24 wavelengths (docs/benchmarks.md)
 PROGRESS_CHUNK = 8  # wavelengths per batch when a progress callback is given
-NM = 1e9
-
-
-@dataclass(frozen=True)
-class Fin:
-    """A nanofin cell, lengths in metres: lattice ``period_m``, fin ``width_m`` (along x),
-    ``length_m`` (along y) and ``height_m``."""
-
-    period_m: float
-    height_m: float
-    width_m: float
-    length_m: float
-
-    def __post_init__(self) -> None:
-        """InputError unless every size is a positive finite length and the fin fits in its cell."""
-        for name in ("period_m", "height_m", "width_m", "length_m"):
-            positive(getattr(self, name), name)
-        for name in ("width_m", "length_m"):
-            if getattr(self, name) > self.period_m:
-                raise InputError(
-                    name.removesuffix("_m"),
-                    f"{getattr(self, name) * NM:g} nm is larger than the {self.period_m * NM:g} nm period",
-                    "a fin inside its cell",
-                )
-
-
-@dataclass(frozen=True)
-class FinResponse:
-    """Per wavelength (arrays of shape (W,)): ``t_xx``, ``t_yy`` (complex, power-normalised),
-    ``conversion`` η, ``co_polarized``, ``transmittance``, ``reflectance`` (power fractions);
-    ``harmonics`` N (N × N Fourier orders) and ``seconds`` per wavelength."""
-
-    wavelengths_m: np.ndarray
-    t_xx: np.ndarray
-    t_yy: np.ndarray
-    conversion: np.ndarray
-    co_polarized: np.ndarray
-    transmittance: np.ndarray
-    reflectance: np.ndarray
-    harmonics: int
-    seconds: np.ndarray
 
 
 def estimate_seconds(harmonics: int, wavelengths: int, solver: str = "modes") -> float:
@@ -129,12 +88,6 @@ def estimate_bytes(harmonics: int, solver: str = "modes") -> int:
     from metalens_cli.optics.fin_modes import CHUNK_ELEMENTS
 
     return 16 * 16 * max(CHUNK_ELEMENTS, ((harmonics**2 + 1) // 2) ** 2)
-
-
-def check_harmonics(harmonics: int) -> None:
-    """N must be odd (orders −(N−1)/2 … (N−1)/2 on each axis) and at least 1."""
-    if count(harmonics, "harmonics") % 2 == 0:
-        raise InputError("harmonics", str(harmonics), "an odd number of Fourier harmonics per axis, e.g. 15")
 
 
 def fin_response(

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import functools
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +22,7 @@ from metalens_cli.optics import sampling
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.sensor import GridPixels, grid_pixel_matrix, radial_sensor
 from metalens_cli.optics.source import source_amplitude, source_phase
+from metalens_cli.runtime import Stopwatch
 
 PROPAGATORS = ("auto", "asm", "radial", "rs")
 
@@ -39,17 +39,6 @@ class PsfResult:
     propagator: str
     grid: dict = field(default_factory=dict)
     timing_s: dict = field(default_factory=dict)
-
-
-class _Clock:
-    def __init__(self):
-        self.times: dict[str, float] = {}
-        self._t = time.perf_counter()
-
-    def lap(self, name: str) -> None:
-        now = time.perf_counter()
-        self.times[name] = self.times.get(name, 0.0) + now - self._t
-        self._t = now
 
 
 def compute_psf(
@@ -81,7 +70,7 @@ def compute_psf(
     plan_frequency: plan for a field frequency (cycles/m) of at least this much, so that a lens
     that changes a little between calls keeps the plan (headroom for an optimiser).
     """
-    clock = _Clock()
+    clock = Stopwatch()
     lams, zs, d = psf_inputs(
         lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m, propagator, dtype, oversample
     )

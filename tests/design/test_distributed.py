@@ -21,7 +21,7 @@ def test_two_process_torchrun_equals_one_process(tmp_path):
     # differs (float32 PSFs and FFTs, float64 θ): a gradient moves by ~1e-7 relative, and AdamW's
     # normalised step turns that into ≤ a few 1e-6 rad on |θ| ≤ 30 rad over 3 steps
     np.testing.assert_allclose(parallel, single, rtol=0, atol=1e-5)
-    from metalens_cli.design.training import build_model
+    from metalens_cli.design.model import build_model
     from metalens_cli.io.presets import load_preset
 
     initial = build_model(load_preset(TINY)).full_theta().detach().numpy()

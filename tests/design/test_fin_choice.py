@@ -41,7 +41,8 @@ def test_refine_recomputes_the_chosen_fin_and_its_neighbourhood():
     refined score against fin_response of the chosen fin alone at N = 7, averaged per band."""
     from metalens_cli.design.fin_choice import fin_map as compute_map
     from metalens_cli.design.fin_choice import refine
-    from metalens_cli.optics.nanofin import Fin, fin_response
+    from metalens_cli.optics.fin import Fin
+    from metalens_cli.optics.nanofin import fin_response
 
     bands = [(457e-9, 22e-9), (628e-9, 28e-9)]
 

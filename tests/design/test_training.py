@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import torch
 
+from metalens_cli.design.model import build_model
 from metalens_cli.design.train_loop import TrainingInterrupted
 from metalens_cli.design.training import (
-    build_model,
     step_batch,
     time_steps,
     train,
@@ -193,7 +193,8 @@ def test_gradient_norm_ratio_at_theta_init_is_the_documented_one():
     loss form, weights or basis that moves it out of that range must update the document."""
     import math
 
-    from metalens_cli.design.training import plan_frequency, term_gradient_norms
+    from metalens_cli.design.model import plan_frequency
+    from metalens_cli.design.training import term_gradient_norms
 
     preset = load_preset(Path(__file__).parents[2] / "presets" / "quick-split-spectrum.toml")
     norms = term_gradient_norms(build_model(preset), preset, draws=1, frequency=plan_frequency(preset))
@@ -242,12 +243,13 @@ def test_a_lens_that_outgrows_the_propagator_ends_the_run_with_its_step(tiny, mo
     from metalens_cli.design.training import _one_step, _session
     from metalens_cli.errors import InputError
     from metalens_cli.optics import sampling
+    from metalens_cli.runtime import Stopwatch
 
     with distributed.session(torch.device("cpu")) as ctx:
         session = _session(tiny, ctx)
         monkeypatch.setattr(sampling, "MAX_HANKEL_SIZE", 8)
         with pytest.raises(InputError, match="at step 5 the learned lens scatters light") as caught:
-            _one_step(session, tiny, 4, ctx, {})
+            _one_step(session, tiny, 4, ctx, Stopwatch())
     assert caught.value.field == "optimize.learning_rate" and "theta_basis" in caught.value.expected
 
 

@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from metalens_cli.errors import InputError
+from metalens_cli.imaging.channel_psfs import channel_psfs
 from metalens_cli.imaging.field_psfs import corner_pixels, estimate_field_psfs, field_channel_psfs, field_dependence
-from metalens_cli.imaging.pipeline import capture_psfs, channel_psfs, simulate_captures
+from metalens_cli.imaging.pipeline import capture_psfs, simulate_captures
 from metalens_cli.io.designs import resolve_design
 from metalens_cli.optics import lens as L
 

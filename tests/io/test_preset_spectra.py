@@ -10,8 +10,9 @@ import pytest
 from metalens_cli.errors import InputError
 from metalens_cli.io import cache, preset_spectra
 from metalens_cli.io.presets import load_preset, preset_from_dict
+from metalens_cli.optics.fin import Fin
 from metalens_cli.optics.materials import FUSED_SILICA, SINX
-from metalens_cli.optics.nanofin import Fin, fin_response
+from metalens_cli.optics.nanofin import fin_response
 
 PRESETS = Path(__file__).parents[2] / "presets"
 HARMONICS = 5  # η's dependence on λ, not its convergence, is under test: the cheapest truncation

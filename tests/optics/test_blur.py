@@ -55,7 +55,7 @@ def test_windows_hold_99_percent_of_the_paper_lens_light():
 def test_kept_fraction_matches_a_direct_sum_of_a_larger_window():
     """The pipeline's kept report equals the share of a 1.6× larger window's light inside the
     chosen window (the Hankel plans differ between window sizes: 1e-4)."""
-    from metalens_cli.imaging.pipeline import channel_psfs
+    from metalens_cli.imaging.channel_psfs import channel_psfs
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.optics.window import crop_window
 

@@ -10,8 +10,9 @@ import torch
 
 from metalens_cli.errors import InputError
 from metalens_cli.optics import fin_modes
+from metalens_cli.optics.fin import Fin
 from metalens_cli.optics.fin_modes import fin_response_symmetric, fin_responses_symmetric
-from metalens_cli.optics.nanofin import Fin, fin_response_meent
+from metalens_cli.optics.nanofin import fin_response_meent
 
 WAVELENGTHS = np.array([457e-9, 530e-9, 628e-9])
 N_SUB = 1.46
@@ -209,7 +210,7 @@ def test_the_numbers_do_not_depend_on_torch_set_num_threads():
         "import json, sys, numpy as np, torch\n"
         "if sys.argv[1] == 'set': torch.set_num_threads(2)\n"
         "from metalens_cli.optics.fin_modes import fin_response_symmetric\n"
-        "from metalens_cli.optics.nanofin import Fin\n"
+        "from metalens_cli.optics.fin import Fin\n"
         "r = fin_response_symmetric(Fin(395e-9, 700e-9, 305e-9, 125e-9), np.full(3, 2.0), np.full(3, 1.46),"
         " np.array([457e-9, 530e-9, 628e-9]), 9, symmetric=False)\n"
         "print(json.dumps(r.conversion.tolist()))\n"

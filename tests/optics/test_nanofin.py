@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from metalens_cli.errors import InputError
-from metalens_cli.optics.nanofin import Fin, fin_response_meent
+from metalens_cli.optics.fin import Fin
+from metalens_cli.optics.nanofin import fin_response_meent
 
 WAVELENGTHS = np.array([457e-9, 530e-9, 628e-9])
 N_SUB = 1.46
