@@ -519,3 +519,15 @@ except BaseException as e:
     assert len(lines) == len(HUGE), result.stdout + result.stderr
     wrong = [line for line in lines if " InputError " not in line]
     assert not wrong, wrong
+
+
+def test_the_finiteness_check_reads_a_sum_and_never_refuses_finite_values():
+    """arguments.array tests a sum first (one reduction) and the values only when the sum is not
+    finite: finite values whose sum overflows pass, a NaN or inf anywhere does not."""
+    from metalens_cli import arguments
+
+    huge = np.full(4, np.finfo(np.float32).max, dtype=np.float32)  # its sum overflows to inf
+    assert arguments.array(huge, "x") is huge and arguments.array(torch.from_numpy(huge), "x") is not None
+    for bad in (np.array([1.0, np.nan]), np.array([np.inf, -np.inf]), torch.tensor([0.0, -math.inf])):
+        with pytest.raises(ml.InputError, match="x: holds NaN or infinite values"):
+            arguments.array(bad, "x")

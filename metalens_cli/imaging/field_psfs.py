@@ -5,7 +5,7 @@ axis at heights h_k pixels (h_0 = 0 to the sensor's corner), each in a window ce
 chief-ray pixel: α_k = atan(h_k·p/f) puts the chief ray of a lens whose phase is flat at its centre
 (every radial one) on pixel h_k exactly. Other azimuths are rotations (``imaging.field_formation``).
 
-- h = 0: the on-axis channel PSFs of ``pipeline.channel_psfs`` (radial path, every wavelength).
+- h = 0: the on-axis channel PSFs of ``imaging.channel_psfs.channel_psfs`` (radial path, every wavelength).
 - h > 0: ``optics.field.field_psf`` (2-D shifted angular spectrum, seconds per PSF at the paper's
   lens) at the midpoints of ``wavelengths_per_channel`` equal-mass strata of each channel's S^c
   (``optics.spectra.sample_wavelengths``). The error of that reduction is measured on axis, where
@@ -199,7 +199,7 @@ def field_channel_psfs(
     progress=None,
 ) -> FieldPsfs:
     """The near and far PSF sets of ``design`` over a ``sensor_pixels``² sensor (module docstring);
-    ``wavelengths_m``: the on-axis quadrature's (as ``pipeline.channel_psfs``); ``heights``: image
+    ``wavelengths_m``: the on-axis quadrature's (as ``imaging.channel_psfs.channel_psfs``); ``heights``: image
     points from the axis to the corner (default one per ``HEIGHT_STEP_PX``, 2 to 5);
     ``wavelengths_per_channel``: default ``DEFAULT_WAVELENGTHS_PER_CHANNEL``; ``progress(done,
     total)`` after each off-axis height."""

@@ -32,7 +32,7 @@ def capture_parts(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """(U, S, E, Z), each (3, H, W) on the sensor, of a clean canvas (3, H + 2M, W + 2M) behind
     an obstruction of radiance ``rgb`` and coverage ``mask`` (canvases, ``imaging.obstructions``)
-    through the on-axis ``psfs`` (``imaging.pipeline.ChannelPsfs``, with its zero-order light when
+    through the on-axis ``psfs`` (``imaging.channel_psfs.ChannelPsfs``, with its zero-order light when
     attached): the captures :func:`~metalens_cli.imaging.pipeline.simulate_captures` forms,
     noise-free, with O = U + S + E + Z."""
     capture = form_image(clean, rgb, mask, psfs.near, psfs.far, margin, formation=formation)
