@@ -46,6 +46,7 @@ from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.psf import check_psf_memory, compute_psf, psf_inputs, pupil_field
 from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
 from metalens_cli.optics.window import crop_window
+from metalens_cli.runtime import Stopwatch
 
 ENCIRCLED_ENERGY = 0.999  # of the power reaching the sensor plane, per depth and channel
 
@@ -186,7 +187,7 @@ def _capacities_and_mix(capacity, depths: int, weights, wavelengths: int) -> tup
 def _radial_stack(
     lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window
 ):
-    clock = time.perf_counter()
+    watch = Stopwatch()
     plan_lams = lams + [float(x) for x in np.ravel(plan_l if plan_l is not None else [])]
     plan_zs = zs + [float(x) for x in np.ravel(plan_z if plan_z is not None else [])]
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, False), plan_f or 0.0)
@@ -194,8 +195,7 @@ def _radial_stack(
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
     n_rows = [radial_sensor_radii(plan.step_m, cap, pitch) for cap in caps]
     out_matrix = prop.hankel_output_rows(kernel, plan.step_m, max(n_rows))  # only the rows the capacities reach
-    timing = {"kernels": time.perf_counter() - clock}
-    clock = time.perf_counter()
+    watch.lap("kernels")
     r = kernel.r.double()
     phase_lens = lens.phase_at_radius(r.to(lens.theta.device)).to(device)
     fields = torch.stack([pupil_field(phase_lens, r, lam, z, dtype) for z in zs for lam in lams], 1)
@@ -207,8 +207,7 @@ def _radial_stack(
     spec = prop.real_matmul(kernel.forward[:n_freq], fields * kernel.weight[:, None]) * transfer.repeat(1, len(zs))
     # Parseval for the Fourier-Bessel series: the power on the sensor plane (within R)
     on_plane = (kernel.coef_out[:n_freq, None] * spec.detach().abs() ** 2).sum(0) / power.detach()
-    timing["source"] = time.perf_counter() - clock
-    clock = time.perf_counter()
+    watch.lap("source")
     w = len(lams)
     mix_d = mix.to(device, dtype)
     mix_n = mix_d.detach()  # the window rule's sums
@@ -248,7 +247,7 @@ def _radial_stack(
         psf = op.apply(mono[: op.n_radii, cols] @ mix_d.T)  # channels mixed first
         psfs.append(psf)
         kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
-    timing["propagate"] = time.perf_counter() - clock
+    watch.lap("propagate")
     grid = {
         "kind": "radial",
         "support_radius_m": plan.radius_m,
@@ -266,7 +265,7 @@ def _radial_stack(
         np.array(outgrown, bool),
         tuple(caps),
         grid,
-        timing,
+        watch.times,
         tuple(cores) if core_op is not None else None,
     )
 

@@ -48,6 +48,7 @@ from metalens_cli.optics.source import (
     tilted_source_path,
     tilted_source_phase,
 )
+from metalens_cli.runtime import Stopwatch
 
 FIELD_PROPAGATORS = ("asm", "rs")
 MAX_FIELD_ANGLE = math.radians(60.0)
@@ -306,7 +307,7 @@ def _mirror_even(lens: Metalens, angle: float, azimuth: float, centre_row: int) 
 
 
 def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dtype, device, oversample):
-    clock, timing = time.perf_counter(), {}
+    watch = Stopwatch()
     even = _mirror_even(lens, angle, azimuth, centre[1])
     phase_lens, x, y = _site_grid(lens, device, half=even)
     pupil = torch.hypot(x, y) <= lens.radius_m
@@ -320,8 +321,7 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
     }
     grid = grids[lams[0]][0]
     to_pixels = GridPixels.build(grid.window_coords().numpy(), pixels, pitch, device, dtype)
-    timing["kernels"] = time.perf_counter() - clock
-    clock = time.perf_counter()
+    watch.lap("kernels")
     # per depth, what no wavelength changes: the amplitude, the light through the pupil, and the source's
     # residual path (m; its phase is 2π/λ times it); a plane wave has none, so its field serves every λ
     sources = []
@@ -333,14 +333,13 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
         else:
             path = tilted_source_path(x, y, z, angle, azimuth)
             sources.append((amplitude, power, path))
-    timing["source"] = time.perf_counter() - clock
+    watch.lap("source")
     out = torch.empty(len(zs), len(lams), pixels, pixels, dtype=dtype, device=device)
     for j, lam in enumerate(lams):
-        clock = time.perf_counter()
+        watch.restart()
         g, k_max = grids[lam]
         transfer = prop.asm_transfer_shifted(g, lam, d, k_max, carriers[lam], centre_m, complex_dtype, device, even)
-        timing["kernels"] += time.perf_counter() - clock
-        clock = time.perf_counter()
+        watch.lap("kernels")
         for i, (source, power, path) in enumerate(sources):
             if path is None:
                 field_g = source
@@ -350,7 +349,7 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
             propagate = prop.asm_propagate_even_y if even else prop.asm_propagate
             window = propagate(field_g, g, lambda t=transfer: t)
             out[i, j] = pixel_psf(window, to_pixels, power.to(dtype))
-        timing["propagate"] = timing.get("propagate", 0.0) + time.perf_counter() - clock
+        watch.lap("propagate")
     info = {
         "kind": "asm-shifted",
         "mirror_y": even,
@@ -361,14 +360,14 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
         "window_step_m": grid.pitch_m / grid.upsample,
         "carrier_free_frequency_per_m": f_g,
     }
-    return out, info, timing
+    return out, info, watch.times
 
 
 def _field_rs(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dtype, device, oversample):
     """Midpoint rule over the sites in the pupil (the field is one value per site), output on a grid
     of step 1/(8·ν) around the window centre, ν the full field's highest frequency (tilt included),
     pixel-integrated."""
-    clock, timing = time.perf_counter(), {}
+    watch = Stopwatch()
     phase_lens, x, y = _site_grid(lens, device)
     xx, yy = torch.broadcast_tensors(x, y)
     inside = torch.hypot(xx, yy) <= lens.radius_m
@@ -381,8 +380,7 @@ def _field_rs(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dty
     gy, gx = torch.meshgrid(g, g, indexing="ij")
     out_xy = torch.stack([gx.reshape(-1) + centre[0] * pitch, gy.reshape(-1) + centre[1] * pitch], 1).to(device)
     mat = torch.from_numpy(grid_pixel_matrix(g.numpy(), pixels, pitch)).to(device)
-    timing["kernels"] = time.perf_counter() - clock
-    clock = time.perf_counter()
+    watch.lap("kernels")
     out = []
     for z in zs:
         for lam in lams:
@@ -391,9 +389,9 @@ def _field_rs(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dty
             power = (u.abs() ** 2).sum() * lens.pitch_m**2
             field_out = prop.rayleigh_sommerfeld(nodes, u * lens.pitch_m**2, lam, d, out_xy)
             out.append(mat @ field_out.abs().pow(2).reshape(g.numel(), g.numel()) @ mat.T / power)
-    timing["propagate"] = time.perf_counter() - clock
+    watch.lap("propagate")
     grid = {"kind": "rs-grid", "sites": int(nodes.shape[0]), "output_step_m": h, "window_samples": g.numel()}
-    return torch.stack(out).reshape(len(zs), len(lams), pixels, pixels).to(dtype), grid, timing
+    return torch.stack(out).reshape(len(zs), len(lams), pixels, pixels).to(dtype), grid, watch.times
 
 
 def ray_landings(
