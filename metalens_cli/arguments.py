@@ -103,6 +103,17 @@ def path(value: Any, name: str, form: str = "a file path") -> str:
     return text
 
 
+def interval(value: Any, name: str, *, allow_inf: bool = False) -> tuple[float, float]:
+    """A (lo, hi) pair of positive lengths (m) with lo ≤ hi (``inf`` only with ``allow_inf``)."""
+    pair = instance(value, name, (tuple, list), "(lo, hi) in m")
+    if len(pair) != 2:
+        raise InputError(name, f"{pair!r}", "(lo, hi) in m")
+    lo, hi = (positive(v, name, allow_inf=allow_inf) for v in pair)
+    if hi < lo:
+        raise InputError(name, f"{pair!r} ends below its start", "(lo, hi) with lo ≤ hi")
+    return lo, hi
+
+
 def instance(value: Any, name: str, kind: type | tuple[type, ...], form: str) -> Any:
     """``value`` if it is a ``kind``; None is an :class:`InputError`, another type a TypeError."""
     if value is None:

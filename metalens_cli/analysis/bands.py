@@ -133,17 +133,6 @@ def windows(bands: tuple[Band, ...], f_m: float, z_lo: float, z_hi: float):
     return z_window, ((f_lo, f_hi) if f_hi > f_lo else None)
 
 
-def _interval(value, name: str) -> tuple[float, float]:
-    """A (lo, hi) pair of positive finite lengths (m) with lo ≤ hi."""
-    pair = arguments.instance(value, name, (tuple, list), "(lo, hi) in m")
-    if len(pair) != 2:
-        raise InputError(name, f"{pair!r}", "(lo, hi) in m")
-    lo, hi = (arguments.positive(v, name) for v in pair)
-    if hi < lo:
-        raise InputError(name, f"{pair!r} ends below its start", "(lo, hi) with lo ≤ hi")
-    return lo, hi
-
-
 def check_bands(
     bands: tuple[Band, ...],
     f_m: float,
@@ -165,8 +154,8 @@ def check_bands(
     for band in listed:
         arguments.instance(band, "bands", Band, "Bands (ml.bands_from_centers)")
     arguments.positive(f_m, "f_m")
-    z_lo, z_hi = _interval(z_near_m, "z_near_m")
-    sensor_range_m = _interval(sensor_range_m, "sensor_range_m")
+    z_lo, z_hi = arguments.interval(z_near_m, "z_near_m")
+    sensor_range_m = arguments.interval(sensor_range_m, "sensor_range_m")
     if not sensor_range_m[0] < sensor_range_m[1]:
         raise InputError("sensor_range_m", f"{sensor_range_m!r} is empty", "(lo, hi) with lo < hi, in m")
     arguments.number(incidence, "incidence", lo=0.0, hi=1.0, open_lo=True, form="a blue-shift factor k in (0, 1]")

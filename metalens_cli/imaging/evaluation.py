@@ -29,7 +29,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.imaging.camera import DEFAULT_READ_ELECTRONS, Camera
 from metalens_cli.imaging.channel_psfs import ChannelPsfs
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
-from metalens_cli.imaging.formation import FORMATIONS
+from metalens_cli.imaging.formation import check_formation
 from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.pipeline import (
@@ -86,16 +86,10 @@ class EvaluationSettings:
         its field's name (``metalens_cli.arguments``)."""
         arguments.count(self.pixels, "pixels")
         arguments.positive(self.pixel_pitch_m, "pixel_pitch_m")
-        for name, far in (("z_near_interval_m", False), ("z_far_interval_m", True)):
-            pair = arguments.instance(getattr(self, name), name, (tuple, list), "(lo, hi) in m")
-            if len(pair) != 2:
-                raise InputError(name, f"{pair!r}", "(lo, hi) in m")
-            lo, hi = (arguments.positive(v, name, allow_inf=far) for v in pair)
-            if hi < lo:
-                raise InputError(name, f"{pair!r} ends below its start", "(lo, hi) with lo ≤ hi")
+        arguments.interval(self.z_near_interval_m, "z_near_interval_m")
+        arguments.interval(self.z_far_interval_m, "z_far_interval_m", allow_inf=True)
         arguments.lengths(self.wavelengths_m, "wavelengths_m")
-        if self.formation not in FORMATIONS:
-            raise InputError("formation", f"unknown form {self.formation!r}", " or ".join(FORMATIONS))
+        check_formation(self.formation)
         arguments.number(self.read_noise, "read_noise", lo=0.0, form="a standard deviation ≥ 0 (full scale)")
         for name in ("photons", "alpha_gain", "zero_order_leak"):
             if getattr(self, name) is not None:

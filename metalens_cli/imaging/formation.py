@@ -198,6 +198,12 @@ PSF_FORM = "PSFs (..., C, N, N) as a tensor, or a PsfTransform"
 CANVAS_FORM = "a (..., C, H + 2M, W + 2M) tensor"
 
 
+def check_formation(formation: str) -> None:
+    """One of :data:`FORMATIONS`."""
+    if formation not in FORMATIONS:
+        raise InputError("formation", f"unknown form {formation!r}", " or ".join(FORMATIONS))
+
+
 def check_capture_inputs(clean, obstruction, mask, margin: int, formation: str, alpha_gain) -> None:
     """The canvases (finite tensors), margin, form and α gain of a capture (:func:`form_image`,
     ``field_formation.form_image_field``), each error naming its parameter."""
@@ -205,8 +211,7 @@ def check_capture_inputs(clean, obstruction, mask, margin: int, formation: str, 
         arguments.instance(canvas, name, torch.Tensor, CANVAS_FORM)
         arguments.array(canvas, name, ndim=tuple(range(3, 9)), form=CANVAS_FORM)
     arguments.count(margin, "margin", lo=0)
-    if formation not in FORMATIONS:
-        raise InputError("formation", f"unknown form {formation!r}", " or ".join(FORMATIONS))
+    check_formation(formation)
     if alpha_gain is not None:
         arguments.positive(alpha_gain, "alpha_gain", unit="gain")
 
@@ -215,8 +220,7 @@ def _obstruction_canvases(
     obstruction: torch.Tensor, mask: torch.Tensor, formation: str
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The obstruction light that the near PSF blurs (m ⊙ I_obs, or I_obs in the paper's form) and m."""
-    if formation not in FORMATIONS:
-        raise InputError("formation", f"unknown form {formation!r}", " or ".join(FORMATIONS))
+    check_formation(formation)
     mask = mask.to(obstruction.dtype)
     return (obstruction * mask if formation == "physical" else obstruction), mask
 

@@ -24,7 +24,7 @@ import numpy as np
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
 from metalens_cli.io.image_files import read_image_file, srgb_to_linear
-from metalens_cli.io.input_files import IMAGE_SUFFIXES
+from metalens_cli.io.input_files import IMAGE_SUFFIXES, image_files
 
 SETS = ("photos", "charts", "all")
 CHART_COUNT = 24
@@ -214,7 +214,7 @@ def image_entries(source: str | Path, limit: int | None = None) -> list[Path | P
     if path.is_file():
         files = [path]
     elif path.is_dir():
-        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+        files = image_files(path)
     else:
         raise InputError("--images", f"no such folder {text!r}", form)
     if not files:

@@ -25,6 +25,11 @@ MAX_ARRAY_BYTES = 4 << 30  # a .npy θ map (the paper's lens in float64: 0.3 GB)
 MAX_IMAGE_PIXELS = 150_000_000  # one image, all channels aside (a 12 000² frame; below 2 × Pillow's bomb limit)
 
 
+def image_files(folder: Path) -> list[Path]:
+    """The image files of ``folder`` (:data:`IMAGE_SUFFIXES`, hidden files aside), sorted by name."""
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+
+
 def regular_file(path: str | os.PathLike[str], field: str, expected: str) -> Path:
     """``path`` if it names an existing regular file (following links); a missing file, folder,
     device or FIFO is an :class:`InputError` (a device could be read without end)."""

@@ -693,12 +693,12 @@ def image_folder(path: Path, key: str) -> Path:
     image, every image's header readable and within the pixel limit (pixels are decoded where the
     run starts)."""
     from metalens_cli.io.image_files import check_image_file
-    from metalens_cli.io.input_files import IMAGE_SUFFIXES
+    from metalens_cli.io.input_files import IMAGE_SUFFIXES, image_files
 
     path, form = path.resolve(), f"a folder of {', '.join(IMAGE_SUFFIXES)} images relative to the preset"
     if not path.is_dir():
         raise InputError(key, f"no such folder {str(path)!r}", form)
-    files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    files = image_files(path)
     if not files:
         raise InputError(key, f"{str(path)!r} holds no images", form)
     for file in files:
