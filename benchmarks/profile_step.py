@@ -30,7 +30,8 @@ def main() -> None:
     args = parser.parse_args()
 
     from metalens_cli.design import distributed
-    from metalens_cli.design.training import _one_step, _session
+    from metalens_cli.design.step import one_step
+    from metalens_cli.design.training import _session
     from metalens_cli.io.presets import load_preset
     from metalens_cli.runtime import Stopwatch
 
@@ -41,12 +42,12 @@ def main() -> None:
     with distributed.session(device) as ctx:
         session = _session(preset, ctx)
         for step in range(args.warmup):
-            _one_step(session, preset, step, ctx, Stopwatch(device))
+            one_step(session, preset, step, ctx, Stopwatch(device))
         watch = Stopwatch(device)
         start = time.perf_counter()
         with profile(activities=activities, record_shapes=True) as prof:
             for step in range(args.warmup, args.warmup + args.steps):
-                _one_step(session, preset, step, ctx, watch)
+                one_step(session, preset, step, ctx, watch)
         seconds = (time.perf_counter() - start) / args.steps
     stages = ", ".join(f"{k} {v / args.steps:.3f}" for k, v in watch.times.items() if not k.startswith("psf_"))
     print(f"{args.preset} on {device}: {seconds:.3f} s/step under the profiler; windows {session.windows}")

@@ -1,7 +1,7 @@
-"""End-to-end learning of the rotation map θ (the paper's Eq. 4, Suppl. Note 4).
+"""End-to-end learning of the rotation map θ (the paper's Eq. 4, Suppl. Note 4): the session.
 
-Each step s draws everything it needs from (seed, s) alone, so that a resumed run repeats an
-uninterrupted one exactly and every data-parallel rank agrees on the shared draws:
+Each step (``design.step``) draws everything it needs from (seed, s) alone, so that a resumed
+run repeats an uninterrupted one exactly and every data-parallel rank agrees on the shared draws:
 
 1. z_near, z_far uniform in the preset's scene intervals; with ``[optimize] field_angles``, a
    field angle among them, equally likely (a 2-D lens also an azimuth, uniform);
@@ -17,8 +17,10 @@ uninterrupted one exactly and every data-parallel rank agrees on the shared draw
    formation of ``imaging.formation``;
 5. loss (``design.losses``), backward, gradient sum over ranks, AdamW and the LR schedule.
 
-The core never prints: progress goes to the ``on_step`` callback. The loop around the steps
-(resume, checkpoints, Ctrl-C: a checkpoint of the last completed step, then
+This module holds the session around the steps (``train``, ``time_steps``), the cost estimate of
+a run (``estimate_training``) and the fixed validation draws (``validation_loss``,
+``term_gradient_norms``). The core never prints: progress goes to the ``on_step`` callback. The
+loop around the steps (resume, checkpoints, Ctrl-C: a checkpoint of the last completed step, then
 ``TrainingInterrupted``) is ``design.train_loop``'s.
 """
 
@@ -29,7 +31,6 @@ import math
 import statistics
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,42 +39,36 @@ import torch
 
 from metalens_cli import arguments
 from metalens_cli.design import distributed
-from metalens_cli.design.filter_learning import (
-    BandSampler,
-    LearnedFilter,
-    band_sampler,
-    filter_columns,
-    filter_row,
-    learned_filter,
-    make_feasible,
-    split_penalty,
-)
-from metalens_cli.design.losses import training_loss, weighted_total
+from metalens_cli.design.filter_learning import LearnedFilter, filter_columns, learned_filter, make_feasible
+from metalens_cli.design.losses import training_loss
 from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_frequency, plan_range
 from metalens_cli.design.report import write_results
 from metalens_cli.design.rundir import RunDirectory
-from metalens_cli.design.scenes import training_scene
-from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides, update
-from metalens_cli.errors import InputError, SamplingError
-from metalens_cli.imaging.canvas import sensor_crop
-from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
-from metalens_cli.imaging.obstructions import make_obstruction
-from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
-from metalens_cli.io.presets import WAVELENGTH_MODES, Preset, preset_incidence_factor, to_toml
-from metalens_cli.optics.blur import psf_window
-from metalens_cli.optics.channel_psf import (
-    ENCIRCLED_ENERGY,
-    MAX_WINDOW,
-    ChannelPsfStack,
-    channel_psf_stack,
-    field_channel_stack,
-    grow_until_held,
+from metalens_cli.design.step import (
+    Session,
+    Windows,
+    draw_step,
+    far_cores,
+    field_capacities,
+    field_training,
+    fixed_throughput,
+    noise_seed,
+    noisy_capture,
+    one_step,
+    plan_windows,
+    sensor_psf,
+    spectral_source,
+    step_batch,
+    step_psfs,
 )
-from metalens_cli.optics.field import ON_AXIS_MARGIN, estimate_field_psf, field_window
+from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides
+from metalens_cli.imaging.canvas import sensor_crop
+from metalens_cli.imaging.formation import canvas_margin, form_image
+from metalens_cli.io.preset_spectra import preset_sensitivity
+from metalens_cli.io.presets import Preset, preset_incidence_factor, to_toml
+from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY
+from metalens_cli.optics.field import ON_AXIS_MARGIN, estimate_field_psf
 from metalens_cli.optics.psf import PsfCost
-from metalens_cli.optics.sensor import larger_window
-from metalens_cli.optics.spectra import sample_wavelengths
-from metalens_cli.optics.window import crop_window
 from metalens_cli.runtime import Stopwatch
 
 FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and per-term gradient
@@ -99,119 +94,10 @@ class RunSummary:
     report: dict = field(default_factory=dict)
 
 
-@dataclass(frozen=True)
-class StepDraw:
-    """The random draws of one step (shared by every rank)."""
-
-    z_near_m: float
-    z_far_m: float
-    wavelengths_m: np.ndarray
-    weights: np.ndarray | torch.Tensor
-    throughput: torch.Tensor | None = None  # (3,) the filter's share of each channel's light (band draws)
-    field_angle_rad: float = 0.0  # the field point whose PSFs the step uses (optics.field)
-    azimuth_rad: float = 0.0
-
-
-def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
-    """Depths, wavelengths and field point of a step; ``sensitivity``: the preset's S^c, or a
-    ``BandSampler`` (``spectral_sampling = "bands"``: its weights a tensor, differentiable in its
-    filter)."""
-    rng = np.random.default_rng([seed, step, 3])
-    z_near = float(rng.uniform(*preset.scene.z_near_m))
-    lo, hi = preset.scene.z_far_m
-    z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
-    angle, azimuth = draw_field(preset, seed, step)
-    if isinstance(sensitivity, BandSampler):
-        return StepDraw(z_near, z_far, *sensitivity.draw(rng), field_angle_rad=angle, azimuth_rad=azimuth)
-    sample = sample_wavelengths(
-        sensitivity,
-        preset.optimize.wavelengths_per_channel,
-        rng if preset.optimize.spectral_sampling == "stratified" else None,
-    )
-    return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights, field_angle_rad=angle, azimuth_rad=azimuth)
-
-
-def field_training(preset) -> bool:
-    """Whether the run draws field points off axis (``[optimize] field_angles`` beyond 0)."""
-    return any(a > 0 for a in preset.optimize.field_angles_rad)
-
-
-def draw_field(preset, seed: int, step: int) -> tuple[float, float]:
-    """The field point (angle, azimuth; rad) of a step, from its own (seed, step) stream, so that
-    the other draws are those of an on-axis run: one of ``optimize.field_angles``, equally likely
-    (list an angle twice to weigh it double), and for a 2-D lens an azimuth uniform in [0, 2π)
-    (a radial lens's PSFs at other azimuths are rotations of azimuth 0's, and its scenes have no
-    preferred direction); (0, 0) for a run on axis."""
-    if not field_training(preset):
-        return 0.0, 0.0
-    rng = np.random.default_rng([seed, step, 7])
-    angles = preset.optimize.field_angles_rad
-    angle = float(angles[rng.integers(len(angles))])
-    azimuth = float(rng.uniform(0, 2 * math.pi)) if preset.lens.parameterization == "2d" and angle > 0 else 0.0
-    return angle, azimuth
-
-
-def spectral_source(preset, band_filter=None):
-    """What ``draw_step`` draws from: a ``BandSampler`` for ``spectral_sampling = "bands"`` (of
-    ``band_filter`` or the preset's filter), else the preset's S^c."""
-    if preset.optimize.spectral_sampling == "bands":
-        return band_sampler(preset, band_filter)
-    return preset_sensitivity(preset)
-
-
 def _scheduler(optimizer, o):
     if o.scheduler == "cosine":
         return torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=o.t_max)
     return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda _: 1.0)
-
-
-@dataclass(frozen=True)
-class Windows:
-    """Where the next step looks for light (odd sides, pixels): the ``near`` and ``far``
-    capacities, the last step's windows (its light, ``optics.channel_psf``) × ``PLAN_HEADROOM``;
-    and the ``plan``, the window the radial kernels are built for (≥ both). The capacities follow
-    the light up and down (a capacity costs Hankel output rows in proportion to its side); the plan
-    only grows, ``PLAN_HEADROOM`` past the capacity that outgrew it, so that the kernels are
-    rebuilt rarely (a rebuild costs seconds, a wider plan a few per cent of every step)."""
-
-    near: int
-    far: int
-    plan: int
-
-    @classmethod
-    def fitted(cls, near: int, far: int, plan: int) -> Windows:
-        """Capacities ``near``, ``far`` (at most ``MAX_WINDOW``) in ``plan``, grown if they pass it."""
-        near, far = min(near, MAX_WINDOW), min(far, MAX_WINDOW)
-        if max(near, far) > plan:
-            plan = min(larger_window(max(near, far), PLAN_HEADROOM), MAX_WINDOW)
-        return cls(near, far, plan)
-
-    @property
-    def margin(self) -> int:
-        return canvas_margin(self.near, self.far)
-
-    def grown(self, outgrown) -> Windows:
-        """The capacities of the depths whose light passed them (``outgrown`` (2, 3)) made larger."""
-        near, far = (
-            larger_window(n) if grow else n for n, grow in zip((self.near, self.far), np.any(outgrown, axis=1))
-        )
-        return Windows.fitted(near, far, self.plan)
-
-    def following(self, stack: ChannelPsfStack) -> Windows:
-        """The next step's capacities: this step's windows × ``PLAN_HEADROOM``, in the plan."""
-        near, far = (larger_window(max(w), PLAN_HEADROOM) for w in stack.windows)
-        return Windows.fitted(near, far, self.plan)
-
-
-def plan_windows(preset, sensitivity) -> Windows:
-    """Windows that hold the initial design's light (``optics.blur``) at every wavelength the
-    channels respond to (``spectra.WEIGHT_THRESHOLD``) and both ends of each depth interval,
-    times ``PLAN_HEADROOM`` for the lens to change; the plan is the larger of them."""
-    waves = sensitivity.support()  # the ends of the range bound every ray (optics.blur)
-    lens, d, pitch = build_model(preset).lens(), preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
-    near, far = preset.scene.z_near_m, preset.scene.z_far_m
-    near_px, far_px = (psf_window(lens, waves, list(z), d, pitch, PLAN_HEADROOM) for z in (near, far))
-    return Windows(near_px, far_px, max(near_px, far_px))
 
 
 def estimate_training(preset) -> tuple[int, float | None]:
@@ -259,134 +145,11 @@ def estimate_field_psf_step(preset, windows: Windows, wavelengths_m) -> PsfCost:
     with its backward pass): seconds of the forward pass, bytes with what the backward keeps."""
     angle, lens = max(preset.optimize.field_angles_rad), build_model(preset).lens()
     zs = [preset.scene.z_near_m[0], preset.scene.z_far_m[0]]
-    window = max(_field_capacities(lens, preset, wavelengths_m, zs, angle, windows))
+    window = max(field_capacities(lens, preset, wavelengths_m, zs, angle, windows))
     return estimate_field_psf(
         lens, wavelengths_m, zs, window, preset.sensor.pixel_pitch_m, angle,
         distance_m=preset.lens.focal_length_m, oversample=ON_AXIS_MARGIN, backward=True,
     )  # fmt: skip
-
-
-def _field_capacities(lens, preset, wavelengths_m, depths_m, angle: float, windows: Windows) -> list[int]:
-    """Windows (pixels) for the PSFs of the field point at ``angle`` at each of the two depths:
-    the run's near and far capacities, grown to hold the geometric rays of the shortest and
-    longest wavelength (``optics.field.field_window``), at most ``MAX_WINDOW``."""
-    ends = [min(wavelengths_m), max(wavelengths_m)]
-    d, pitch = preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
-    return [
-        min(MAX_WINDOW, field_window(lens, ends, z, angle, d, pitch, cap))
-        for z, cap in zip(depths_m, (windows.near, windows.far))
-    ]
-
-
-def core_window(preset) -> int | None:
-    """The window of each wavelength's own core energy, where the loss asks for it."""
-    return preset.loss.sharp_window if preset.loss.sharp_mode in WAVELENGTH_MODES else None
-
-
-def far_cores(stack: ChannelPsfStack) -> torch.Tensor | None:
-    """Each wavelength sample's far core energy (W,), when the stack holds them."""
-    return None if stack.cores is None else stack.cores[1]
-
-
-def step_psfs(
-    lens,
-    preset,
-    draw: StepDraw,
-    windows: Windows,
-    device,
-    watch: Stopwatch | None = None,
-    frequency: float | None = None,
-) -> tuple[ChannelPsfStack, Windows]:
-    """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
-    (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ, the
-    step recomputed in larger capacities while its light outgrows them; and the next step's
-    windows (``Windows.following``). Off axis: the capacities grown to hold the field point's
-    geometric rays, and the windows left as they are (they follow the on-axis light)."""
-    if draw.field_angle_rad > 0:
-        lams = [float(x) for x in np.ravel(draw.wavelengths_m)]
-        zs = [draw.z_near_m, draw.z_far_m]
-        stack = field_channel_stack(
-            lens, lams, zs, draw.weights,
-            _field_capacities(lens, preset, lams, zs, draw.field_angle_rad, windows),
-            preset.sensor.pixel_pitch_m, draw.field_angle_rad, azimuth_rad=draw.azimuth_rad,
-            distance_m=preset.lens.focal_length_m, device=device, core_window=core_window(preset),
-        )  # fmt: skip
-        _add_psf_timing(watch, stack)
-        return stack, windows
-    plan_l, plan_z = plan_range(preset)
-
-    def stack_at(w: Windows) -> ChannelPsfStack:
-        stack = channel_psf_stack(
-            lens,
-            draw.wavelengths_m,
-            [draw.z_near_m, draw.z_far_m],
-            draw.weights,
-            (w.near, w.far),
-            preset.sensor.pixel_pitch_m,
-            preset.lens.focal_length_m,
-            plan_pixels=w.plan,
-            device=device,
-            plan_wavelengths_m=plan_l,
-            plan_depths_m=plan_z,
-            plan_frequency=frequency,
-            core_window=core_window(preset),
-        )
-        _add_psf_timing(watch, stack)
-        return stack
-
-    stack, windows = grow_until_held(stack_at, windows, Windows.grown)
-    return stack, windows.following(stack)
-
-
-def _add_psf_timing(watch: Stopwatch | None, stack: ChannelPsfStack) -> None:
-    if watch is not None:
-        watch.add(stack.timing_s, "psf_")
-
-
-def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
-    """Clean scenes, obstruction colours and masks (B, C, H + 2M, W + 2M) on the canvas of
-    ``margin`` M for the batch entries ``indices``, generated on a thread pool, each scene and
-    each obstruction a task of its own (``rain``, which refracts its scene, runs in its scene's
-    task): numpy releases the GIL, and every scene and obstruction draws from its own (seed,
-    step, index) stream, so neither the order nor the number of threads changes them."""
-    n = preset.sensor.pixels
-    kinds = preset.optimize.obstructions
-    canvas = (n + 2 * margin, n + 2 * margin)
-    kind = {i: kinds[np.random.default_rng([seed, step, i, 13]).integers(len(kinds))] for i in indices}
-
-    def obstruction(index, clean=None):
-        return make_obstruction(
-            kind[index],
-            (n, n),
-            z_near_m,
-            preset.lens.focal_length_m,
-            preset.sensor.pixel_pitch_m,
-            [seed, step, index, 17],
-            params=preset.obstruction,
-            clean=clean,
-            margin=margin,
-        )
-
-    def scene(index):
-        clean = training_scene(canvas, seed, step, index, pool, margin)
-        return clean, (obstruction(index, clean) if kind[index] == "rain" else None)
-
-    tasks = len(indices) + sum(kind[i] != "rain" for i in indices)
-    with ThreadPoolExecutor(max_workers=max(1, min(tasks, torch.get_num_threads()))) as workers:
-        scenes = [workers.submit(scene, i) for i in indices]
-        separate = {i: workers.submit(obstruction, i) for i in indices if kind[i] != "rain"}
-        entries = []
-        for i, future in zip(indices, scenes):
-            clean, made = future.result()
-            if made is None:
-                made = separate[i].result()
-            entries.append((clean, made.rgb, made.mask))
-    return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
-
-
-def sensor_psf(psf: torch.Tensor, preset) -> torch.Tensor:
-    """The part of a far PSF on the sensor (the paper's L_bright and L_sharp see N sensor pixels)."""
-    return crop_window(psf, min(preset.sensor.pixels, psf.shape[-1]))
 
 
 def _features(preset, notes: list[str]):
@@ -427,26 +190,7 @@ def train(
         return _train(preset, RunDirectory(run_dir), steps, seed, ctx, resume, on_step)
 
 
-@dataclass
-class _Session:
-    """What every step needs: the model, its optimiser and schedule, spectra, scenes and plan."""
-
-    model: torch.nn.Module
-    optimizer: torch.optim.Optimizer
-    scheduler: object
-    sensitivity: object
-    features: object
-    pool: list | None
-    shard: list[int]
-    frequency: float
-    windows: Windows  # follows the light; its plan grows when the light or the lens outgrows it (saved in checkpoints)
-    notes: list[str]
-    band_filter: LearnedFilter | None = None  # the filter learned with θ ([filter] learn = true)
-    incidence: float = 1.0  # its bands' blue shift over the cone (analysis.bands)
-    throughput: torch.Tensor | None = None  # (3,) the preset filter's share of the light, with shot noise
-
-
-def _session(preset, ctx) -> _Session:
+def _session(preset, ctx) -> Session:
     o = preset.optimize
     model = build_model(preset).to(ctx.device)
     notes: list[str] = []
@@ -460,7 +204,7 @@ def _session(preset, ctx) -> _Session:
     optimizer = torch.optim.AdamW(groups, lr=o.learning_rate, weight_decay=o.weight_decay)
     sensitivity = spectral_source(preset, band_filter)
     windows = plan_windows(preset, sensitivity)
-    return _Session(
+    return Session(
         model,
         optimizer,
         _scheduler(optimizer, o),
@@ -473,7 +217,7 @@ def _session(preset, ctx) -> _Session:
         notes,
         band_filter,
         incidence,
-        _fixed_throughput(preset),
+        fixed_throughput(preset),
     )
 
 
@@ -509,7 +253,7 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> di
         row: dict = {}
         for step in range(steps):
             t0 = time.perf_counter()
-            row = _one_step(session, preset, step, ctx, watch)[0]
+            row = one_step(session, preset, step, ctx, watch)[0]
             if ctx.device.type == "cuda":
                 torch.cuda.synchronize(ctx.device)
             seconds.append(time.perf_counter() - t0)
@@ -560,16 +304,16 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     grid: dict = {}
     sample = None
 
-    def one_step(step: int) -> dict:
+    def run_step(step: int) -> dict:
         nonlocal grid, sample
-        row, grid, sample = _one_step(session, preset, step, ctx, watch)
+        row, grid, sample = one_step(session, preset, step, ctx, watch)
         return row
 
     def after_step(done: int) -> None:
         if done % o.sample_every == 0:
             _write_sample(run, sample, done - 1)
 
-    loop.train(one_step, on_step, after_step)
+    loop.train(run_step, on_step, after_step)
     history, start = loop.history, loop.start
     theta = model.full_theta().detach().cpu().numpy()
     summary = RunSummary(run.path, o.steps, start, history, _seconds_per_step(history[start:]), theta)
@@ -604,123 +348,6 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     return summary
 
 
-def _one_step(session: _Session, preset, step, ctx, watch: Stopwatch):
-    o = preset.optimize
-    model, optimizer, shard = session.model, session.optimizer, session.shard
-    draw = draw_step(preset, session.sensitivity, o.seed, step)
-    optimizer.zero_grad(set_to_none=True)
-    watch.restart()
-    windows = session.windows
-    try:
-        stack, session.windows = step_psfs(model.lens(), preset, draw, windows, ctx.device, watch, session.frequency)
-    except SamplingError as error:  # the initial design passed these checks: the learned θ outgrew them
-        raise InputError(
-            "optimize.learning_rate",
-            f"at step {step + 1} the learned lens scatters light beyond what the "
-            f"propagator can sample ({error.message})",
-            'a smaller learning rate or a smooth θ (theta_basis = "spline")',
-        ) from error
-    near, far = stack.psfs
-    margin = canvas_margin(near.shape[-1], far.shape[-1])
-    watch.lap("psf")
-    clean, colour, mask = step_batch(preset, o.seed, step, shard, draw.z_near_m, session.pool, margin, ctx.device)
-    watch.lap("scenes")
-    capture = form_image(clean, colour, mask, near, far, margin).obstructed
-    if o.photons or o.read_noise:
-        light = draw.throughput if draw.throughput is not None else session.throughput
-        capture = add_noise(
-            capture,
-            _photons(preset, capture.device, light),
-            read_noise=o.read_noise,
-            generator=_noise_seed(o.seed, step, shard),
-        )
-    clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
-    grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
-    sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
-    share = len(shard) / o.batch_size
-    loss, parts = training_loss(
-        capture,
-        clean,
-        sensor_psf(far, preset),
-        preset.loss,
-        session.features,
-        image_share=share,
-        psf_share=1 / ctx.world,
-        cores_far=far_cores(stack),
-    )
-    if session.band_filter is not None:
-        # the filter lives on the host; its terms join the loss on the run's device
-        parts["split"] = split_penalty(session.band_filter, preset, session.incidence).to(loss.device)
-        parts["light"] = session.sensitivity.light_loss(draw.throughput).to(loss.device)
-        loss = (
-            loss
-            + (preset.filter.split_weight * parts["split"] + preset.filter.light_weight * parts["light"]).to(loss.dtype)
-            / ctx.world
-        )
-    watch.lap("formation_loss")
-    if not torch.isfinite(loss):
-        raise InputError(
-            "optimize.learning_rate",
-            f"training diverged at step {step + 1}: the loss is {float(loss)}",
-            "a smaller learning rate or loss weights",
-        )
-    loss.backward()
-    watch.lap("backward")
-    names = sorted(parts)
-    image_terms = {"l1", "ssim", "domain_adaptation", "total"}
-    reported = torch.stack([parts[k].detach() * (share if k in image_terms else 1 / ctx.world) for k in names]).double()
-    update(optimizer, session.scheduler, reported, ctx)  # 'total' mixes shares: recomputed from the parts below
-    if session.band_filter is not None:
-        session.band_filter.project(preset.filter, preset.sensor.wavelength_range_m)
-    watch.lap("update")
-    values = dict(zip(names, reported.tolist()))
-    values["total"] = weighted_total(values, preset.loss, preset.filter)
-    kept = {
-        f"kept_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.kept[i])
-    }
-    held = {
-        f"held_{depth}_{c}": float(k) for i, depth in enumerate(("near", "far")) for c, k in zip("RGB", stack.held[i])
-    }
-    row = {
-        "step": step + 1,
-        "lr": optimizer.param_groups[0]["lr"],
-        **values,
-        "z_near_m": draw.z_near_m,
-        "z_far_m": draw.z_far_m,
-        "window_near": near.shape[-1],
-        "window_far": far.shape[-1],
-        "plan_window": session.windows.plan,
-        **kept,
-        **held,
-        **(filter_row(session.band_filter) if session.band_filter is not None else {}),
-        **(
-            {"field_angle_deg": math.degrees(draw.field_angle_rad), "field_azimuth_deg": math.degrees(draw.azimuth_rad)}
-            if field_training(preset)
-            else {}
-        ),
-    }
-    return row, stack.grid, sample
-
-
-def _fixed_throughput(preset) -> torch.Tensor | None:
-    """The preset filter's channel throughputs (``io.preset_spectra.channel_throughput``), once
-    per run, when its captures carry shot noise."""
-    return torch.as_tensor(channel_throughput(preset)) if preset.optimize.photons else None
-
-
-def _photons(preset, device, share: torch.Tensor | None):
-    """Full-well electrons per channel (3, 1, 1) on ``device``: ``optimize.photons`` times the
-    filter's throughput ``share`` (a learned filter's is differentiable: it pays for narrow bands
-    in noise)."""
-    if not preset.optimize.photons:
-        return None
-    return (preset.optimize.photons * share).to(device, torch.float32).reshape(3, 1, 1)
-
-
-def _noise_seed(seed: int, step: int, shard: list[int]) -> int:
-    return int(np.random.default_rng([seed, step, 31, *shard]).integers(2**62))
-
-
 def _bands_text(band_filter: LearnedFilter) -> str:
     centres, widths, _ = band_filter.values()
     return ", ".join(f"{(c - w / 2) * 1e9:.1f}-{(c + w / 2) * 1e9:.1f} nm" for c, w in zip(centres, widths))
@@ -737,7 +364,7 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
     o = preset.optimize
     windows = plan_windows(preset, sensitivity)
     pool = _image_pool(preset, windows.margin)
-    fixed = _fixed_throughput(preset)
+    fixed = fixed_throughput(preset)
     for k in range(draws):
         step = VALIDATION_STEP + k
         draw = draw_step(preset, sensitivity, o.seed, step)
@@ -748,14 +375,8 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
             preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device
         )
         capture = form_image(clean, colour, mask, near, far, margin).obstructed
-        if o.photons or o.read_noise:
-            light = draw.throughput if draw.throughput is not None else fixed
-            capture = add_noise(
-                capture,
-                _photons(preset, capture.device, light),
-                read_noise=o.read_noise,
-                generator=_noise_seed(o.seed, step, [0]),
-            )
+        light = draw.throughput if draw.throughput is not None else fixed
+        capture = noisy_capture(capture, preset, light, noise_seed(o.seed, step, [0]))
         yield training_loss(
             capture,
             sensor_crop(clean, margin),
@@ -794,18 +415,18 @@ def validation_loss(model, preset, draws: int = 4, device="cpu", frequency: floa
     return sum(totals) / len(totals)
 
 
-def _modules(session: _Session) -> dict:
+def _modules(session: Session) -> dict:
     """What a checkpoint holds the state dicts of: θ, the learned filter, optimiser and schedule."""
     learned = {"filter": session.band_filter} if session.band_filter is not None else {}
     return {"model": session.model, **learned, "optimizer": session.optimizer, "scheduler": session.scheduler}
 
 
-def _windows_state(session: _Session) -> dict:
+def _windows_state(session: Session) -> dict:
     """The windows the run has come to (px), kept in its checkpoints."""
     return {"windows": [session.windows.near, session.windows.far, session.windows.plan]}
 
 
-def _load_windows(session: _Session, state: dict) -> None:
+def _load_windows(session: Session, state: dict) -> None:
     """The windows a checkpoint's ``state`` kept (older runs: the capacities alone; older still: none)."""
     if "windows" in state:
         near, far, *plan = state["windows"]

@@ -165,7 +165,7 @@ class OptimizeConfig:
     images: str | None = toml_key("images", "folder", default=None)  # training images; none: procedural scenes
     checkpoint_every: int = toml_key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
     sample_every: int = toml_key("sample_every", "int", lo=1, hi=10_000_000, default=100)
-    # field angles (rad) a step draws its PSFs at, equally likely (design.training); (0,): on axis, the paper's
+    # field angles (rad) a step draws its PSFs at, equally likely (design.step.draw_field); (0,): on axis, the paper's
     field_angles_rad: tuple[float, ...] = toml_key("field_angles", "angle_list", default=(0.0,), hi=math.radians(60))
 
 

@@ -11,13 +11,9 @@ import pytest
 import torch
 
 from metalens_cli.design.model import build_model
+from metalens_cli.design.step import step_batch
 from metalens_cli.design.train_loop import TrainingInterrupted
-from metalens_cli.design.training import (
-    step_batch,
-    time_steps,
-    train,
-    validation_loss,
-)
+from metalens_cli.design.training import time_steps, train, validation_loss
 from metalens_cli.io.designs import resolve_design
 from metalens_cli.io.presets import load_preset
 
@@ -115,7 +111,7 @@ def test_gradient_reaches_every_ring_inside_the_pupil(tiny, degrees):
     """On axis (radial Hankel path) and off axis (shifted angular spectrum over the whole grid)."""
     import math
 
-    from metalens_cli.design.training import draw_step, plan_windows, spectral_source, step_psfs
+    from metalens_cli.design.step import draw_step, plan_windows, spectral_source, step_psfs
     from metalens_cli.optics.window import crop_window
 
     model = build_model(tiny)
@@ -133,7 +129,7 @@ def test_step_windows_follow_the_light_when_theta_is_perturbed(tiny):
     """A rippled θ (the roughness per-sample Adam steps make) scatters light: the step's windows
     grow with it, and planned windows too small for the light grow until every channel keeps
     99.9 % of its light on the sensor plane."""
-    from metalens_cli.design.training import Windows, draw_step, plan_windows, step_psfs
+    from metalens_cli.design.step import Windows, draw_step, plan_windows, step_psfs
     from metalens_cli.io.preset_spectra import preset_sensitivity
     from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY
 
@@ -240,7 +236,8 @@ def test_a_lens_that_outgrows_the_propagator_ends_the_run_with_its_step(tiny, mo
     limit is lowered under the plan after setup), the run stops with the step and what to change
     (the learning rate, a smooth θ), not with advice about the aperture that passed at the start."""
     from metalens_cli.design import distributed
-    from metalens_cli.design.training import _one_step, _session
+    from metalens_cli.design.step import one_step
+    from metalens_cli.design.training import _session
     from metalens_cli.errors import InputError
     from metalens_cli.optics import sampling
     from metalens_cli.runtime import Stopwatch
@@ -249,7 +246,7 @@ def test_a_lens_that_outgrows_the_propagator_ends_the_run_with_its_step(tiny, mo
         session = _session(tiny, ctx)
         monkeypatch.setattr(sampling, "MAX_HANKEL_SIZE", 8)
         with pytest.raises(InputError, match="at step 5 the learned lens scatters light") as caught:
-            _one_step(session, tiny, 4, ctx, Stopwatch())
+            one_step(session, tiny, 4, ctx, Stopwatch())
     assert caught.value.field == "optimize.learning_rate" and "theta_basis" in caught.value.expected
 
 
@@ -266,7 +263,7 @@ def test_field_angles_are_drawn_beside_the_on_axis_draws(tiny):
     azimuth 0; a 2-D one draws it, uniform, for the steps off axis."""
     import math
 
-    from metalens_cli.design.training import draw_step, spectral_source
+    from metalens_cli.design.step import draw_step, spectral_source
 
     field = _over_field(tiny, 0, 3, 5)
     angles = []
@@ -296,7 +293,7 @@ def test_an_off_axis_step_close_to_the_axis_is_the_on_axis_step(tiny):
     17-nm shift alone moves the tiny lens's sharp core by ~1 %."""
     import math
 
-    from metalens_cli.design.training import draw_step, plan_windows, spectral_source, step_psfs
+    from metalens_cli.design.step import draw_step, plan_windows, spectral_source, step_psfs
     from metalens_cli.optics.window import crop_window
 
     preset = dataclasses.replace(tiny, loss=dataclasses.replace(tiny.loss, sharp_mode="log_wavelength"))
@@ -324,7 +321,7 @@ def test_a_run_over_the_field_logs_its_field_points_and_resumes_exactly(tiny, tm
     import csv
     import math
 
-    from metalens_cli.design.training import draw_field
+    from metalens_cli.design.step import draw_field
 
     field = _over_field(tiny, 0, 4)
     straight = train(field, tmp_path / "a", steps=4)

@@ -1,0 +1,430 @@
+"""One training step of ``metalens optimize``: its draws, its PSF windows, its batch, the step itself.
+
+A step s draws everything from (seed, s) alone (``draw_step``, ``draw_field``, ``step_batch``), so
+that a resumed run repeats an uninterrupted one and every data-parallel rank agrees on the shared
+draws; its PSFs are computed in the windows their light needs (``Windows``, ``step_psfs``); the
+step (``one_step``) forms the batch's captures, takes the loss and updates θ. The session that
+carries the model and optimiser from step to step is built in ``design.training``.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from metalens_cli.design.filter_learning import BandSampler, LearnedFilter, band_sampler, filter_row, split_penalty
+from metalens_cli.design.losses import training_loss, weighted_total
+from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_range
+from metalens_cli.design.scenes import training_scene
+from metalens_cli.design.train_loop import update
+from metalens_cli.errors import InputError, SamplingError
+from metalens_cli.imaging.canvas import sensor_crop
+from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
+from metalens_cli.imaging.obstructions import make_obstruction
+from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
+from metalens_cli.io.presets import WAVELENGTH_MODES
+from metalens_cli.optics.blur import psf_window
+from metalens_cli.optics.channel_psf import (
+    MAX_WINDOW,
+    ChannelPsfStack,
+    channel_psf_stack,
+    field_channel_stack,
+    grow_until_held,
+)
+from metalens_cli.optics.field import field_window
+from metalens_cli.optics.sensor import larger_window
+from metalens_cli.optics.spectra import sample_wavelengths
+from metalens_cli.optics.window import crop_window
+from metalens_cli.runtime import Stopwatch
+
+IMAGE_TERMS = ("l1", "ssim", "domain_adaptation", "total")  # summed over a rank's share of the batch
+
+
+@dataclass(frozen=True)
+class StepDraw:
+    """The random draws of one step (shared by every rank)."""
+
+    z_near_m: float
+    z_far_m: float
+    wavelengths_m: np.ndarray
+    weights: np.ndarray | torch.Tensor
+    throughput: torch.Tensor | None = None  # (3,) the filter's share of each channel's light (band draws)
+    field_angle_rad: float = 0.0  # the field point whose PSFs the step uses (optics.field)
+    azimuth_rad: float = 0.0
+
+
+def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
+    """Depths, wavelengths and field point of a step; ``sensitivity``: the preset's S^c, or a
+    ``BandSampler`` (``spectral_sampling = "bands"``: its weights a tensor, differentiable in its
+    filter)."""
+    rng = np.random.default_rng([seed, step, 3])
+    z_near = float(rng.uniform(*preset.scene.z_near_m))
+    lo, hi = preset.scene.z_far_m
+    z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
+    angle, azimuth = draw_field(preset, seed, step)
+    if isinstance(sensitivity, BandSampler):
+        return StepDraw(z_near, z_far, *sensitivity.draw(rng), field_angle_rad=angle, azimuth_rad=azimuth)
+    sample = sample_wavelengths(
+        sensitivity,
+        preset.optimize.wavelengths_per_channel,
+        rng if preset.optimize.spectral_sampling == "stratified" else None,
+    )
+    return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights, field_angle_rad=angle, azimuth_rad=azimuth)
+
+
+def field_training(preset) -> bool:
+    """Whether the run draws field points off axis (``[optimize] field_angles`` beyond 0)."""
+    return any(a > 0 for a in preset.optimize.field_angles_rad)
+
+
+def draw_field(preset, seed: int, step: int) -> tuple[float, float]:
+    """The field point (angle, azimuth; rad) of a step, from its own (seed, step) stream, so that
+    the other draws are those of an on-axis run: one of ``optimize.field_angles``, equally likely
+    (list an angle twice to weigh it double), and for a 2-D lens an azimuth uniform in [0, 2π)
+    (a radial lens's PSFs at other azimuths are rotations of azimuth 0's, and its scenes have no
+    preferred direction); (0, 0) for a run on axis."""
+    if not field_training(preset):
+        return 0.0, 0.0
+    rng = np.random.default_rng([seed, step, 7])
+    angles = preset.optimize.field_angles_rad
+    angle = float(angles[rng.integers(len(angles))])
+    azimuth = float(rng.uniform(0, 2 * math.pi)) if preset.lens.parameterization == "2d" and angle > 0 else 0.0
+    return angle, azimuth
+
+
+def spectral_source(preset, band_filter=None):
+    """What ``draw_step`` draws from: a ``BandSampler`` for ``spectral_sampling = "bands"`` (of
+    ``band_filter`` or the preset's filter), else the preset's S^c."""
+    if preset.optimize.spectral_sampling == "bands":
+        return band_sampler(preset, band_filter)
+    return preset_sensitivity(preset)
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Where the next step looks for light (odd sides, pixels): the ``near`` and ``far``
+    capacities, the last step's windows (its light, ``optics.channel_psf``) × ``PLAN_HEADROOM``;
+    and the ``plan``, the window the radial kernels are built for (≥ both). The capacities follow
+    the light up and down (a capacity costs Hankel output rows in proportion to its side); the plan
+    only grows, ``PLAN_HEADROOM`` past the capacity that outgrew it, so that the kernels are
+    rebuilt rarely (a rebuild costs seconds, a wider plan a few per cent of every step)."""
+
+    near: int
+    far: int
+    plan: int
+
+    @classmethod
+    def fitted(cls, near: int, far: int, plan: int) -> Windows:
+        """Capacities ``near``, ``far`` (at most ``MAX_WINDOW``) in ``plan``, grown if they pass it."""
+        near, far = min(near, MAX_WINDOW), min(far, MAX_WINDOW)
+        if max(near, far) > plan:
+            plan = min(larger_window(max(near, far), PLAN_HEADROOM), MAX_WINDOW)
+        return cls(near, far, plan)
+
+    @property
+    def margin(self) -> int:
+        return canvas_margin(self.near, self.far)
+
+    def grown(self, outgrown) -> Windows:
+        """The capacities of the depths whose light passed them (``outgrown`` (2, 3)) made larger."""
+        near, far = (
+            larger_window(n) if grow else n for n, grow in zip((self.near, self.far), np.any(outgrown, axis=1))
+        )
+        return Windows.fitted(near, far, self.plan)
+
+    def following(self, stack: ChannelPsfStack) -> Windows:
+        """The next step's capacities: this step's windows × ``PLAN_HEADROOM``, in the plan."""
+        near, far = (larger_window(max(w), PLAN_HEADROOM) for w in stack.windows)
+        return Windows.fitted(near, far, self.plan)
+
+
+def plan_windows(preset, sensitivity) -> Windows:
+    """Windows that hold the initial design's light (``optics.blur``) at every wavelength the
+    channels respond to (``spectra.WEIGHT_THRESHOLD``) and both ends of each depth interval,
+    times ``PLAN_HEADROOM`` for the lens to change; the plan is the larger of them."""
+    waves = sensitivity.support()  # the ends of the range bound every ray (optics.blur)
+    lens, d, pitch = build_model(preset).lens(), preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
+    near, far = preset.scene.z_near_m, preset.scene.z_far_m
+    near_px, far_px = (psf_window(lens, waves, list(z), d, pitch, PLAN_HEADROOM) for z in (near, far))
+    return Windows(near_px, far_px, max(near_px, far_px))
+
+
+def field_capacities(lens, preset, wavelengths_m, depths_m, angle: float, windows: Windows) -> list[int]:
+    """Windows (pixels) for the PSFs of the field point at ``angle`` at each of the two depths:
+    the run's near and far capacities, grown to hold the geometric rays of the shortest and
+    longest wavelength (``optics.field.field_window``), at most ``MAX_WINDOW``."""
+    ends = [min(wavelengths_m), max(wavelengths_m)]
+    d, pitch = preset.lens.focal_length_m, preset.sensor.pixel_pitch_m
+    return [
+        min(MAX_WINDOW, field_window(lens, ends, z, angle, d, pitch, cap))
+        for z, cap in zip(depths_m, (windows.near, windows.far))
+    ]
+
+
+def core_window(preset) -> int | None:
+    """The window of each wavelength's own core energy, where the loss asks for it."""
+    return preset.loss.sharp_window if preset.loss.sharp_mode in WAVELENGTH_MODES else None
+
+
+def far_cores(stack: ChannelPsfStack) -> torch.Tensor | None:
+    """Each wavelength sample's far core energy (W,), when the stack holds them."""
+    return None if stack.cores is None else stack.cores[1]
+
+
+def step_psfs(
+    lens,
+    preset,
+    draw: StepDraw,
+    windows: Windows,
+    device,
+    watch: Stopwatch | None = None,
+    frequency: float | None = None,
+) -> tuple[ChannelPsfStack, Windows]:
+    """Near and far (3, N, N) PSFs of one step's draw, each depth in the window its light needs
+    (``optics.channel_psf``: 99.9 % of the power on the sensor plane), differentiable in θ, the
+    step recomputed in larger capacities while its light outgrows them; and the next step's
+    windows (``Windows.following``). Off axis: the capacities grown to hold the field point's
+    geometric rays, and the windows left as they are (they follow the on-axis light)."""
+    if draw.field_angle_rad > 0:
+        lams = [float(x) for x in np.ravel(draw.wavelengths_m)]
+        zs = [draw.z_near_m, draw.z_far_m]
+        stack = field_channel_stack(
+            lens, lams, zs, draw.weights,
+            field_capacities(lens, preset, lams, zs, draw.field_angle_rad, windows),
+            preset.sensor.pixel_pitch_m, draw.field_angle_rad, azimuth_rad=draw.azimuth_rad,
+            distance_m=preset.lens.focal_length_m, device=device, core_window=core_window(preset),
+        )  # fmt: skip
+        _add_psf_timing(watch, stack)
+        return stack, windows
+    plan_l, plan_z = plan_range(preset)
+
+    def stack_at(w: Windows) -> ChannelPsfStack:
+        stack = channel_psf_stack(
+            lens,
+            draw.wavelengths_m,
+            [draw.z_near_m, draw.z_far_m],
+            draw.weights,
+            (w.near, w.far),
+            preset.sensor.pixel_pitch_m,
+            preset.lens.focal_length_m,
+            plan_pixels=w.plan,
+            device=device,
+            plan_wavelengths_m=plan_l,
+            plan_depths_m=plan_z,
+            plan_frequency=frequency,
+            core_window=core_window(preset),
+        )
+        _add_psf_timing(watch, stack)
+        return stack
+
+    stack, windows = grow_until_held(stack_at, windows, Windows.grown)
+    return stack, windows.following(stack)
+
+
+def _add_psf_timing(watch: Stopwatch | None, stack: ChannelPsfStack) -> None:
+    if watch is not None:
+        watch.add(stack.timing_s, "psf_")
+
+
+def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
+    """Clean scenes, obstruction colours and masks (B, C, H + 2M, W + 2M) on the canvas of
+    ``margin`` M for the batch entries ``indices``, generated on a thread pool, each scene and
+    each obstruction a task of its own (``rain``, which refracts its scene, runs in its scene's
+    task): numpy releases the GIL, and every scene and obstruction draws from its own (seed,
+    step, index) stream, so neither the order nor the number of threads changes them."""
+    n = preset.sensor.pixels
+    kinds = preset.optimize.obstructions
+    canvas = (n + 2 * margin, n + 2 * margin)
+    kind = {i: kinds[np.random.default_rng([seed, step, i, 13]).integers(len(kinds))] for i in indices}
+
+    def obstruction(index, clean=None):
+        return make_obstruction(
+            kind[index],
+            (n, n),
+            z_near_m,
+            preset.lens.focal_length_m,
+            preset.sensor.pixel_pitch_m,
+            [seed, step, index, 17],
+            params=preset.obstruction,
+            clean=clean,
+            margin=margin,
+        )
+
+    def scene(index):
+        clean = training_scene(canvas, seed, step, index, pool, margin)
+        return clean, (obstruction(index, clean) if kind[index] == "rain" else None)
+
+    tasks = len(indices) + sum(kind[i] != "rain" for i in indices)
+    with ThreadPoolExecutor(max_workers=max(1, min(tasks, torch.get_num_threads()))) as workers:
+        scenes = [workers.submit(scene, i) for i in indices]
+        separate = {i: workers.submit(obstruction, i) for i in indices if kind[i] != "rain"}
+        entries = []
+        for i, future in zip(indices, scenes):
+            clean, made = future.result()
+            if made is None:
+                made = separate[i].result()
+            entries.append((clean, made.rgb, made.mask))
+    return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
+
+
+def sensor_psf(psf: torch.Tensor, preset) -> torch.Tensor:
+    """The part of a far PSF on the sensor (the paper's L_bright and L_sharp see N sensor pixels)."""
+    return crop_window(psf, min(preset.sensor.pixels, psf.shape[-1]))
+
+
+def fixed_throughput(preset) -> torch.Tensor | None:
+    """The preset filter's channel throughputs (3,) (``io.preset_spectra.channel_throughput``),
+    once per run, when its captures carry shot noise."""
+    return torch.as_tensor(channel_throughput(preset)) if preset.optimize.photons else None
+
+
+def noisy_capture(capture: torch.Tensor, preset, throughput: torch.Tensor | None, seed: int) -> torch.Tensor:
+    """``capture`` (B, 3, H, W) with the preset's photon and read noise (``imaging.formation.add_noise``):
+    full-well electrons ``optimize.photons`` times the filter's ``throughput`` (3,) per channel (a
+    learned filter's is differentiable: it pays for narrow bands in noise), drawn from ``seed``;
+    unchanged when the preset is noise-free."""
+    o = preset.optimize
+    if not (o.photons or o.read_noise):
+        return capture
+    photons = None if not o.photons else (o.photons * throughput).to(capture.device, torch.float32).reshape(3, 1, 1)
+    return add_noise(capture, photons, read_noise=o.read_noise, generator=seed)
+
+
+def noise_seed(seed: int, step: int, shard: list[int]) -> int:
+    """The noise stream of batch entries ``shard`` at ``step``."""
+    return int(np.random.default_rng([seed, step, 31, *shard]).integers(2**62))
+
+
+@dataclass
+class Session:
+    """What every step needs: the model, its optimiser and schedule, spectra, scenes and plan
+    (built by ``design.training``)."""
+
+    model: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    scheduler: object
+    sensitivity: object
+    features: object
+    pool: list | None
+    shard: list[int]
+    frequency: float
+    windows: Windows  # follows the light; its plan grows when the light or the lens outgrows it (saved in checkpoints)
+    notes: list[str]
+    band_filter: LearnedFilter | None = None  # the filter learned with θ ([filter] learn = true)
+    incidence: float = 1.0  # its bands' blue shift over the cone (analysis.bands)
+    throughput: torch.Tensor | None = None  # (3,) the preset filter's share of the light, with shot noise
+
+
+def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tuple[dict, dict, torch.Tensor]:
+    """Training step ``step`` (0-based) of ``session`` on this rank (``ctx``, ``design.distributed``).
+
+    Draws the step (``draw_step``), computes its near and far channel PSFs (``step_psfs``),
+    forms this rank's share of the batch as obstructed captures with the preset's noise, takes
+    the loss (``design.losses.training_loss``, and a learned filter's split and light terms),
+    back-propagates, sums gradients over ranks and updates θ (``design.train_loop.update``).
+    ``watch`` collects the seconds of each stage.
+
+    Returns:
+        The loss.csv row (the terms summed over the whole batch, the draws, the windows and the
+        light they hold), the PSF plan's grid description, and the first scene's
+        clean | obstruction | capture strip (3, H, 3W) for the run's samples.
+    """
+    o = preset.optimize
+    draw = draw_step(preset, session.sensitivity, o.seed, step)
+    session.optimizer.zero_grad(set_to_none=True)
+    watch.restart()
+    try:
+        stack, session.windows = step_psfs(
+            session.model.lens(), preset, draw, session.windows, ctx.device, watch, session.frequency
+        )
+    except SamplingError as error:  # the initial design passed these checks: the learned θ outgrew them
+        raise InputError(
+            "optimize.learning_rate",
+            f"at step {step + 1} the learned lens scatters light beyond what the "
+            f"propagator can sample ({error.message})",
+            'a smaller learning rate or a smooth θ (theta_basis = "spline")',
+        ) from error
+    near, far = stack.psfs
+    margin = canvas_margin(near.shape[-1], far.shape[-1])
+    watch.lap("psf")
+    clean, colour, mask = step_batch(
+        preset, o.seed, step, session.shard, draw.z_near_m, session.pool, margin, ctx.device
+    )
+    watch.lap("scenes")
+    capture = form_image(clean, colour, mask, near, far, margin).obstructed
+    light = draw.throughput if draw.throughput is not None else session.throughput
+    capture = noisy_capture(capture, preset, light, noise_seed(o.seed, step, session.shard))
+    clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
+    grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
+    sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0
+    share = len(session.shard) / o.batch_size
+    loss, parts = training_loss(
+        capture,
+        clean,
+        sensor_psf(far, preset),
+        preset.loss,
+        session.features,
+        image_share=share,
+        psf_share=1 / ctx.world,
+        cores_far=far_cores(stack),
+    )
+    if session.band_filter is not None:
+        loss = loss + _filter_terms(session, preset, draw, parts, loss.device).to(loss.dtype) / ctx.world
+    watch.lap("formation_loss")
+    if not torch.isfinite(loss):
+        raise InputError(
+            "optimize.learning_rate",
+            f"training diverged at step {step + 1}: the loss is {float(loss)}",
+            "a smaller learning rate or loss weights",
+        )
+    loss.backward()
+    watch.lap("backward")
+    names = sorted(parts)
+    reported = torch.stack([parts[k].detach() * (share if k in IMAGE_TERMS else 1 / ctx.world) for k in names]).double()
+    update(session.optimizer, session.scheduler, reported, ctx)  # 'total' mixes shares: recomputed from the parts
+    if session.band_filter is not None:
+        session.band_filter.project(preset.filter, preset.sensor.wavelength_range_m)
+    watch.lap("update")
+    values = dict(zip(names, reported.tolist()))
+    values["total"] = weighted_total(values, preset.loss, preset.filter)
+    row = {"step": step + 1, "lr": session.optimizer.param_groups[0]["lr"], **values}
+    return {**row, **_step_record(session, preset, draw, stack)}, stack.grid, sample
+
+
+def _filter_terms(session: Session, preset, draw: StepDraw, parts: dict, device) -> torch.Tensor:
+    """The learned filter's weighted split-spectrum and light terms, their values put in ``parts``
+    (the filter lives on the host; its terms join the loss on the run's ``device``)."""
+    parts["split"] = split_penalty(session.band_filter, preset, session.incidence).to(device)
+    parts["light"] = session.sensitivity.light_loss(draw.throughput).to(device)
+    return preset.filter.split_weight * parts["split"] + preset.filter.light_weight * parts["light"]
+
+
+def _step_record(session: Session, preset, draw: StepDraw, stack: ChannelPsfStack) -> dict:
+    """The loss.csv columns of a step beyond its loss: depths (m), windows (px), the light each
+    channel PSF keeps and holds, the learned filter's bands and the field point (deg)."""
+    near, far = stack.psfs
+    light = {
+        f"{name}_{depth}_{c}": float(k)
+        for name, values in (("kept", stack.kept), ("held", stack.held))
+        for i, depth in enumerate(("near", "far"))
+        for c, k in zip("RGB", values[i])
+    }
+    field = (
+        {"field_angle_deg": math.degrees(draw.field_angle_rad), "field_azimuth_deg": math.degrees(draw.azimuth_rad)}
+        if field_training(preset)
+        else {}
+    )
+    return {
+        "z_near_m": draw.z_near_m,
+        "z_far_m": draw.z_far_m,
+        "window_near": near.shape[-1],
+        "window_far": far.shape[-1],
+        "plan_window": session.windows.plan,
+        **light,
+        **(filter_row(session.band_filter) if session.band_filter is not None else {}),
+        **field,
+    }
