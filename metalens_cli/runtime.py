@@ -3,9 +3,8 @@ and the one stopwatch every timed stage report uses (:class:`Stopwatch`).
 
 The core allocates its FFT work arrays afresh on every call (tens of MB for a 512 × 512
 capture). glibc's malloc hands blocks that large back to the kernel when they are freed (mmap
-threshold, heap trimming), so the next call page-faults all of them in again: measured on
-2 cores, 12 000 minor faults and 25-45 ms of kernel time per 512² capture, in some processes
-and not others. :func:`retain_freed_memory` keeps freed blocks in the heap instead. It is
+threshold, heap trimming), so the next call page-faults all of them in again (what that costs a 512²
+capture: docs/benchmarks.md, image formation). :func:`retain_freed_memory` keeps freed blocks in the heap instead. It is
 applied by ``metalens`` at start-up and by the benchmarks; a Python caller may call it too.
 """
 

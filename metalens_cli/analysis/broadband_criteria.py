@@ -210,8 +210,8 @@ def far_spectrum(
     """:class:`FarSpectrum` of a lens (``optics.lens.Metalens``) at ``distance_m`` from the sensor:
     PSFs at every 1-nm wavelength of the band and of the sensitivity's grid range, channel PSFs in
     windows holding 99.9 % of their light (``optics.channel_psf``; up to ``capacity`` pixels).
-    A radial lens takes 6-10 s on 2 cores (the paper's); a 2-D map goes through the 2-D angular
-    spectrum at every wavelength, far slower (not measured here)."""
+    A 2-D map goes through the 2-D angular spectrum at every wavelength, far slower than a radial
+    lens's Hankel path."""
     from metalens_cli.optics.channel_psf import channel_psf_stack
 
     grid = sensitivity.wavelengths_m

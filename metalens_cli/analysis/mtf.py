@@ -30,8 +30,8 @@ above Nyquist (e.g. a lens of NA 0.3 has a cutoff 2·NA/λ ≈ 4 × Nyquist at 1
 into the measured curve. The diffraction-limited reference is not folded: it is the analytic
 MTF (times the pixel MTF unless removed), ring-averaged on the same grid.
 
-Speed: ``scipy.fft.rfft2`` (float32 in, complex64 out, all cores; numpy.fft is ~4× slower here)
-and one precomputed sparse ring operator: 88 PSFs of 512² in ~0.5 s on 2 cores.
+Speed: ``scipy.fft.rfft2`` (float32 in, complex64 out, all cores) and one precomputed sparse
+ring operator (timings: docs/benchmarks.md, ``benchmarks/bench_mtf.py``).
 
 Over the field (a field cube, ``io.exr``). For a field at azimuth ψ (counter-clockwise from the
 sensor's +x axis; x = column, y = row) the tangential (meridional) MTF is |OTF| along ν·(cos ψ,

@@ -52,11 +52,7 @@ factor of 8) shrink in area by ``WINDOW_STEP``, less its mean there (zero sum an
 chosen for the least FFT work whose cuts cost the PSF field at most ``WINDOW_SHARE`` of the
 tolerance; each window's eigen-PSFs go through FFTs of their own size. Their spectra are stored
 transposed, so the inverse transform's first pass runs along contiguous memory and its second
-only over the tile's rows. On the paper's hyperbolic lens at 1 % (N = 503 and 705, 2 cores,
-``benchmarks/bench_field_capture.py``): near 422, 281, 697 eigen-PSFs in 331-, 195- and 139-px
-windows, far 231, 723, 822 in 375, 251, 139 px; the measured error 0.91 and 0.90 % (0.88 and
-0.86 % in one window); a capture 1.69 s, against 2.28 s in one window and 2.79 s before this
-(one grid per set, a gather by index), peak RSS 9.7 GB against 14.3.
+only over the tile's rows (their cost against one window: docs/benchmarks.md).
 
 Nodes (:func:`_tile_nodes`). The field model is linear in height between the set's heights, so
 P_x = (1 − w)·P(h_{k−1}, ψ) + w·P(h_k, ψ) exactly (before the sum's normalisation): the
@@ -82,23 +78,8 @@ light and the mask).
 Why tiles: over the whole sensor the coma turns through every azimuth and its spectrum spreads;
 on the paper's lens one expansion for the sensor needed 3× the FFT work of tiles at the same error,
 and interpolating node PSFs (overlap-add) needs nodes 5 px apart for 1 % on the far PSFs, 3× the
-work again. Measured with nodes on an x-y grid (before the azimuth nodes), at the default 1 %:
-on that stand-in (512² RGB, windows 201/101) 2102 near and 6188 far eigen-PSFs (1.8 GB of
-spectra), prepared in about 45 s and 60 s (one thread), a capture in 1.0-1.4 s on 2 cores (1.7 s
-on one; form_image: 20 ms), dead-leaves captures within 0.1 % of the direct sums; on the paper's
-hyperbolic lens (512², field PSFs from ``imaging.field_psfs`` at 45 mm and 5 m, N = 503 and
-705) S = 333 and 375, 1430 and 1752 eigen-PSFs, both at 0.81 %, prepared in 18 min on 2 cores
-(peak RSS 15.3 GB), most of it resampling node PSFs (bicubic, ~15 M samples/s), then about 4 s
-per capture and its scoring. With azimuth nodes: 1554 and 1909 eigen-PSFs at 0.68 %, prepared
-in 5.1 min, 4.2 s a capture (``examples/field_results.py``, run alone); the captures' scores
-unchanged to the digits docs/field.md shows. The learned split-spectrum lens's near set (N = 907) is the hard
-case: with azimuth nodes, at 1 % its tiles halve to 128 px (S = 409), 10790 eigen-PSFs at 0.65 %
-that with their spectra passed 20 GB; at 3 % (``evaluate --field-tolerance 0.03``) 256-px tiles,
-S = 323, 2287 eigen-PSFs at 2.2 % (3.2 GB of spectra), prepared in 4.5 min, one blur of a 512²
-RGB image 2.2 s (2 cores, shared with other work). The x-y grid at 1 % measured 2.5 % after 7
-min, and its refinement to nodes 4 px apart had not finished 20 min later. Chosen by their pixel
-energies rather than eigenvalues (:func:`_pixel_energies`): hyperbolic 1369 + 1683 eigen-PSFs at
-0.87 %, 3.1 s a capture; split-spectrum at 3 % 1766 + 645, 2.9 s (``examples/field_results.py``).
+work again. The measurements behind these choices (eigen-PSF counts, errors, preparation and
+capture times on a stand-in, the hyperbolic and the split-spectrum lens) are in docs/benchmarks.md.
 
 Every function here is pure torch (batched, differentiable in the images, any device); the field
 transforms are fixed once made (no gradient to the PSFs).

@@ -54,8 +54,8 @@ def inference_bytes(shape: NetworkShape, pixels: int) -> int:
 @dataclass
 class Reconstructor:
     """A trained network on a device, applied to linear (3, H, W) images. ``compile``: run it
-    through ``torch.compile`` (inductor fuses the elementwise work: 0.7-0.85× the time per 512²
-    image on 2 CPU cores, after a first call of ~30 s, and again for each new image or tile size)."""
+    through ``torch.compile`` (inductor fuses the elementwise work; it compiles again for each
+    new image or tile size; its speed-up in docs/benchmarks.md)."""
 
     net: ReconstructionNet
     design: dict = field(default_factory=dict)

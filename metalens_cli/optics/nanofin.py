@@ -2,8 +2,8 @@
 
 Two solvers give the same quantities. :func:`fin_response` uses :mod:`metalens_cli.optics.fin_modes`,
 this package's RCWA of this one geometry, which splits the eigenproblem by the fin's two
-mirror symmetries and batches wavelengths and fins (torch; ``device``): 24 wavelengths of the
-paper's fin at N = 25 take 4-5 s on 2 cores. :func:`fin_response_meent` runs the maintained
+mirror symmetries and batches wavelengths and fins (torch; ``device``; timings in
+docs/benchmarks.md). :func:`fin_response_meent` runs the maintained
 package meent, the slower reference it is tested against (tests/optics/test_fin_modes.py); the
 two agree within 4e-4 on η at N = 21 and converge to the same limit.
 
