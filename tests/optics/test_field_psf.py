@@ -119,7 +119,9 @@ def test_band_stops_where_the_transfer_function_does(azimuth):
     x, y = chief_ray(lens, lam, angle, azimuth, lens.focal_length_m)
     centre_m = (round(x / pitch) * pitch, round(y / pitch) * pitch)
     f_max = sampling.lens_frequency(lens)[0]
-    grid, k_max = sampling.plan_field_asm(lens, lam, lens.focal_length_m, 21, pitch, f_max, carrier, centre_m)
+    grid, k_max = sampling.plan_field_asm(
+        lens, sampling.PsfGrid([lam], [math.inf], 21, pitch), lam, f_max, carrier, centre_m
+    )
     assert k_max < math.floor(sampling.sin_limit(f_max, [lam], 2.0) / lam * grid.extent_m)
     whole = (grid.size - 1) // 2
     h, _ = prop.asm_transfer_shifted(grid, lam, lens.focal_length_m, whole, carrier, centre_m, torch.complex128)
