@@ -44,22 +44,22 @@ def one_psf(design, device: str) -> list[str]:
     from metalens_cli.imaging.field_psfs import corner_pixels
     from metalens_cli.optics.field import ON_AXIS_MARGIN, estimate_field_psf, field_psf
     from metalens_cli.optics.psf import compute_psf
+    from metalens_cli.optics.sampling import PsfGrid
 
     lens, rows = design.lens, []
-    _, seconds = _timed(device, compute_psf, lens, [530e-9], [math.inf], 255, PITCH, device=device)
+    grid = PsfGrid([530e-9], [math.inf], 255, PITCH)
+    _, seconds = _timed(device, compute_psf, lens, grid, device=device)
     rows.append(f"| on axis (radial path) | 0° | — | {seconds:.2f} | — | — | — |")
     for label, height in (("sensor edge", PIXELS // 2), ("sensor corner", corner_pixels(PIXELS))):
         angle = math.atan2(height * PITCH, 4e-3)
         results = {}
         for oversample in (1.0, ON_AXIS_MARGIN):
-            results[oversample] = _timed(
-                device, field_psf, lens, [530e-9], [math.inf], 255, PITCH, angle, device=device, oversample=oversample
-            )
+            results[oversample] = _timed(device, field_psf, lens, grid, angle, device=device, oversample=oversample)
         ref, fast = results[1.0][0].psf, results[ON_AXIS_MARGIN][0].psf
         error = float((fast - ref).norm() / ref.norm())
         for oversample, (r, seconds) in results.items():
             margin = "doubled (default)" if oversample == 1.0 else "single (field sets)"
-            estimate = estimate_field_psf(lens, [530e-9], [math.inf], 255, PITCH, angle, oversample=oversample)
+            estimate = estimate_field_psf(lens, grid, angle, oversample=oversample)
             forecast = "—" if device.startswith("cuda") else f"{estimate.seconds:.2f}"  # a CPU forecast
             rows.append(
                 f"| {label}, {margin} | {math.degrees(angle):.2f}° | {r.grid['fft_size']}² | {seconds:.2f} "

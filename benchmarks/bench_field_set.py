@@ -33,6 +33,7 @@ import numpy as np, torch
 from metalens_cli.imaging.field_psfs import field_strata
 from metalens_cli.io.designs import resolve_design
 import metalens_cli.optics.field as field
+from metalens_cli.optics.sampling import PsfGrid
 
 options = json.loads(sys.argv[1])
 torch.set_num_threads(options["threads"])
@@ -44,8 +45,8 @@ if device.startswith("cuda"):
     torch.zeros(1, device=device)
     torch.cuda.synchronize()
 start = time.perf_counter()
-result = field.field_psf(design.lens, lams, [45e-3, 5.0], options["window"], options["pitch"], angle, distance_m=4e-3,
-                         device=device, oversample=field.ON_AXIS_MARGIN)
+grid = PsfGrid(lams, [45e-3, 5.0], options["window"], options["pitch"], 4e-3)
+result = field.field_psf(design.lens, grid, angle, device=device, oversample=field.ON_AXIS_MARGIN)
 psf = result.psf.cpu().numpy()
 seconds = time.perf_counter() - start
 peak = (torch.cuda.max_memory_allocated() if device.startswith("cuda")

@@ -43,6 +43,7 @@ def _run(args) -> dict:
     propagator, wavelengths, depths, pixels, oversample, path, device = args
     from metalens_cli.optics import lens as L
     from metalens_cli.optics.psf import compute_psf
+    from metalens_cli.optics.sampling import PsfGrid
 
     gpu = device.startswith("cuda")
     lens = L.hyperbolic(**LENS)
@@ -52,7 +53,7 @@ def _run(args) -> dict:
 
     def timed():
         t = time.perf_counter()
-        res = compute_psf(lens, wavelengths, depths, pixels, PITCH, **kw)
+        res = compute_psf(lens, PsfGrid(wavelengths, depths, pixels, PITCH), **kw)
         if gpu:
             torch.cuda.synchronize()
         return res, time.perf_counter() - t

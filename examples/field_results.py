@@ -192,6 +192,7 @@ def height_check(spec: str, reuse: bool) -> dict:
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.optics.blur import psf_window
     from metalens_cli.optics.field import ON_AXIS_MARGIN, field_psf, field_window
+    from metalens_cli.optics.sampling import PsfGrid
 
     print(f"# height check: {spec}", file=sys.stderr, flush=True)
     design = resolve_design(str(ROOT / spec))
@@ -205,7 +206,7 @@ def height_check(spec: str, reuse: bool) -> dict:
 
     def channel_psfs(height: int) -> torch.Tensor:
         angle = math.atan2(height * pitch, d)
-        mono = field_psf(design.lens, lams, [far], n, pitch, angle, distance_m=d, oversample=ON_AXIS_MARGIN).psf[0]
+        mono = field_psf(design.lens, PsfGrid(lams, [far], n, pitch, d), angle, oversample=ON_AXIS_MARGIN).psf[0]
         rgb = torch.einsum("wij,cw->cij", mono.double(), weights)
         return rgb / rgb.sum((-2, -1), keepdim=True)
 

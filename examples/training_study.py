@@ -194,17 +194,14 @@ def core_energy(spec: str, preset_path: Path) -> dict:
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.io.presets import load_preset
     from metalens_cli.optics.psf import compute_psf
+    from metalens_cli.optics.sampling import PsfGrid
 
     preset = load_preset(preset_path)
     design = resolve_design(spec, preset if spec.startswith("hyperbolic:") else None)
     waves = list(CORE_WAVES_NM * 1e-9)
     psf = compute_psf(
         design.lens,
-        waves,
-        [math.inf, NEAR_M],
-        5,
-        preset.sensor.pixel_pitch_m,
-        distance_m=design.focal_length_m,
+        PsfGrid(waves, [math.inf, NEAR_M], 5, preset.sensor.pixel_pitch_m, design.focal_length_m),
         dtype=torch.float64,
     ).psf
     far, near = psf[0].sum(dim=(-2, -1)).numpy(), psf[1].sum(dim=(-2, -1)).numpy()
@@ -353,6 +350,7 @@ def band_energy(run: str) -> dict:
 
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.optics.psf import compute_psf
+    from metalens_cli.optics.sampling import PsfGrid
 
     design = resolve_design(run)
     out = {"far": {}, "near": {}}
@@ -361,11 +359,7 @@ def band_energy(run: str) -> dict:
         psf = (
             compute_psf(
                 design.lens,
-                waves,
-                [math.inf, NEAR_M],
-                5,
-                design.preset.sensor.pixel_pitch_m,
-                distance_m=design.focal_length_m,
+                PsfGrid(waves, [math.inf, NEAR_M], 5, design.preset.sensor.pixel_pitch_m, design.focal_length_m),
                 dtype=torch.float64,
             )
             .psf.sum(dim=(-2, -1))

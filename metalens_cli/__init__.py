@@ -33,6 +33,7 @@ _EXPORTS = {
     "load_preset": "io.presets",
     # PSFs and propagators
     "PsfResult": "optics.psf",
+    "PsfGrid": "optics.sampling",
     "compute_psf": "optics.psf",
     "estimate_psf": "optics.psf",
     "asm_propagate": "optics.propagate",
@@ -51,7 +52,6 @@ _EXPORTS = {
     "chief_ray": "optics.field",
     "ray_landings": "optics.field",
     "rms_spot": "optics.field",
-    "run_field_scan": "imaging.psf_scan",
     "field_channel_psfs": "imaging.field_psfs",
     "FieldPsfSet": "imaging.field_formation",
     "field_transform": "imaging.field_formation",
@@ -115,6 +115,7 @@ __all__ = [
     "Metalens",
     "Preset",
     "PsfCube",
+    "PsfGrid",
     "PsfResult",
     "RadialGrid",
     "ResultFailed",
@@ -162,7 +163,6 @@ __all__ = [
     "read_psf_cube",
     "resolve_design",
     "rms_spot",
-    "run_field_scan",
     "run_scan",
     "simulate_captures",
     "slanted_edge_sfr",
@@ -217,7 +217,7 @@ if TYPE_CHECKING:  # static checkers and IDEs see the names eagerly
     from metalens_cli.imaging.formation import Capture, add_noise, form_image
     from metalens_cli.imaging.metrics import psnr, ssim
     from metalens_cli.imaging.pipeline import simulate_captures
-    from metalens_cli.imaging.psf_scan import run_field_scan, run_scan
+    from metalens_cli.imaging.psf_scan import run_scan
     from metalens_cli.io.designs import Design, resolve_design
     from metalens_cli.io.exr import PsfCube
     from metalens_cli.io.layout import FinGeometry, export_layout
@@ -231,6 +231,7 @@ if TYPE_CHECKING:  # static checkers and IDEs see the names eagerly
     from metalens_cli.optics.nanofin import fin_response
     from metalens_cli.optics.propagate import asm_propagate, radial_propagate, rayleigh_sommerfeld
     from metalens_cli.optics.psf import PsfResult, compute_psf, estimate_psf
+    from metalens_cli.optics.sampling import PsfGrid
     from metalens_cli.optics.spectra import (
         SpectralSensitivity,
         bandpass_transmission,

@@ -132,9 +132,7 @@ def psf_scan(
     from metalens_cli.errors import InputError
     from metalens_cli.imaging.psf_scan import (
         check_scan_size,
-        estimate_field_scan,
         estimate_scan,
-        run_field_scan,
         run_scan,
         scan_metadata,
         scan_report,
@@ -142,6 +140,7 @@ def psf_scan(
     )
     from metalens_cli.io.designs import resolve_design
     from metalens_cli.io.units import parse_length_list
+    from metalens_cli.optics.sampling import PsfGrid
 
     preset = load_preset_option(preset_path)
     design = resolve_design(spec, preset, f_m=f_m, aperture_m=aperture_m, pitch_m=pitch_m)
@@ -156,23 +155,20 @@ def psf_scan(
     field_azimuth = field_azimuth or 0.0
     check_scan_size(output, wavelengths_m, depths_m, pixels, field_cube=angles is not None)
     run_device = torch_device(device)  # resolved before the estimate: a CUDA job is checked against the GPU's memory
-    psf_options = dict(propagator=propagator, dtype=getattr(torch, dtype), force=force)
-    if angles is None:
-        estimate = estimate_scan(design, wavelengths_m, depths_m, pixels, pixel_pitch_m, **psf_options)
-    else:
-        psf_options.pop("propagator")
-        estimate = estimate_field_scan(
-            design, wavelengths_m, depths_m, pixels, pixel_pitch_m, angles, azimuth_rad=field_azimuth, **psf_options
-        )
+    grid = PsfGrid(wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m)
+    psf_options = dict(
+        field_angles_rad=angles,
+        azimuth_rad=field_azimuth,
+        propagator=propagator,
+        dtype=getattr(torch, dtype),
+        force=force,
+    )
+    estimate = estimate_scan(design, grid, **psf_options)
     announce(estimate, max_memory, output, run_device)
     efficiency = efficiency_used(design.preset, quiet)
     with progress_bar("psf-scan", quiet) as update:
-        common = (design, wavelengths_m, depths_m, pixels, pixel_pitch_m)
         options = dict(**psf_options, device=run_device, check_accuracy=check_accuracy, progress=update)
-        if angles is None:
-            scan = run_scan(*common, **options)
-        else:
-            scan = run_field_scan(*common, angles, azimuth_rad=field_azimuth, **options)
+        scan = run_scan(design, grid, **options)
     metadata = scan_metadata(design, scan, dtype, efficiency)
     write_scan(output, design, scan, metadata)
     if plot_path:

@@ -20,6 +20,7 @@ from metalens_cli.io.json_files import jsonable, write_json
 from metalens_cli.io.preset_spectra import efficiency_report
 from metalens_cli.io.presets import to_dict
 from metalens_cli.optics.lens import Metalens
+from metalens_cli.optics.sampling import PsfGrid
 
 PSF_STEP_M = 5e-9
 FINAL_WINDOW = 50  # steps averaged into the final loss
@@ -81,7 +82,7 @@ def write_results(
     lens = Metalens(torch.from_numpy(theta), pitch, preset.lens.aperture_m, preset.lens.focal_length_m)
     design = Design(str(run.path), "run", lens, preset.lens.focal_length_m, preset)
     waves, depths = psf_wavelengths(preset), psf_depths(preset)
-    scan = run_scan(design, waves, depths, preset.sensor.pixels, preset.sensor.pixel_pitch_m)
+    scan = run_scan(design, PsfGrid(waves, depths, preset.sensor.pixels, preset.sensor.pixel_pitch_m))
     window = preset.loss.sharp_window
     psf_report = {
         "depths_m": depths,

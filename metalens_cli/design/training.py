@@ -69,6 +69,7 @@ from metalens_cli.io.presets import Preset, preset_incidence_factor, to_toml
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY
 from metalens_cli.optics.field import ON_AXIS_MARGIN, estimate_field_psf
 from metalens_cli.optics.psf import PsfCost
+from metalens_cli.optics.sampling import PsfGrid
 from metalens_cli.runtime import Stopwatch
 
 FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and per-term gradient
@@ -120,14 +121,9 @@ def estimate_training(preset) -> tuple[int, float | None]:
     windows = plan_windows(preset, preset_sensitivity(preset))
     lo, hi = plan_range(preset)[0]
     waves = list(np.linspace(lo, hi, 3 * o.wavelengths_per_channel))
-    psf = estimate_psf(
-        build_model(preset).lens(),
-        waves,
-        [preset.scene.z_near_m[0], preset.scene.z_far_m[0]],
-        max(windows.near, windows.far),
-        preset.sensor.pixel_pitch_m,
-        distance_m=preset.lens.focal_length_m,
-    )
+    zs = [preset.scene.z_near_m[0], preset.scene.z_far_m[0]]
+    grid = PsfGrid(waves, zs, max(windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m)
+    psf = estimate_psf(build_model(preset).lens(), grid)
     canvas = preset.sensor.pixels + 2 * windows.margin
     captures = o.batch_size * 20 * 3 * canvas**2 * 4
     psf_seconds, psf_bytes = 3 * (psf.seconds - psf.setup_seconds), 2 * psf.memory_bytes  # with the backward pass
@@ -146,10 +142,8 @@ def estimate_field_psf_step(preset, windows: Windows, wavelengths_m) -> PsfCost:
     angle, lens = max(preset.optimize.field_angles_rad), build_model(preset).lens()
     zs = [preset.scene.z_near_m[0], preset.scene.z_far_m[0]]
     window = max(field_capacities(lens, preset, wavelengths_m, zs, angle, windows))
-    return estimate_field_psf(
-        lens, wavelengths_m, zs, window, preset.sensor.pixel_pitch_m, angle,
-        distance_m=preset.lens.focal_length_m, oversample=ON_AXIS_MARGIN, backward=True,
-    )  # fmt: skip
+    grid = PsfGrid(wavelengths_m, zs, window, preset.sensor.pixel_pitch_m, preset.lens.focal_length_m)
+    return estimate_field_psf(lens, grid, angle, oversample=ON_AXIS_MARGIN, backward=True)
 
 
 def _features(preset, notes: list[str]):

@@ -114,6 +114,7 @@ def channel_psfs(
     from metalens_cli.optics.blur import kept_fraction, psf_window
     from metalens_cli.optics.channel_psf import channel_psf_stack, grow_until_held
     from metalens_cli.optics.psf import compute_psf
+    from metalens_cli.optics.sampling import PsfGrid
     from metalens_cli.optics.sensor import larger_window
     from metalens_cli.optics.spectra import mix_channels, significant
 
@@ -123,11 +124,7 @@ def channel_psfs(
     if window:
         result = compute_psf(
             design.lens,
-            list(wavelengths_m),
-            [z_near_m, z_far_m],
-            window,
-            pixel_pitch_m,
-            distance_m=d,
+            PsfGrid(list(wavelengths_m), [z_near_m, z_far_m], window, pixel_pitch_m, d),
             propagator="auto",
             dtype=dtype,
             device=device,

@@ -134,6 +134,7 @@ def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths
     rays) and the corner's check with the doubled margin."""
     from metalens_cli.optics.blur import psf_window
     from metalens_cli.optics.field import estimate_field_psf
+    from metalens_cli.optics.sampling import PsfGrid
 
     heights = field_heights(sensor_pixels)[1:]
     d, lens = design.focal_length_m, design.lens
@@ -143,22 +144,15 @@ def estimate_field_psfs(design, sensor_pixels: int, pixel_pitch_m: float, depths
         field_window(lens, lams, z, corner, d, pixel_pitch_m, psf_window(lens, wavelengths_m, [z], d, pixel_pitch_m))
         for z in depths_m
     )
-    common = dict(distance_m=d, force=True)
+    grid = PsfGrid(lams, depths_m, window, pixel_pitch_m, d)
     costs = [
-        estimate_field_psf(
-            lens,
-            lams,
-            depths_m,
-            window,
-            pixel_pitch_m,
-            math.atan2(h * pixel_pitch_m, d),
-            oversample=ON_AXIS_MARGIN,
-            **common,
-        )
+        estimate_field_psf(lens, grid, math.atan2(h * pixel_pitch_m, d), oversample=ON_AXIS_MARGIN, force=True)
         for h in heights
     ]
     middle = lams[len(lams) // 2]
-    costs.append(estimate_field_psf(lens, [middle], [depths_m[-1]], window, pixel_pitch_m, corner, **common))
+    costs.append(
+        estimate_field_psf(lens, grid.replace(wavelengths_m=[middle], depths_m=[depths_m[-1]]), corner, force=True)
+    )
     return max(c.memory_bytes for c in costs), sum(c.seconds for c in costs)
 
 
@@ -177,11 +171,11 @@ def strata_channel_psfs(design, strata, depths_m, pixels: int, pixel_pitch_m: fl
     """On-axis R, G, B PSFs (Z, 3, N, N), float64, from the wavelengths of ``strata``
     (:func:`field_strata`) alone: what the off-axis PSFs' spectral reduction does on axis."""
     from metalens_cli.optics.psf import compute_psf
+    from metalens_cli.optics.sampling import PsfGrid
 
     lams = [float(x) for x in strata.wavelengths_m]
-    mono = compute_psf(
-        design.lens, lams, list(depths_m), pixels, pixel_pitch_m, distance_m=design.focal_length_m, device=device
-    ).psf
+    grid = PsfGrid(lams, list(depths_m), pixels, pixel_pitch_m, design.focal_length_m)
+    mono = compute_psf(design.lens, grid, device=device).psf
     return torch.einsum("zwij,cw->zcij", mono.double(), torch.as_tensor(strata.weights, device=mono.device))
 
 
@@ -205,6 +199,7 @@ def field_channel_psfs(
     total)`` after each off-axis height."""
     from metalens_cli.io.designs import Design
     from metalens_cli.optics.field import field_psf
+    from metalens_cli.optics.sampling import PsfGrid
 
     arguments.instance(design, "design", Design, "a Design (ml.resolve_design)")
     arguments.positive(z_near_m, "z_near_m")
@@ -247,9 +242,9 @@ def field_channel_psfs(
 
     def compute() -> dict[str, np.ndarray]:
         near, far = [], []
+        grid = PsfGrid(lams, [z_near_m, z_far_m], max(sizes), pixel_pitch_m, d)
         for k, angle in enumerate(angles[1:], start=1):
-            result = field_psf(design.lens, lams, [z_near_m, z_far_m], max(sizes), pixel_pitch_m, angle,
-                               distance_m=d, device=device, oversample=ON_AXIS_MARGIN)  # fmt: skip
+            result = field_psf(design.lens, grid, angle, device=device, oversample=ON_AXIS_MARGIN)
             weights = torch.as_tensor(strata.weights, device=result.psf.device)
             rgb = torch.einsum("zwij,cw->zcij", result.psf.double(), weights).float()
             near.append(crop_window(rgb[0], sizes[0]).cpu().numpy())
@@ -257,8 +252,8 @@ def field_channel_psfs(
             if progress is not None:
                 progress(k, len(angles) - 1)
         middle = len(lams) // 2
-        doubled = field_psf(design.lens, [lams[middle]], [z_far_m], max(sizes), pixel_pitch_m, angles[-1],
-                            distance_m=d, device=device)  # fmt: skip
+        corner = grid.replace(wavelengths_m=[lams[middle]], depths_m=[z_far_m])
+        doubled = field_psf(design.lens, corner, angles[-1], device=device)
         error = _relative_l2(result.psf[1, middle], doubled.psf[0, 0])
         return {"near": np.stack(near), "far": np.stack(far), "sampling_error": np.array([error])}
 

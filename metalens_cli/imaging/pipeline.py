@@ -136,13 +136,14 @@ def estimate_captures(
     discs widen the canvas and add four passes (α over the canvas, three disc blurs)."""
     from metalens_cli.optics.blur import psf_window
     from metalens_cli.optics.psf import FFT_RATE, estimate_psf
+    from metalens_cli.optics.sampling import PsfGrid
     from metalens_cli.optics.zero_order import zero_order_radius_m
 
     d = design.focal_length_m
     windows = [
         window or psf_window(design.lens, list(wavelengths_m), [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)
     ]
-    psf = estimate_psf(design.lens, list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, distance_m=d)
+    psf = estimate_psf(design.lens, PsfGrid(list(wavelengths_m), [z_near_m, z_far_m], max(windows), pixel_pitch_m, d))
     margin = canvas_margin(*windows)
     if zero_order:
         disc = zero_order_radius_m(design.lens.aperture_m, d, z_near_m)

@@ -9,7 +9,7 @@ the sharpest PSF recomputed with doubled sampling and, for radial designs, with 
 Rayleigh-Sommerfeld reference. The scan's cost is estimated and its cube file checked before
 any work; the cube is written with the scan's metadata in its header.
 
-With field angles (:func:`run_field_scan`) the cube gains a field axis (docs/formats.md, field
+With field angles (:func:`run_scan`'s ``field_angles_rad``) the cube gains a field axis (docs/formats.md, field
 cubes): each field's PSFs from ``optics.field.field_psf``, in a window centred on its chief ray,
 summarised by ``analysis.psf_metrics.field_summary`` (centroid, tangential and sagittal FWHM,
 encircled energy).
@@ -35,6 +35,7 @@ from metalens_cli.io.json_files import jsonable
 from metalens_cli.io.psf_cube_files import check_cube_size, write_psf_cube
 from metalens_cli.io.resources import Estimate
 from metalens_cli.optics.psf import compute_psf, estimate_psf, psf_inputs
+from metalens_cli.optics.sampling import PsfGrid, psf_grid
 from metalens_cli.runtime import Stopwatch
 
 COVERAGE_WARNING = 0.99
@@ -118,47 +119,85 @@ def check_scan_size(
     check_cube_size(path, "--output", len(depths_m), len(wavelengths_m), pixels, field_cube=field_cube)
 
 
+def _scan_inputs(design, grid, field_angles_rad, azimuth_rad, propagator, dtype):
+    """The checked arguments of a scan: the grid at the design's focal length (unless it names a
+    distance) and the field angles (rad) or None."""
+    arguments.instance(design, "design", Design, "a Design (ml.resolve_design)")
+    if field_angles_rad is None:
+        grid = psf_inputs(design.lens, _at_focus(design, grid), propagator, dtype)
+        return grid, None
+    grid = psf_inputs(design.lens, _at_focus(design, grid), dtype=dtype)
+    angles = arguments.numbers_of(field_angles_rad, "field_angles_rad", lo=0.0, form="field angles ≥ 0 (rad)")
+    arguments.number(azimuth_rad, "azimuth_rad", form="a finite azimuth (rad)")
+    if propagator not in ("auto", "asm"):
+        raise InputError(
+            "propagator", f"{propagator!r} with field angles", "auto or asm (off axis: the shifted angular spectrum)"
+        )
+    return grid, angles
+
+
+def _at_focus(design: Design, grid: PsfGrid) -> PsfGrid:
+    """``grid`` at the design's lens-to-sensor distance when it names none."""
+    grid = psf_grid(grid)
+    return grid.replace(distance_m=design.focal_length_m) if grid.distance_m is None else grid
+
+
 def estimate_scan(
     design: Design,
-    wavelengths_m: list[float],
-    depths_m: list[float],
-    pixels: int,
-    pixel_pitch_m: float,
+    grid: PsfGrid,
     *,
+    field_angles_rad: list[float] | None = None,
+    azimuth_rad: float = 0.0,
     propagator: str = "auto",
     dtype: torch.dtype = torch.float32,
     force: bool = False,
 ) -> Estimate:
-    """Peak memory and time of :func:`run_scan` (``optics.psf.estimate_psf``, which also applies
-    the sampling guard) and the bytes of its float32 cube."""
-    cost = estimate_psf(
-        design.lens,
-        wavelengths_m,
-        depths_m,
-        pixels,
-        pixel_pitch_m,
-        distance_m=design.focal_length_m,
-        propagator=propagator,
-        dtype=dtype,
-        force=force,
-    )
-    count = len(wavelengths_m) * len(depths_m)
+    """Peak memory and time of :func:`run_scan` with these arguments, and the bytes of its
+    float32 cube, before any work (the sampling guard applies).
+
+    Args:
+        design: the design scanned.
+        grid: the scan's wavelengths (m), depths (m), window, pixel pitch (m) and distance (m;
+            None: the design's focal length).
+        field_angles_rad: None: an on-axis scan (``optics.psf.estimate_psf``); else the field
+            angles (rad): an on-axis field as on axis, each other as
+            ``optics.field.estimate_field_psf`` at ``azimuth_rad``.
+        azimuth_rad: azimuth of the fields (rad).
+        propagator: on axis "auto", "asm", "radial" or "rs"; with fields "auto" or "asm".
+        dtype: real dtype of the computation, float32 or float64.
+        force: proceed past the sampling guard.
+
+    Returns:
+        The scan's peak memory (bytes), seconds and cube bytes.
+    """
+    from metalens_cli.optics.field import estimate_field_psf
+
+    grid, angles = _scan_inputs(design, grid, field_angles_rad, azimuth_rad, propagator, dtype)
+    on_axis = propagator if angles is None else "auto"  # a field scan's on-axis field: compute_psf's choice
+    axis = estimate_psf(design.lens, grid, propagator=on_axis, dtype=dtype, force=force)
+    fields = [0.0] if angles is None else angles
+    off = [a for a in fields if a > 0]
+    memory, seconds = axis.memory_bytes, axis.seconds if len(off) < len(fields) else 0.0
+    for angle in off:
+        tilted = estimate_field_psf(design.lens, grid, angle, azimuth_rad=azimuth_rad, dtype=dtype, force=force)
+        memory, seconds = max(memory, tilted.memory_bytes), seconds + tilted.seconds
+    count = grid.count * len(fields)
+    what = f"psf-scan of {count} PSFs of {grid.pixels}² pixels"
     return Estimate(
-        f"psf-scan of {count} PSFs of {pixels}² pixels",
-        cost.memory_bytes,
+        what if angles is None else f"{what} over {len(angles)} fields",
+        memory,
         "--pixels",
-        cost.seconds,
-        disk_bytes=count * pixels**2 * 4,
+        seconds,
+        disk_bytes=count * grid.pixels**2 * 4,
     )
 
 
 def run_scan(
     design: Design,
-    wavelengths_m: list[float],
-    depths_m: list[float],
-    pixels: int,
-    pixel_pitch_m: float,
+    grid: PsfGrid,
     *,
+    field_angles_rad: list[float] | None = None,
+    azimuth_rad: float = 0.0,
     propagator: str = "auto",
     dtype: torch.dtype = torch.float32,
     device: str = "cpu",
@@ -166,72 +205,149 @@ def run_scan(
     check_accuracy: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> ScanResult:
-    """Compute the cube. The radial path runs as one batch; 2-D paths go one wavelength at a
-    time so that ``progress(done, total)`` can report. The channel weights (which refuse a
-    wavelength list that cannot integrate S^c) are settled before any PSF is computed."""
+    """The PSF cube of ``design`` over ``grid``, on axis or over field angles (module docstring).
+
+    An on-axis field of a radial design runs as one batch; every other field goes one wavelength
+    at a time so that ``progress(done, total)`` can report. The channel weights (which refuse a
+    wavelength list that cannot integrate S^c) are settled before any PSF is computed.
+
+    Args:
+        design: the design scanned (its preset, if any, gives the R, G, B spectra).
+        grid: the scan's wavelengths (m), depths (m, inf: plane wave), window, pixel pitch (m) and
+            lens-to-sensor distance (m; None: the design's focal length).
+        field_angles_rad: None: the on-axis scan (``optics.psf.compute_psf``, no field axis);
+            else the field angles (rad) of a field scan (``optics.field.field_psf``, each window
+            centred on its chief ray), field 0's PSFs being the result's ``psf``/``rgb``.
+        azimuth_rad: azimuth of the fields (rad), counter-clockwise from the sensor's +x axis.
+        propagator: on axis "auto", "asm", "radial" or "rs"; with fields "auto" or "asm".
+        dtype: real dtype of the computation, float32 or float64.
+        device: torch device to compute on.
+        force: proceed past the sampling guard.
+        check_accuracy: on axis, recompute the sharpest PSF with doubled sampling and, for a radial
+            design, with the direct Rayleigh-Sommerfeld reference (:func:`accuracy_report`); with
+            fields, the sharpest PSF of the outermost field with doubled sampling.
+        progress: called as ``progress(done, total)`` after each batch.
+
+    Returns:
+        The PSFs, channel PSFs, their summaries, timings (s), warnings and, with fields, the field
+        axis (``fields``).
+
+    Shape:
+        - ``psf``: (D, W, N, N) float32, D depths, W wavelengths, N = ``grid.pixels``.
+        - ``rgb``: (D, 3, N, N) float32, or None without spectra.
+        - ``fields.psf``: (F, D, W, N, N) and ``fields.rgb``: (F, D, 3, N, N) for F field angles.
+    """
+    from metalens_cli.optics.field import field_psf
+
     start = time.perf_counter()
-    arguments.instance(design, "design", Design, "a Design (ml.resolve_design)")
-    wavelengths_m, depths_m, _ = psf_inputs(
-        design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, propagator, dtype
-    )
+    grid, angles = _scan_inputs(design, grid, field_angles_rad, azimuth_rad, propagator, dtype)
     device = arguments.device(device)
-    watch = Stopwatch()
+    lams, zs, pitch = list(grid.wavelengths_m), list(grid.depths_m), grid.pixel_pitch_m
     warnings: list[str] = []
-    weights, spectra = _channel_weights(design, wavelengths_m, warnings) if design.preset is not None else (None, None)
-    batched = propagator == "radial" or (propagator == "auto" and design.lens.radial)
-    groups = [wavelengths_m] if batched else [[w] for w in wavelengths_m]
-    parts, result = [], None
-    for done, group in enumerate(groups, start=1):
-        result = compute_psf(
-            design.lens,
-            group,
-            depths_m,
-            pixels,
-            pixel_pitch_m,
-            distance_m=design.focal_length_m,
-            propagator=propagator,
-            dtype=dtype,
-            device=device,
-            force=force,
-        )
-        parts.append(result.psf.detach().to("cpu", torch.float32))
-        watch.add(result.timing_s)
+    weights, spectra = _channel_weights(design, lams, warnings) if design.preset is not None else (None, None)
+    watch = Stopwatch()
+    fields = [0.0] if angles is None else angles
+    steps: list[tuple[int, list[float]]] = []  # (field, wavelengths): an on-axis radial field is one batch
+    radial = design.lens.radial if angles is not None or propagator == "auto" else propagator == "radial"
+    for k, angle in enumerate(fields):
+        batched = angle == 0 and radial
+        steps += [(k, lams)] if batched else [(k, [w]) for w in lams]
+    parts: dict[int, list[torch.Tensor]] = {k: [] for k in range(len(fields))}
+    results = []
+    options = dict(dtype=dtype, device=device, force=force)
+    for done, (k, group) in enumerate(steps, start=1):
+        if angles is None:
+            result = compute_psf(design.lens, grid.replace(wavelengths_m=group), propagator=propagator, **options)
+        else:
+            result = field_psf(design.lens, grid.replace(wavelengths_m=group), fields[k], azimuth_rad=azimuth_rad,
+                               **options)  # fmt: skip
+        parts[k].append(result.psf.detach().to("cpu", torch.float32))
+        if len(parts[k]) == 1:
+            results.append(result)
+        watch.add({stage: seconds for stage, seconds in result.timing_s.items() if stage != "total"})
         if progress is not None:
-            progress(done, len(groups))
-    psf = torch.cat(parts, dim=1).numpy()
-    rgb = None if weights is None else np.einsum("cw,dwij->dcij", weights, psf).astype(np.float32)
+            progress(done, len(steps))
+    psf = np.stack([torch.cat(parts[k], dim=1).numpy() for k in range(len(fields))])
+    rgb = None if weights is None else np.einsum("cw,fdwij->fdcij", weights, psf).astype(np.float32)
     metrics = [
-        {"depth_m": z, "wavelength_m": w, **summarize(psf[i, j], pixel_pitch_m)}
-        for i, z in enumerate(depths_m)
-        for j, w in enumerate(wavelengths_m)
+        {"depth_m": z, "wavelength_m": w, **summarize(psf[0, i, j], pitch)}
+        for i, z in enumerate(zs)
+        for j, w in enumerate(lams)
     ]
     channel_metrics = (
-        []
-        if rgb is None
-        else [
-            {"depth_m": z, "channel": name, **summarize(rgb[i, c], pixel_pitch_m)}
-            for i, z in enumerate(depths_m)
+        [
+            {"depth_m": z, "channel": name, **summarize(rgb[0, i, c], pitch)}
+            for i, z in enumerate(zs)
             for c, name in enumerate(spectra["channels"])
         ]
+        if rgb is not None and angles is None
+        else []
+    )
+    # the grid reported: on axis the last batch's (its wavelength's plan), with fields the last field's first batch
+    shown = result if angles is None else results[-1]
+    field_scan = (
+        None if angles is None else _field_scan(psf, rgb, angles, azimuth_rad, results, grid, spectra, warnings)
     )
     watch.times["total"] = time.perf_counter() - start
     scan = ScanResult(
-        psf,
-        rgb,
-        list(wavelengths_m),
-        list(depths_m),
-        pixel_pitch_m,
-        result.propagator,
-        result.grid,
+        psf[0],
+        None if rgb is None else rgb[0],
+        lams,
+        zs,
+        pitch,
+        shown.propagator,
+        shown.grid,
         watch.times,
         metrics,
         channel_metrics,
         spectra,
         warnings=warnings,
+        fields=field_scan,
     )
     if check_accuracy:
-        scan.accuracy = accuracy_report(design, scan, dtype, device, force)
+        accuracy = accuracy_report if angles is None else _field_accuracy
+        scan.accuracy = accuracy(design, scan, dtype, device, force)
     return scan
+
+
+def _field_scan(psf, rgb, angles, azimuth, results, grid: PsfGrid, spectra, warnings: list[str]) -> FieldScan:
+    """The field axis of a scan: per field its summaries (``analysis.psf_metrics.field_summary``)
+    and a warning where its window keeps too little light."""
+    from metalens_cli.analysis.psf_metrics import field_summary
+
+    lams, zs, pitch, pixels = grid.wavelengths_m, grid.depths_m, grid.pixel_pitch_m, grid.pixels
+    chief = [[float(v) for v in r.chief_ray_m] for r in results]
+    centre = [[int(v) for v in r.centre_px] for r in results]
+    metrics = []
+    for k, angle in enumerate(angles):
+        offset = (centre[k][0] * pitch - chief[k][0], centre[k][1] * pitch - chief[k][1])
+        entry = {
+            "field": k,
+            "angle_rad": angle,
+            "angle_deg": math.degrees(angle),
+            "chief_ray_m": chief[k],
+            "window_centre_px": centre[k],
+            "propagator": results[k].propagator,
+            "psfs": [
+                {"depth_m": z, "wavelength_m": w, **field_summary(psf[k, i, j], pitch, offset, azimuth)}
+                for i, z in enumerate(zs)
+                for j, w in enumerate(lams)
+            ],
+        }
+        if rgb is not None:
+            entry["channel_psfs"] = [
+                {"depth_m": z, "channel": name, **field_summary(rgb[k, i, c], pitch, offset, azimuth)}
+                for i, z in enumerate(zs)
+                for c, name in enumerate(spectra["channels"])
+            ]
+        metrics.append(entry)
+        kept = psf[k].sum(axis=(-2, -1))
+        if kept.min() < COVERAGE_WARNING:
+            warnings.append(
+                f"field {k} ({math.degrees(angle):.3g}°): the {pixels}-pixel window keeps as little as "
+                f"{kept.min():.3f} of the light; widen --pixels"
+            )
+    return FieldScan(psf, rgb, list(angles), azimuth, chief, centre, metrics)
 
 
 def accuracy_report(design: Design, scan: ScanResult, dtype, device, force: bool, rs_window: int = RS_WINDOW) -> dict:
@@ -245,42 +361,43 @@ def accuracy_report(design: Design, scan: ScanResult, dtype, device, force: bool
     reference = scan.psf[i, j]
     report = {"depth_m": z, "wavelength_m": w}
     start = time.perf_counter()
-    doubled = compute_psf(
-        design.lens,
-        [w],
-        [z],
-        n,
-        scan.pixel_pitch_m,
-        distance_m=design.focal_length_m,
-        propagator=scan.propagator,
-        dtype=dtype,
-        device=device,
-        force=force,
-        oversample=2.0,
-    )
+    grid = PsfGrid([w], [z], n, scan.pixel_pitch_m, design.focal_length_m)
+    options = dict(device=device, force=force)
+    doubled = compute_psf(design.lens, grid, propagator=scan.propagator, dtype=dtype, oversample=2.0, **options)
     report["doubled_sampling_rel_l2"] = relative_l2(reference, doubled.psf[0, 0].detach().cpu().numpy())
     report["doubled_sampling_seconds"] = time.perf_counter() - start
     if design.lens.radial and scan.propagator != "rs":
         m = min(rs_window, n if n % 2 else n - 1)  # odd: its axis pixel m//2 lines up with n//2
         c, h = n // 2, m // 2
         start = time.perf_counter()
-        exact = compute_psf(
-            design.lens,
-            [w],
-            [z],
-            m,
-            scan.pixel_pitch_m,
-            distance_m=design.focal_length_m,
-            propagator="rs",
-            dtype=torch.float64,
-            device=device,
-            force=force,
-        )
+        exact = compute_psf(design.lens, grid.replace(pixels=m), propagator="rs", dtype=torch.float64, **options)
         crop = reference[c - h : c + h + 1, c - h : c + h + 1]
         report["rs_rel_l2"] = relative_l2(crop, exact.psf[0, 0].detach().cpu().numpy())
         report["rs_window_pixels"] = m
         report["rs_seconds"] = time.perf_counter() - start
     return report
+
+
+def _field_accuracy(design: Design, scan: ScanResult, dtype, device, force: bool) -> dict:
+    """Recompute the sharpest PSF of the outermost field with doubled sampling (the direct
+    Rayleigh-Sommerfeld sum over a lens of this size is out of reach off axis); relative L2."""
+    from metalens_cli.optics.field import field_psf
+
+    fields = scan.fields
+    k = int(np.argmax(fields.angles_rad))
+    i, j = np.unravel_index(np.argmax(fields.psf[k].max(axis=(-2, -1))), fields.psf.shape[1:3])
+    clock = time.perf_counter()
+    grid = PsfGrid([scan.wavelengths_m[j]], [scan.depths_m[i]], scan.psf.shape[-1], scan.pixel_pitch_m,
+                   design.focal_length_m)  # fmt: skip
+    doubled = field_psf(design.lens, grid, fields.angles_rad[k], azimuth_rad=fields.azimuth_rad, dtype=dtype,
+                        device=device, force=force, oversample=2.0)  # fmt: skip
+    return {
+        "field": k,
+        "depth_m": scan.depths_m[i],
+        "wavelength_m": scan.wavelengths_m[j],
+        "doubled_sampling_rel_l2": relative_l2(fields.psf[k, i, j], doubled.psf[0, 0].detach().cpu().numpy()),
+        "doubled_sampling_seconds": time.perf_counter() - clock,
+    }
 
 
 def scan_metadata(design: Design, scan: ScanResult, dtype: str, efficiency: dict) -> dict:
@@ -334,169 +451,6 @@ def scan_report(design: Design, scan: ScanResult, metadata: dict, path: str | os
         "warnings": scan.warnings,
         **({"plot": str(plot_path)} if plot_path else {}),
     }
-
-
-def estimate_field_scan(
-    design: Design,
-    wavelengths_m: list[float],
-    depths_m: list[float],
-    pixels: int,
-    pixel_pitch_m: float,
-    angles_rad: list[float],
-    *,
-    azimuth_rad: float = 0.0,
-    dtype: torch.dtype = torch.float32,
-    force: bool = False,
-) -> Estimate:
-    """Peak memory and time of :func:`run_field_scan`: an on-axis field as :func:`estimate_scan`,
-    each other field as ``optics.field.estimate_field_psf`` at ``azimuth_rad``."""
-    from metalens_cli.optics.field import estimate_field_psf
-
-    axis = estimate_psf(
-        design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m=design.focal_length_m,
-        dtype=dtype, force=force,
-    )  # fmt: skip
-    off = [a for a in angles_rad if a > 0]
-    memory, seconds = axis.memory_bytes, axis.seconds if len(off) < len(angles_rad) else 0.0
-    for angle in off:
-        tilted = estimate_field_psf(
-            design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, angle, azimuth_rad=azimuth_rad,
-            distance_m=design.focal_length_m, dtype=dtype, force=force,
-        )  # fmt: skip
-        memory, seconds = max(memory, tilted.memory_bytes), seconds + tilted.seconds
-    count = len(wavelengths_m) * len(depths_m) * len(angles_rad)
-    return Estimate(
-        f"psf-scan of {count} PSFs of {pixels}² pixels over {len(angles_rad)} fields",
-        memory,
-        "--pixels",
-        seconds,
-        disk_bytes=count * pixels**2 * 4,
-    )
-
-
-def run_field_scan(
-    design: Design,
-    wavelengths_m: list[float],
-    depths_m: list[float],
-    pixels: int,
-    pixel_pitch_m: float,
-    angles_rad: list[float],
-    *,
-    azimuth_rad: float = 0.0,
-    dtype: torch.dtype = torch.float32,
-    device: str = "cpu",
-    force: bool = False,
-    check_accuracy: bool = False,
-    progress: Callable[[int, int], None] | None = None,
-) -> ScanResult:
-    """A scan over the field angles ``angles_rad`` (rad) at azimuth ``azimuth_rad``: field 0's
-    PSFs are the scan's ``psf``/``rgb`` (what on-axis readers see), all of them in ``fields``.
-    ``check_accuracy`` recomputes the sharpest PSF of the outermost field with doubled sampling
-    (the direct Rayleigh-Sommerfeld sum over a lens of this size is out of reach off axis)."""
-    from metalens_cli.analysis.psf_metrics import field_summary
-    from metalens_cli.optics.field import field_psf
-
-    start = time.perf_counter()
-    warnings: list[str] = []
-    arguments.instance(design, "design", Design, "a Design (ml.resolve_design)")
-    wavelengths_m, depths_m, _ = psf_inputs(
-        design.lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, design.focal_length_m, dtype=dtype
-    )
-    angles_rad = arguments.numbers_of(angles_rad, "angles_rad", lo=0.0, form="field angles ≥ 0 (rad)")
-    arguments.number(azimuth_rad, "azimuth_rad", form="a finite azimuth (rad)")
-    device = arguments.device(device)
-    weights, spectra = _channel_weights(design, wavelengths_m, warnings) if design.preset is not None else (None, None)
-    watch = Stopwatch()
-    psfs, results = [], []
-    steps: list[tuple[int, list[float]]] = []  # (field, wavelengths): an on-axis radial field is one batch
-    for k, angle in enumerate(angles_rad):
-        batched = angle == 0 and design.lens.radial
-        steps += [(k, list(wavelengths_m))] if batched else [(k, [w]) for w in wavelengths_m]
-    parts: dict[int, list[torch.Tensor]] = {k: [] for k in range(len(angles_rad))}
-    for done, (k, group) in enumerate(steps, start=1):
-        result = field_psf(
-            design.lens, group, depths_m, pixels, pixel_pitch_m, angles_rad[k], azimuth_rad=azimuth_rad,
-            distance_m=design.focal_length_m, dtype=dtype, device=device, force=force,
-        )  # fmt: skip
-        parts[k].append(result.psf.detach().to("cpu", torch.float32))
-        if len(parts[k]) == 1:
-            results.append(result)
-        watch.add({stage: seconds for stage, seconds in result.timing_s.items() if stage != "total"})
-        if progress is not None:
-            progress(done, len(steps))
-    for k in range(len(angles_rad)):
-        psfs.append(torch.cat(parts[k], dim=1).numpy())
-    psf = np.stack(psfs)
-    rgb = None if weights is None else np.einsum("cw,fdwij->fdcij", weights, psf).astype(np.float32)
-    chief = [[float(v) for v in r.chief_ray_m] for r in results]
-    centre = [[int(v) for v in r.centre_px] for r in results]
-    metrics = []
-    for k, angle in enumerate(angles_rad):
-        offset = (centre[k][0] * pixel_pitch_m - chief[k][0], centre[k][1] * pixel_pitch_m - chief[k][1])
-        entry = {
-            "field": k,
-            "angle_rad": angle,
-            "angle_deg": math.degrees(angle),
-            "chief_ray_m": chief[k],
-            "window_centre_px": centre[k],
-            "propagator": results[k].propagator,
-            "psfs": [
-                {"depth_m": z, "wavelength_m": w, **field_summary(psf[k, i, j], pixel_pitch_m, offset, azimuth_rad)}
-                for i, z in enumerate(depths_m)
-                for j, w in enumerate(wavelengths_m)
-            ],
-        }
-        if rgb is not None:
-            entry["channel_psfs"] = [
-                {"depth_m": z, "channel": name, **field_summary(rgb[k, i, c], pixel_pitch_m, offset, azimuth_rad)}
-                for i, z in enumerate(depths_m)
-                for c, name in enumerate(spectra["channels"])
-            ]
-        metrics.append(entry)
-        kept = psf[k].sum(axis=(-2, -1))
-        if kept.min() < COVERAGE_WARNING:
-            warnings.append(
-                f"field {k} ({math.degrees(angle):.3g}°): the {pixels}-pixel window keeps as little as "
-                f"{kept.min():.3f} of the light; widen --pixels"
-            )
-    watch.times["total"] = time.perf_counter() - start
-    axis_metrics = [
-        {"depth_m": z, "wavelength_m": w, **summarize(psf[0, i, j], pixel_pitch_m)}
-        for i, z in enumerate(depths_m)
-        for j, w in enumerate(wavelengths_m)
-    ]
-    scan = ScanResult(
-        psf[0],
-        None if rgb is None else rgb[0],
-        list(wavelengths_m),
-        list(depths_m),
-        pixel_pitch_m,
-        results[-1].propagator,
-        results[-1].grid,
-        watch.times,
-        axis_metrics,
-        [],
-        spectra,
-        warnings=warnings,
-        fields=FieldScan(psf, rgb, list(angles_rad), azimuth_rad, chief, centre, metrics),
-    )
-    if check_accuracy:
-        k = int(np.argmax(angles_rad))
-        i, j = np.unravel_index(np.argmax(psf[k].max(axis=(-2, -1))), psf.shape[1:3])
-        clock = time.perf_counter()
-        doubled = field_psf(
-            design.lens, [wavelengths_m[j]], [depths_m[i]], pixels, pixel_pitch_m, angles_rad[k],
-            azimuth_rad=azimuth_rad, distance_m=design.focal_length_m, dtype=dtype, device=device, force=force,
-            oversample=2.0,
-        )  # fmt: skip
-        scan.accuracy = {
-            "field": k,
-            "depth_m": depths_m[i],
-            "wavelength_m": wavelengths_m[j],
-            "doubled_sampling_rel_l2": relative_l2(psf[k, i, j], doubled.psf[0, 0].detach().cpu().numpy()),
-            "doubled_sampling_seconds": time.perf_counter() - clock,
-        }
-    return scan
 
 
 def field_metadata(scan: ScanResult) -> dict:

@@ -121,7 +121,9 @@ def channel_psf_stack(
     themselves are not).
     """
     start = time.perf_counter()
-    lams, zs, d = psf_inputs(lens, wavelengths_m, depths_m, 1, pixel_pitch_m, distance_m, dtype=dtype)
+    arguments.instance(lens, "lens", Metalens, "a Metalens (ml.hyperbolic, ml.resolve_design(...).lens)")
+    grid = psf_inputs(lens, sampling.PsfGrid(wavelengths_m, depths_m, 1, pixel_pitch_m, distance_m), dtype=dtype)
+    lams, zs, d = list(grid.wavelengths_m), list(grid.depths_m), grid.distance_m
     device = arguments.device(device)
     caps, mix = _capacities_and_mix(capacity, len(zs), weights, len(lams))
     plan_px = int(plan_pixels or max(caps))
@@ -191,7 +193,7 @@ def _radial_stack(
     plan_lams = lams + [float(x) for x in np.ravel(plan_l if plan_l is not None else [])]
     plan_zs = zs + [float(x) for x in np.ravel(plan_z if plan_z is not None else [])]
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, False), plan_f or 0.0)
-    plan = sampling.plan_radial(lens, plan_lams, zs, d, plan_px, pitch, f_max)
+    plan = sampling.plan_radial(lens, sampling.PsfGrid(plan_lams, zs, plan_px, pitch, d), f_max)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
     n_rows = [radial_sensor_radii(plan.step_m, cap, pitch) for cap in caps]
     out_matrix = prop.hankel_output_rows(kernel, plan.step_m, max(n_rows))  # only the rows the capacities reach
@@ -274,11 +276,7 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
     """Any propagator: the PSFs in the largest capacity, mixed, each depth cropped by its light."""
     result = compute_psf(
         lens,
-        lams,
-        zs,
-        max(caps),
-        pitch,
-        distance_m=d,
+        sampling.PsfGrid(lams, zs, max(caps), pitch, d),
         propagator="auto",
         dtype=dtype,
         device=device,
@@ -314,10 +312,10 @@ def field_channel_stack(
     lams = [float(x) for x in np.ravel(wavelengths_m)]
     zs = [float(x) for x in np.ravel(depths_m)]
     caps, mix = _capacities_and_mix(capacity, len(zs), weights, len(lams))  # checked before the PSFs' cost
+    grid = sampling.PsfGrid(lams, zs, max(caps), pixel_pitch_m, distance_m)
     result = field_psf(
-        lens, lams, zs, max(caps), pixel_pitch_m, angle_rad, azimuth_rad=azimuth_rad, distance_m=distance_m,
-        dtype=dtype, device=device, oversample=ON_AXIS_MARGIN,
-    )  # fmt: skip
+        lens, grid, angle_rad, azimuth_rad=azimuth_rad, dtype=dtype, device=device, oversample=ON_AXIS_MARGIN
+    )
     stack = _square_stack(result.psf, mix, caps, energy, core_window, result.grid, dict(result.timing_s))
     stack.timing_s["total"] = time.perf_counter() - start
     return stack

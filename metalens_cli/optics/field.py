@@ -134,14 +134,10 @@ def _chief_rays(lens: Metalens, lams, angle: float, azimuth: float, d: float, pi
 
 def field_psf(
     lens: Metalens,
-    wavelengths_m,
-    depths_m,
-    pixels: int,
-    pixel_pitch_m: float,
+    grid: sampling.PsfGrid,
     angle_rad: float,
     *,
     azimuth_rad: float = 0.0,
-    distance_m: float | None = None,
     propagator: str = "asm",
     dtype: torch.dtype = torch.float32,
     device: str | torch.device = "cpu",
@@ -149,41 +145,44 @@ def field_psf(
     oversample: float = 1.0,
 ) -> FieldPsf:
     """PSFs of the field point (α = ``angle_rad``, ψ = ``azimuth_rad``) for every (depth,
-    wavelength), in an N = ``pixels`` window centred on the chief ray (module docstring).
+    wavelength) of ``grid``, in its window centred on the chief ray (module docstring).
 
-    propagator: "asm" (shifted angular spectrum) or "rs" (direct Rayleigh-Sommerfeld, float64,
-    small lenses and windows only). α = 0 returns ``compute_psf`` (radial path for a radial lens).
+    Args:
+        lens: the metalens (differentiable in ``lens.theta``).
+        grid: wavelengths (m), depths (m, inf: plane wave), window, pixel pitch (m) and
+            lens-to-sensor distance (m; None: ``lens.focal_length_m``).
+        angle_rad: field angle α from the axis (rad), 0 to 60°.
+        azimuth_rad: field azimuth ψ (rad), counter-clockwise from the sensor's +x axis.
+        propagator: "asm" (shifted angular spectrum) or "rs" (direct Rayleigh-Sommerfeld, float64,
+            small lenses and windows only). α = 0 with asm returns :func:`compute_psf`'s PSFs.
+        dtype: real dtype of the computation, float32 or float64.
+        device: torch device to compute on.
+        force: proceed past the sampling guard.
+        oversample: scales every sample density and margin (2 for an accuracy check).
+
+    Returns:
+        The PSFs, their axes, the chief rays (m) and the window's centre pixel, the propagator and
+        grid used, and the seconds per stage.
+
+    Shape:
+        - ``psf``: (D, W, N, N) for D depths, W wavelengths and N = ``grid.pixels``.
     """
     start = time.perf_counter()
-    lams, zs, d = psf_inputs(
-        lens,
-        wavelengths_m,
-        depths_m,
-        pixels,
-        pixel_pitch_m,
-        distance_m,
-        propagator,
-        dtype,
-        oversample,
-        FIELD_PROPAGATORS,
-    )
+    grid = psf_inputs(lens, grid, propagator, dtype, oversample, FIELD_PROPAGATORS)
+    lams, zs, d, pixel_pitch_m = list(grid.wavelengths_m), list(grid.depths_m), grid.distance_m, grid.pixel_pitch_m
     _check_field(angle_rad, azimuth_rad)
     device = arguments.device(device)
-    check_psf_memory(len(lams) * len(zs), pixels, device)
+    check_psf_memory(grid.count, grid.pixels, device)
     rays, middle, centre = _chief_rays(lens, lams, angle_rad, azimuth_rad, d, pixel_pitch_m)
     common = (tuple(lams), tuple(zs), pixel_pitch_m, d, angle_rad, azimuth_rad, middle, rays, centre)
     if angle_rad == 0 and centre == (0, 0) and propagator == "asm":
-        axis = compute_psf(
-            lens, lams, zs, pixels, pixel_pitch_m, distance_m=d, dtype=dtype, device=device, force=force,
-            oversample=oversample,
-        )  # fmt: skip
+        axis = compute_psf(lens, grid, dtype=dtype, device=device, force=force, oversample=oversample)
         return FieldPsf(axis.psf, *common, axis.propagator, axis.grid, dict(axis.timing_s))
     f_g = _carrier_free_frequency(lens, lams, zs, angle_rad, azimuth_rad, force)
     run = _field_asm if propagator == "asm" else _field_rs
-    psf, grid, timing = run(lens, lams, zs, d, pixels, pixel_pitch_m, angle_rad, azimuth_rad, centre, f_g, dtype,
-                            torch.device(device), oversample)  # fmt: skip
+    psf, info, timing = run(lens, grid, angle_rad, azimuth_rad, centre, f_g, dtype, torch.device(device), oversample)
     timing["total"] = time.perf_counter() - start
-    return FieldPsf(psf, *common, propagator, grid, timing)
+    return FieldPsf(psf, *common, propagator, info, timing)
 
 
 # Rates of the shifted angular spectrum on 2 CPU cores (benchmarks/bench_field.py and bench_field_set.py,
@@ -198,33 +197,44 @@ MEMORY_SLACK = 1.5  # peak RSS over the arrays counted: 1.35-1.55 measured (FFT 
 
 def estimate_field_psf(
     lens: Metalens,
-    wavelengths_m,
-    depths_m,
-    pixels: int,
-    pixel_pitch_m: float,
+    grid: sampling.PsfGrid,
     angle_rad: float,
     *,
     azimuth_rad: float = 0.0,
-    distance_m: float | None = None,
     dtype: torch.dtype = torch.float32,
     force: bool = False,
     oversample: float = 1.0,
     backward: bool = False,
 ) -> PsfCost:
     """What :func:`field_psf` (asm) will cost, from the same plans (a :class:`SamplingError` here
-    is the one it would raise): the site grid once, per wavelength one shifted transfer function,
-    per (wavelength, depth) the band FFT passes over the pupil and the window's inverse passes
-    (and for a finite depth the pupil field formed with its source's phase);
-    ``setup_seconds`` is the site grid's. Peak memory: the site arrays (float64 phase, per finite
-    depth its path, the pupil field) and the propagation's arrays at the largest band; with
-    ``backward`` (PSFs differentiated in θ), twice that and what autograd keeps per (wavelength,
-    depth): the pupil field and its float64 phase over the sites, the window's field and intensity
-    (the seconds stay the forward pass's). On the +x axis of a radial lens half the pupil's rows
-    serve (``_mirror_even``): half the sites held, half the transfer function, and half the rows of
-    the first pass each way."""
-    lams, zs, d = psf_inputs(
-        lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m, dtype=dtype, oversample=oversample
-    )
+    is the one it would raise).
+
+    Counted: the site grid once, per wavelength one shifted transfer function, per (wavelength,
+    depth) the band FFT passes over the pupil and the window's inverse passes (and for a finite
+    depth the pupil field formed with its source's phase); ``setup_seconds`` is the site grid's.
+    Peak memory: the site arrays (float64 phase, per finite depth its path, the pupil field) and
+    the propagation's arrays at the largest band; with ``backward``, twice that and what autograd
+    keeps per (wavelength, depth): the pupil field and its float64 phase over the sites, the
+    window's field and intensity (the seconds stay the forward pass's). On the +x axis of a radial
+    lens half the pupil's rows serve (``_mirror_even``): half the sites held, half the transfer
+    function, and half the rows of the first pass each way.
+
+    Args:
+        lens: the metalens.
+        grid: the PSFs' axes and window, as :func:`field_psf` takes them.
+        angle_rad: field angle α (rad), 0 to 60°.
+        azimuth_rad: field azimuth ψ (rad).
+        dtype: real dtype of the computation, float32 or float64.
+        force: proceed past the sampling guard.
+        oversample: scales every sample density and margin.
+        backward: the PSFs are differentiated in θ.
+
+    Returns:
+        Planned peak memory (bytes) and run time (s).
+    """
+    grid = psf_inputs(lens, grid, dtype=dtype, oversample=oversample)
+    lams, zs, d = list(grid.wavelengths_m), list(grid.depths_m), grid.distance_m
+    pixels, pixel_pitch_m = grid.pixels, grid.pixel_pitch_m
     _check_field(angle_rad, azimuth_rad)
     f_g = _carrier_free_frequency(lens, lams, zs, angle_rad, azimuth_rad, force)
     m = lens.grid_size
@@ -235,13 +245,11 @@ def estimate_field_psf(
     seconds, band_max, window = SITE_SECONDS * m**2 + PHASE_SECONDS * site_count * finite * len(lams), 0, 0
     carriers, centre_m = _carriers(lams, angle_rad, azimuth_rad), (centre[0] * pixel_pitch_m, centre[1] * pixel_pitch_m)
     for lam in lams:  # every one given, as field_psf computes them
-        grid, k_max = sampling.plan_field_asm(
-            lens, lam, d, pixels, pixel_pitch_m, f_g, carriers[lam], centre_m, oversample
-        )
-        band, n, up = 2 * k_max + 1, grid.size, grid.upsampled_size
-        passes = (share * m + band) * n * math.log2(n) + (share * band + grid.window_samples) * up * math.log2(up)
+        asm, k_max = sampling.plan_field_asm(lens, grid, lam, f_g, carriers[lam], centre_m, oversample)
+        band, n, up = 2 * k_max + 1, asm.size, asm.upsampled_size
+        passes = (share * m + band) * n * math.log2(n) + (share * band + asm.window_samples) * up * math.log2(up)
         seconds += TRANSFER_SECONDS * share * band**2 + len(zs) * passes / FFT_LENGTH_RATE
-        band_max, window = max(band_max, band), grid.window_samples
+        band_max, window = max(band_max, band), asm.window_samples
     real = 4 if dtype == torch.float32 else 8
     sites = site_count * (8 + 1 + 2 * real + (real + 8) * finite)  # lens phase, pupil, fields, per finite depth
     # the transfer function and the band's spectrum, the first pass's band × sites, the window's
@@ -306,7 +314,13 @@ def _mirror_even(lens: Metalens, angle: float, azimuth: float, centre_row: int) 
     return lens.radial and angle > 0 and math.sin(azimuth) == 0.0 and centre_row == 0
 
 
-def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dtype, device, oversample):
+def _field_asm(lens, psf_grid, angle, azimuth, centre, f_g, dtype, device, oversample):
+    lams, zs, pixels, pitch = (
+        list(psf_grid.wavelengths_m),
+        list(psf_grid.depths_m),
+        psf_grid.pixels,
+        psf_grid.pixel_pitch_m,
+    )
     watch = Stopwatch()
     even = _mirror_even(lens, angle, azimuth, centre[1])
     phase_lens, x, y = _site_grid(lens, device, half=even)
@@ -316,9 +330,9 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
     complex_dtype = torch.complex64 if dtype == torch.float32 else torch.complex128
     carriers = _carriers(lams, angle, azimuth)
     grids = {
-        lam: sampling.plan_field_asm(lens, lam, d, pixels, pitch, f_g, carriers[lam], centre_m, oversample)
-        for lam in lams
+        lam: sampling.plan_field_asm(lens, psf_grid, lam, f_g, carriers[lam], centre_m, oversample) for lam in lams
     }
+    d = psf_grid.distance_m
     grid = grids[lams[0]][0]
     to_pixels = GridPixels.build(grid.window_coords().numpy(), pixels, pitch, device, dtype)
     watch.lap("kernels")
@@ -363,10 +377,12 @@ def _field_asm(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dt
     return out, info, watch.times
 
 
-def _field_rs(lens, lams, zs, d, pixels, pitch, angle, azimuth, centre, f_g, dtype, device, oversample):
+def _field_rs(lens, psf_grid, angle, azimuth, centre, f_g, dtype, device, oversample):
     """Midpoint rule over the sites in the pupil (the field is one value per site), output on a grid
     of step 1/(8·ν) around the window centre, ν the full field's highest frequency (tilt included),
     pixel-integrated."""
+    lams, zs, d = list(psf_grid.wavelengths_m), list(psf_grid.depths_m), psf_grid.distance_m
+    pixels, pitch = psf_grid.pixels, psf_grid.pixel_pitch_m
     watch = Stopwatch()
     phase_lens, x, y = _site_grid(lens, device)
     xx, yy = torch.broadcast_tensors(x, y)

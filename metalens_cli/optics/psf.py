@@ -43,12 +43,8 @@ class PsfResult:
 
 def compute_psf(
     lens: Metalens,
-    wavelengths_m,
-    depths_m,
-    pixels: int,
-    pixel_pitch_m: float,
+    grid: sampling.PsfGrid,
     *,
-    distance_m: float | None = None,
     propagator: str = "auto",
     dtype: torch.dtype = torch.float32,
     device: str | torch.device = "cpu",
@@ -58,24 +54,36 @@ def compute_psf(
     plan_depths_m=None,
     plan_frequency: float | None = None,
 ) -> PsfResult:
-    """Sensor PSFs for every (depth, wavelength); see the module docstring for the layout.
+    """Sensor PSFs of on-axis point sources for every (depth, wavelength) of ``grid``.
 
-    distance_m: lens-to-sensor distance (m), defaults to ``lens.focal_length_m``.
-    propagator: "auto" (radial for a radial lens, else asm), "asm", "radial" or "rs".
-    dtype: real dtype of the computation (float32 or float64); oversample: scales every sample
-    density and margin (2 for an accuracy check); force: proceed past the sampling guard.
-    plan_wavelengths_m, plan_depths_m: the sampling plan (and the guard) also covers these, so
-    that calls whose wavelengths and depths vary inside them (an optimiser's random draws) share
-    one plan and its cached kernels; the PSFs are only computed at ``wavelengths_m``/``depths_m``.
-    plan_frequency: plan for a field frequency (cycles/m) of at least this much, so that a lens
-    that changes a little between calls keeps the plan (headroom for an optimiser).
+    Args:
+        lens: the metalens (differentiable in ``lens.theta``).
+        grid: wavelengths (m), depths (m, inf: plane wave), window, pixel pitch (m) and
+            lens-to-sensor distance (m; None: ``lens.focal_length_m``).
+        propagator: "auto" (radial for a radial lens, else asm), "asm", "radial" or "rs".
+        dtype: real dtype of the computation, float32 or float64.
+        device: torch device to compute on.
+        force: proceed past the sampling guard (``SamplingError``).
+        oversample: scales every sample density and margin (2 for an accuracy check).
+        plan_wavelengths_m: wavelengths (m) the sampling plan (and the guard) also covers, so that
+            calls whose wavelengths vary inside them (an optimiser's draws) share one plan and its
+            cached kernels; PSFs are computed at ``grid``'s alone.
+        plan_depths_m: depths (m) the plan also covers, likewise.
+        plan_frequency: plan for a field frequency (cycles/m) of at least this much, so that a lens
+            that changes a little between calls keeps the plan.
+
+    Returns:
+        The PSFs (the fraction of the pupil's power on each pixel), their axes, the propagator
+        and grid used, and the seconds per stage.
+
+    Shape:
+        - ``psf``: (D, W, N, N) for D depths, W wavelengths and N = ``grid.pixels``.
     """
     clock = Stopwatch()
-    lams, zs, d = psf_inputs(
-        lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m, propagator, dtype, oversample
-    )
+    grid = psf_inputs(lens, grid, propagator, dtype, oversample)
+    lams, zs, d, pixels = list(grid.wavelengths_m), list(grid.depths_m), grid.distance_m, grid.pixels
     device = arguments.device(device)
-    check_psf_memory(len(lams) * len(zs), pixels, device)
+    check_psf_memory(grid.count, pixels, device)
     if propagator == "auto":
         propagator = "radial" if lens.radial else "asm"
     if propagator == "radial" and not lens.radial:
@@ -86,9 +94,9 @@ def compute_psf(
     plan_zs = zs + [float(x) for x in np.ravel(plan_depths_m if plan_depths_m is not None else [])]
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, force), plan_frequency or 0.0)
     run = {"radial": _radial_psf, "asm": _asm_psf, "rs": _rs_psf}[propagator]
-    psf, grid = run(lens, lams, zs, d, pixels, pixel_pitch_m, f_max, dtype, device, oversample, clock, plan_lams)
+    psf, info = run(lens, grid, f_max, dtype, device, oversample, clock, plan_lams)
     clock.lap("sensor")
-    return PsfResult(psf, tuple(lams), tuple(zs), pixel_pitch_m, d, propagator, grid, clock.times)
+    return PsfResult(psf, tuple(lams), tuple(zs), grid.pixel_pitch_m, d, propagator, info, clock.times)
 
 
 @dataclass(frozen=True)
@@ -119,29 +127,36 @@ RADIAL_SLACK = 1.3  # the radial path's measured peak varies ±20 % from run to 
 
 def estimate_psf(
     lens: Metalens,
-    wavelengths_m,
-    depths_m,
-    pixels: int,
-    pixel_pitch_m: float,
+    grid: sampling.PsfGrid,
     *,
-    distance_m: float | None = None,
     propagator: str = "auto",
     dtype: torch.dtype = torch.float32,
     force: bool = False,
     oversample: float = 1.0,
 ) -> PsfCost:
-    """What :func:`compute_psf` with these arguments will cost, computed from the same plan
-    (a :class:`SamplingError` here is the one it would raise) before any large array exists."""
-    lams, zs, d = psf_inputs(
-        lens, wavelengths_m, depths_m, pixels, pixel_pitch_m, distance_m, propagator, dtype, oversample
-    )
+    """What :func:`compute_psf` with these arguments will cost, from the same plan, before any
+    large array exists (a :class:`SamplingError` here is the one it would raise).
+
+    Args:
+        lens: the metalens.
+        grid: the PSFs' axes and window, as :func:`compute_psf` takes them.
+        propagator: "auto", "asm", "radial" or "rs".
+        dtype: real dtype of the computation, float32 or float64.
+        force: proceed past the sampling guard.
+        oversample: scales every sample density and margin.
+
+    Returns:
+        Planned peak memory (bytes) and run time (s).
+    """
+    grid = psf_inputs(lens, grid, propagator, dtype, oversample)
+    lams, zs, pixels, pixel_pitch_m = list(grid.wavelengths_m), list(grid.depths_m), grid.pixels, grid.pixel_pitch_m
     propagator = ("radial" if lens.radial else "asm") if propagator == "auto" else propagator
     f_max = sampling.check_lens_sampling(lens, lams, zs, force)
     count, real = len(lams) * len(zs), 4 if dtype == torch.float32 else 8
     out_bytes = psf_stack_bytes(count, pixels)
     octant = (pixels // 2 + 1) * (pixels // 2 + 2) // 2
     if propagator == "radial":
-        plan = sampling.plan_radial(lens, lams, zs, d, pixels, pixel_pitch_m, f_max, oversample)
+        plan = sampling.plan_radial(lens, grid, f_max, oversample)
         intervals = math.ceil(math.sqrt(2) * pixel_pitch_m / plan.step_m) + 7
         sensor_bytes = 8 * octant * intervals * 4 * 8
         # kept in dtype, built from float64 J0 values one block at a time (arguments, values, scaled)
@@ -152,17 +167,17 @@ def estimate_psf(
         setup = octant * intervals / SENSOR_RATE
         return PsfCost(int(memory), products / MATMUL_RATE + setup, setup)
     if propagator == "asm":
-        grid = sampling.plan_asm(lens, [max(lams)], d, pixels, pixel_pitch_m, f_max, oversample)
-        window = 2 * grid.window_half + 1
-        memory = out_bytes + 2 * grid.size**2 * 2 * real + lens.grid_size**2 * (real + 8 + 1) + 2 * window**2 * 2 * real
-        passes = count * 2 * grid.size**2 * max(math.log2(grid.size), 1)
+        asm = sampling.plan_asm(lens, grid.replace(wavelengths_m=[max(lams)]), f_max, oversample)
+        window = 2 * asm.window_half + 1
+        memory = out_bytes + 2 * asm.size**2 * 2 * real + lens.grid_size**2 * (real + 8 + 1) + 2 * window**2 * 2 * real
+        passes = count * 2 * asm.size**2 * max(math.log2(asm.size), 1)
         return PsfCost(int(memory), passes / FFT_RATE + count * pixels * window**2 * 2 / MATMUL_RATE)
     # rs: sums over the pupil for every output sample, chunked; memory is the PSFs and the nodes
     nu = sampling.frequency_limit(f_max, lams, 2 * oversample)
     if lens.radial:
         step = 1 / (16 * nu * oversample)
         outputs = math.ceil(math.hypot(pixels // 2 + 0.5, pixels // 2 + 0.5) * pixel_pitch_m / step) + 3
-        n_r, n_phi = sampling.plan_rs(lens, lams, d, outputs * step, f_max, oversample)
+        n_r, n_phi = sampling.plan_rs(lens, grid, outputs * step, f_max, oversample)
         nodes = n_r * (n_phi + 1)
     else:
         nodes = math.ceil(math.pi * lens.radius_m**2 / lens.pitch_m**2)
@@ -173,36 +188,20 @@ def estimate_psf(
 
 
 def psf_inputs(
-    lens,
-    wavelengths_m,
-    depths_m,
-    pixels,
-    pixel_pitch_m,
-    distance_m,
-    propagator="auto",
-    dtype=torch.float32,
-    oversample=1.0,
-    propagators=PROPAGATORS,
-) -> tuple[list[float], list[float], float]:
-    """The checked arguments of a PSF computation (``metalens_cli.arguments``): the wavelengths
-    and depths as lists of floats (depths may be inf), and the lens-to-sensor distance (the
-    lens's focal length when ``distance_m`` is None). Errors name the parameter (unit suffix
-    dropped, as the CLI's options are named)."""
+    lens, grid, propagator="auto", dtype=torch.float32, oversample=1.0, propagators=PROPAGATORS
+) -> sampling.PsfGrid:
+    """The checked arguments of a PSF computation (``metalens_cli.arguments``; the grid checked
+    its own fields), and the grid with its lens-to-sensor distance resolved (the lens's focal
+    length when ``grid.distance_m`` is None). Errors name the parameter (unit suffix dropped, as
+    the CLI's options are named)."""
     arguments.instance(lens, "lens", Metalens, "a Metalens (ml.hyperbolic, ml.resolve_design(...).lens)")
-    lams = arguments.lengths(wavelengths_m, "wavelengths")
-    zs = arguments.lengths(depths_m, "depths", allow_inf=True)
-    arguments.count(pixels, "pixels")
-    arguments.positive(pixel_pitch_m, "pixel_pitch")
-    d = lens.focal_length_m if distance_m is None else distance_m
-    if d is None:
-        raise InputError("distance", "is None and the lens has no focal length", "a lens-to-sensor distance (m)")
-    arguments.positive(d, "distance")
+    grid = sampling.psf_grid(grid).resolved(lens)
     if propagator not in propagators:
         raise InputError("propagator", f"unknown propagator {propagator!r}", "|".join(propagators))
     if dtype not in (torch.float32, torch.float64):
         raise InputError("dtype", f"unsupported {dtype}", "float32 or float64")
     arguments.number(oversample, "oversample", lo=0.0, open_lo=True, form="a positive factor")
-    return lams, zs, float(d)
+    return grid
 
 
 def psf_stack_bytes(count: int, pixels: int) -> int:
@@ -229,8 +228,14 @@ def pupil_field(phase_lens: torch.Tensor, r: torch.Tensor, lam: float, z: float,
     return torch.polar(source_amplitude(r, z).to(dtype), phase.to(dtype))
 
 
-def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, plan_lams):
-    plan = sampling.plan_radial(lens, plan_lams, zs, d, pixels, pitch, f_max, oversample)
+def _axes(grid):
+    """A resolved grid's wavelengths and depths (lists), distance, pixels and pixel pitch."""
+    return list(grid.wavelengths_m), list(grid.depths_m), grid.distance_m, grid.pixels, grid.pixel_pitch_m
+
+
+def _radial_psf(lens, grid, f_max, dtype, device, oversample, clock, plan_lams):
+    lams, zs, d, pixels, pitch = _axes(grid)
+    plan = sampling.plan_radial(lens, grid.replace(wavelengths_m=plan_lams), f_max, oversample)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
     out_matrix = prop.hankel_output_rows(kernel, plan.step_m, plan.n_radii)
     sensor = radial_sensor(plan.step_m, pixels, pitch)
@@ -245,7 +250,7 @@ def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversamp
     out = prop.radial_propagate(fields, kernel, transfer, out_matrix)
     clock.lap("propagate")
     psf = sensor.apply(out.abs() ** 2) / power[:, None, None]
-    grid = {
+    info = {
         "kind": "radial",
         "support_radius_m": plan.radius_m,
         "hankel_samples": plan.n_freq,
@@ -254,10 +259,10 @@ def _radial_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversamp
         "output_step_m": plan.step_m,
         "output_radii": plan.n_radii,
     }
-    return psf.reshape(len(zs), len(lams), pixels, pixels), grid
+    return psf.reshape(len(zs), len(lams), pixels, pixels), info
 
 
-def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _):
+def _asm_psf(lens, psf_grid, f_max, dtype, device, oversample, clock, _):
     """One PSF at a time, wavelength by wavelength so that each transfer function is built once
     and shared by the depths. Each wavelength gets its own padded grid: the wrap-free side grows
     with the steepest ray, λ·f_max, so blue light needs about half the area of red.
@@ -266,7 +271,8 @@ def _asm_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample,
     nothing saved (the transfer function is fetched again); the element-wise steps before and
     after it are checkpointed, so between the passes each PSF holds only its window field
     (w² complex: 185 MB at the paper's size)."""
-    grids = {lam: sampling.plan_asm(lens, [lam], d, pixels, pitch, f_max, oversample) for lam in lams}
+    lams, zs, d, pixels, pitch = _axes(psf_grid)
+    grids = {lam: sampling.plan_asm(lens, psf_grid.replace(wavelengths_m=[lam]), f_max, oversample) for lam in lams}
     cache = prop.TransferCache()
     # float32 phase: ≤ 3e-4 rad error at 2300 rad; radial lens: one quadrant, then mirrored
     phase_lens, r = lens.grid_phase(dtype, quadrant=lens.radial)
@@ -318,19 +324,20 @@ def pixel_psf(window: torch.Tensor, to_pixels, power: torch.Tensor) -> torch.Ten
     return to_pixels(window.real.square() + window.imag.square()) / power
 
 
-def _rs_psf(lens, lams, zs, d, pixels, pitch, f_max, dtype, device, oversample, clock, _):
+def _rs_psf(lens, grid, f_max, dtype, device, oversample, clock, _):
     """Direct Rayleigh-Sommerfeld reference in float64 (slow; small windows)."""
     if lens.radial:
-        return _rs_radial(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, clock)
-    return _rs_grid(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, clock)
+        return _rs_radial(lens, grid, f_max, device, oversample, clock)
+    return _rs_grid(lens, grid, f_max, device, oversample, clock)
 
 
-def _rs_radial(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, clock):
+def _rs_radial(lens, psf_grid, f_max, device, oversample, clock):
+    lams, zs, d, pixels, pitch = _axes(psf_grid)
     # twice as fine as the radial path, so that the reference does not share its interpolation error
     step = 1 / (16 * sampling.frequency_limit(f_max, lams, 2 * oversample) * oversample)
     sensor = radial_sensor(step, pixels, pitch)
     radii = torch.arange(sensor.n_radii, dtype=torch.float64, device=device) * step
-    n_r, n_phi = sampling.plan_rs(lens, lams, d, float(radii[-1]), f_max, oversample)
+    n_r, n_phi = sampling.plan_rs(lens, psf_grid, float(radii[-1]), f_max, oversample)
     r, dr = prop.gauss_legendre_panels(lens.radius_m, n_r)
     phi = np.linspace(0.0, math.pi, n_phi + 1)
     w_phi = np.full(n_phi + 1, 2 * math.pi / n_phi)  # both half-planes (mirror symmetry)
@@ -362,9 +369,10 @@ def _rs_radial(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, cloc
     return psf.reshape(len(zs), len(lams), pixels, pixels), grid
 
 
-def _rs_grid(lens, lams, zs, d, pixels, pitch, f_max, device, oversample, clock):
+def _rs_grid(lens, psf_grid, f_max, device, oversample, clock):
     """2-D lens: midpoint rule over the meta-atom sites (the field is piecewise constant per
     site), output on a grid of step 1/(4·ν_max·oversample), pixel-integrated."""
+    lams, zs, d, pixels, pitch = _axes(psf_grid)
     phase_lens, r = lens.grid_phase()
     mask = r <= lens.radius_m
     m = phase_lens.shape[0]

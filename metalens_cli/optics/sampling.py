@@ -10,12 +10,14 @@ sensor window. ``oversample`` scales margins and sample densities (2 = the doubl
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from metalens_cli.errors import SamplingError
+from metalens_cli import arguments
+from metalens_cli.errors import InputError, SamplingError
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.propagate import AsmGrid, fft_size
 from metalens_cli.optics.sensor import radial_sensor_radii
@@ -28,6 +30,74 @@ ANGLE_MARGIN = 0.1  # sin-angle kept beyond the field's steepest ray (edge diffr
 # band blurs the kernel's cut over about one. 40 µm lens at 10° against the direct sum: 0 → 5.2e-3, 1 → 1.8e-3,
 # 2 → 7e-4, 3 → 5.3e-4 (6 → 5.2e-4)
 REACH_FRESNEL = 3.0
+
+
+@dataclass(frozen=True)
+class PsfGrid:
+    """Where a PSF computation samples: the (depth, wavelength) axes and the sensor window.
+
+    The fields are checked and normalised on construction (``metalens_cli.arguments``; errors name
+    ``wavelengths``, ``depths``, ``pixels``, ``pixel_pitch``, ``distance``), so a grid is valid
+    wherever it travels; ``replace`` gives a checked copy with other values.
+
+    Args:
+        wavelengths_m: wavelengths (m), one or more, positive and finite.
+        depths_m: source depths (m) from the lens, positive; ``math.inf`` is a plane wave.
+        pixels: the sensor window is ``pixels`` × ``pixels``, centred on the axis pixel
+            (``pixels // 2``, ``pixels // 2``).
+        pixel_pitch_m: sensor pixel pitch (m).
+        distance_m: lens-to-sensor distance (m); None: the lens's focal length, resolved where the
+            lens is known (:meth:`distance`, :meth:`resolved`).
+
+    Example:
+        >>> grid = PsfGrid([532e-9], [math.inf], 33, 0.5e-6)
+        >>> grid.replace(wavelengths_m=[450e-9, 650e-9]).wavelengths_m
+        (4.5e-07, 6.5e-07)
+    """
+
+    wavelengths_m: tuple[float, ...]
+    depths_m: tuple[float, ...]
+    pixels: int
+    pixel_pitch_m: float
+    distance_m: float | None = None
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "wavelengths_m", tuple(arguments.lengths(self.wavelengths_m, "wavelengths")))
+        set_(self, "depths_m", tuple(arguments.lengths(self.depths_m, "depths", allow_inf=True)))
+        arguments.count(self.pixels, "pixels")
+        set_(self, "pixels", int(self.pixels))
+        set_(self, "pixel_pitch_m", float(arguments.positive(self.pixel_pitch_m, "pixel_pitch")))
+        if self.distance_m is not None:
+            set_(self, "distance_m", float(arguments.positive(self.distance_m, "distance")))
+
+    @property
+    def count(self) -> int:
+        """How many PSFs the grid holds: depths × wavelengths."""
+        return len(self.wavelengths_m) * len(self.depths_m)
+
+    def replace(self, **changes) -> PsfGrid:
+        """A checked copy with ``changes`` (field names as above), e.g. other wavelengths or depths."""
+        return dataclasses.replace(self, **changes)
+
+    def distance(self, lens: Metalens) -> float:
+        """The lens-to-sensor distance (m): ``distance_m``, or ``lens``'s focal length when it is None."""
+        d = lens.focal_length_m if self.distance_m is None else self.distance_m
+        if d is None:
+            raise InputError("distance", "is None and the lens has no focal length", "a lens-to-sensor distance (m)")
+        return float(arguments.positive(d, "distance"))
+
+    def resolved(self, lens: Metalens) -> PsfGrid:
+        """This grid with its distance resolved for ``lens`` (:meth:`distance`)."""
+        d = self.distance(lens)
+        return self if self.distance_m == d else dataclasses.replace(self, distance_m=d)
+
+
+def psf_grid(value, name: str = "grid") -> PsfGrid:
+    """``value`` if it is a :class:`PsfGrid` (``arguments.instance``: errors name ``name``)."""
+    return arguments.instance(
+        value, name, PsfGrid, "a PsfGrid (ml.PsfGrid(wavelengths_m, depths_m, pixels, pixel_pitch_m))"
+    )
 
 
 def window_radius(n_pixels: int, pixel_pitch_m: float) -> float:
@@ -117,23 +187,21 @@ def frequency_limit(f_max: float, wavelengths_m, oversample: float) -> float:
     return max(sin_limit(f_max, [lam], oversample) / lam for lam in wavelengths_m)
 
 
-def plan_radial(
-    lens: Metalens,
-    wavelengths_m,
-    depths_m,
-    distance_m: float,
-    n_pixels: int,
-    pixel_pitch_m: float,
-    f_max: float,
-    oversample: float = 1.0,
-) -> RadialPlan:
-    """Sampling for ``radial_propagate`` from the geometry (see the module docstring).
+def plan_radial(lens: Metalens, grid: PsfGrid, f_max: float, oversample: float = 1.0) -> RadialPlan:
+    """Sampling for ``radial_propagate`` from the geometry (see the module docstring) over ``grid``'s
+    wavelengths, window and distance (its depths do not enter).
 
     The angle margin is doubled here (the radial path is cheap). R = (a + ρ_w + d·tan θ_lim)/2 keeps waves up to θ_lim
     from reflecting at R into the window of radius ρ_w; n_freq = 2R·ν_max with ν_max = max_λ sin θ_lim(λ)/λ; Gauss nodes
     3 per cycle of the forward integrand; output step 1/(8·ν_max): the intensity, band-limited to 2·ν_max, is
     sampled 4× above Nyquist for the cubic pixel integration.
     """
+    wavelengths_m, distance_m, n_pixels, pixel_pitch_m = (
+        grid.wavelengths_m,
+        grid.distance(lens),
+        grid.pixels,
+        grid.pixel_pitch_m,
+    )
     a, rho_w = lens.radius_m, window_radius(n_pixels, pixel_pitch_m)
     sin_lim = sin_limit(f_max, wavelengths_m, 2 * oversample)
     tan_lim = sin_lim / math.sqrt(1 - sin_lim**2)
@@ -152,26 +220,18 @@ def plan_radial(
     return plan
 
 
-def plan_asm(
-    lens: Metalens,
-    wavelengths_m,
-    distance_m: float,
-    n_pixels: int,
-    pixel_pitch_m: float,
-    f_max: float,
-    oversample: float = 1.0,
-    upsample: int = 2,
-) -> AsmGrid:
-    """Padded grid for ``asm_propagate`` on the meta-atom grid (pitch p).
+def plan_asm(lens: Metalens, grid: PsfGrid, f_max: float, oversample: float = 1.0, upsample: int = 2) -> AsmGrid:
+    """Padded grid for ``asm_propagate`` on the meta-atom grid (pitch p), for ``grid``'s wavelengths
+    (the longest sets the side), window and distance.
 
     Side S ≥ 2a + W keeps the Matsushima limit (lateral travel ≤ S/2) from wrapping light from
     the pupil into the window of width W; S ≥ 2·d·tan θ_lim keeps the limit above the field's
     steepest ray plus margin. The FFT length is the next fast size.
     """
     p, a = lens.pitch_m, lens.radius_m
-    m = lens.grid_size
-    width = 2 * (n_pixels // 2 + 0.5) * pixel_pitch_m
-    sin_lim = sin_limit(f_max, wavelengths_m, oversample)
+    m, distance_m = lens.grid_size, grid.distance(lens)
+    width = 2 * (grid.pixels // 2 + 0.5) * grid.pixel_pitch_m
+    sin_lim = sin_limit(f_max, grid.wavelengths_m, oversample)
     need = max(2 * a + width, 2 * distance_m * sin_lim / math.sqrt(1 - sin_lim**2), m * p)
     size = fft_size(math.ceil(need / p))
     if size > MAX_FFT_SIZE:
@@ -187,10 +247,8 @@ def plan_asm(
 
 def plan_field_asm(
     lens: Metalens,
+    grid: PsfGrid,
     wavelength_m: float,
-    distance_m: float,
-    n_pixels: int,
-    pixel_pitch_m: float,
     f_max: float,
     carrier: tuple[float, float],
     centre_m: tuple[float, float],
@@ -198,7 +256,8 @@ def plan_field_asm(
     upsample: int = 2,
 ) -> tuple[AsmGrid, int]:
     """Grid and kept band half-width K for the shifted angular spectrum of an off-axis source
-    (``optics.field``): ``plan_asm``'s rules measured from the chief ray instead of the axis.
+    (``optics.field``): ``plan_asm``'s rules measured from the chief ray instead of the axis, at
+    ``wavelength_m`` (one of ``grid``'s) with ``grid``'s window and distance.
 
     ``f_max``: the carrier-free field's largest local frequency (cycles/m). The kept band is the
     carrier-free field's, |u|, |v| ≤ sin θ_lim/λ, with the angle margin doubled (the default
@@ -216,7 +275,8 @@ def plan_field_asm(
     window's narrower band is exact, not a cut.
     """
     p, a, m = lens.pitch_m, lens.radius_m, lens.grid_size
-    width = 2 * (n_pixels // 2 + 0.5) * pixel_pitch_m
+    distance_m = grid.distance(lens)
+    width = 2 * (grid.pixels // 2 + 0.5) * grid.pixel_pitch_m
     s = sin_limit(f_max, [wavelength_m], 2 * oversample)  # doubled margin, as plan_radial: edge diffraction
     need = max(2 * a + width + 2 * REACH_FRESNEL * math.sqrt(wavelength_m * distance_m), m * p)
     size = fft_size(math.ceil(need / p))
@@ -241,16 +301,15 @@ def plan_field_asm(
     return grid, min(math.floor(s / wavelength_m * size * p), math.ceil(reach * size * p) + 1, (size - 1) // 2)
 
 
-def plan_rs(
-    lens: Metalens, wavelengths_m, distance_m: float, rho_max_m: float, f_max: float, oversample: float = 1.0
-) -> tuple[int, int]:
+def plan_rs(lens: Metalens, grid: PsfGrid, rho_max_m: float, f_max: float, oversample: float = 1.0) -> tuple[int, int]:
     """Quadrature of the direct Rayleigh-Sommerfeld integral over the pupil of a radial lens:
-    (Gauss-Legendre nodes in r on [0, a], trapezoid nodes in the azimuth over [0, π]).
+    (Gauss-Legendre nodes in r on [0, a], trapezoid nodes in the azimuth over [0, π]), for
+    ``grid``'s shortest wavelength and distance, output radii up to ``rho_max_m`` (m).
 
     4 nodes per cycle of the integrand in r (lens + source + kernel) and, in the azimuth,
     enough trapezoid nodes for exp(i·k·ρ·r'·cos φ/r) (≈ 0.7·k·ρ·a/d + 32).
     """
-    a, lam = lens.radius_m, min(wavelengths_m)
+    a, lam, distance_m = lens.radius_m, min(grid.wavelengths_m), grid.distance(lens)
     kernel_freq = (a + rho_max_m) / math.hypot(a + rho_max_m, distance_m) / lam
     n_r = 16 * math.ceil(4 * (f_max + kernel_freq) * a * oversample / 16)
     beta = 2 * math.pi / lam * rho_max_m * a / distance_m

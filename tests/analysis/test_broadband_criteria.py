@@ -11,6 +11,7 @@ from scipy.special import ndtr
 from metalens_cli.analysis import broadband_criteria as bc
 from metalens_cli.errors import InputError
 from metalens_cli.optics.lens import hyperbolic
+from metalens_cli.optics.sampling import PsfGrid
 from metalens_cli.optics.spectra import camera_response, spectral_sensitivity, wavelength_grid
 
 PIXEL_M = 1.85e-6
@@ -97,7 +98,7 @@ def test_given_psfs_give_what_the_lens_gives(camera):
     lens = hyperbolic(bc.REFERENCE_WAVELENGTH_M, 1e-3, 0.3e-3, 395e-9)
     from_lens = bc.far_spectrum(lens, 1e-3, PIXEL_M, camera, capacity=301)
     waves = camera.wavelengths_m
-    psfs = compute_psf(lens, waves, [math.inf], 221, PIXEL_M).psf[0].double().numpy()
+    psfs = compute_psf(lens, PsfGrid(waves, [math.inf], 221, PIXEL_M)).psf[0].double().numpy()
     from_psfs = bc.spectrum_from_psfs(psfs, waves, PIXEL_M, camera)
     assert from_psfs.core == pytest.approx(from_lens.core, abs=2e-5)
     assert from_psfs.channel_mtf == pytest.approx(from_lens.channel_mtf, abs=1e-3)

@@ -111,11 +111,12 @@ def test_simulated_airy_psf_against_diffraction_limit():
     torch = pytest.importorskip("torch")
     from metalens_cli.imaging.psf_scan import run_scan
     from metalens_cli.io.designs import resolve_design
+    from metalens_cli.optics.sampling import PsfGrid
 
     n, lam, f, na = 129, 532e-9, 4e-3, 0.07
     aperture = 2 * f * na / math.sqrt(1 - na**2)
     design = resolve_design("hyperbolic:532nm", f_m=f, aperture_m=aperture)
-    psf = np.asarray(run_scan(design, [lam], [math.inf], n, PITCH, dtype=torch.float32).psf)[0, 0]
+    psf = np.asarray(run_scan(design, PsfGrid([lam], [math.inf], n, PITCH), dtype=torch.float32).psf)[0, 0]
     eps = 1 - float(psf.sum())
     atol = 2 * eps / (1 - eps) + 1e-3
     grid = radial_grid(n, PITCH)

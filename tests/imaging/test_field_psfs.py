@@ -67,9 +67,11 @@ def test_field_set_estimate_plans_the_psfs_the_set_computes(tmp_path, monkeypatc
     calls = {"set": [], "estimate": []}
 
     def spy(name, run):
-        def wrapped(lens, lams, depths, pixels, pitch, angle, **kw):
-            calls[name].append(([float(x) for x in lams], list(depths), pixels, angle, kw.get("oversample", 1.0)))
-            return run(lens, lams, depths, pixels, pitch, angle, **kw)
+        def wrapped(lens, grid, angle, **kw):
+            calls[name].append(
+                (list(grid.wavelengths_m), list(grid.depths_m), grid.pixels, angle, kw.get("oversample", 1.0))
+            )
+            return run(lens, grid, angle, **kw)
 
         return wrapped
 

@@ -8,6 +8,7 @@ import pytest
 from metalens_cli.optics.blur import geometric_blur_radius, psf_window, window_pixels, window_radius_m
 from metalens_cli.optics.lens import from_array, hyperbolic
 from metalens_cli.optics.psf import compute_psf
+from metalens_cli.optics.sampling import PsfGrid
 
 PITCH = 395e-9
 
@@ -47,7 +48,7 @@ def test_windows_hold_99_percent_of_the_paper_lens_light():
     for lam in (400e-9, 700e-9):
         for z in (0.04, math.inf):
             n = psf_window(lens, [lam], [z], 4e-3, 1.85e-6)
-            kept = float(compute_psf(lens, [lam], [z], n, 1.85e-6).psf.sum())
+            kept = float(compute_psf(lens, PsfGrid([lam], [z], n, 1.85e-6)).psf.sum())
             assert 0.99 <= kept <= 1.0005, (lam, z, n, kept)
             assert n <= 2 * (window_radius_m(lens, [lam], [z], 4e-3) / 1.85e-6) + 3  # no larger than its light
 

@@ -10,6 +10,7 @@ from metalens_cli.errors import InputError
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY, channel_psf_stack
 from metalens_cli.optics.lens import hyperbolic
 from metalens_cli.optics.psf import compute_psf
+from metalens_cli.optics.sampling import PsfGrid
 from metalens_cli.optics.sensor import build_radial_sensor
 from metalens_cli.optics.spectra import mix_channels
 from metalens_cli.optics.window import crop_window
@@ -36,7 +37,7 @@ def stack(lens):
 def test_mixing_before_the_pixel_operator_equals_mixing_after(lens, stack):
     """Both are linear: the channel PSF of the mixed intensity equals the mix of the pixel PSFs
     of the same plan (float64: agreement to round-off, 1e-6 asked)."""
-    reference = compute_psf(lens, WAVES, DEPTHS, 301, PITCH, dtype=torch.float64)  # the same plan (capacity)
+    reference = compute_psf(lens, PsfGrid(WAVES, DEPTHS, 301, PITCH), dtype=torch.float64)  # the same plan (capacity)
     for i in range(len(DEPTHS)):
         mixed_after = crop_window(mix_channels(reference.psf[i], WEIGHTS), stack.psfs[i].shape[-1])
         error = float((stack.psfs[i] - mixed_after).norm() / mixed_after.norm())
@@ -48,7 +49,7 @@ def test_each_wavelengths_core_is_the_centre_of_its_own_pixel_psf(lens):
     those pixels of its monochromatic PSF from compute_psf (the same plan; float64, 1e-9), and
     asking for it changes nothing else."""
     cored = channel_psf_stack(lens, WAVES, DEPTHS, WEIGHTS, 301, PITCH, dtype=torch.float64, core_window=5)
-    reference = compute_psf(lens, WAVES, DEPTHS, 301, PITCH, dtype=torch.float64)
+    reference = compute_psf(lens, PsfGrid(WAVES, DEPTHS, 301, PITCH), dtype=torch.float64)
     plain = channel_psf_stack(lens, WAVES, DEPTHS, WEIGHTS, 301, PITCH, dtype=torch.float64)
     assert plain.cores is None
     for i in range(len(DEPTHS)):
@@ -67,7 +68,7 @@ def test_window_holds_the_light_of_a_psf_twice_as_large(lens, stack):
     for i in range(len(DEPTHS)):
         n = stack.psfs[i].shape[-1]
         large = mix_channels(
-            compute_psf(lens, WAVES, [DEPTHS[i]], 2 * n + 1, PITCH, dtype=torch.float64).psf[0], WEIGHTS
+            compute_psf(lens, PsfGrid(WAVES, [DEPTHS[i]], 2 * n + 1, PITCH), dtype=torch.float64).psf[0], WEIGHTS
         )
         total = large.sum(dim=(-2, -1)).numpy()
         assert np.all(stack.kept[i] >= ENCIRCLED_ENERGY * total)
@@ -111,5 +112,7 @@ def test_two_d_lens_uses_square_energy(lens):
         LENS["lambda_d_m"], LENS["focal_length_m"], LENS["aperture_m"], LENS["pitch_m"], radial=False
     )
     stack = channel_psf_stack(grid_lens, WAVES[3:6], [math.inf], WEIGHTS[:, 3:6] * 0 + np.eye(3), 61, PITCH)
-    full = mix_channels(compute_psf(grid_lens, WAVES[3:6], [math.inf], 61, PITCH).psf[0], np.eye(3)).sum(dim=(-2, -1))
+    full = mix_channels(compute_psf(grid_lens, PsfGrid(WAVES[3:6], [math.inf], 61, PITCH)).psf[0], np.eye(3)).sum(
+        dim=(-2, -1)
+    )
     assert np.all(stack.kept[0] >= ENCIRCLED_ENERGY * full.numpy() * (1 - 1e-6))

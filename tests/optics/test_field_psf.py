@@ -14,6 +14,7 @@ from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
 from metalens_cli.optics.field import chief_ray, field_angle, field_psf
 from metalens_cli.optics.psf import compute_psf
+from metalens_cli.optics.sampling import PsfGrid
 from metalens_cli.optics.source import field_direction
 
 # NA 0.29 on 153² sites (the small lens of tests/optics/test_psf_physics.py)
@@ -37,9 +38,10 @@ def centroid(psf: np.ndarray, pitch: float) -> tuple[float, float]:
 @pytest.mark.parametrize("radial", [True, False])
 def test_zero_angle_is_the_on_axis_psf_bit_for_bit(radial):
     lens = small(radial)
-    kw = dict(pixels=17, pixel_pitch_m=1e-6, **F64)
-    axis = compute_psf(lens, [532e-9, 600e-9], [math.inf, 0.002], **kw)
-    field = field_psf(lens, [532e-9, 600e-9], [math.inf, 0.002], angle_rad=0.0, azimuth_rad=1.0, **kw)
+    px = dict(pixels=17, pixel_pitch_m=1e-6)
+    kw = dict(**F64)
+    axis = compute_psf(lens, PsfGrid([532e-9, 600e-9], [math.inf, 0.002], **px), **kw)
+    field = field_psf(lens, PsfGrid([532e-9, 600e-9], [math.inf, 0.002], **px), angle_rad=0.0, azimuth_rad=1.0, **kw)
     assert torch.equal(field.psf, axis.psf)
     assert field.centre_px == (0, 0) and field.chief_ray_m == (0.0, 0.0)
 
@@ -49,10 +51,11 @@ def test_shifted_path_tends_to_the_on_axis_psf():
     shaped band limit (a mask on the rays instead of a square) on a grid sized by the window's
     light instead of the band: measured 9e-5 and 4.6e-4."""
     lens = small()
-    kw = dict(pixels=33, pixel_pitch_m=1e-6, **F64)
+    px = dict(pixels=33, pixel_pitch_m=1e-6)
+    kw = dict(**F64)
     for depth in (math.inf, 0.002):
-        axis = compute_psf(lens, [532e-9], [depth], propagator="asm", **kw).psf
-        tilted = field_psf(lens, [532e-9], [depth], angle_rad=1e-9, **kw)
+        axis = compute_psf(lens, PsfGrid([532e-9], [depth], **px), propagator="asm", **kw).psf
+        tilted = field_psf(lens, PsfGrid([532e-9], [depth], **px), angle_rad=1e-9, **kw)
         assert tilted.propagator == "asm" and tilted.grid["kind"] == "asm-shifted"
         assert rel(tilted.psf, axis) < 2e-3
 
@@ -61,9 +64,10 @@ def test_tilted_plane_wave_matches_direct_rayleigh_sommerfeld():
     """The accuracy target, ≤ 1e-3 relative L2, against the direct sum over the sites of the full
     tilted field (carrier included; its output step 0.1 µm, converged to 7e-5): measured 5.3e-4."""
     lens = L.hyperbolic(532e-9, 70e-6, 40e-6, 395e-9)  # NA 0.27, 101² sites
-    kw = dict(pixels=11, pixel_pitch_m=1e-6, **F64)
-    fast = field_psf(lens, [532e-9], [math.inf], angle_rad=math.radians(10), **kw)
-    exact = field_psf(lens, [532e-9], [math.inf], angle_rad=math.radians(10), propagator="rs", **kw)
+    px = dict(pixels=11, pixel_pitch_m=1e-6)
+    kw = dict(**F64)
+    fast = field_psf(lens, PsfGrid([532e-9], [math.inf], **px), angle_rad=math.radians(10), **kw)
+    exact = field_psf(lens, PsfGrid([532e-9], [math.inf], **px), angle_rad=math.radians(10), propagator="rs", **kw)
     assert fast.centre_px == exact.centre_px == (12, 0)
     assert rel(fast.psf, exact.psf) < 1e-3
 
@@ -71,11 +75,17 @@ def test_tilted_plane_wave_matches_direct_rayleigh_sommerfeld():
 @pytest.mark.slow
 def test_tilted_point_source_matches_direct_rayleigh_sommerfeld():
     lens = small()
-    kw = dict(pixels=21, pixel_pitch_m=1e-6, **F64)
+    px = dict(pixels=21, pixel_pitch_m=1e-6)
+    kw = dict(**F64)
     for angle in (5, 15):
-        fast = field_psf(lens, [480e-9], [0.002], angle_rad=math.radians(angle), azimuth_rad=0.3, **kw)
+        fast = field_psf(lens, PsfGrid([480e-9], [0.002], **px), angle_rad=math.radians(angle), azimuth_rad=0.3, **kw)
         exact = field_psf(
-            lens, [480e-9], [0.002], angle_rad=math.radians(angle), azimuth_rad=0.3, propagator="rs", **kw
+            lens,
+            PsfGrid([480e-9], [0.002], **px),
+            angle_rad=math.radians(angle),
+            azimuth_rad=0.3,
+            propagator="rs",
+            **kw,
         )
         assert rel(fast.psf, exact.psf) < 1e-3
 
@@ -84,14 +94,15 @@ def test_grid_sized_by_the_light_that_reaches_the_window(monkeypatch):
     """The side S = 2a + W + 2·3·√(λd) leaves out the band's waves that miss the window from every
     pupil point; a guard four times as wide (a grid twice the side) moves the PSF by 1.2e-4 (∞) and
     2.0e-4 (2 mm), converging (eight times: 1.1e-4, 1.9e-4), where no guard moves it by 2e-3."""
-    kw = dict(pixels=21, pixel_pitch_m=1e-6, angle_rad=math.radians(15), **F64)
+    px = dict(pixels=21, pixel_pitch_m=1e-6)
+    kw = dict(angle_rad=math.radians(15), **F64)
     lens = small()
     lam, depths = 480e-9, [math.inf, 0.002]
-    fitted = field_psf(lens, [lam], depths, **kw)
+    fitted = field_psf(lens, PsfGrid([lam], depths, **px), **kw)
     a, width = lens.radius_m, 21 * 1e-6
     assert fitted.grid["fft_size"] * lens.pitch_m >= 2 * a + width + 6 * math.sqrt(lam * lens.focal_length_m)
     monkeypatch.setattr(sampling, "REACH_FRESNEL", 12.0)
-    wide = field_psf(lens, [lam], depths, **kw)
+    wide = field_psf(lens, PsfGrid([lam], depths, **px), **kw)
     assert wide.grid["fft_size"] > 1.5 * fitted.grid["fft_size"]
     for k in range(2):
         assert rel(fitted.psf[k], wide.psf[k]) < 5e-4
@@ -108,7 +119,9 @@ def test_band_stops_where_the_transfer_function_does(azimuth):
     x, y = chief_ray(lens, lam, angle, azimuth, lens.focal_length_m)
     centre_m = (round(x / pitch) * pitch, round(y / pitch) * pitch)
     f_max = sampling.lens_frequency(lens)[0]
-    grid, k_max = sampling.plan_field_asm(lens, lam, lens.focal_length_m, 21, pitch, f_max, carrier, centre_m)
+    grid, k_max = sampling.plan_field_asm(
+        lens, sampling.PsfGrid([lam], [math.inf], 21, pitch), lam, f_max, carrier, centre_m
+    )
     assert k_max < math.floor(sampling.sin_limit(f_max, [lam], 2.0) / lam * grid.extent_m)
     whole = (grid.size - 1) // 2
     h, _ = prop.asm_transfer_shifted(grid, lam, lens.focal_length_m, whole, carrier, centre_m, torch.complex128)
@@ -123,7 +136,7 @@ def test_band_stops_where_the_transfer_function_does(azimuth):
 @pytest.mark.parametrize("depth", [math.inf, 0.01])
 def test_energy_is_conserved_off_axis(depth):
     lens = small()
-    psf = field_psf(lens, [532e-9], [depth], 101, 1e-6, math.radians(12), **F64).psf
+    psf = field_psf(lens, PsfGrid([532e-9], [depth], 101, 1e-6), math.radians(12), **F64).psf
     # as on axis (tests/optics/test_psf_physics.py): the window misses only edge-diffracted light
     total = psf.sum().item()
     assert total <= 1 + 1e-9
@@ -145,7 +158,7 @@ def test_chief_ray_follows_the_lens_phase_gradient():
     s = math.sin(alpha) + lam / period
     assert_allclose(x_c, f * s / math.sqrt(1 - s**2), rtol=1e-6)
     assert y_c == pytest.approx(0.0, abs=1e-12)
-    result = field_psf(lens, [lam], [math.inf], 61, 0.5e-6, alpha, **F64)
+    result = field_psf(lens, PsfGrid([lam], [math.inf], 61, 0.5e-6), alpha, **F64)
     assert result.centre_px == (round(x_c / 0.5e-6), 0)
     cx, cy = centroid(result.psf[0, 0].numpy(), 0.5e-6)
     # coma centroid sin α·a²/(2f) = 0.09 µm at NA 0.05; the window truncation adds as much
@@ -154,7 +167,7 @@ def test_chief_ray_follows_the_lens_phase_gradient():
 
 
 def test_radial_lens_psf_is_mirror_symmetric_about_the_meridional_plane():
-    psf = field_psf(small(), [532e-9], [0.003], 31, 1e-6, math.radians(10), **F64).psf[0, 0]
+    psf = field_psf(small(), PsfGrid([532e-9], [0.003], 31, 1e-6), math.radians(10), **F64).psf[0, 0]
     assert_allclose(psf.numpy(), psf.flip(0).numpy(), rtol=0, atol=1e-12 * psf.max().item())
 
 
@@ -162,9 +175,10 @@ def test_radial_lens_psf_is_mirror_symmetric_about_the_meridional_plane():
 def test_mirrored_half_equals_the_whole_pupil(depth):
     """On the +x axis a radial lens's pupil field is even in y and half its rows serve; at ψ = 2π
     (sin ψ ≠ 0 in floating point) the whole pupil is propagated: the same PSF to rounding."""
-    kw = dict(pixels=31, pixel_pitch_m=1e-6, angle_rad=math.radians(10), **F64)
-    half = field_psf(small(), [532e-9], [depth], azimuth_rad=0.0, **kw)
-    whole = field_psf(small(), [532e-9], [depth], azimuth_rad=2 * math.pi, **kw)
+    px = dict(pixels=31, pixel_pitch_m=1e-6)
+    kw = dict(angle_rad=math.radians(10), **F64)
+    half = field_psf(small(), PsfGrid([532e-9], [depth], **px), azimuth_rad=0.0, **kw)
+    whole = field_psf(small(), PsfGrid([532e-9], [depth], **px), azimuth_rad=2 * math.pi, **kw)
     assert half.grid["mirror_y"] and not whole.grid["mirror_y"]
     assert half.centre_px == whole.centre_px
     assert rel(half.psf, whole.psf) < 1e-12
@@ -183,9 +197,10 @@ def test_rotating_lens_and_azimuth_rotates_the_psf():
     lens = L.from_array(theta, pitch, SMALL["aperture_m"], SMALL["focal_length_m"])
     turned = L.from_array(np.rot90(theta, -1).copy(), pitch, SMALL["aperture_m"], SMALL["focal_length_m"])
     alpha, psi = math.radians(8), math.radians(20)
-    kw = dict(pixels=25, pixel_pitch_m=1e-6, **F64)
-    a = field_psf(lens, [lam], [0.004], angle_rad=alpha, azimuth_rad=psi, **kw)
-    b = field_psf(turned, [lam], [0.004], angle_rad=alpha, azimuth_rad=psi + math.pi / 2, **kw)
+    px = dict(pixels=25, pixel_pitch_m=1e-6)
+    kw = dict(**F64)
+    a = field_psf(lens, PsfGrid([lam], [0.004], **px), angle_rad=alpha, azimuth_rad=psi, **kw)
+    b = field_psf(turned, PsfGrid([lam], [0.004], **px), angle_rad=alpha, azimuth_rad=psi + math.pi / 2, **kw)
     assert b.centre_px == (-a.centre_px[1], a.centre_px[0])
     # (x, y) → (−y, x): new[i, j] = old[N−1−j, i], torch.rot90(old, −1)
     assert rel(b.psf[0, 0], torch.rot90(a.psf[0, 0], -1, dims=(0, 1))) < 1e-9
@@ -193,9 +208,10 @@ def test_rotating_lens_and_azimuth_rotates_the_psf():
 
 def test_radial_psf_at_an_azimuth_is_the_rotated_psf():
     lens = small()
-    kw = dict(pixels=25, pixel_pitch_m=1e-6, **F64)
-    a = field_psf(lens, [532e-9], [math.inf], angle_rad=math.radians(9), **kw)
-    b = field_psf(lens, [532e-9], [math.inf], angle_rad=math.radians(9), azimuth_rad=math.pi / 2, **kw)
+    px = dict(pixels=25, pixel_pitch_m=1e-6)
+    kw = dict(**F64)
+    a = field_psf(lens, PsfGrid([532e-9], [math.inf], **px), angle_rad=math.radians(9), **kw)
+    b = field_psf(lens, PsfGrid([532e-9], [math.inf], **px), angle_rad=math.radians(9), azimuth_rad=math.pi / 2, **kw)
     assert b.centre_px == (0, a.centre_px[0])
     assert rel(b.psf[0, 0], torch.rot90(a.psf[0, 0], -1, dims=(0, 1))) < 1e-9
 
@@ -210,7 +226,7 @@ def test_seidel_coma_of_a_low_na_lens():
     offsets = []
     for degrees in (2.5, 5.0):
         alpha = math.radians(degrees)
-        result = field_psf(lens, [532e-9], [math.inf], 201, 0.5e-6, alpha, **F64)
+        result = field_psf(lens, PsfGrid([532e-9], [math.inf], 201, 0.5e-6), alpha, **F64)
         cx, _ = centroid(result.psf[0, 0].numpy(), 0.5e-6)
         offset = cx + result.centre_px[0] * 0.5e-6 - result.chief_ray_m[0]
         assert_allclose(offset, math.sin(alpha) * a**2 / (2 * f), rtol=5e-2)
@@ -222,9 +238,9 @@ def test_field_angle_from_height_and_refusals():
     assert_allclose(field_angle(0.47e-3, 4e-3), math.atan(0.47 / 4))
     lens = small()
     with pytest.raises(InputError, match="angle_rad"):
-        field_psf(lens, [532e-9], [math.inf], 9, 1e-6, -0.1)
+        field_psf(lens, PsfGrid([532e-9], [math.inf], 9, 1e-6), -0.1)
     with pytest.raises(InputError, match="propagator"):
-        field_psf(lens, [532e-9], [math.inf], 9, 1e-6, 0.1, propagator="radial")
+        field_psf(lens, PsfGrid([532e-9], [math.inf], 9, 1e-6), 0.1, propagator="radial")
 
 
 @pytest.mark.parametrize("radial", [True, False])
@@ -238,7 +254,7 @@ def test_off_axis_psf_is_differentiable_in_theta(radial, depth):
 
     def loss(theta):
         lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
-        psf = field_psf(lens, [532e-9, 600e-9], [depth], 17, 1e-6, math.radians(5), **F64).psf
+        psf = field_psf(lens, PsfGrid([532e-9, 600e-9], [depth], 17, 1e-6), math.radians(5), **F64).psf
         return (psf * weights).sum()
 
     theta = base.theta.detach().double().clone().requires_grad_(True)

@@ -12,6 +12,7 @@ import torch
 from metalens_cli.imaging.psf_scan import relative_l2
 from metalens_cli.optics.lens import hyperbolic
 from metalens_cli.optics.psf import compute_psf
+from metalens_cli.optics.sampling import PsfGrid
 
 pytestmark = pytest.mark.slow
 LENS = dict(lambda_d_m=532e-9, focal_length_m=4e-3, aperture_m=2.516e-3, pitch_m=395e-9)
@@ -21,8 +22,12 @@ def test_radial_matches_rayleigh_sommerfeld_on_sharp_psf():
     # The hard case: the in-focus far PSF, core below one 1.85 µm pixel. rs is direct
     # integration in float64 (independent code); compared on the central 33² pixels.
     lens = hyperbolic(**LENS)
-    radial = compute_psf(lens, [532e-9], [math.inf], 33, 1.85e-6).psf[0, 0].numpy()
-    exact = compute_psf(lens, [532e-9], [math.inf], 33, 1.85e-6, propagator="rs", dtype=torch.float64).psf[0, 0].numpy()
+    radial = compute_psf(lens, PsfGrid([532e-9], [math.inf], 33, 1.85e-6)).psf[0, 0].numpy()
+    exact = (
+        compute_psf(lens, PsfGrid([532e-9], [math.inf], 33, 1.85e-6), propagator="rs", dtype=torch.float64)
+        .psf[0, 0]
+        .numpy()
+    )
     assert relative_l2(radial, exact) < 1e-3
 
 
@@ -30,6 +35,8 @@ def test_asm_on_2d_map_matches_radial_over_whole_window():
     # The 2-D band-limited ASM on the meta-atom grid against the radial path at doubled sampling,
     # whole 512² window; the grid's staircase pupil edge limits agreement to ~1e-3.
     lens_2d = hyperbolic(**LENS, radial=False)
-    asm = compute_psf(lens_2d, [532e-9], [math.inf], 512, 1.85e-6, propagator="asm").psf[0, 0].numpy()
-    reference = compute_psf(hyperbolic(**LENS), [532e-9], [math.inf], 512, 1.85e-6, oversample=2.0).psf[0, 0].numpy()
+    asm = compute_psf(lens_2d, PsfGrid([532e-9], [math.inf], 512, 1.85e-6), propagator="asm").psf[0, 0].numpy()
+    reference = (
+        compute_psf(hyperbolic(**LENS), PsfGrid([532e-9], [math.inf], 512, 1.85e-6), oversample=2.0).psf[0, 0].numpy()
+    )
     assert relative_l2(asm, reference) < 2e-3

@@ -19,15 +19,17 @@ import json, math, sys
 import numpy as np, torch
 from metalens_cli.optics.lens import hyperbolic
 from metalens_cli.optics.psf import compute_psf, estimate_psf
+from metalens_cli.optics.sampling import PsfGrid
 radial, aperture, pixels, count, propagator = json.loads(sys.argv[1])
 lens = hyperbolic(532e-9, 4e-3, aperture, 395e-9, radial=radial)
 lams = list(np.linspace(430e-9, 645e-9, count))
-cost = estimate_psf(lens, lams, [0.045, math.inf], pixels, 1.85e-6, propagator=propagator)
+grid = PsfGrid(lams, [0.045, math.inf], pixels, 1.85e-6)
+cost = estimate_psf(lens, grid, propagator=propagator)
 def status(key):
     return next(int(line.split()[1]) * 1024 for line in open("/proc/self/status") if line.startswith(key))
 open("/proc/self/clear_refs", "w").write("5")
 before = status("VmRSS:")
-psf = compute_psf(lens, lams, [0.045, math.inf], pixels, 1.85e-6, propagator=propagator).psf.numpy().copy()
+psf = compute_psf(lens, grid, propagator=propagator).psf.numpy().copy()
 peak = status("VmHWM:")
 print(json.dumps({"estimate": cost.memory_bytes, "measured": peak - before}))
 """
@@ -55,15 +57,17 @@ import json, math, sys
 import numpy as np, torch
 from metalens_cli.optics.lens import hyperbolic
 from metalens_cli.optics.field import estimate_field_psf, field_psf
+from metalens_cli.optics.sampling import PsfGrid
 aperture, pixels, angle_deg = json.loads(sys.argv[1])
 lens = hyperbolic(532e-9, 4e-3, aperture, 395e-9)
 lams, zs, angle = [450e-9, 630e-9], [0.045, math.inf], math.radians(angle_deg)
-cost = estimate_field_psf(lens, lams, zs, pixels, 1.85e-6, angle)
+grid = PsfGrid(lams, zs, pixels, 1.85e-6)
+cost = estimate_field_psf(lens, grid, angle)
 def status(key):
     return next(int(line.split()[1]) * 1024 for line in open("/proc/self/status") if line.startswith(key))
 open("/proc/self/clear_refs", "w").write("5")
 before = status("VmRSS:")
-psf = field_psf(lens, lams, zs, pixels, 1.85e-6, angle).psf.numpy().copy()
+psf = field_psf(lens, grid, angle).psf.numpy().copy()
 peak = status("VmHWM:")
 print(json.dumps({"estimate": cost.memory_bytes, "measured": peak - before}))
 """

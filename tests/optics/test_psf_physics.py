@@ -13,6 +13,7 @@ from metalens_cli.errors import SamplingError
 from metalens_cli.optics import lens as L
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics.psf import compute_psf
+from metalens_cli.optics.sampling import PsfGrid
 
 # Low-NA lens (NA 0.05, Fresnel number 25): paraxial diffraction theory holds to O(NA²) ≈ 3e-3.
 LAM, F, D = 500e-9, 5e-3, 0.5e-3
@@ -66,7 +67,7 @@ def test_airy_pattern_at_low_na():
 def test_airy_peak_pixel():
     lens = L.hyperbolic(LAM, F, D, 395e-9)
     pitch = 2e-6
-    psf = compute_psf(lens, [LAM], [math.inf], 9, pitch, dtype=torch.float64).psf[0, 0]
+    psf = compute_psf(lens, PsfGrid([LAM], [math.inf], 9, pitch), dtype=torch.float64).psf[0, 0]
     # central pixel of the Airy pattern by a 400² midpoint rule (error < 1e-5)
     x = (np.arange(400) + 0.5) / 400 * pitch - pitch / 2
     v = 2 * math.pi * (D / 2) * np.hypot(x[:, None], x[None, :]) / (LAM * F)
@@ -78,7 +79,9 @@ def test_airy_peak_pixel():
 @pytest.mark.parametrize("wavelength", [532e-9, 450e-9])
 def test_energy_conservation(propagator, wavelength):
     lens = L.hyperbolic(532e-9, 200e-6, 100e-6, 395e-9)  # NA 0.24
-    psf = compute_psf(lens, [wavelength], [math.inf, 0.01], 101, 1e-6, propagator=propagator, dtype=torch.float64).psf
+    psf = compute_psf(
+        lens, PsfGrid([wavelength], [math.inf, 0.01], 101, 1e-6), propagator=propagator, dtype=torch.float64
+    ).psf
     # the 101 µm window holds the focus or the geometric blur (≤ 16 µm); what misses is the
     # edge-diffracted light beyond ±50 µm, measured 0.9 % (bound 1.5 %), and nothing is created.
     total = psf.sum((-2, -1))
@@ -101,10 +104,11 @@ def test_best_focus_moves_as_f_lambda_d_over_lambda():
 
 def test_radial_matches_2d_asm_on_small_lens():
     lens = L.hyperbolic(532e-9, 100e-6, 60e-6, 395e-9)  # NA 0.29, 153² sites
-    kw = dict(pixels=33, pixel_pitch_m=1e-6, dtype=torch.float64)
+    px = dict(pixels=33, pixel_pitch_m=1e-6)
+    kw = dict(dtype=torch.float64)
     for wavelength, depth in [(532e-9, math.inf), (480e-9, 0.002)]:
-        radial = compute_psf(lens, [wavelength], [depth], propagator="radial", **kw).psf
-        asm = compute_psf(lens, [wavelength], [depth], propagator="asm", **kw).psf
+        radial = compute_psf(lens, PsfGrid([wavelength], [depth], **px), propagator="radial", **kw).psf
+        asm = compute_psf(lens, PsfGrid([wavelength], [depth], **px), propagator="asm", **kw).psf
         # the 2-D grid models the pupil edge as a staircase of 395 nm sites; measured 1e-3 and
         # 3.5e-3 (halving with the pitch), so 6e-3 relative L2
         err = ((radial - asm).norm() / radial.norm()).item()
@@ -115,22 +119,24 @@ def test_asm_pads_each_wavelength_for_its_own_rays():
     """An optimiser plans for 400-700 nm; each λ is padded only as far as its own steepest ray
     needs (blue on a smaller grid than red) and still matches the radial path."""
     lens = L.hyperbolic(532e-9, 100e-6, 60e-6, 395e-9)
-    kw = dict(pixels=33, pixel_pitch_m=1e-6, dtype=torch.float64, plan_wavelengths_m=[400e-9, 700e-9])
+    px = dict(pixels=33, pixel_pitch_m=1e-6)
+    kw = dict(dtype=torch.float64, plan_wavelengths_m=[400e-9, 700e-9])
     lams = [450e-9, 650e-9]
-    radial = compute_psf(lens, lams, [0.002], propagator="radial", **kw).psf
-    asm = compute_psf(lens, lams, [0.002], propagator="asm", **kw).psf
+    radial = compute_psf(lens, PsfGrid(lams, [0.002], **px), propagator="radial", **kw).psf
+    asm = compute_psf(lens, PsfGrid(lams, [0.002], **px), propagator="asm", **kw).psf
     errors = ((radial - asm).flatten(2).norm(dim=-1) / radial.flatten(2).norm(dim=-1)).flatten()
     assert (errors < 6e-3).all(), errors  # the staircase pupil edge, as above
-    sizes = [compute_psf(lens, [lam], [0.002], propagator="asm", **kw).grid["fft_size"] for lam in lams]
+    sizes = [compute_psf(lens, PsfGrid([lam], [0.002], **px), propagator="asm", **kw).grid["fft_size"] for lam in lams]
     assert sizes[0] < sizes[1], sizes
 
 
 @pytest.mark.parametrize("wavelength,depth", [(532e-9, math.inf), (580e-9, 0.045)])
 def test_rs_matches_radial_on_paper_lens(wavelength, depth):
     lens = L.hyperbolic(532e-9, 4e-3, 2.516e-3, 395e-9)
-    kw = dict(pixels=5, pixel_pitch_m=1.85e-6, dtype=torch.float64)
-    rs = compute_psf(lens, [wavelength], [depth], propagator="rs", **kw).psf
-    radial = compute_psf(lens, [wavelength], [depth], propagator="radial", **kw).psf
+    px = dict(pixels=5, pixel_pitch_m=1.85e-6)
+    kw = dict(dtype=torch.float64)
+    rs = compute_psf(lens, PsfGrid([wavelength], [depth], **px), propagator="rs", **kw).psf
+    radial = compute_psf(lens, PsfGrid([wavelength], [depth], **px), propagator="radial", **kw).psf
     # the issue's accuracy target (relative L2 ≤ 1e-3) on the central 5 × 5 pixels (sharp focus)
     err = ((radial - rs).norm() / rs.norm()).item()
     assert err < 1e-3, err
@@ -163,10 +169,10 @@ def test_band_limit_removes_aliasing_of_random_phase():
 def test_sampling_guard_refuses_undersampled_lens():
     lens = L.hyperbolic(532e-9, 100e-6, 200e-6, 395e-9)  # NA 0.71: 1.33 > 1.27 cycles/µm
     with pytest.raises(SamplingError, match="expected a pitch ≤"):
-        compute_psf(lens, [532e-9], [math.inf], 5, 1e-6)
+        compute_psf(lens, PsfGrid([532e-9], [math.inf], 5, 1e-6))
     with pytest.raises(SamplingError, match="expected a pitch ≤"):  # a source 50 µm away: chirp
-        compute_psf(L.hyperbolic(532e-9, 1e-3, 200e-6, 395e-9), [450e-9], [50e-6], 5, 1e-6)
-    psf = compute_psf(lens, [532e-9], [math.inf], 5, 1e-6, force=True).psf
+        compute_psf(L.hyperbolic(532e-9, 1e-3, 200e-6, 395e-9), PsfGrid([450e-9], [50e-6], 5, 1e-6))
+    psf = compute_psf(lens, PsfGrid([532e-9], [math.inf], 5, 1e-6), force=True).psf
     assert torch.isfinite(psf).all()
 
 
@@ -175,7 +181,7 @@ def test_gradients_reach_theta():
 
     def central_power(theta):
         lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
-        psf = compute_psf(lens, [532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6, dtype=torch.float64).psf
+        psf = compute_psf(lens, PsfGrid([532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6), dtype=torch.float64).psf
         return psf[..., 1, :]
 
     theta = base.theta.clone().requires_grad_(True)
@@ -190,7 +196,7 @@ def test_gradients_reach_theta_2d_asm():
     def central_power(theta):
         lens = L.Metalens(theta, base.pitch_m, base.aperture_m, base.focal_length_m)
         return compute_psf(
-            lens, [532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6, propagator="asm", dtype=torch.float64
+            lens, PsfGrid([532e-9, 600e-9], [math.inf, 1e-3], 3, 0.5e-6), propagator="asm", dtype=torch.float64
         ).psf
 
     theta = base.theta.clone().requires_grad_(True)

@@ -29,6 +29,7 @@ from metalens_cli.constants import PAPER_FOCAL_LENGTH_M, PAPER_PITCH_M
 from metalens_cli.optics import sampling
 from metalens_cli.optics.lens import Metalens, hyperbolic
 from metalens_cli.optics.psf import compute_psf
+from metalens_cli.optics.sampling import PsfGrid
 
 D_M, APERTURE_M, PITCH_M, PIXEL_M = PAPER_FOCAL_LENGTH_M, 2.516e-3, PAPER_PITCH_M, 1.85e-6
 A_M = APERTURE_M / 2
@@ -69,7 +70,7 @@ def axial():
     plan = sampling.check_lens_sampling(sharp, list(waves), [math.inf], False)  # one plan for both
 
     def intensity(lens):
-        psf = compute_psf(lens, waves, [math.inf], 1, POINT_M, dtype=torch.float64, plan_frequency=plan).psf
+        psf = compute_psf(lens, PsfGrid(waves, [math.inf], 1, POINT_M), dtype=torch.float64, plan_frequency=plan).psf
         return psf[0, :, 0, 0].numpy() / POINT_M**2
 
     return {"k": k, "sharp": intensity(sharp), "spread": intensity(spread), "alpha": alpha, "beta": beta}
@@ -108,7 +109,7 @@ def cores():
     out = {"waves": waves}
     for design in (532e-9, 600e-9):
         lens = hyperbolic(design, D_M, APERTURE_M, PITCH_M)
-        psf = compute_psf(lens, waves, [math.inf], CORE, PIXEL_M, dtype=torch.float64).psf[0].numpy()
+        psf = compute_psf(lens, PsfGrid(waves, [math.inf], CORE, PIXEL_M), dtype=torch.float64).psf[0].numpy()
         out[design] = central_energy(psf, CORE)
     return out
 
