@@ -184,7 +184,7 @@ class LightLevels(click.ParamType):
     name = "light"
 
     def convert(self, value, param, ctx):
-        from metalens_cli.imaging.camera import LIGHT_NAMES
+        from metalens_cli.constants import LIGHT_NAMES
 
         if isinstance(value, list):
             return value

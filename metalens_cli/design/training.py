@@ -47,13 +47,11 @@ from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.step import (
     Session,
     Windows,
+    camera_capture,
     draw_step,
     far_cores,
     field_capacities,
     field_training,
-    fixed_throughput,
-    noise_seed,
-    noisy_capture,
     one_step,
     plan_windows,
     sensor_psf,
@@ -62,8 +60,9 @@ from metalens_cli.design.step import (
     step_psfs,
 )
 from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides
+from metalens_cli.design.training_camera import training_camera
 from metalens_cli.imaging.canvas import sensor_crop
-from metalens_cli.imaging.formation import canvas_margin, form_image
+from metalens_cli.imaging.formation import canvas_margin
 from metalens_cli.io.preset_spectra import preset_sensitivity
 from metalens_cli.io.presets import Preset, preset_incidence_factor, to_toml
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY
@@ -211,7 +210,7 @@ def _session(preset, ctx) -> Session:
         notes,
         band_filter,
         incidence,
-        fixed_throughput(preset),
+        training_camera(preset),
     )
 
 
@@ -358,7 +357,7 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
     o = preset.optimize
     windows = plan_windows(preset, sensitivity)
     pool = _image_pool(preset, windows.margin)
-    fixed = fixed_throughput(preset)
+    camera = training_camera(preset)
     for k in range(draws):
         step = VALIDATION_STEP + k
         draw = draw_step(preset, sensitivity, o.seed, step)
@@ -368,9 +367,7 @@ def _validation_parts(model, preset, draws: int, device, frequency: float | None
         clean, colour, mask = step_batch(
             preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device
         )
-        capture = form_image(clean, colour, mask, near, far, margin).obstructed
-        light = draw.throughput if draw.throughput is not None else fixed
-        capture = noisy_capture(capture, preset, light, noise_seed(o.seed, step, [0]))
+        capture = camera_capture(clean, colour, mask, near, far, margin, camera, draw, o.seed, step, [0])
         yield training_loss(
             capture,
             sensor_crop(clean, margin),
