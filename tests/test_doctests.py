@@ -7,6 +7,7 @@ import importlib
 import pytest
 
 MODULES = [
+    "metalens_cli.errors",
     "metalens_cli.io.units",
     "metalens_cli.analysis.symmetry",
     "metalens_cli.analysis.bands",
@@ -16,6 +17,7 @@ MODULES = [
     "metalens_cli.optics.lens",
     "metalens_cli.optics.split_spectrum",
     "metalens_cli.optics.sampling",
+    "metalens_cli.optics.spectra",
     "metalens_cli.imaging.metrics",
 ]
 
