@@ -14,6 +14,7 @@ MODULES = [
     "metalens_cli.analysis.mtf",
     "metalens_cli.optics.window",
     "metalens_cli.optics.field",
+    "metalens_cli.optics.fin",
     "metalens_cli.optics.lens",
     "metalens_cli.optics.split_spectrum",
     "metalens_cli.optics.sampling",

@@ -197,7 +197,7 @@ def form_image(
 
     Shape:
         - Input: ``clean``, ``obstruction`` :math:`(..., 3, H + 2M, W + 2M)`, ``mask``
-          :math:`(..., 1 \text{ or } 3, H + 2M, W + 2M)`, PSFs :math:`(..., 3, N, N)`
+          :math:`(..., 1, H + 2M, W + 2M)` or :math:`(..., 3, H + 2M, W + 2M)`, PSFs :math:`(..., 3, N, N)`
         - Output: each :math:`(..., 3, H, W)`
     """
     check_capture_inputs(clean, obstruction, mask, margin, formation, alpha_gain)
