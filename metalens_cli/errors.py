@@ -9,7 +9,17 @@ class MetalensError(Exception):
 class InputError(MetalensError, ValueError):
     """A value given by the user is malformed or out of range.
 
-    ``field`` names the option or TOML key path, ``expected`` the accepted form.
+    A ``ValueError``; the CLI prints it as one line and exits 2. Its text is
+    ``"{field}: {message} (expected {expected})"``.
+
+    Attributes:
+        field: the option or TOML key path (or the parameter) that holds the value.
+        message: what is wrong with it.
+        expected: the accepted form, or None.
+
+    Examples:
+        >>> str(InputError("--wavelength", "'450' has no unit", "a length with a unit, e.g. 450nm"))
+        "--wavelength: '450' has no unit (expected a length with a unit, e.g. 450nm)"
     """
 
     def __init__(self, field: str, message: str, expected: str | None = None):
@@ -33,8 +43,14 @@ class SamplingError(InputError):
 
 
 class ResultFailed(MetalensError):
-    """The input was valid but the computation could not produce a trustworthy result (e.g. two
-    images with too few consistent feature matches to register); the CLI exits 1, not 2."""
+    """The input was valid but the computation could not produce a trustworthy result.
+
+    E.g. two images with too few consistent feature matches to register; the CLI exits 1, not 2
+    (an :class:`InputError`'s code).
+
+    Args:
+        *args: the message, as for any exception.
+    """
 
 
 class Terminated(BaseException):

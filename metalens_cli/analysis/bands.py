@@ -30,7 +30,25 @@ from metalens_cli.optics.split_spectrum import (
 
 @dataclass(frozen=True)
 class BandsReport:
-    """All conditions, and the closed-form windows of z_near (at this f) and f (at this z_near)."""
+    """All conditions, and the closed-form windows of z_near (at this f) and f (at this z_near).
+
+    What :func:`check_bands` returns; ``ok`` is True when every condition holds.
+
+    Attributes:
+        bands: the filter's own pass bands that overlap the sensor range (not shifted for incidence).
+        f_m: focal length f (m).
+        z_near_m: the near depth range (lo, hi) (m).
+        sensor_range_m: the sensor's wavelength range (lo, hi) (m).
+        s: the depth-wavelength shift s = 1 + f/z over the range: (at z hi, at z lo), ascending.
+        conditions: every condition evaluated (name, both sides (m), relation, depth (m), margin (m)
+            > 0 when it holds, ok).
+        z_near_window_m: the open interval of z_near (m) at this f where the paper's conditions hold
+            (from 0 for a single band), or None when empty.
+        f_window_m: the open interval of f (m) where they hold over the whole z_near range, or None.
+        ignored_bands: bands entirely outside the sensor range (they take no part).
+        incidence_factor: the blue-shift factor k the conditions and windows were computed at
+            (1: normal incidence).
+    """
 
     bands: tuple[Band, ...]
     f_m: float
@@ -54,8 +72,24 @@ def _round(value_m: float) -> float:
 
 
 def bands_from_centers(centers_m: list[float], widths_m: list[float], field: str | None = None) -> tuple[Band, ...]:
-    """Pass bands [c − w/2, c + w/2] (w = FWHM); they must not overlap. Errors name ``field``
-    (the option or key the bands came from), else the parameter."""
+    """Pass bands [c − w/2, c + w/2] (w = FWHM); they must not overlap.
+
+    Edges are rounded to 12 significant digits; the bands are sorted and labelled B, G, R (three
+    bands) or band1 … bandN.
+
+    Args:
+        centers_m: band centres c (m).
+        widths_m: band widths w (m, FWHM), one per centre, each below twice its centre.
+        field: the option or key the bands came from, named in errors; None: the parameter's name.
+
+    Returns:
+        The bands (:class:`Band`), ascending.
+
+    Examples:
+        >>> bands = bands_from_centers([630e-9, 450e-9, 530e-9], [20e-9, 20e-9, 20e-9])
+        >>> [(b.label, b.lo_m, b.hi_m) for b in bands]
+        [('B', 4.4e-07, 4.6e-07), ('G', 5.2e-07, 5.4e-07), ('R', 6.2e-07, 6.4e-07)]
+    """
     centers_m = arguments.lengths(centers_m, field or "centers_m")
     widths_m = arguments.lengths(widths_m, field or "widths_m")
     field = field or "widths_m"
@@ -143,10 +177,26 @@ def check_bands(
 ) -> BandsReport:
     """Evaluate the split-spectrum conditions for ``bands`` at focal length ``f_m``.
 
-    ``z_near_m`` is ``(lo, hi)``; a single depth is ``(z, z)``. Bands entirely outside the
-    sensor range do not take part (they are listed in ``ignored_bands``). ``incidence``: the
-    factor k of :func:`incidence_factor` (1: normal incidence); the conditions and windows are
-    those of :func:`oblique_bands`, the report's ``bands`` the filter's own.
+    Bands entirely outside the sensor range do not take part (they are listed in
+    ``ignored_bands``).
+
+    Args:
+        bands: the filter's pass bands (:func:`bands_from_centers`), at least one.
+        f_m: focal length f (m).
+        z_near_m: near depth range ``(lo, hi)`` (m); a single depth is ``(z, z)``.
+        sensor_range_m: the sensor's wavelength range (lo, hi) (m), lo < hi.
+        incidence: the factor k of :func:`incidence_factor`, in (0, 1] (1: normal incidence); the
+            conditions and windows are those of :func:`oblique_bands`, the report's ``bands`` the
+            filter's own.
+
+    Returns:
+        The :class:`BandsReport`.
+
+    Examples:
+        >>> bands = bands_from_centers([450e-9, 530e-9, 630e-9], [20e-9, 20e-9, 20e-9])
+        >>> report = check_bands(bands, 4e-3, (0.04, 0.05))
+        >>> report.ok, report.s
+        (True, (1.08, 1.1))
     """
     listed = arguments.instance(bands, "bands", (tuple, list), "Bands (ml.bands_from_centers)")
     if not listed:

@@ -69,10 +69,17 @@ GRID_BYTES = 80  # per rfft sample of radial_grid: radii, ring indices, weights,
 class RadialGrid:
     """Ring averaging of the ``rfft2`` half-plane of N × N images of pitch ``pixel_pitch_m``.
 
-    ``operator``: sparse (K, N·(N//2+1)) matrix taking half-plane samples to the ring averages
-    at k·Δν (binning, mirror weights and the interpolation from the rings' mean radii in one).
-    ``radius_per_m`` and ``pixel_mtf_2d`` (N, N//2+1): |ν| in cycles/m and the pixel-aperture
-    MTF at each half-plane sample.
+    Built by :func:`radial_grid`; K = N//2 + 1 rings at k·Δν, Δν = 1/(N·p) (``rings``,
+    ``frequencies_lpmm``, ``nyquist_lpmm``; ``average`` applies the operator).
+
+    Attributes:
+        n: image side N (pixels).
+        pixel_pitch_m: pixel pitch p (m).
+        operator: sparse (K, N·(N//2+1)) matrix taking half-plane samples to the ring averages
+            at k·Δν (binning, mirror weights and the interpolation from the rings' mean radii in one).
+        radius_per_m: (N, N//2+1) |ν| in cycles/m at each half-plane sample.
+        pixel_mtf_2d: (N, N//2+1) the pixel-aperture MTF |sinc(νx·p)·sinc(νy·p)| at each half-plane
+            sample.
     """
 
     n: int
@@ -114,6 +121,18 @@ def radial_grid(n: int, pixel_pitch_m: float) -> RadialGrid:
 
     Sample weights: mirror multiplicity (1 for the νx = 0 column and, for even N, the νx = N/2
     column, else 2) over the ring's total, so a ring's weighted sum is its full-plane average.
+
+    Args:
+        n: image side N (pixels), ≥ 2.
+        pixel_pitch_m: pixel pitch p (m).
+
+    Returns:
+        The :class:`RadialGrid`: K = N//2 + 1 rings at k/(N·p), k = 0 … N//2.
+
+    Examples:
+        >>> grid = radial_grid(8, 2e-6)
+        >>> grid.rings, grid.frequencies_lpmm.tolist(), grid.nyquist_lpmm
+        (5, [0.0, 62.5, 125.0, 187.5, 250.0], 250.0)
     """
     from scipy import sparse
 
@@ -151,8 +170,32 @@ def psf_mtf(psf: np.ndarray, grid: RadialGrid, *, remove_pixel_mtf: bool = False
     """Radially averaged MTF (..., K) of PSFs (..., N, N) on ``grid``'s rings (1 at k = 0).
 
     One batched real FFT over all PSFs; each OTF is normalised by its zero-frequency value
-    (the PSF's sum), so the PSFs' scale does not matter. A PSF whose sum is not positive is
-    refused (InputError naming ``field`` and its index).
+    (the PSF's sum), so the PSFs' scale does not matter.
+
+    Args:
+        psf: PSFs, finite, pixel intensities of pitch ``grid.pixel_pitch_m``, the axis at pixel
+            (N//2, N//2) (any position: the modulus does not depend on it).
+        grid: the ring averaging of N × N images (:func:`radial_grid`).
+        remove_pixel_mtf: divide each 2-D OTF sample by the pixel-aperture MTF before averaging.
+        field: the name errors give the PSFs.
+
+    Returns:
+        The MTF at the ring frequencies k·Δν (``grid.frequencies_lpmm``), float32 for float32 PSFs.
+
+    Raises:
+        InputError: naming ``field`` and the index of a PSF whose sum is not positive, or PSFs not
+            N × N.
+
+    Shape:
+        - Input: :math:`(..., N, N)`
+        - Output: :math:`(..., K)`, K = N//2 + 1.
+
+    Examples:
+        >>> import numpy as np
+        >>> psf = np.zeros((8, 8))
+        >>> psf[4, 4] = 2.0  # a point: flat MTF
+        >>> psf_mtf(psf, radial_grid(8, 2e-6)).round(6).tolist()
+        [1.0, 1.0, 1.0, 1.0, 1.0]
     """
     from scipy import fft  # several times faster than numpy.fft here, and multi-threaded
 
@@ -186,13 +229,27 @@ def _check_power(dc: np.ndarray, field: str) -> None:
 def line_mtf(
     psf: np.ndarray, grid: RadialGrid, angle_rad: float, *, remove_pixel_mtf: bool = False, field: str = "psf"
 ) -> np.ndarray:
-    """MTF (..., K) of PSFs (..., N, N) along the frequency vectors ν·(cos θ, sin θ), θ =
-    ``angle_rad`` counter-clockwise from +x (x = column, y = row), at ν = k·Δν on ``grid``'s axis.
+    """MTF of PSFs along one direction of frequency: a tangential or sagittal curve.
 
-    |Σ P[i, j]·exp(−2πi(νx·j + νy·i))| at exactly those points, over the PSF's sum (1 at ν = 0;
-    a PSF whose sum is not positive is refused as by :func:`psf_mtf`); with ``remove_pixel_mtf``
-    each point is divided by the pixel MTF |sinc(νx·p)·sinc(νy·p)| there (≥ 4/π² up to Nyquist).
-    float32 PSFs give float32 curves, computed in float32 (as the radial ones).
+    |Σ P[i, j]·exp(−2πi(νx·j + νy·i))| at exactly the points ν·(cos θ, sin θ), over the PSF's sum
+    (1 at ν = 0; a PSF whose sum is not positive is refused as by :func:`psf_mtf`); with
+    ``remove_pixel_mtf`` each point is divided by the pixel MTF |sinc(νx·p)·sinc(νy·p)| there
+    (≥ 4/π² up to Nyquist). float32 PSFs give float32 curves, computed in float32 (as the radial
+    ones).
+
+    Args:
+        psf: PSFs, finite, pixel intensities on ``grid``'s pitch.
+        grid: the N × N ring grid (:func:`radial_grid`), whose axis ν = k·Δν, k = 0 … N//2, is used.
+        angle_rad: direction θ (rad) counter-clockwise from +x (x = column, y = row).
+        remove_pixel_mtf: divide out the pixel-aperture MTF.
+        field: the name errors give the PSFs.
+
+    Returns:
+        The MTF at ν = k·Δν along θ.
+
+    Shape:
+        - Input: :math:`(..., N, N)`
+        - Output: :math:`(..., K)`, K = N//2 + 1.
     """
     psf = _psfs(psf, grid, field)
     arguments.number(angle_rad, "angle_rad", form="a direction (rad)")
@@ -260,10 +317,32 @@ def diffraction_mtf(frequency_per_m: np.ndarray, na: float, wavelength_m: np.nda
 def diffraction_limited_mtf(
     grid: RadialGrid, na: float, wavelengths_m: np.ndarray, *, include_pixel: bool = True
 ) -> np.ndarray:
-    """(W, K) ring averages of the diffraction MTF at NA and each wavelength, on ``grid``.
+    """Ring averages of the diffraction MTF at NA and each wavelength, on ``grid``.
 
-    With ``include_pixel`` the 2-D pixel-aperture MTF multiplies it sample by sample (what an
-    aberration-free lens gives on these pixels, aliasing aside).
+    The MTF of an aberration-free incoherent circular pupil, cutoff 2·NA/λ, evaluated on the 2-D
+    half-plane samples and averaged with the same rings as a measured curve; not folded (no
+    aliasing).
+
+    Args:
+        grid: the ring grid (:func:`radial_grid`).
+        na: numerical aperture, in (0, 1).
+        wavelengths_m: wavelengths (m).
+        include_pixel: multiply by the 2-D pixel-aperture MTF sample by sample (what an
+            aberration-free lens gives on these pixels, aliasing aside).
+
+    Returns:
+        The reference MTF at the ring frequencies k·Δν (1 at k = 0).
+
+    Shape:
+        - Output: :math:`(W, K)` for W wavelengths, K = ``grid.rings``.
+
+    Examples:
+        >>> grid = radial_grid(8, 2e-6)  # rings at 0, 62.5, 125, 187.5, 250 lp/mm
+        >>> mtf = diffraction_limited_mtf(grid, 0.1, [500e-9, 600e-9], include_pixel=False)
+        >>> mtf.shape, mtf[:, 0].round(6).tolist()
+        ((2, 5), [1.0, 1.0])
+        >>> bool(mtf[0, 2] > mtf[1, 2])  # a shorter wavelength has the higher cutoff
+        True
     """
     from scipy import sparse
 
@@ -280,8 +359,29 @@ def diffraction_limited_mtf(
 
 
 def mtf50(frequencies: np.ndarray, mtf: np.ndarray, *, level: float = MTF50_LEVEL) -> np.ndarray:
-    """(...,) frequency where each curve (..., K) first drops below ``level``, linearly
-    interpolated between the samples on each side; NaN where it never does."""
+    """The frequency where each curve first drops below ``level`` (MTF50 by default).
+
+    Linearly interpolated between the samples on each side of the crossing.
+
+    Args:
+        frequencies: the curves' frequency axis (any unit; the result is in the same).
+        mtf: MTF curves on ``frequencies``.
+        level: the level, in (0, 1).
+
+    Returns:
+        The crossing frequency of each curve; NaN where it never drops below ``level`` (or is
+        below it already at the first sample).
+
+    Shape:
+        - Input: ``frequencies`` :math:`(K,)`, ``mtf`` :math:`(..., K)`
+        - Output: :math:`(...)`
+
+    Examples:
+        >>> import numpy as np
+        >>> curves = np.array([[1.0, 0.8, 0.4, 0.1], [1.0, 0.9, 0.8, 0.7]])
+        >>> mtf50(np.array([0.0, 10.0, 20.0, 30.0]), curves).tolist()
+        [17.5, nan]
+    """
     frequencies = np.asarray(arguments.array(frequencies, "frequencies", ndim=1, form="frequencies (K,)"))
     mtf = np.asarray(arguments.array(mtf, "mtf", form="MTF curves (..., K)"), dtype=float)
     if mtf.ndim < 1 or mtf.shape[-1] != frequencies.size:
@@ -467,7 +567,23 @@ class FieldMtf:
 
 def field_mtf(cube, grid: RadialGrid, *, remove_pixel_mtf: bool = False) -> FieldMtf:
     """Tangential and sagittal MTFs (:func:`line_mtf`) of every PSF and channel PSF of a field
-    cube (``io.exr.PsfCube``), at the azimuth ψ of its fields, and their MTF50s."""
+    cube (``io.exr.PsfCube``), at the azimuth ψ of its fields, and their MTF50s.
+
+    Tangential: along ν·(cos ψ, sin ψ), the radial direction of the sensor through the chief ray;
+    sagittal: along ν·(−sin ψ, cos ψ).
+
+    Args:
+        cube: a field cube (:func:`read_psf_cube`).
+        grid: the ring grid of its N × N PSFs and pitch (:func:`radial_grid`).
+        remove_pixel_mtf: divide out the pixel-aperture MTF.
+
+    Returns:
+        A ``FieldMtf``: field angles (rad), azimuth (rad), chief rays (m), window centres (px), the
+        curves on ``grid.frequencies_lpmm`` and their MTF50s (lp/mm, NaN: never below 0.5).
+
+    Shape:
+        - Output: curves :math:`(F, D, W, K)` (channels :math:`(F, D, 3, K)`), MTF50s :math:`(F, D, W)`.
+    """
     arguments.instance(cube, "cube", PsfCube, "a PsfCube (ml.read_psf_cube)")
     arguments.instance(grid, "grid", RadialGrid, "a RadialGrid (ml.radial_grid)")
     psi = cube.field_azimuth_rad
@@ -514,8 +630,21 @@ def cube_mtf(cube, *, at_lpmm=(), na: float | None = None, remove_pixel_mtf: boo
     a field cube, the radial curves of field 0 and the tangential and sagittal ones of every field
     (:func:`field_mtf`).
 
-    ``na`` overrides the cube's ``na`` metadata; with neither, no diffraction reference.
-    ``at_lpmm``: frequencies (lp/mm, 0 … the last ring) at which to interpolate each curve.
+    Args:
+        cube: the PSF cube (:func:`read_psf_cube`).
+        at_lpmm: frequencies (lp/mm, 0 … the last ring) at which to interpolate each curve.
+        na: numerical aperture of the diffraction reference; overrides the cube's ``na``
+            metadata; with neither, no diffraction reference.
+        remove_pixel_mtf: divide out the pixel-aperture MTF.
+
+    Returns:
+        A ``CubeMtf``: frequencies (lp/mm), depths and wavelengths (m), the curves, MTF50s (lp/mm,
+        NaN: never below 0.5), values at ``at_lpmm``, the pixel MTF, the diffraction reference and,
+        for a field cube, the ``FieldMtf``.
+
+    Shape:
+        - Output: ``mtf`` :math:`(D, W, K)`, ``mtf50_lpmm`` :math:`(D, W)`, ``mtf_at`` :math:`(D, W, A)`,
+          ``rgb_mtf`` :math:`(D, 3, K)`, ``diffraction`` :math:`(W, K)`.
     """
     arguments.instance(cube, "cube", PsfCube, "a PsfCube (ml.read_psf_cube)")
     grid = radial_grid(cube.psf.shape[-1], cube.pixel_pitch_m)

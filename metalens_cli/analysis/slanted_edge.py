@@ -109,8 +109,23 @@ def slanted_edge_sfr(
 
     Without ``roi`` the image must hold one dominant straight edge: it is located on the
     channel mean and the ROI is the band of rows in which the edge stays ``AUTO_HALF_WIDTH_PX``
-    (32) pixels from both sides (fewer in a narrow image), cut to those pixels around it. Refused (InputError): an ROI
-    outside the image or too small, no edge, a curved edge, a tilt within 1° of 0°/90° or of 45°.
+    (32) pixels from both sides (fewer in a narrow image), cut to those pixels around it.
+
+    Args:
+        image: the image, linear values; C channels (or one).
+        channel_names: one name per channel, e.g. ["R", "G", "B"].
+        roi: (x, y, w, h) in image pixels (x = column, y = row); None: located automatically.
+
+    Returns:
+        ``EdgeAnalysis``: the ROI used, the edge's orientation ("vertical" or "horizontal", its
+        nearest axis) and one SFR per channel.
+
+    Raises:
+        InputError: an ROI outside the image or too small, no edge, a curved edge, a tilt within 1°
+            of 0°/90° or of 45°.
+
+    Shape:
+        - Input: :math:`(H, W, C)` or :math:`(H, W)`
     """
     image = np.asarray(arguments.array(image, "image", ndim=(2, 3), form="an image (H, W, C) or (H, W)"), dtype=float)
     image = image[..., None] if image.ndim == 2 else image

@@ -43,7 +43,25 @@ def _check_lens(lambda_d_m: float, f_m: float) -> None:
 
 
 def depth_for_wavelength(wavelength_m: float, lambda_d_m: float, f_m: float) -> DepthRow:
-    """z = λd·f/(λ − λd) for one wavelength, classified as real, infinite or virtual."""
+    """z = λd·f/(λ − λd) for one wavelength, classified as real, infinite or virtual.
+
+    Args:
+        wavelength_m: the source wavelength λ (m), positive.
+        lambda_d_m: the design wavelength λd (m), positive.
+        f_m: the design focal length f (m), positive.
+
+    Returns:
+        A :class:`DepthRow`: ``kind`` ``"real"`` with ``depth_m`` z (m) for λ > λd, ``"infinite"``
+        for λ = λd (within 1e-12 relative: a plane wave) and ``"virtual"`` for λ < λd (z < 0);
+        ``depth_m`` None unless real.
+
+    Examples:
+        >>> row = depth_for_wavelength(550e-9, 500e-9, 4e-3)
+        >>> row.kind, round(row.depth_m, 9)
+        ('real', 0.04)
+        >>> depth_for_wavelength(450e-9, 500e-9, 4e-3).kind
+        'virtual'
+    """
     _check_lens(lambda_d_m, f_m)
     arguments.positive(wavelength_m, "wavelength_m")
     difference = wavelength_m - lambda_d_m
@@ -58,7 +76,19 @@ def depth_for_wavelength(wavelength_m: float, lambda_d_m: float, f_m: float) -> 
 def wavelength_for_depth(depth_m: float, lambda_d_m: float, f_m: float) -> float:
     """λ = λd·(1 + f/z): the wavelength a source at depth z focuses on the design plane.
 
-    ``depth_m = inf`` gives λd.
+    Args:
+        depth_m: the source depth z (m), positive; ``inf`` gives λd.
+        lambda_d_m: the design wavelength λd (m), positive.
+        f_m: the design focal length f (m), positive.
+
+    Returns:
+        The wavelength λ (m).
+
+    Examples:
+        >>> round(wavelength_for_depth(0.04, 500e-9, 4e-3) * 1e9, 6)
+        550.0
+        >>> wavelength_for_depth(float("inf"), 500e-9, 4e-3)
+        5e-07
     """
     _check_lens(lambda_d_m, f_m)
     arguments.positive(depth_m, "depth_m", allow_inf=True)

@@ -111,11 +111,25 @@ def train_reconstruction(
 ) -> ReconstructSummary:
     """Train the network for ``design`` (a resolved design) with ``preset`` into ``run_dir``.
 
-    ``resume`` continues from the newest checkpoint with the preset saved there (``steps`` may
-    extend it; a ``preset`` given must hold the same settings, steps and seed aside); the design
-    must be the one the run was made for; ``preset`` None: the defaults (a fresh run). ``pairs``: a folder of captured
-    pairs instead of simulation. ``lpips_weights``: a folder with the LPIPS weights (else looked
-    up as ``evaluate`` does). ``on_step(done, total, row)`` and ``on_stage(text)`` report progress.
+    Args:
+        design: the resolved design (:func:`resolve_design`); on resume, the one the run was made
+            for.
+        camera: the camera (``imaging.camera.Camera``: electrons at full scale before the filter,
+            read electrons rms, zero-order leak).
+        preset: the training settings; None: the defaults (a fresh run). On resume a ``preset``
+            given must hold the same settings, steps and seed aside.
+        run_dir: the run directory to write.
+        steps: override the preset's step count (on resume: may extend it).
+        seed: override the preset's seed.
+        device: torch device.
+        resume: continue from the newest checkpoint with the preset saved there.
+        pairs: a folder of captured pairs instead of simulation.
+        lpips_weights: a folder with the LPIPS weights (else looked up as ``evaluate`` does).
+        on_step: ``on_step(done, total, row)`` reports each step.
+        on_stage: ``on_stage(text)`` reports each stage.
+
+    Returns:
+        ``ReconstructSummary``: the run directory and the report.
     """
     from metalens_cli.io.designs import Design
 

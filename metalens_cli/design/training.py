@@ -171,7 +171,20 @@ def train(
 
     ``steps``/``seed`` override the preset's; ``resume`` continues from the newest checkpoint in
     ``run_dir`` with the preset saved there (``steps`` may extend it). Under torchrun the run is
-    data-parallel and only rank 0 writes. ``on_step(done, total, row)`` reports each step.
+    data-parallel and only rank 0 writes.
+
+    Args:
+        preset: the :class:`Preset` (:func:`load_preset`).
+        run_dir: the run directory to write (θ, checkpoints, loss.csv, run.json).
+        steps: override the preset's step count (with ``resume``: may extend the run).
+        seed: override the preset's seed.
+        device: torch device.
+        resume: continue from the newest checkpoint in ``run_dir`` with the preset saved there.
+        on_step: ``on_step(done, total, row)`` reports each step.
+
+    Returns:
+        ``RunSummary`` (rank 0 also wrote it into ``run.json``): the run directory, steps,
+        the step resumed from, the loss history, seconds per step, the learned θ (rad) and the report.
     """
     arguments.instance(preset, "preset", Preset, "a Preset (ml.load_preset)")
     run_dir = arguments.path(run_dir, "run_dir", "a run directory")

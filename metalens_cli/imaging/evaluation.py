@@ -51,12 +51,36 @@ class EvaluationSettings:
     """What every unit shares: sensor, depth intervals (m), wavelengths (m), image source,
     obstruction parameters, formation and scoring options, and the camera.
 
-    The camera: ``light_levels`` (``imaging.camera``: electrons at full scale before each
-    design's filter, None for noise-free; one table per level, the same noise draws at every
-    level), ``read_electrons`` and ``zero_order_leak`` (None: no zero-order light). Without
-    ``light_levels``, ``photons`` (full-well electrons of the capture, or before the filter with
-    ``photons_before_filter``) and ``read_noise`` (a fraction of full scale) set the noise.
-    ``wiener``: add the oracle Wiener rows (``imaging.wiener``)."""
+    Attributes:
+        pixels: the sensor's side (pixels).
+        pixel_pitch_m: sensor pixel pitch (m).
+        z_near_interval_m: obstruction depths (lo, hi) (m).
+        z_far_interval_m: scene depths (lo, hi) (m).
+        wavelengths_m: the wavelengths (m) of the channel quadrature.
+        images: the clean images: a named set, a folder or one file.
+        limit: at most this many images; None: all.
+        obstruction_params: obstruction generator parameters; None: the defaults.
+        formation: "physical" or "paper" (:func:`form_image`).
+        match: the photometric match before scoring, "lstsq" or "luminance".
+        alpha_gain: as in :func:`form_image`.
+        photons: without ``light_levels``: full-well electrons of the capture (or before the filter
+            with ``photons_before_filter``); None: no shot noise.
+        read_noise: without ``light_levels``: read-noise σ, a fraction of full scale.
+        photons_before_filter: ``photons`` count the light before each design's filter (its
+            throughput passes).
+        psf_window: one N × N window (pixels) forced for the channel PSFs; None: each depth in the
+            window its light needs (``imaging.channel_psfs``).
+        device: torch device.
+        field_model: "on-axis", or "auto": PSFs over the field where the sensor outgrows the
+            isoplanatic patch.
+        field_tolerance: the space-variant formation's tolerance (relative L2,
+            ``imaging.field_formation``).
+        light_levels: ``imaging.camera``: electrons at full scale before each design's filter, None
+            for noise-free; one table per level, the same noise draws at every level.
+        read_electrons: read noise (electrons rms) with ``light_levels``.
+        zero_order_leak: the analyzer's zero-order leak in 0..1; None: no zero-order light.
+        wiener: add the oracle Wiener rows (``imaging.wiener``).
+    """
 
     pixels: int
     pixel_pitch_m: float
@@ -218,11 +242,24 @@ def evaluate(
     """Score every design on the same (image, seed) units for every obstruction kind, under every
     camera of ``settings``.
 
-    ``reconstructors``: one per design, a callable mapping a linear (3, H, W) capture to its
-    reconstruction (``imaging.restore.Reconstructor``) or None; designs with one are scored on
-    their ``recon`` captures as well as their ``raw`` ones (and ``wiener`` ones with
-    ``settings.wiener``). Designs without a preset are imaged with the nanofin efficiency of the
-    first design that has one (``imaging.camera.efficiency_sources``).
+    Designs without a preset are imaged with the nanofin efficiency of the first design that has
+    one (``imaging.camera.efficiency_sources``).
+
+    Args:
+        designs: the resolved designs (:func:`resolve_design`).
+        kinds: obstruction kinds.
+        seeds: seeds; each (image, seed) is one unit, shared by every design.
+        settings: the :class:`EvaluationSettings`.
+        lpips_model: an ``imaging.lpips.Lpips`` to score LPIPS too; None: PSNR (dB) and SSIM only.
+        on_progress: ``on_progress(done, total)`` reports progress.
+        reconstructors: one per design, a callable mapping a linear (3, H, W) capture to its
+            reconstruction (``imaging.restore.Reconstructor``) or None; designs with one are
+            scored on their ``recon`` captures as well as their ``raw`` ones (and ``wiener`` ones
+            with ``settings.wiener``).
+
+    Returns:
+        ``Evaluation``: per-cell rows of metric means with confidence intervals, paired design
+        comparisons and verdicts, every unit's scores, the PSFs used, warnings and notes.
     """
     from metalens_cli.imaging.camera import channel_budget, efficiency_sources, electrons
 

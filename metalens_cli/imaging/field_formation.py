@@ -134,9 +134,13 @@ NODE_VALUES = 2**28  # node PSF values of one channel a tile's analysis holds (1
 class FieldPsfSet:
     """PSFs of a rotationally symmetric lens at one depth, sampled along the sensor's +x axis.
 
-    ``heights_px``: chief-ray positions, pixels from the optical-axis pixel along +x, ascending,
-    the first 0. ``psfs`` (K, C, N, N), one per height, N odd, the chief-ray pixel at
-    (N//2, N//2); any normalisation (each is divided by its sum).
+    Other azimuths are rotations of these (module docstring). Checked when built.
+
+    Attributes:
+        heights_px: chief-ray positions, pixels from the optical-axis pixel along +x, ascending,
+            the first 0.
+        psfs: (K, C, N, N), one per height, N odd, the chief-ray pixel at (N//2, N//2); any
+            normalisation (each is divided by its sum).
     """
 
     heights_px: tuple[int, ...]
@@ -646,10 +650,22 @@ def field_transform(
     max_bytes: int | None = None,
 ) -> FieldTransform:
     """Prepare ``psf_set`` for H × W sensor images: the tiled eigen-PSF expansion of the module
-    docstring with the fewest eigen-PSFs whose measured PSF-field error meets ``tolerance``
-    (relative L2, e.g. 0.01). Precompute once per PSF set and reuse. ``max_bytes``: refuse
-    (:class:`InputError` on ``--field-tolerance``) before building eigen-PSFs, their coefficient
-    maps and spectra that would hold more (:func:`expansion_bytes`)."""
+    docstring with the fewest eigen-PSFs whose measured PSF-field error meets ``tolerance``.
+
+    Precompute once per PSF set and reuse (:func:`form_image_field`).
+
+    Args:
+        psf_set: the PSFs along +x (:class:`FieldPsfSet`).
+        sensor_hw: (H, W) of the sensor images (pixels); the optical axis at (H//2, W//2).
+        tolerance: the PSF-field error to meet (relative L2, e.g. 0.01).
+        max_bytes: refuse (:class:`InputError` on ``--field-tolerance``) before building eigen-PSFs,
+            their coefficient maps and spectra that would hold more (:func:`expansion_bytes`);
+            None: no limit.
+
+    Returns:
+        The ``FieldTransform``: tiles, the tiles' mean PSFs and eigen-PSFs transformed, and their
+        coefficient maps.
+    """
     arguments.instance(psf_set, "psf_set", FieldPsfSet, "a FieldPsfSet")
     arguments.number(
         tolerance, "tolerance", lo=0.0, hi=1.0, open_lo=True, open_hi=True, form="a relative L2 error in (0, 1)"
@@ -990,10 +1006,32 @@ def form_image_field(
     alpha_gain: float | None = None,
     tolerance: float = DEFAULT_TOLERANCE,
 ) -> Capture:
-    """:func:`formation.form_image` with field PSFs: ``near``, ``far`` a :class:`FieldPsfSet` each
-    (prepared here at ``tolerance``) or a :class:`FieldTransform` (precomputed, reused; it carries
-    its own tolerance). The optical axis is the sensor's centre pixel (H//2, W//2); α = m ∗ P̂_near
-    and both forms as in ``imaging.formation``, each PSF the one of the output pixel."""
+    """:func:`formation.form_image` with field PSFs, each PSF the one of the output pixel.
+
+    The optical axis is the sensor's centre pixel (H//2, W//2); α = m ∗ P̂_near and both forms
+    as in ``imaging.formation``.
+
+    Args:
+        clean: the far scene's linear radiance on a canvas with margin M.
+        obstruction: the obstruction's linear radiance on the same canvas.
+        mask: its coverage m in 0..1, one or three channels.
+        near: the PSFs at the obstruction's depth: a :class:`FieldPsfSet` (prepared here at
+            ``tolerance``) or a :class:`FieldTransform` (precomputed, reused; it carries its own
+            tolerance).
+        far: likewise at the scene's depth.
+        margin: M, pixels of canvas on every side of the sensor's H × W.
+        formation: "physical" or "paper".
+        alpha_gain: as in :func:`formation.form_image`.
+        tolerance: the expansion's PSF-field error (relative L2) for PSF sets prepared here.
+
+    Returns:
+        The ``Capture`` on the sensor's H × W.
+
+    Shape:
+        - Input: ``clean``, ``obstruction`` :math:`(..., 3, H + 2M, W + 2M)`, ``mask``
+          :math:`(..., 1, H + 2M, W + 2M)` or :math:`(..., 3, H + 2M, W + 2M)`
+        - Output: each :math:`(..., 3, H, W)`
+    """
     check_capture_inputs(clean, obstruction, mask, margin, formation, alpha_gain)
     for name, psfs in (("near", near), ("far", far)):
         arguments.instance(psfs, name, (FieldPsfSet, FieldTransform), "a FieldPsfSet or a FieldTransform")

@@ -192,11 +192,30 @@ def field_channel_psfs(
     device="cpu",
     progress=None,
 ) -> FieldPsfs:
-    """The near and far PSF sets of ``design`` over a ``sensor_pixels``² sensor (module docstring);
-    ``wavelengths_m``: the on-axis quadrature's (as ``imaging.channel_psfs.channel_psfs``); ``heights``: image
-    points from the axis to the corner (default one per ``HEIGHT_STEP_PX``, 2 to 5);
-    ``wavelengths_per_channel``: default ``DEFAULT_WAVELENGTHS_PER_CHANNEL``; ``progress(done,
-    total)`` after each off-axis height."""
+    """The near and far PSF sets of ``design`` over a ``sensor_pixels``² sensor (module docstring).
+
+    Cached on disk by a hash of the lens, depths, wavelengths, sensor and heights.
+
+    Args:
+        design: a radially symmetric resolved design (:func:`resolve_design`).
+        z_near_m: the near (obstruction) depth (m).
+        z_far_m: the far (scene) depth (m).
+        wavelengths_m: the on-axis quadrature's wavelengths (m) (as
+            ``imaging.channel_psfs.channel_psfs``).
+        pixel_pitch_m: sensor pixel pitch (m).
+        sensor_pixels: the sensor's side (pixels).
+        heights: image points from the axis to the corner (default one per ``HEIGHT_STEP_PX``, 2
+            to 5).
+        wavelengths_per_channel: strata per channel off axis (default
+            ``DEFAULT_WAVELENGTHS_PER_CHANNEL``).
+        device: torch device.
+        progress: ``progress(done, total)`` after each off-axis height.
+
+    Returns:
+        ``FieldPsfs``: the near and far :class:`FieldPsfSet` (heights in pixels, PSFs (K, 3, N, N)
+        summing to what each window keeps), their depths (m), field angles (rad), the wavelengths
+        (m) and the report (spectral and sampling errors, kept fractions).
+    """
     from metalens_cli.io.designs import Design
     from metalens_cli.optics.field import field_psf
     from metalens_cli.optics.sampling import PsfGrid

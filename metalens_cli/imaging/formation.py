@@ -149,9 +149,15 @@ def coverage_alpha(blurred_coverage: torch.Tensor, alpha_gain: float | None = No
 
 @dataclass
 class Capture:
-    """What :func:`form_image` returns, each (..., 3, H, W) on the sensor: the ``obstructed``
-    capture, the ``unobstructed`` one (P̂_far ∗ I_clean), the obstruction term as it enters the
-    capture (``obstruction_light``) and ``alpha``."""
+    """What :func:`form_image` returns, each (..., 3, H, W) on the sensor, linear.
+
+    Attributes:
+        obstructed: the capture with the obstruction.
+        unobstructed: the capture without it, P̂_far ∗ I_clean.
+        obstruction_light: the obstruction term as it enters the capture (P̂_near ∗ (m ⊙ I_obs) in
+            the physical form, α ⊙ (P̂_near ∗ I_obs) in the paper's).
+        alpha: α = m ∗ P̂_near in 0..1, the fraction of the far light the cover blocks.
+    """
 
     obstructed: torch.Tensor
     unobstructed: torch.Tensor
@@ -172,9 +178,27 @@ def form_image(
 ) -> Capture:
     """The capture of a scene behind a near obstruction; see the module docstring for both forms.
 
-    ``clean``, ``obstruction`` (..., 3, H + 2M, W + 2M) linear and ``mask`` m (..., 1 or 3, same)
-    in 0..1 are canvases with margin ``margin`` = M; PSFs (..., 3, N, N) (any normalisation: each
-    is divided by its sum) or :class:`PsfTransform` (precomputed, reused).
+    Pure torch: batched, differentiable, any device.
+
+    Args:
+        clean: the far scene's linear radiance I_clean on a canvas with margin M.
+        obstruction: the obstruction's linear radiance I_obs on the same canvas (0 where nothing is).
+        mask: its coverage m in 0..1, one or three channels.
+        psf_near: R, G, B PSFs at the obstruction's depth, the axis at pixel (N//2, N//2) (any
+            normalisation: each is divided by its sum), or a :class:`PsfTransform` (precomputed,
+            reused).
+        psf_far: likewise at the scene's depth.
+        margin: M, pixels of canvas on every side of the sensor's H × W (≥ N//2 of each PSF).
+        formation: "physical" or "paper".
+        alpha_gain: g for the gain-and-clamp α = min(g·α, 1) of Shi et al.; None: α as is.
+
+    Returns:
+        The :class:`Capture` on the sensor's H × W.
+
+    Shape:
+        - Input: ``clean``, ``obstruction`` :math:`(..., 3, H + 2M, W + 2M)`, ``mask``
+          :math:`(..., 1, H + 2M, W + 2M)` or :math:`(..., 3, H + 2M, W + 2M)`, PSFs :math:`(..., 3, N, N)`
+        - Output: each :math:`(..., 3, H, W)`
     """
     check_capture_inputs(clean, obstruction, mask, margin, formation, alpha_gain)
     for name, psf in (("psf_near", psf_near), ("psf_far", psf_far)):
@@ -288,10 +312,24 @@ def add_noise(
 
     A pixel of value x (1 = full scale) collects x·``photons`` electrons: its noise has
     variance x/photons (shot, x clamped at 0) + ``read_noise``² (read noise, in full-scale
-    units). ``photons`` None or 0 means no shot noise; a tensor gives one count per channel
-    (shape (3, 1, 1): a filter passes each channel its own share of the light, differentiably).
-    ``generator``: a seed or a ``torch.Generator`` on the image's device; the same seed gives the
-    same noise. ``read_noise`` may be a tensor too (one σ per channel, (3, 1, 1)).
+    units).
+
+    Args:
+        image: linear image(s), 1 = full scale.
+        photons: full-well electrons; None or 0 means no shot noise; a tensor gives one count per
+            channel (shape (3, 1, 1): a filter passes each channel its own share of the light,
+            differentiably).
+        read_noise: read-noise σ as a fraction of full scale, ≥ 0; may be a tensor too (one σ per
+            channel, (3, 1, 1)).
+        generator: a seed or a ``torch.Generator`` on the image's device; the same seed gives the
+            same noise.
+
+    Returns:
+        The noisy image (not clipped).
+
+    Shape:
+        - Input: :math:`(..., C, H, W)`
+        - Output: :math:`(..., C, H, W)`
     """
     arguments.instance(image, "image", torch.Tensor, "an image tensor (..., C, H, W)")
     arguments.array(image, "image", form="an image tensor")

@@ -36,7 +36,29 @@ PSNR_CEILING_DB = 100.0  # an exact match: MSE 0 (see reported_psnr)
 
 def psnr(estimate: torch.Tensor, reference: torch.Tensor, *, data_range: float = 1.0) -> torch.Tensor:
     """10·log10(range² / MSE) in dB, per leading batch entry (the MSE over the last three axes,
-    never pooled over the batch): scikit-image's ``peak_signal_noise_ratio`` of each image."""
+    never pooled over the batch): scikit-image's ``peak_signal_noise_ratio`` of each image.
+
+    Args:
+        estimate: images, finite.
+        reference: images of the same shape, finite.
+        data_range: the images' full scale (1 for images in 0..1), positive.
+
+    Returns:
+        PSNR in dB per image (inf for an exact match).
+
+    Shape:
+        - Input: :math:`(..., C, H, W)` both.
+        - Output: :math:`(...)`
+
+    Examples:
+        >>> import torch
+        >>> reference = torch.full((2, 3, 4, 4), 0.5, dtype=torch.float64)
+        >>> estimate = reference.clone()
+        >>> estimate[0] += 0.1
+        >>> estimate[1] += 0.01
+        >>> [round(v, 4) for v in psnr(estimate, reference).tolist()]
+        [20.0, 40.0]
+    """
     _check_pair(estimate, reference, data_range)
     mse = ((estimate - reference) ** 2).mean(dim=(-3, -2, -1))
     return 10 * torch.log10(data_range**2 / mse)
@@ -77,9 +99,32 @@ def ssim(
 ) -> torch.Tensor:
     """Mean SSIM (Wang et al. 2004: Gaussian window 11 taps, σ 1.5, K1 0.01, K2 0.03, population
     covariances), over 'valid' window positions (no padding) and channels; one value per leading
-    batch entry. With the default window it equals scikit-image's ``structural_similarity(x, y,
+    batch entry.
+
+    With the default window it equals scikit-image's ``structural_similarity(x, y,
     gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=data_range,
-    channel_axis=0)`` to round-off (tests/imaging/test_metrics.py)."""
+    channel_axis=0)`` to round-off (tests/imaging/test_metrics.py).
+
+    Args:
+        estimate: images, finite, at least ``window`` pixels on each side.
+        reference: images of the same shape, finite.
+        data_range: the images' full scale (1 for images in 0..1), positive.
+        window: Gaussian window taps.
+        sigma: Gaussian window σ (pixels).
+
+    Returns:
+        Mean SSIM per image (1 for identical images).
+
+    Shape:
+        - Input: :math:`(..., C, H, W)` both.
+        - Output: :math:`(...)`
+
+    Examples:
+        >>> import torch
+        >>> x = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+        >>> [round(v, 6) for v in ssim(x, x).tolist()]
+        [1.0]
+    """
     _check_pair(estimate, reference, data_range)
     arguments.count(window, "window")
     arguments.positive(sigma, "sigma", unit="pixels")

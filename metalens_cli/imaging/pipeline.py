@@ -239,10 +239,28 @@ def simulate_captures(
     the same canvas (seed + image index), the unobstructed capture P̂_far ∗ I_clean and the
     obstructed capture (``imaging.formation``); noise (if any) seeded the same way.
 
-    ``obstructions``: a dict shared by calls that differ only in the design (same images, seed
-    and depths), so each obstruction is generated once. ``photons``: full-well electrons, one
-    count or one per channel R, G, B (``imaging.formation.add_noise``). ``on_progress(done,
-    total)`` is called before the first image and after each one."""
+    Args:
+        images: the clean images on their canvases (``imaging.images.load_images``).
+        obstruction_spec: the obstruction kind to generate.
+        psfs: the design's near and far channel PSFs and their margin.
+        focal_length_m: focal length (m), which sizes the obstruction on the cover glass.
+        pixel_pitch_m: sensor pixel pitch (m).
+        seed: the base seed; image i uses seed + i.
+        params: obstruction generator parameters (``[obstruction]``); None: the defaults.
+        formation: "physical" or "paper" (:func:`form_image`).
+        alpha_gain: as in :func:`form_image`.
+        photons: full-well electrons, one count or one per channel R, G, B
+            (``imaging.formation.add_noise``); None: no shot noise.
+        read_noise: read-noise σ, a fraction of full scale.
+        obstructions: a dict shared by calls that differ only in the design (same images, seed
+            and depths), so each obstruction is generated once.
+        on_progress: ``on_progress(done, total)`` is called before the first image and after each
+            one.
+
+    Returns:
+        One ``SimulatedCapture`` per image: linear (3, H, W) float32 numpy images (clean,
+        unobstructed, obstructed, α), the obstruction and the seconds taken.
+    """
     arguments.instance(psfs, "psfs", ChannelPsfs, "ChannelPsfs (channel_psfs)")
     arguments.positive(focal_length_m, "focal_length_m")
     arguments.positive(pixel_pitch_m, "pixel_pitch_m")

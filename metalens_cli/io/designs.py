@@ -31,7 +31,21 @@ SPEC_FORM = "hyperbolic:WAVELENGTH (e.g. hyperbolic:532nm), a θ .npy file, a pr
 
 @dataclass(frozen=True)
 class Design:
-    """A resolved design: the lens, the lens-to-sensor distance and the preset in force (if any)."""
+    """A resolved design: the lens, the lens-to-sensor distance and the preset in force (if any).
+
+    Made by :func:`resolve_design`; ``describe()`` gives a JSON-ready summary.
+
+    Attributes:
+        spec: the design spec as given (``hyperbolic:532nm``, a θ .npy, a preset .toml or a run
+            directory).
+        kind: "hyperbolic", "npy", "preset" or "run".
+        lens: the :class:`~metalens_cli.optics.lens.Metalens`.
+        focal_length_m: lens-to-sensor distance (m).
+        preset: the preset in force, or None.
+        lambda_d_m: design wavelength (m) of a hyperbolic lens, else None.
+        efficiency: the nanofin efficiency η(λ) (``io.preset_spectra.FinEfficiency``) a design without
+            a preset is imaged with; None: η = 1.
+    """
 
     spec: str
     kind: str  # "hyperbolic", "npy", "preset" or "run"
@@ -110,8 +124,25 @@ def resolve_design(
 ) -> Design:
     """Turn a design spec into a :class:`Design`; ``preset`` is the one given with --preset.
 
-    ``radial`` chooses the radial profile for hyperbolic lenses (False: the 2-D map).
-    Errors are :class:`InputError` naming ``--design`` (or the missing option).
+    The lens geometry is taken from the explicit arguments, else from the preset in force (for a
+    run directory: ``preset`` or else the run's own; for a preset .toml: ``preset`` or else that
+    one), else (the pitch of ``hyperbolic:``) the paper's pitch.
+
+    Args:
+        spec: ``hyperbolic:WAVELENGTH`` (e.g. ``hyperbolic:532nm``), a θ .npy file (rad), a preset
+            .toml of a hyperbolic lens or a run directory (``preset.toml`` and ``theta.npy``).
+        preset: the preset given with --preset, or None.
+        f_m: focal length, the lens-to-sensor distance (m); None: the preset's.
+        aperture_m: pupil diameter (m); None: the preset's.
+        pitch_m: meta-atom pitch (m); None: the preset's.
+        radial: the radial profile for hyperbolic lenses (False: the 2-D map).
+
+    Returns:
+        The :class:`Design`.
+
+    Raises:
+        InputError: naming ``--design`` (or the missing option: ``--f``, ``--aperture``,
+            ``--pitch``).
     """
     text = arguments.path(spec, "--design", SPEC_FORM).strip()
     if text.startswith("hyperbolic:"):

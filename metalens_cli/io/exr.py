@@ -55,11 +55,19 @@ _EXPECTED = "a PSF cube as described in docs/formats.md"
 class PsfCube:
     """A PSF cube as read from a cube file (EXR, or a format of ``psf_cube_files``).
 
-    ``psf``: (D, W, N, N) float32. ``rgb``: (D, 3, N, N) float32, channels R, G, B, or None.
-    ``wavelengths_m``: (W,) metres. ``depths_m``: (D,) metres, ``inf`` for a source at
-    infinity. ``metadata``: the whole header JSON (extra keys such as ``na`` included).
-    A field cube also has ``field_psf`` (F, D, W, N, N) and ``field_rgb`` (F, D, 3, N, N) or
-    None, of which ``psf`` and ``rgb`` are field 0; both None for an on-axis cube.
+    The layout is docs/formats.md's; properties give the pixel pitch (m) and, for a field cube,
+    the field angles (rad), azimuth (rad), chief rays (m) and window centres (px).
+
+    Attributes:
+        psf: (D, W, N, N) float32 PSFs, the axis (or the field's window centre) at pixel
+            (N//2, N//2).
+        rgb: (D, 3, N, N) float32 channel PSFs, channels R, G, B, or None.
+        wavelengths_m: (W,) wavelengths (m).
+        depths_m: (D,) source depths (m), ``inf`` for a source at infinity.
+        metadata: the whole header JSON (extra keys such as ``na`` included).
+        field_psf: a field cube's (F, D, W, N, N) PSFs, of which ``psf`` is field 0; None on axis.
+        field_rgb: a field cube's (F, D, 3, N, N) channel PSFs, of which ``rgb`` is field 0, or None;
+            None on axis.
     """
 
     psf: np.ndarray

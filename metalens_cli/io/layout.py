@@ -59,7 +59,18 @@ OASIS_CBLOCKS = False  # deflated CBLOCKs: paper lens 53 MB in 63 s, without 77 
 
 @dataclass(frozen=True)
 class FinGeometry:
-    """Nanofin layout parameters: pitch, width, length and database unit (m), GDS layer/datatype."""
+    """Nanofin layout parameters: pitch, width, length and database unit (m), GDS layer/datatype.
+
+    Checked when built: positive finite sizes; layer and datatype in 0-32767.
+
+    Attributes:
+        pitch_m: fin pitch (m), the design's meta-atom pitch.
+        width_m: fin width (m).
+        length_m: fin length (m).
+        dbu_m: the layout's database unit (m).
+        layer: GDSII layer number.
+        datatype: GDSII datatype number.
+    """
 
     pitch_m: float
     width_m: float
@@ -482,8 +493,20 @@ def export_layout(
 ) -> ExportReport:
     """Write the lens layout of ``design`` (a :class:`metalens_cli.io.designs.Design`) to ``path``.
 
-    ``angles`` None writes every fin as its own polygon at its exact θ; K quantises θ into K
-    referenced cells. The file is written to a temporary name beside ``path`` and renamed.
+    The file is written to a temporary name beside ``path`` and renamed.
+
+    Args:
+        design: the resolved design (:func:`resolve_design`).
+        geometry: the fins (:class:`FinGeometry`); its pitch must be the design's.
+        path: the output file.
+        fmt: "gds" or "oas" (OASIS, through KLayout).
+        angles: None writes every fin as its own polygon at its exact θ; K quantises θ into K
+            referenced cells.
+        progress: ``progress(done, total)`` reports the fins written.
+
+    Returns:
+        ``ExportReport``: atom count, file, size (bytes), format, worst phase error (rad), time (s)
+        and the top cell's name.
     """
     from metalens_cli.io.designs import Design
 

@@ -219,7 +219,21 @@ class ObstructionConfig:
 
 @dataclass(frozen=True)
 class Preset:
-    """A resolved preset. ``filter`` is None for a camera without a multi-band filter."""
+    """A resolved preset: the sections of a preset TOML file, validated (:func:`load_preset`).
+
+    Attributes:
+        name: the preset's name (the file's stem).
+        lens: ``[lens]``: focal (sensor) distance, aperture diameter (m), how θ is initialised.
+        nanofin: ``[nanofin]``: the meta-atoms and their conversion efficiency η(λ).
+        sensor: ``[sensor]``: pixel pitch (m), window, spectral response and range.
+        scene: ``[scene]``: depth ranges (m) of near obstructions and far scenes.
+        optimize: ``[optimize]``: the end-to-end learning of θ.
+        loss: ``[loss]``: the loss weights.
+        filter: ``[filter]``: the multi-band filter; None for a camera without one.
+        obstruction: ``[obstruction]``: the obstruction generators (defaults: the paper's camera).
+        description: free text.
+        source: the file it was read from, or None.
+    """
 
     name: str
     lens: LensConfig
@@ -687,7 +701,20 @@ def read_toml(path: Path, field: str = "preset") -> dict[str, Any]:
 
 
 def load_preset(path: str | Path) -> Preset:
-    """Read and validate a preset TOML file. Errors name the file and the key path."""
+    """Read and validate a preset TOML file.
+
+    File paths in the preset are relative to its folder; every file it names is opened and
+    checked here.
+
+    Args:
+        path: the preset TOML file.
+
+    Returns:
+        The :class:`Preset`, named after the file's stem.
+
+    Raises:
+        InputError: naming the file and the key path.
+    """
     path = Path(arguments.path(path, "path", "a preset TOML file"))
     data = read_toml(path)
     try:

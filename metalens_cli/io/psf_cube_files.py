@@ -111,10 +111,26 @@ def write_psf_cube(
     normalization: str = DEFAULT_NORMALIZATION,
     extra: dict[str, Any] | None = None,
 ) -> None:
-    """Write a PSF cube in the format of ``path``'s suffix (:data:`CUBE_SUFFIXES`), atomically;
-    arguments as :func:`metalens_cli.io.exr.prepare_cube`. An invalid cube, a suffix of no
-    format, or a field cube in a format but ``.exr`` is an InputError naming ``path``, and
-    nothing is written."""
+    """Write a PSF cube in the format of ``path``'s suffix (:data:`CUBE_SUFFIXES`), atomically.
+
+    Arguments as :func:`metalens_cli.io.exr.prepare_cube`.
+
+    Args:
+        path: the file to write: .exr, .npz, .mat, .tif or .tiff.
+        psf: PSFs (D, W, N, N), or a field cube's (F, D, W, N, N); stored as float32.
+        wavelengths_m: (W,) wavelengths (m).
+        depths_m: (D,) source depths (m); ``inf`` allowed (written as JSON null).
+        pixel_pitch_m: sensor pixel pitch (m).
+        design: a design spec string or a JSON-able object.
+        rgb: channel PSFs (D, 3, N, N) (or (F, D, 3, N, N)), channels R, G, B, or None.
+        normalization: what the PSF values are, written to the header.
+        extra: more header keys (e.g. ``na``, ``f_m``, ``aperture_m``; a field cube's field keys),
+            which may not override the keys the writer sets.
+
+    Raises:
+        InputError: naming ``path``, for an invalid cube, a suffix of no format, or a field cube in
+            a format but ``.exr``; nothing is written.
+    """
     suffix = cube_suffix(arguments.path(path, "path", "a PSF cube file path"), str(path))
     values = (psf, wavelengths_m, depths_m, pixel_pitch_m, design)
     if suffix == ".exr":
@@ -131,8 +147,18 @@ def _field_cube_refused(field: str, suffix: str) -> InputError:
 
 
 def read_psf_cube(path: str | os.PathLike[str]) -> PsfCube:
-    """Read and validate a PSF cube in the format of its suffix; a file that breaks the contract,
-    cannot be parsed or has another suffix is an InputError with a one-line reason naming ``path``."""
+    """Read and validate a PSF cube in the format of its suffix (:data:`CUBE_SUFFIXES`).
+
+    Args:
+        path: the cube file: .exr, .npz, .mat, .tif or .tiff.
+
+    Returns:
+        The :class:`~metalens_cli.io.exr.PsfCube` (PSFs float32, lengths in m).
+
+    Raises:
+        InputError: a file that breaks the contract (docs/formats.md), cannot be parsed or has
+            another suffix, with a one-line reason naming ``path``.
+    """
     field = arguments.path(path, "path", "a PSF cube file (.exr, .npz, .mat, .tif)")
     suffix = cube_suffix(path, field)
     if suffix == ".exr":

@@ -132,9 +132,27 @@ def _parse_length(text, field: str, allow_inf: bool) -> tuple[float, str, int] |
 def parse_length(text: str, field: str, *, allow_inf: bool = False) -> float:
     """Parse one length into metres; ``inf`` gives ``math.inf`` where allowed.
 
-    The result is the float nearest to the decimal value typed. Raises
-    :class:`InputError` naming ``field`` for a bare number, an unknown unit, NaN, zero, a
-    negative value, or a value outside the float range.
+    The result is the float nearest to the decimal value typed.
+
+    Args:
+        text: a number with a unit (pm, nm, um, µm, mm, cm, m, km), e.g. ``4mm`` or ``450nm``.
+        field: the option or TOML key the text came from, named in errors.
+        allow_inf: accept ``inf`` (a source at infinity).
+
+    Returns:
+        The length in metres, positive and finite, or ``math.inf``.
+
+    Raises:
+        InputError: naming ``field``, for a bare number, an unknown unit, NaN, zero, a negative
+            value, or a value outside the float range.
+
+    Examples:
+        >>> parse_length("450nm", "--wavelength")
+        4.5e-07
+        >>> parse_length("4 mm", "--focal-length")
+        0.004
+        >>> parse_length("inf", "--depth", allow_inf=True)
+        inf
     """
     parsed = _parse_length(arguments.instance(text, field, str, LENGTH_FORM), field, allow_inf)
     return math.inf if parsed is None else parsed[0]
@@ -192,11 +210,26 @@ def _expand_range(text: str, field: str, limit: int, *, zero_start: bool = False
 def parse_range(text: str, field: str) -> list[float]:
     """Expand ``START:STOP:STEP UNIT`` (inclusive end) into metres.
 
-    The unit may be given once at the end (``430:645:5nm``) or on every part
-    (``430nm:645nm:5nm``). The values are ``START + i·STEP`` computed exactly in decimal,
-    each then rounded to the nearest float; the stop is included when it lies on the grid.
-    At most :data:`MAX_RANGE_VALUES` values; a step too fine to give distinct floats is
-    refused.
+    The values are ``START + i·STEP`` computed exactly in decimal, each then rounded to the
+    nearest float; the stop is included when it lies on the grid.
+
+    Args:
+        text: the range; the unit may be given once at the end (``430:645:5nm``) or on every
+            part (``430nm:645nm:5nm``).
+        field: the option or TOML key the text came from, named in errors.
+
+    Returns:
+        The values in metres, ascending; at most :data:`MAX_RANGE_VALUES`.
+
+    Raises:
+        InputError: naming ``field``, for a malformed range, a stop below the start, too many
+            values, or a step too fine to give distinct floats.
+
+    Examples:
+        >>> parse_range("430:450:10nm", "--wavelengths")
+        [4.3e-07, 4.4e-07, 4.5e-07]
+        >>> parse_range("1mm:2mm:0.5mm", "--depths")
+        [0.001, 0.0015, 0.002]
     """
     return _expand_range(arguments.instance(text, field, str, LIST_FORM), field, MAX_RANGE_VALUES)
 
@@ -283,7 +316,27 @@ _ANGLE_RE = re.compile(rf"\s*({_NUMBER})\s*(deg|rad)\s*")
 
 
 def parse_angle(text: str, field: str, *, full_circle: bool = False) -> float:
-    """``12deg`` or ``0.2rad`` → radians, in [0, π/2) (``full_circle``: in [0, 2π), an azimuth)."""
+    """Parse one angle, ``12deg`` or ``0.2rad``, into radians.
+
+    Args:
+        text: a number with the unit ``deg`` or ``rad``.
+        field: the option or TOML key the text came from, named in errors.
+        full_circle: accept [0, 2π) (an azimuth) instead of [0, π/2) (a field angle).
+
+    Returns:
+        The angle in radians, in [0, π/2), or in [0, 2π) with ``full_circle``.
+
+    Raises:
+        InputError: naming ``field``, for a malformed angle or one out of range.
+
+    Examples:
+        >>> parse_angle("0.2rad", "--field-angle")
+        0.2
+        >>> round(parse_angle("12deg", "--field-angle"), 6)
+        0.20944
+        >>> round(parse_angle("270deg", "--azimuth", full_circle=True), 6)
+        4.712389
+    """
     match = _ANGLE_RE.fullmatch(arguments.instance(text, field, str, ANGLE_FORM))
     if not match:
         raise InputError(field, f"{_quote(text)} is not an angle", ANGLE_FORM)
@@ -321,8 +374,29 @@ def parse_angle_list(text: str, field: str, limit: int = 100) -> list[float]:
 
 
 def format_length(value_m: float, unit: str = "auto", digits: int = 4) -> str:
-    """Render metres for humans: ``0.004`` → ``4 mm``; ``inf`` → ``inf``. ``unit``: auto or one
-    of :data:`UNITS_M`; ``digits``: significant digits, 1-17."""
+    """Render metres for humans: ``0.004`` → ``4 mm``; ``inf`` → ``inf``.
+
+    Args:
+        value_m: the length (m), finite or ``inf``.
+        unit: ``auto`` (the largest of km, m, mm, µm, nm not above the value; nm below 1 nm) or
+            one of :data:`UNITS_M`.
+        digits: significant digits, 1-17.
+
+    Returns:
+        The number and its unit (``um`` written ``µm``), or ``inf``.
+
+    Examples:
+        >>> format_length(0.004)
+        '4 mm'
+        >>> format_length(532e-9)
+        '532 nm'
+        >>> format_length(1.5e-6, "nm")
+        '1500 nm'
+        >>> format_length(0.00412345, digits=2)
+        '4.1 mm'
+        >>> format_length(float("inf"))
+        'inf'
+    """
     value_m = arguments.number(value_m, "value_m", allow_inf=True, form="a length in m")
     if unit != "auto" and unit not in UNIT_EXPONENTS:
         raise InputError("unit", f"{unit!r}", "auto or one of " + ", ".join(UNIT_EXPONENTS))

@@ -112,13 +112,34 @@ def channel_psf_stack(
 ) -> ChannelPsfStack:
     """Channel PSFs at every depth, each in the window its light needs (module docstring).
 
-    ``weights`` (3, W) mix the W wavelengths into R, G, B (``optics.spectra``); ``capacity``: the
-    largest window (odd pixels) to look for light in, one for all depths or one per depth;
-    ``plan_pixels`` (≥ every capacity; default the largest) fixes the radial sampling plan so that
-    calls with changing capacities share its kernels. ``plan_*`` as in ``compute_psf``.
-    ``core_window`` (odd pixels): also each wavelength's energy in that central window (``cores``).
     Differentiable with respect to ``lens.theta`` and, given as a tensor, ``weights`` (the windows
     themselves are not).
+
+    Args:
+        lens: the metalens.
+        wavelengths_m: the W wavelengths (m).
+        depths_m: source depths (m; ``math.inf``: a plane wave).
+        weights: (3, W) spectral weights mixing the W wavelengths into R, G, B (``optics.spectra``).
+        capacity: the largest window (odd pixels) to look for light in, one for all depths or one
+            per depth.
+        pixel_pitch_m: sensor pixel pitch (m).
+        distance_m: lens-to-sensor distance (m); None: ``lens.focal_length_m``.
+        energy: the fraction of each channel's power on the sensor plane its window must hold, in
+            (0, 1).
+        plan_pixels: fixes the radial sampling plan (≥ every capacity; default the largest) so that
+            calls with changing capacities share its kernels.
+        dtype: real dtype of the computation.
+        device: torch device.
+        plan_wavelengths_m: as in ``compute_psf``.
+        plan_depths_m: as in ``compute_psf``.
+        plan_frequency: as in ``compute_psf``.
+        core_window: odd pixels ≤ every capacity: also each wavelength's energy in that central
+            window (``cores``).
+
+    Returns:
+        A :class:`ChannelPsfStack`: per depth ``psfs[i]`` (3, N_i, N_i) R, G, B in fractions of the
+        aperture power (axis at pixel N_i//2), the rule's windows, ``kept`` and ``on_sensor``
+        (depths, 3) fractions of the aperture power, ``outgrown`` (depths, 3) and ``cores``.
     """
     start = time.perf_counter()
     arguments.instance(lens, "lens", Metalens, "a Metalens (ml.hyperbolic, ml.resolve_design(...).lens)")

@@ -61,9 +61,24 @@ ON_AXIS_MARGIN = 0.5
 class FieldPsf:
     """PSFs (depths, wavelengths, N, N) of one field point, their window and the chief rays.
 
-    ``chief_ray_m``: (x, y) where the chief ray lands at the middle wavelength (m); ``chief_rays_m``:
-    one per wavelength (a 2-D lens with a phase gradient at its centre bends them differently);
-    ``centre_px``: (column, row) of the window's centre pixel from the axis pixel."""
+    What :func:`field_psf` returns; the window convention is the module docstring's.
+
+    Attributes:
+        psf: (D, W, N, N) the fraction of the power through the pupil landing on each pixel.
+        wavelengths_m: the W wavelengths (m).
+        depths_m: the D source depths (m; inf: a plane wave).
+        pixel_pitch_m: sensor pixel pitch (m).
+        distance_m: lens-to-sensor distance (m).
+        angle_rad: field angle α (rad) from the axis.
+        azimuth_rad: azimuth ψ (rad), counter-clockwise from the sensor's +x axis.
+        chief_ray_m: (x, y) where the chief ray lands at the middle wavelength (m).
+        chief_rays_m: one (x, y) per wavelength (m) (a 2-D lens with a phase gradient at its centre
+            bends them differently).
+        centre_px: (column, row) of the window's centre pixel from the axis pixel.
+        propagator: the propagator used: "asm" or "rs"; on axis, :func:`compute_psf`'s.
+        grid: the sampling grid used (its kind and sizes).
+        timing_s: seconds per stage.
+    """
 
     psf: torch.Tensor
     wavelengths_m: tuple[float, ...]
@@ -81,8 +96,22 @@ class FieldPsf:
 
 
 def field_angle(height_m: float, distance_m: float) -> float:
-    """Field angle (rad) whose chief ray lands at ``height_m`` from the axis on a sensor at
-    ``distance_m``, for a lens with a flat phase at its centre: atan(h/d)."""
+    """Field angle whose chief ray lands at ``height_m`` from the axis, for a lens with a flat phase
+    at its centre (every radial one): atan(h/d).
+
+    Args:
+        height_m: image height h (m) from the axis, ≥ 0.
+        distance_m: lens-to-sensor distance d (m), positive.
+
+    Returns:
+        The field angle α (rad), in [0, π/2).
+
+    Examples:
+        >>> round(field_angle(1e-3, 1e-3), 6)  # π/4
+        0.785398
+        >>> field_angle(0.0, 4e-3)
+        0.0
+    """
     height = arguments.number(height_m, "height_m", lo=0.0, form="a height ≥ 0 (m)")
     return math.atan2(height, arguments.positive(distance_m, "distance_m"))
 
@@ -114,8 +143,19 @@ def _phase_step(theta_step):
 def chief_ray(
     lens: Metalens, wavelength_m: float, angle_rad: float, azimuth_rad: float, distance_m: float
 ) -> tuple[float, float]:
-    """Where the ray through the lens centre lands on the sensor (m), from the lens's phase gradient
-    there (module docstring)."""
+    """Where the ray through the lens centre lands on the sensor, from the lens's phase gradient
+    there (module docstring): d·s/√(1 − |s|²), s = sin α·(cos ψ, sin ψ) + (λ/2π)·∇φ(0).
+
+    Args:
+        lens: the metalens (radial: flat phase at the centre, so d·tan α).
+        wavelength_m: wavelength λ (m).
+        angle_rad: field angle α (rad), in [0, π/2).
+        azimuth_rad: azimuth ψ (rad), counter-clockwise from the sensor's +x axis.
+        distance_m: lens-to-sensor distance d (m).
+
+    Returns:
+        (x, y) of the landing point (m) from the optical axis.
+    """
     _ray_inputs(lens, wavelength_m, angle_rad, azimuth_rad, distance_m)
     ux, uy = field_direction(angle_rad, azimuth_rad)
     gx, gy = centre_gradient(lens)
@@ -420,11 +460,29 @@ def ray_landings(
     azimuth_rad: float = 0.0,
     samples: int = 48,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Geometric rays through a ``samples``² grid of pupil points: where they land on the sensor
-    (R, 2) (m), and where the chief ray lands (2,). Each ray leaves the lens in the direction the
-    incoming light (from the field point (α, ψ) at ``depth_m``) is bent to by the lens's phase
-    gradient, s = s_in + (λ/2π)·∇φ (local grating equation), and travels d·s/√(1 − |s|²) sideways;
-    rays whose |s| ≥ 1 are evanescent and dropped. For sizing windows and the isoplanatic test."""
+    """Geometric rays through a grid of pupil points and where they land on the sensor.
+
+    Each ray leaves the lens in the direction the incoming light (from the field point (α, ψ) at
+    ``depth_m``) is bent to by the lens's phase gradient, s = s_in + (λ/2π)·∇φ (local grating
+    equation), and travels d·s/√(1 − |s|²) sideways; rays whose |s| ≥ 1 are evanescent and
+    dropped. For sizing windows and the isoplanatic test.
+
+    Args:
+        lens: the metalens.
+        wavelength_m: wavelength λ (m).
+        angle_rad: field angle α (rad), in [0, π/2).
+        depth_m: source depth (m), positive; inf: a plane wave.
+        distance_m: lens-to-sensor distance d (m).
+        azimuth_rad: azimuth ψ (rad), counter-clockwise from the sensor's +x axis.
+        samples: the pupil is sampled on a ``samples`` × ``samples`` grid (≥ 2) over its square;
+            the points inside the pupil are traced.
+
+    Returns:
+        The landings (m) of the R rays kept, and where the chief ray lands (m, :func:`chief_ray`).
+
+    Shape:
+        - Output: :math:`(R, 2)` landings (x, y), R ≤ ``samples``²; :math:`(2,)` the chief ray's.
+    """
     _ray_inputs(lens, wavelength_m, angle_rad, azimuth_rad, distance_m)
     arguments.positive(depth_m, "depth_m", allow_inf=True)
     arguments.count(samples, "samples", lo=2)
@@ -496,7 +554,21 @@ def field_window(lens: Metalens, wavelengths_m, depth_m: float, angle_rad: float
 
 
 def rms_spot(landings: np.ndarray) -> float:
-    """RMS radius (m) of ray landings (R, 2) about their centroid."""
+    """RMS radius of ray landings about their centroid.
+
+    Args:
+        landings: ray landings (x, y) in m (:func:`ray_landings`), R ≥ 1.
+
+    Returns:
+        The RMS distance (m) of the landings from their centroid.
+
+    Shape:
+        - Input: :math:`(R, 2)`
+
+    Examples:
+        >>> rms_spot([[0.0, 0.0], [2e-6, 0.0]])
+        1e-06
+    """
     landings = np.asarray(arguments.array(landings, "landings", ndim=2, form="ray landings (R, 2) in m"))
     if landings.shape[1] != 2 or landings.shape[0] < 1:
         raise InputError("landings", f"has shape {landings.shape}", "ray landings (R, 2) in m, R ≥ 1")

@@ -17,8 +17,24 @@ NM = 1e9
 
 @dataclass(frozen=True)
 class Fin:
-    """A nanofin cell, lengths in metres: lattice ``period_m``, fin ``width_m`` (along x),
-    ``length_m`` (along y) and ``height_m``."""
+    """A nanofin cell, lengths in metres.
+
+    Checked when built: every size a positive finite length, the fin inside its cell.
+
+    Attributes:
+        period_m: lattice period (m).
+        height_m: fin height (m).
+        width_m: fin width along x (m), at most the period.
+        length_m: fin length along y (m), at most the period.
+
+    Examples:
+        >>> Fin(period_m=395e-9, height_m=600e-9, width_m=85e-9, length_m=300e-9).width_m
+        8.5e-08
+        >>> Fin(period_m=395e-9, height_m=600e-9, width_m=85e-9, length_m=410e-9)
+        Traceback (most recent call last):
+        ...
+        metalens_cli.errors.InputError: length: 410 nm is larger than the 395 nm period (expected a fin inside its cell)
+    """
 
     period_m: float
     height_m: float
@@ -40,9 +56,19 @@ class Fin:
 
 @dataclass(frozen=True)
 class FinResponse:
-    """Per wavelength (arrays of shape (W,)): ``t_xx``, ``t_yy`` (complex, power-normalised),
-    ``conversion`` η, ``co_polarized``, ``transmittance``, ``reflectance`` (power fractions);
-    ``harmonics`` N (N × N Fourier orders) and ``seconds`` per wavelength."""
+    """The response of a nanofin cell per wavelength, as :func:`fin_response` computes it.
+
+    Attributes:
+        wavelengths_m: (W,) wavelengths (m).
+        t_xx: (W,) complex Jones coefficient along x, power-normalised.
+        t_yy: (W,) complex Jones coefficient along y, power-normalised.
+        conversion: (W,) polarisation-conversion efficiency η (power fraction).
+        co_polarized: (W,) co-polarised power fraction.
+        transmittance: (W,) transmitted power fraction.
+        reflectance: (W,) reflected power fraction.
+        harmonics: N (N × N Fourier orders).
+        seconds: (W,) computation time per wavelength (s).
+    """
 
     wavelengths_m: np.ndarray
     t_xx: np.ndarray

@@ -34,7 +34,18 @@ from metalens_cli.errors import InputError
 class Metalens:
     """Rotation map θ (rad, 1-D radial or 2-D square), meta-atom pitch and pupil diameter (m).
 
-    ``focal_length_m`` is the design distance to the sensor when known (hyperbolic builder).
+    Checked when built: θ finite, the lengths positive. The phase imparted is φ = 2θ.
+
+    Attributes:
+        theta: fin rotation angles θ (rad): a radial profile θ(r) sampled at r = k·pitch (1-D), or a
+            square M × M map whose centre site (M//2, M//2) is the axis (2-D). Differentiable.
+        pitch_m: meta-atom pitch (m).
+        aperture_m: pupil diameter D (m).
+        focal_length_m: the design distance to the sensor (m) when known (hyperbolic builder), else
+            None.
+
+    Shape:
+        - ``theta``: :math:`(K,)` radial, or :math:`(M, M)`.
     """
 
     theta: torch.Tensor
@@ -118,8 +129,30 @@ def hyperbolic(
 ) -> Metalens:
     """Hyperbolic lens focusing a plane wave of wavelength λd at distance f (all in m).
 
-    θ = φ/2, radial profile sampled at k·pitch up to the pupil edge, or the 2-D map on the
-    smallest odd grid holding the pupil.
+    θ = φ/2 with φ(r) = −(2π/λd)(√(r² + f²) − f): the radial profile sampled at k·pitch up to
+    the pupil edge (and a sample or two past it), or the 2-D map on the smallest odd grid holding
+    the pupil.
+
+    Args:
+        lambda_d_m: design wavelength λd (m).
+        focal_length_m: focal length f (m); the lens's ``focal_length_m``.
+        aperture_m: pupil diameter D (m).
+        pitch_m: meta-atom pitch (m).
+        radial: build the 1-D radial profile (True) or the 2-D map (False).
+
+    Returns:
+        The :class:`Metalens`, θ in float64.
+
+    Raises:
+        InputError: a length not positive, or more meta-atoms across than the limit (2e7 radial,
+            32768 per side in 2-D).
+
+    Examples:
+        >>> lens = hyperbolic(532e-9, 1e-3, 20e-6, 1e-6)
+        >>> lens.radial, tuple(lens.theta.shape), lens.grid_size, lens.focal_length_m
+        (True, (12,), 21, 0.001)
+        >>> tuple(hyperbolic(532e-9, 1e-3, 20e-6, 1e-6, radial=False).theta.shape)
+        (21, 21)
     """
     sizes = {"lambda_d_m": lambda_d_m, "focal_length_m": focal_length_m, "aperture_m": aperture_m, "pitch_m": pitch_m}
     for name, value in sizes.items():

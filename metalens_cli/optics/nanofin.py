@@ -101,11 +101,23 @@ def fin_response(
     device=None,
     solver: str = "modes",
 ) -> FinResponse:
-    """The Jones coefficients and efficiencies of ``fin`` at each wavelength (metres), with
-    complex indices ``fin_index`` and ``substrate_index`` (one per wavelength, n + ik, k ≥ 0 for
-    loss) and N = ``harmonics`` Fourier orders per axis (see the module docstring), by
-    ``solver`` "modes" (fin_modes, on torch ``device``) or "meent" (the reference, CPU).
-    ``on_progress(done, total)`` is called after each batch of wavelengths."""
+    """The Jones coefficients and efficiencies of ``fin`` at each wavelength (see the module
+    docstring).
+
+    Args:
+        fin: the nanofin cell (:class:`Fin`, lengths in m).
+        fin_index: (W,) complex refractive index of the fin, n + ik (k ≥ 0 for loss), one per
+            wavelength.
+        substrate_index: (W,) complex refractive index of the substrate, likewise.
+        wavelengths_m: (W,) wavelengths (m).
+        harmonics: N, odd: Fourier orders −(N−1)/2 … (N−1)/2 per axis.
+        on_progress: ``on_progress(done, total)`` is called after each batch of wavelengths.
+        device: torch device of the "modes" solver.
+        solver: "modes" (fin_modes, on torch ``device``) or "meent" (the reference, CPU).
+
+    Returns:
+        The :class:`FinResponse` (power fractions, complex Jones coefficients).
+    """
     instance(fin, "fin", Fin, "a Fin")
     waves = lengths(wavelengths_m, "wavelengths_m")
     for name, index in (("fin_index", fin_index), ("substrate_index", substrate_index)):

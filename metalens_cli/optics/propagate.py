@@ -378,14 +378,26 @@ class _AsmPropagate(torch.autograd.Function):
 
 
 def asm_propagate(field: torch.Tensor, grid: AsmGrid, transfer: Callable[[], tuple]) -> torch.Tensor:
-    """Propagate ``field`` (..., n, n) on ``grid``; returns the complex field on the output
-    window (..., w, w), w = 2·half + 1, sampled ``grid.upsample`` times finer than the input.
+    """Propagate ``field`` by the band-limited angular spectrum onto ``grid``'s output window.
 
-    ``transfer()`` returns (H, K) from ``asm_transfer`` (e.g. through a ``TransferCache``); it is
-    called in the forward pass and again in the backward pass, which runs the adjoint
-    propagation, so H need not be held in between. Zero padding, band selection, upsampling
-    (zero padding of the spectrum) and the window crop happen inside 1-D passes along the last
-    axis, a block of rows at a time, so no padded full-size 2-D array is formed.
+    Zero padding, band selection, upsampling (zero padding of the spectrum) and the window crop
+    happen inside 1-D passes along the last axis, a block of rows at a time, so no padded
+    full-size 2-D array is formed. Differentiable: the backward pass runs the adjoint propagation.
+
+    Args:
+        field: complex input field, sampled at ``grid.pitch_m`` (m), the axis at index n//2.
+        grid: the padded FFT grid and output window (``optics.sampling.plan_asm``).
+        transfer: returns (H, K) from ``asm_transfer`` (e.g. through a ``TransferCache``); it is
+            called in the forward pass and again in the backward pass, so H need not be held in
+            between.
+
+    Returns:
+        The complex field on the output window, sampled ``grid.upsample`` times finer than the
+        input: positions (i − half)·pitch/upsample (m), i = 0 … 2·half.
+
+    Shape:
+        - Input: :math:`(..., n, n)`, n = ``grid.input_size``.
+        - Output: :math:`(..., w, w)`, w = 2·half + 1 (half = ``grid.window_half``).
     """
     arguments.instance(field, "field", torch.Tensor, "a complex field tensor (..., n, n)")
     arguments.instance(grid, "grid", AsmGrid, "an AsmGrid (optics.sampling.plan_asm)")
@@ -591,9 +603,26 @@ def radial_transfer(
 def radial_propagate(
     field_r: torch.Tensor, kernel: HankelKernel, transfer: torch.Tensor, out_matrix: torch.Tensor
 ) -> torch.Tensor:
-    """Propagate radial fields (Q, B) sampled at the nodes ``kernel.r`` with ``transfer`` (n, B)
-    from ``radial_transfer``; returns the fields at the radii of ``out_matrix`` (rows), (J, B).
-    All columns (wavelengths × depths) go through one matrix product per stage."""
+    """Propagate radial fields by the quasi-discrete Hankel transform of order 0.
+
+    All columns (wavelengths × depths) go through one matrix product per stage: the forward
+    transform (quadrature weights applied), the transfer function, and the Fourier-Bessel
+    series at the output radii.
+
+    Args:
+        field_r: complex radial fields, one column per (wavelength, depth), sampled at the nodes
+            ``kernel.r`` (m).
+        kernel: the Hankel kernel (``hankel_kernel``).
+        transfer: H(ν_m, λ) from ``radial_transfer``, one column per field.
+        out_matrix: the Fourier-Bessel series at the output radii, one row per radius.
+
+    Returns:
+        The complex fields at the radii of ``out_matrix``'s rows.
+
+    Shape:
+        - Input: ``field_r`` :math:`(Q, B)`, ``transfer`` :math:`(n, B)`, ``out_matrix`` :math:`(J, n)`
+        - Output: :math:`(J, B)`
+    """
     for name, value in (("field_r", field_r), ("transfer", transfer), ("out_matrix", out_matrix)):
         arguments.instance(value, name, torch.Tensor, "a tensor")
     arguments.instance(kernel, "kernel", HankelKernel, "a HankelKernel (hankel_kernel)")
@@ -616,8 +645,21 @@ def rayleigh_sommerfeld(
     """First Rayleigh-Sommerfeld solution by direct summation (exact kernel).
 
     U(P) = Σ_q values_q · (1/2π)·(d/r)·(1/r − ik)·exp(ikr)/r, r = |P − Q_q| with P at height d.
-    ``points_xy`` (Q, 2) input nodes in m, ``values`` (Q,) complex field × quadrature weight (m²),
-    ``out_xy`` (P, 2) output points in m. Computed in chunks of ``chunk`` node-point pairs.
+
+    Args:
+        points_xy: input nodes (x, y) in m.
+        values: complex field × quadrature weight (m²) at each node.
+        wavelength_m: wavelength λ (m); k = 2π/λ.
+        distance_m: propagation distance d (m).
+        out_xy: output points (x, y) in m, on the plane at distance d.
+        chunk: node-point pairs computed at a time (memory bound).
+
+    Returns:
+        The complex field U at each output point.
+
+    Shape:
+        - Input: ``points_xy`` :math:`(Q, 2)`, ``values`` :math:`(Q,)`, ``out_xy`` :math:`(P, 2)`
+        - Output: :math:`(P,)`
     """
     for name, value in (("points_xy", points_xy), ("values", values), ("out_xy", out_xy)):
         arguments.instance(value, name, torch.Tensor, "a tensor")

@@ -29,7 +29,22 @@ PROPAGATORS = ("auto", "asm", "radial", "rs")
 
 @dataclass
 class PsfResult:
-    """PSF stack (depths, wavelengths, N, N), its axes, the grid used and the cost per stage."""
+    """PSF stack (depths, wavelengths, N, N), its axes, the grid used and the cost per stage.
+
+    What :func:`compute_psf` and :func:`estimate_psf` return.
+
+    Attributes:
+        psf: (D, W, N, N) the fraction of the power passing the pupil that lands on each pixel, for
+            a source at ``depths_m[i]`` and wavelength ``wavelengths_m[j]``; the axis at pixel
+            (N//2, N//2). Differentiable with respect to ``lens.theta``.
+        wavelengths_m: the W wavelengths (m).
+        depths_m: the D source depths (m; ``math.inf``: a plane wave).
+        pixel_pitch_m: sensor pixel pitch (m).
+        distance_m: lens-to-sensor distance (m).
+        propagator: the propagator used ("asm", "radial" or "rs").
+        grid: the sampling plan used (its kind and sizes).
+        timing_s: seconds per stage.
+    """
 
     psf: torch.Tensor
     wavelengths_m: tuple[float, ...]

@@ -35,10 +35,14 @@ _NM = 1e-9
 
 @dataclass(frozen=True)
 class SpectralSensitivity:
-    """S^c(λ) tabulated on a wavelength grid.
+    """S^c(λ) tabulated on a wavelength grid, linear between grid points.
 
-    ``wavelengths_m``: (L,) strictly increasing, metres. ``values``: (3, L), channels R, G, B,
-    non-negative, in arbitrary units (only the shape of each channel matters to sampling).
+    Made by :func:`spectral_sensitivity`; ``support()`` gives the range where a channel matters.
+
+    Attributes:
+        wavelengths_m: (L,) strictly increasing, metres.
+        values: (3, L), channels R, G, B, non-negative, in arbitrary units (only the shape of each
+            channel matters to sampling).
     """
 
     wavelengths_m: np.ndarray
@@ -89,10 +93,20 @@ def wavelength_grid(start_m: float = 380e-9, stop_m: float = 780e-9, step_m: flo
 def camera_response(wavelengths_m: np.ndarray, name: str = DEFAULT_CAMERA) -> np.ndarray:
     """CRF^c(λ) of a camera at ``wavelengths_m``, shape (3, L), channels R, G, B.
 
-    ``name`` is one of ``CAMERA_NAMES`` (colour-science's ``MSDS_CAMERA_SENSITIVITIES``, each
-    channel normalised to peak 1; a measured response in a CSV is read by
-    :mod:`metalens_cli.io.spectra_files`). Linear interpolation; zero outside the tabulated
-    range (no measured response).
+    Linear interpolation; zero outside the tabulated range (no measured response).
+    colour-science is imported on the first call (slow).
+
+    Args:
+        wavelengths_m: wavelengths (m).
+        name: one of ``CAMERA_NAMES`` (colour-science's ``MSDS_CAMERA_SENSITIVITIES``; a measured
+            response in a CSV is read by :mod:`metalens_cli.io.spectra_files`).
+
+    Returns:
+        The relative response of each channel, each normalised to peak 1.
+
+    Shape:
+        - Input: :math:`(L,)`
+        - Output: :math:`(3, L)`, channels R, G, B.
     """
     grid = arguments.array(wavelengths_m, "wavelengths_m", ndim=(0, 1), form="wavelengths (L,) in m")
     if name not in CAMERA_NAMES:
@@ -127,7 +141,7 @@ def bandpass_transmission(
     edge_width_m=DEFAULT_EDGE_WIDTH_M,
     peak=1.0,
 ):
-    """Transmission (L,) of a multi-band filter with smooth edges.
+    """Transmission of a multi-band filter with smooth edges, in 0..``peak``.
 
     Each band b is a product of two logistic edges σ(t) = 1 / (1 + e^(−t)),
 
@@ -142,6 +156,26 @@ def bandpass_transmission(
     With torch tensors for the centres (and widths, edge width), the same model in torch,
     differentiable in every parameter (a learned filter, ``design.filter_learning``); the bands
     are then not checked (the learning keeps them valid).
+
+    Args:
+        wavelengths_m: wavelengths λ (m) at which to evaluate.
+        centres_m: band centres c_b (m).
+        widths_m: band FWHMs w_b (m), one per centre.
+        edge_width_m: 10-90 % rise distance of each edge (m).
+        peak: the transmission at each centre, in (0, 1].
+
+    Returns:
+        T(λ) (numpy, or a torch tensor for tensor centres).
+
+    Shape:
+        - Input: ``wavelengths_m`` :math:`(L,)`, ``centres_m`` and ``widths_m`` :math:`(B,)`
+        - Output: :math:`(L,)`
+
+    Examples:
+        >>> import numpy as np
+        >>> t = bandpass_transmission(np.array([520e-9, 530e-9, 540e-9, 600e-9]), [530e-9], [20e-9])
+        >>> t.round(6).tolist()  # half the peak at c ± w/2
+        [0.5, 1.0, 0.5, 0.0]
     """
     if _is_tensor(centres_m):
         import torch
@@ -227,8 +261,19 @@ def spectral_sensitivity(
 ) -> SpectralSensitivity:
     """S^c = CRF^c · T_filter · η on ``wavelengths_m`` (L,), metres.
 
-    ``crf`` (3, L) R, G, B; ``transmission`` and ``efficiency`` (L,) or None for 1 (no filter,
-    ideal conversion). Refuses a channel with no sensitivity anywhere on the grid.
+    Args:
+        wavelengths_m: (L,) at least 2 strictly increasing wavelengths (m).
+        crf: (3, L) camera response, channels R, G, B (:func:`camera_response`).
+        transmission: (L,) filter transmission in 0..1 (:func:`bandpass_transmission`), or None
+            for 1 (no filter).
+        efficiency: (L,) meta-atom conversion efficiency η in 0..1, or None for 1 (ideal
+            conversion).
+
+    Returns:
+        The :class:`SpectralSensitivity`.
+
+    Raises:
+        InputError: a malformed input, or a channel with no sensitivity anywhere on the grid.
     """
     grid = np.asarray(
         arguments.array(wavelengths_m, "wavelengths_m", ndim=1, form="wavelengths (L,) in m"), dtype=float
@@ -274,6 +319,22 @@ def quadrature_weights(sensitivity: SpectralSensitivity, nodes_m: np.ndarray) ->
     is no longer that channel's response). The integral is evaluated on the union of the
     sensitivity grid and the nodes, where S^c and hat_j are both linear on every interval, so
     the integral of their product is exact there.
+
+    Args:
+        sensitivity: S^c (:func:`spectral_sensitivity`).
+        nodes_m: (W,) scan wavelengths (m), strictly increasing, at least 2.
+
+    Returns:
+        ``ChannelWeights``: ``wavelengths_m`` (W,) the nodes (m), ``weights`` (3, W) R, G, B, each
+        row summing to 1, and ``coverage`` (3,) the fraction of each channel's ∫S^c dλ kept.
+
+    Examples:
+        >>> import numpy as np
+        >>> grid = np.array([500e-9, 550e-9, 600e-9])
+        >>> flat = spectral_sensitivity(grid, np.ones((3, 3)))
+        >>> q = quadrature_weights(flat, grid)
+        >>> q.weights[0].round(6).tolist(), q.coverage.round(6).tolist()
+        ([0.25, 0.5, 0.25], [1.0, 1.0, 1.0])
     """
     arguments.instance(sensitivity, "sensitivity", SpectralSensitivity, "a SpectralSensitivity")
     nodes = np.atleast_1d(np.asarray(arguments.array(nodes_m, "wavelengths", form="scan wavelengths (m)"), dtype=float))

@@ -32,7 +32,20 @@ THREE_BAND_LABELS = ("B", "G", "R")
 
 @dataclass(frozen=True)
 class Band:
-    """One pass band [lo_m, hi_m] with a label (B, G, R for a three-band filter)."""
+    """One pass band [lo_m, hi_m] with a label (B, G, R for a three-band filter).
+
+    Checked when built: a text label and edges 0 < lo < hi.
+
+    Attributes:
+        label: the band's name, e.g. "B", "G", "R" or "band1".
+        lo_m: lower edge (m); a 0-d tensor while a filter is learned.
+        hi_m: upper edge (m), above ``lo_m``; likewise.
+
+    Examples:
+        >>> band = Band("G", 520e-9, 540e-9)
+        >>> band.label, round((band.hi_m - band.lo_m) * 1e9, 6)
+        ('G', 20.0)
+    """
 
     label: str
     lo_m: float

@@ -8,7 +8,28 @@ from metalens_cli import arguments
 
 
 def crop_window(psf, n: int):
-    """The central n × n pixels (n ≤ N) of (..., N, N) PSFs: axis pixel N//2 becomes n//2."""
+    """The central n × n pixels (n ≤ N) of (..., N, N) PSFs: axis pixel N//2 becomes n//2.
+
+    Slicing only: a view of ``psf``, numpy array or torch tensor alike, values unchanged.
+
+    Args:
+        psf: PSFs, the axis at pixel (N//2, N//2) of the last two axes.
+        n: the window's side in pixels, 1 ≤ n ≤ N.
+
+    Returns:
+        The central window, the axis at pixel (n//2, n//2).
+
+    Shape:
+        - Input: :math:`(..., N, N)`
+        - Output: :math:`(..., n, n)`
+
+    Examples:
+        >>> import numpy as np
+        >>> crop_window(np.arange(25).reshape(5, 5), 3).tolist()
+        [[6, 7, 8], [11, 12, 13], [16, 17, 18]]
+        >>> crop_window(np.zeros((2, 4, 4)), 3).shape
+        (2, 3, 3)
+    """
     arguments.shaped(psf, "psf", min_ndim=2, form="PSFs (..., N, N)")  # values as they are: slicing only
     arguments.count(n, "n", hi=psf.shape[-1])
     lo = psf.shape[-1] // 2 - n // 2
