@@ -73,7 +73,7 @@ def write_results(
     windows: dict,
     filter_report: dict | None = None,
 ) -> dict:
-    from metalens_cli.plotting.optimize import filter_figure, loss_figure, theta_figure
+    from metalens_cli.plotting.optimize import filter_figure, loss_figure, steering_figure, theta_figure
 
     start = time.perf_counter()
     theta = summary.theta
@@ -112,6 +112,8 @@ def write_results(
     run.write_loss_csv(summary.history)
     if summary.history:
         loss_figure(run.path / "loss.png", summary.history)
+    if any("terms" in validation.get("steering", {}).get(s, {}) for s in ("initial", "final")):
+        steering_figure(run.path / "steering.png", validation["steering"])
     if filter_report is not None and summary.history:
         filter_figure(run.path / "filter.png", summary.history, preset.sensor.wavelength_range_m)
     initial = None

@@ -272,9 +272,20 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
     return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
 
 
+def image_pool(preset, margin: int):
+    """Training photographs at twice the canvas size (random crops are resized down to it)."""
+    if preset.optimize.images is None:
+        return None
+    from metalens_cli.imaging.images import load_images
+
+    n = 2 * (preset.sensor.pixels + 2 * margin)
+    return [image.linear for image in load_images(preset.optimize.images, (n, n))]
+
+
 def sensor_psf(psf: torch.Tensor, preset) -> torch.Tensor:
-    """The part of a far PSF on the sensor (the paper's L_bright and L_sharp see N sensor pixels)."""
-    return crop_window(psf, min(preset.sensor.pixels, psf.shape[-1]))
+    """The part of a far PSF on the whole sensor (``sensor.full_pixels``, else the step's crop
+    ``sensor.pixels``): the paper's L_bright counts the light on its N sensor pixels."""
+    return crop_window(psf, min(preset.sensor.full_pixels or preset.sensor.pixels, psf.shape[-1]))
 
 
 def noise_seed(seed: int, step: int, shard: list[int]) -> int:

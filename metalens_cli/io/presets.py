@@ -180,6 +180,9 @@ class OptimizeConfig:
     field_angles_rad: tuple[float, ...] = toml_key("field_angles", "angle_list", default=(0.0,), hi=math.radians(60))
 
 
+LOSS_SPACES = ("linear", "metric")  # design.losses.training_loss
+
+
 @dataclass(frozen=True)
 class LossConfig:
     """Weights of L1, 1 − SSIM, domain adaptation, L_bright and L_sharp."""
@@ -191,6 +194,8 @@ class LossConfig:
     sharp: float = toml_key("sharp", "float", lo=0.0, hi=1e3, default=1.0)
     sharp_window: int = toml_key("sharp_window", "int", lo=1, hi=101, default=5)
     sharp_mode: str = toml_key("sharp_mode", "choice", choices=SHARP_MODES, default="total")  # see design.losses
+    # what the image terms compare: "linear" values, or "metric": the evaluation's (least-squares match, sRGB)
+    space: str = toml_key("space", "choice", choices=LOSS_SPACES, default="linear")
     domain_adaptation_weights: str | None = toml_key(
         "domain_adaptation_weights", "path", default=None
     )  # DeepLabv3+ checkpoint
