@@ -34,6 +34,8 @@ class WholeImage(nn.Module):
         self.net = net
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """A (3, H, W) float32 linear capture → its reconstruction (3, H, W), positions from the
+        image's own size (the optical axis at its centre)."""
         return self.net(x[None].contiguous(memory_format=torch.channels_last))[0].contiguous()
 
 
