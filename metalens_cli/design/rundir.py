@@ -131,16 +131,26 @@ class RunDirectory:
         self.checkpoints.mkdir(exist_ok=True)
         with atomic_write(target) as temporary:
             torch.save(state, temporary)
-        for old in sorted(self.checkpoints.glob("step_*.pt"))[:-KEEP]:
+        for old in self.checkpoint_files()[:-KEEP]:
             old.unlink()
         return target
+
+    def checkpoint_files(self) -> list[Path]:
+        """The checkpoint files, oldest first by the step in their name (``step_1000000.pt`` after
+        ``step_999500.pt``: the zero padding stops at six digits, so names do not sort as text)."""
+
+        def step(path: Path) -> tuple[int, str]:
+            digits = path.stem.removeprefix("step_")
+            return (int(digits) if digits.isdigit() else -1, path.name)
+
+        return sorted(self.checkpoints.glob("step_*.pt"), key=step)
 
     def latest_checkpoint(self, steps: int, lists: tuple[str, ...] = ()) -> Checkpoint | None:
         """The newest checkpoint, None when there is none. It must be a dict holding ``step``, an
         int in [0, ``steps``] (past ``steps``: an error on --steps), the ``STATES`` dicts with finite
         tensors, ``history`` (a list of ``step`` dicts, one per step done) and a list of dicts under
         each key of ``lists``. Anything else is an InputError on --resume naming the file."""
-        found = sorted(self.checkpoints.glob("step_*.pt"))
+        found = self.checkpoint_files()
         if not found:
             return None
         path = found[-1]
