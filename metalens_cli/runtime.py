@@ -51,6 +51,8 @@ class Stopwatch:
         self._t = time.perf_counter()
 
     def lap(self, name: str) -> None:
+        """Add the seconds since the previous lap (or the start, or :meth:`restart`) to stage
+        ``name``; with a CUDA ``device``, after waiting for it."""
         if getattr(self.device, "type", None) == "cuda":
             import torch
 
@@ -60,5 +62,6 @@ class Stopwatch:
         self._t = now
 
     def add(self, times: dict[str, float], prefix: str = "") -> None:
+        """Add ``times`` (seconds by stage) to the stages ``prefix + stage``."""
         for stage, seconds in times.items():
             self.times[prefix + stage] = self.times.get(prefix + stage, 0.0) + seconds

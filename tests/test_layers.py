@@ -1,6 +1,7 @@
 """Imports point downward: cli → design → plotting → imaging/analysis → io → optics. A module
 imports from its own layer or a lower one, and the two packages that share a layer do not both
-import each other; optics, the physics core, imports nothing of the package above it."""
+import each other; optics, the physics core, imports nothing of the package above it. Every public
+function, class and method (a name not starting with ``_``) has a docstring."""
 
 import ast
 from pathlib import Path
@@ -87,3 +88,30 @@ def test_no_module_imports_the_package_root():
         name for name, imported in module_imports().items() if name != "metalens_cli" and "metalens_cli" in imported
     ]
     assert upward == []
+
+
+def undocumented() -> list[str]:
+    """``file:line:name`` of every public module-level function or class, and every public method
+    of a public class, without a docstring (a name starting with ``_`` is private)."""
+    missing = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        where = path.relative_to(PACKAGE.parent)
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if not isinstance(node, (ast.FunctionDef, ast.ClassDef)) or node.name.startswith("_"):
+                continue
+            if not ast.get_docstring(node):
+                missing.append(f"{where}:{node.lineno}:{node.name}")
+            if isinstance(node, ast.ClassDef):
+                missing += [
+                    f"{where}:{method.lineno}:{node.name}.{method.name}"
+                    for method in node.body
+                    if isinstance(method, ast.FunctionDef)
+                    and not method.name.startswith("_")
+                    and not ast.get_docstring(method)
+                ]
+    return missing
+
+
+def test_every_public_definition_has_a_docstring():
+    missing = undocumented()
+    assert missing == [], f"{len(missing)} public definitions lack a docstring:\n" + "\n".join(missing)

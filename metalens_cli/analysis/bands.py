@@ -63,6 +63,7 @@ class BandsReport:
 
     @property
     def ok(self) -> bool:
+        """Whether every evaluated condition holds (True when there are none)."""
         return all(c.ok for c in self.conditions)
 
 

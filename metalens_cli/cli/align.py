@@ -36,6 +36,8 @@ class FileOrFolder(OutputFile):
     name = "path"
 
     def convert(self, value, param, ctx):
+        """The checked output path (str): as :class:`OutputFile` when its suffix (any case) is one
+        of ``suffixes``, else as :class:`OutputFolder`; a bad path fails with the accepted form."""
         if Path(str(value)).suffix.lower() in self.suffixes:
             return super().convert(value, param, ctx)
         return OutputFolder().convert(value, param, ctx)

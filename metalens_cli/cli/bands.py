@@ -61,6 +61,9 @@ def _filter_bands(preset, band_specs, filter_csv, threshold):
 
 
 def report_json(report: model.BandsReport) -> dict:
+    """The JSON-ready core of ``metalens bands --json``: lengths in metres, ``s`` one number when it
+    is the same over the whole depth range (else [at z hi, at z lo]), every band and condition, the
+    windows as [lo, hi] or None."""
     return {
         "ok": report.ok,
         "s": report.s[0] if report.s[0] == report.s[1] else list(report.s),

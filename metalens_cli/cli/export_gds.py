@@ -27,6 +27,8 @@ class LayerSpec(click.ParamType):
     name = "layer"
 
     def convert(self, value, param, ctx):
+        """The (layer, datatype) pair of ints for ``LAYER/DATATYPE`` or ``LAYER`` (datatype 0); a
+        bad value fails with the accepted form."""
         if isinstance(value, tuple):
             return value
         parts = str(value).split("/")
@@ -41,6 +43,8 @@ class AnglesSpec(click.ParamType):
     name = "exact|K"
 
     def convert(self, value, param, ctx):
+        """None for ``exact`` (any case), else the int number K of quantised θ levels; a bad value
+        fails with the accepted form."""
         text = str(value).strip().lower()
         if value is None or text == "exact":
             return None

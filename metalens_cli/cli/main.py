@@ -52,9 +52,12 @@ class LazyGroup(click.Group):
         self.environment = environment or {}
 
     def list_commands(self, ctx):
+        """The names of the registered and the lazy subcommands, sorted."""
         return sorted(set(super().list_commands(ctx)) | set(self.lazy))
 
     def get_command(self, ctx, name):
+        """The command ``name``: a lazy one imported now from ``metalens_cli.cli.<module>`` (the
+        attribute named ``name`` with '-' as '_'), else Click's own lookup (None when unknown)."""
         if name in self.lazy:
             module, _ = self.lazy[name]
             return getattr(importlib.import_module(f"metalens_cli.cli.{module}"), name.replace("-", "_"))

@@ -55,6 +55,8 @@ class Length(_UnitType):
     name = "length"
 
     def parse(self, text, field):
+        """The length in metres (float), ``math.inf`` for ``inf`` when ``allow_inf``; a bad value
+        raises an :class:`InputError` naming ``field`` and the accepted form."""
         return units.parse_length(text, field, allow_inf=self.allow_inf)
 
 
@@ -64,6 +66,8 @@ class Angle(_UnitType):
     name = "angle"
 
     def parse(self, text, field):
+        """The angle in radians (float), in [0, π/2); a bad value raises an :class:`InputError`
+        naming ``field`` and the accepted form."""
         return units.parse_angle(text, field)
 
 
@@ -73,6 +77,9 @@ class AngleList(_UnitType):
     name = "angles"
 
     def parse(self, text, field):
+        """The angles in radians (list of floats in [0, π/2)), in the order given with ranges
+        expanded, at most 100; a bad value raises an :class:`InputError` naming ``field`` and the
+        accepted form."""
         return units.parse_angle_list(text, field)
 
 
@@ -82,6 +89,8 @@ class HeightList(_UnitType):
     name = "heights"
 
     def parse(self, text, field):
+        """The heights in metres (list of floats ≥ 0; 0 is the axis), in the order given, ranges
+        expanded; a bad value raises an :class:`InputError` naming ``field`` and the accepted form."""
         return units.parse_height_list(text, field)
 
 
@@ -91,6 +100,8 @@ class Azimuth(_UnitType):
     name = "azimuth"
 
     def parse(self, text, field):
+        """The azimuth in radians (float), in [0, 2π); a bad value raises an :class:`InputError`
+        naming ``field`` and the accepted form."""
         return units.parse_angle(text, field, full_circle=True)
 
 
@@ -100,6 +111,9 @@ class LengthList(_UnitType):
     name = "lengths"
 
     def parse(self, text, field):
+        """The lengths in metres (list of floats; ``math.inf`` for ``inf`` items when
+        ``allow_inf``), in the order given with ranges expanded; a bad value raises an
+        :class:`InputError` naming ``field`` and the accepted form."""
         return units.parse_length_list(text, field, allow_inf=self.allow_inf)
 
 
@@ -109,6 +123,8 @@ class Interval(_UnitType):
     name = "interval"
 
     def parse(self, text, field):
+        """The interval (lo, hi) in metres; one length gives (length, length); a bad value raises an
+        :class:`InputError` naming ``field`` and the accepted form."""
         return units.parse_interval(text, field)
 
 
@@ -143,6 +159,8 @@ class BandSpec(_UnitType):
     name = "band"
 
     def parse(self, text, field):
+        """The band's (centre, width) in metres, the whole band [c − w/2, c + w/2] optical; a bad
+        value raises an :class:`InputError` naming ``field`` and the accepted form."""
         parts = text.split(":")
         if len(parts) != 2:
             raise InputError(field, f"{text!r} is not CENTER:WIDTH", "CENTER:WIDTH with units, e.g. 457nm:22nm")
@@ -160,6 +178,8 @@ class SeedList(click.ParamType):
     name = "seeds"
 
     def convert(self, value, param, ctx):
+        """The seeds as a list of ints ≥ 0, in the order given with inclusive ranges expanded
+        (repeats kept), at most ``MAX_SEEDS``; a bad value fails with the accepted form."""
         if isinstance(value, list):
             return value
         bounds = []
@@ -184,6 +204,9 @@ class LightLevels(click.ParamType):
     name = "light"
 
     def convert(self, value, param, ctx):
+        """The light levels as a list: None (noise-free) first, then the electrons at full scale
+        ascending (numbers > 0, names resolved by ``LIGHT_NAMES``), repeats dropped; a bad value
+        fails with the accepted form."""
         from metalens_cli.constants import LIGHT_NAMES
 
         if isinstance(value, list):
@@ -209,6 +232,8 @@ class Number(click.FloatRange):
     """A finite float in a range: ``click.FloatRange`` lets ``nan`` and ``inf`` through."""
 
     def convert(self, value, param, ctx):
+        """The value as a float within the range and finite; ``nan``, ``inf`` or a value out of
+        range fails with the accepted form."""
         number = super().convert(value, param, ctx)
         if not math.isfinite(number):
             self.fail(f"{value!r} is not a finite number", param, ctx)
@@ -226,11 +251,14 @@ class Device(click.ParamType):
     name = "device"
 
     def convert(self, value, param, ctx):
+        """The device name as given (auto, cpu, cuda, cuda:N or mps), checked for its form only; a
+        bad value fails with the accepted form."""
         if not re.fullmatch(DEVICE_PATTERN, str(value)):
             self.fail(f"unknown device {value!r} (expected {DEVICE_FORM})", param, ctx)
         return value
 
     def shell_complete(self, ctx, param, incomplete):
+        """Completions: the device names auto, cpu, cuda and mps that start with ``incomplete``."""
         from click.shell_completion import CompletionItem
 
         return [CompletionItem(name) for name in ("auto", "cpu", "cuda", "mps") if name.startswith(incomplete)]
@@ -254,6 +282,9 @@ class MemorySize(click.ParamType):
     }
 
     def convert(self, value, param, ctx):
+        """The size in bytes (int ≥ 1) of a number with an optional unit, any case: B, decimal kB …
+        TB (10³ …) or binary KiB … TiB (2¹⁰ …); an int passes as it is; a bad value fails with the
+        accepted form."""
         if isinstance(value, int):
             return value
         match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", str(value))
@@ -272,6 +303,8 @@ class Duration(_UnitType):
     name = "duration"
 
     def parse(self, text, field):
+        """The duration in seconds (float ≥ 1 ms), ``math.inf`` for ``inf``; a bad value raises an
+        :class:`InputError` naming ``field`` and the accepted form."""
         return units.parse_duration(text, field)
 
 
@@ -328,6 +361,8 @@ class OutputFile(click.ParamType):
         self.suffixes = suffixes
 
     def convert(self, value, param, ctx):
+        """The output path (str), checked by :func:`check_output_file` (and for ``suffixes`` when
+        given); a bad path fails with the accepted form."""
         try:
             return str(check_output_file(value, _option_name(param), suffixes=self.suffixes))
         except InputError as exc:
@@ -341,6 +376,8 @@ class OutputFolder(click.ParamType):
     name = "directory"
 
     def convert(self, value, param, ctx):
+        """The output folder (str), checked by :func:`check_output_folder` (created only later, when
+        the command writes); a bad path fails with the accepted form."""
         try:
             return str(check_output_folder(value, _option_name(param)))
         except InputError as exc:
@@ -354,6 +391,10 @@ class MetalensCommand(click.Command):
     errors name the option (``--wavelengths``) where the core named its argument."""
 
     def invoke(self, ctx):
+        """Refuse outputs that clash with one another or with an input (see the class), hold every
+        output folder (:func:`hold_folder`), then run the command; a core :class:`InputError` is
+        re-raised naming the option its field came from, and offering ``--force`` where the error is
+        forceable and the command has that option."""
         outputs, inputs = [], []
         for param in self.params:
             value = ctx.params.get(param.name)

@@ -72,12 +72,17 @@ class TrainingProgress:
         return self
 
     def stage(self, text: str) -> None:
+        """Name the setup stage ``text``: in the bar's description, else as a ``NAME: text`` line on
+        stderr (nothing when quiet)."""
         if self.bar is not None:
             self.bar.update(self.task, description=f"{self.name}: {text}")
         elif not self.quiet:
             print(f"{self.name}: {text}", file=sys.stderr, flush=True)
 
     def step(self, done: int, total: int, row: dict) -> None:
+        """Show step ``done`` of ``total``, ``row`` being its loss.csv row (``total`` loss,
+        ``seconds``): the bar shows the mean total loss of the last 20 steps; without a bar a line
+        on stderr every tenth of the steps and at the end (nothing when quiet)."""
         self.recent = (self.recent + [row["total"]])[-20:]
         mean = sum(self.recent) / len(self.recent)
         if self.bar is not None:

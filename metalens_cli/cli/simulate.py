@@ -40,6 +40,8 @@ class Photons(Number):
     """A full well in electrons: 0 (no shot noise) or at least 1."""
 
     def convert(self, value, param, ctx):
+        """The full well in electrons (float): 0, or from 1 to the range's maximum; a value between
+        0 and 1, out of range or not finite fails with the accepted form."""
         electrons = super().convert(value, param, ctx)
         if 0 < electrons < 1:
             self.fail(f"{value!r} electrons (expected 0 for no shot noise, or at least 1)", param, ctx)

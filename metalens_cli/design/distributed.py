@@ -66,6 +66,7 @@ def all_reduce_sum(tensor: torch.Tensor, ctx: Context) -> torch.Tensor:
 
 
 def barrier(ctx: Context) -> None:
+    """Wait until every rank reaches this point (a no-op for one process)."""
     if ctx.world > 1:
         import torch.distributed as dist
 

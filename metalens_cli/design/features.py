@@ -69,6 +69,8 @@ class Bottleneck(nn.Module):
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, inplanes, H, W) → (B, 4·planes, ⌈H/stride⌉, ⌈W/stride⌉): ReLU of the three
+        convolutions plus the shortcut."""
         out = F.relu(self.bn1(self.conv1(x)))
         out = F.relu(self.bn2(self.conv2(out)))
         out = self.bn3(self.conv3(out))
@@ -101,6 +103,8 @@ class ResNetOS16(nn.Module):
         self.layer4 = _stage(1024, 512, blocks[3], stride=1, dilation=2, first_dilation=1)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """ImageNet-normalised (B, 3, H, W) → (layer1 output (B, 256, ⌈H/4⌉, ⌈W/4⌉), layer4 output
+        (B, 2048, ⌈H/16⌉, ⌈W/16⌉))."""
         x = F.max_pool2d(F.relu(self.bn1(self.conv1(x))), kernel_size=3, stride=2, padding=1)
         low = self.layer1(x)
         return low, self.layer4(self.layer3(self.layer2(low)))
@@ -149,6 +153,7 @@ class ASPP(nn.Module):
         self.project = nn.Sequential(nn.Conv2d(5 * c, c, 1, bias=False), nn.BatchNorm2d(c), nn.ReLU())
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, cin, h, w) → (B, 256, h, w): the five branches concatenated and projected."""
         return self.project(torch.cat([branch(x) for branch in self.convs], dim=1))
 
 
@@ -196,6 +201,8 @@ class DeepLabFeatures(nn.Module):
         return (images - self.mean) / self.std
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """RGB in 0..1, (B, 3, H, W) or (3, H, W) → (low_level (B, 256, ⌈H/4⌉, ⌈W/4⌉), aspp (B, 256,
+        ⌈H/16⌉, ⌈W/16⌉)), differentiable in ``images``."""
         low, high = self.backbone(self.normalise(images))
         return low, self.classifier.aspp(high)
 

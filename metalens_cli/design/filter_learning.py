@@ -119,6 +119,8 @@ def filter_columns(n_bands: int) -> tuple[str, ...]:
 
 
 def filter_row(band_filter: LearnedFilter) -> dict:
+    """One step's loss.csv values of a learned filter: each band's centre and width and the edge
+    width, in nm (the :func:`filter_columns` other than ``split`` and ``light``)."""
     centres, widths, edge = band_filter.values()
     return {
         **{f"filter_center_{i}_nm": c / NM for i, c in enumerate(centres)},

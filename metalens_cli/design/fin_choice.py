@@ -54,6 +54,7 @@ class FinMap:
 
     @property
     def score(self) -> np.ndarray:
+        """(L, W) mean of ``eta`` over the bands."""
         return self.eta.mean(axis=-1)
 
 

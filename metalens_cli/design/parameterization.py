@@ -70,9 +70,11 @@ class SplineTheta(torch.nn.Module):
         self.pitch_m, self.aperture_m, self.focal_length_m = pitch_m, aperture_m, focal_length_m
 
     def full_theta(self) -> torch.Tensor:
+        """θ (rad) on the K + 1 rings: θ0 + B·c, differentiable in the coefficients c."""
         return self.base + self.basis @ self.theta
 
     def lens(self) -> Metalens:
+        """The :class:`Metalens` of :meth:`full_theta` with this pitch, aperture and focal length (m)."""
         return Metalens(self.full_theta(), self.pitch_m, self.aperture_m, self.focal_length_m)
 
 

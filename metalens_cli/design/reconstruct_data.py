@@ -102,9 +102,13 @@ class PsfBank:
 
     @property
     def margin(self) -> int:
+        """Canvas margin (pixels) the largest near or far PSF window needs around the sensor."""
         return canvas_margin(*(p.near.shape[-1] for p in self.near), *(p.far.shape[-1] for p in self.far))
 
     def report(self) -> dict:
+        """JSON-ready: the stratum depths (m; an infinite far depth as None), the window sides
+        (pixels), the least fraction of a channel's light any near and any far window kept, and the
+        seconds of the PSF calls (each counted once)."""
         return {
             "z_near_m": [p.z_near_m for p in self.near],
             "z_far_m": [p.z_far_m if math.isfinite(p.z_far_m) else None for p in self.far],
@@ -117,6 +121,8 @@ class PsfBank:
         }
 
     def warnings(self) -> list[str]:
+        """The PSFs' warnings (a window that kept less than ``KEPT_WARNING`` of a channel's light),
+        each once, sorted."""
         return sorted({w for p in self.near + self.far for w in p.warnings()})
 
 

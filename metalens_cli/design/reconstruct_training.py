@@ -62,6 +62,8 @@ PREVIEWS = 3  # validation pairs drawn in validation/step_*.png
 
 
 def run_directory(path: str | Path) -> RunDirectory:
+    """The :class:`RunDirectory` of a ``metalens reconstruct train`` run at ``path``: preset file
+    ``reconstruct.toml``, loss columns ``COLUMNS``."""
     return RunDirectory(path, PRESET_FILE, COLUMNS, "metalens reconstruct train")
 
 
@@ -90,6 +92,9 @@ def loss_terms(estimate: torch.Tensor, clean: torch.Tensor, weights, lpips_model
 
 @dataclass
 class ReconstructSummary:
+    """What :func:`train_reconstruction` returns: the run directory and its report (the dict written
+    to run.json)."""
+
     run_dir: Path
     report: dict
 

@@ -32,6 +32,8 @@ def psf_depths(preset) -> list[float]:
 
 
 def psf_wavelengths(preset) -> list[float]:
+    """Wavelengths (m) of psf.exr: the sensor's wavelength range, both ends included, evenly spaced
+    about ``PSF_STEP_M`` (5 nm) apart."""
     lo, hi = preset.sensor.wavelength_range_m
     count = int(round((hi - lo) / PSF_STEP_M)) + 1
     return list(np.linspace(lo, hi, count))
@@ -73,6 +75,13 @@ def write_results(
     windows: dict,
     filter_report: dict | None = None,
 ) -> dict:
+    """Write a finished optimize run's results into ``run`` (theta.npy and theta_radial.csv,
+    psf.exr, loss.csv, loss.png, steering.png, filter.png with a learned filter, theta.png, run.json)
+    and return the run.json report.
+
+    ``summary`` is the training's (θ, history, steps, resumed step); ``grid``, ``timing`` (seconds
+    by stage), ``notes``, ``validation``, ``windows`` and ``filter_report`` go into the report as
+    they are."""
     from metalens_cli.plotting.optimize import filter_figure, loss_figure, steering_figure, theta_figure
 
     start = time.perf_counter()

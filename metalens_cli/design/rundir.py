@@ -74,13 +74,16 @@ class RunDirectory:
 
     @property
     def preset_path(self) -> Path:
+        """The run's preset file: ``path / preset_name``."""
         return self.path / self.preset_name
 
     @property
     def checkpoints(self) -> Path:
+        """The run's checkpoints folder: ``path / "checkpoints"``."""
         return self.path / "checkpoints"
 
     def holds_run(self) -> bool:
+        """Whether the folder holds a run: its preset file, checkpoints folder or run.json exists."""
         return self.preset_path.exists() or self.checkpoints.exists() or (self.path / "run.json").exists()
 
     def check_fresh(self) -> None:
@@ -111,9 +114,13 @@ class RunDirectory:
             (self.path / folder).mkdir(exist_ok=True)
 
     def load_preset(self):
+        """The run's preset file, read with :func:`~metalens_cli.io.presets.load_preset` (the
+        optimize preset format)."""
         return load_preset(self.preset_path)
 
     def write_text(self, name: str, text: str) -> Path:
+        """Write ``text`` (UTF-8) to the file ``name`` in the run directory atomically; returns its
+        path."""
         with atomic_write(self.path / name) as temporary:
             temporary.write_text(text, encoding="utf-8")
         return self.path / name
@@ -126,16 +133,26 @@ class RunDirectory:
         self.checkpoints.mkdir(exist_ok=True)
         with atomic_write(target) as temporary:
             torch.save(state, temporary)
-        for old in sorted(self.checkpoints.glob("step_*.pt"))[:-KEEP]:
+        for old in self.checkpoint_files()[:-KEEP]:
             old.unlink()
         return target
+
+    def checkpoint_files(self) -> list[Path]:
+        """The checkpoint files, oldest first by the step in their name (``step_1000000.pt`` after
+        ``step_999500.pt``: the zero padding stops at six digits, so names do not sort as text)."""
+
+        def step(path: Path) -> tuple[int, str]:
+            digits = path.stem.removeprefix("step_")
+            return (int(digits) if digits.isdigit() else -1, path.name)
+
+        return sorted(self.checkpoints.glob("step_*.pt"), key=step)
 
     def latest_checkpoint(self, steps: int, lists: tuple[str, ...] = ()) -> Checkpoint | None:
         """The newest checkpoint, None when there is none. It must be a dict holding ``step``, an
         int in [0, ``steps``] (past ``steps``: an error on --steps), the ``STATES`` dicts with finite
         tensors, ``history`` (a list of ``step`` dicts, one per step done) and a list of dicts under
         each key of ``lists``. Anything else is an InputError on --resume naming the file."""
-        found = sorted(self.checkpoints.glob("step_*.pt"))
+        found = self.checkpoint_files()
         if not found:
             return None
         path = found[-1]
@@ -172,6 +189,8 @@ class RunDirectory:
     # ------------------------------------------------------------------ results
 
     def write_theta(self, theta: np.ndarray, pitch_m: float) -> None:
+        """Write θ (rad) to theta.npy and, for a radial profile, theta_radial.csv (columns r_m,
+        theta_rad; r = k·``pitch_m``), each atomically."""
         with atomic_write(self.path / "theta.npy") as temporary:
             with open(temporary, "wb") as handle:
                 np.save(handle, theta)
@@ -180,6 +199,8 @@ class RunDirectory:
             self.write_text("theta_radial.csv", "r_m,theta_rad\n" + rows + "\n")
 
     def write_loss_csv(self, history: list[dict]) -> None:
+        """Write ``history`` to loss.csv atomically: one row per dict under ``columns`` (other keys
+        dropped, missing ones left empty)."""
         buffer = io.StringIO()
         writer = csv.DictWriter(buffer, fieldnames=self.columns, extrasaction="ignore", lineterminator="\n")
         writer.writeheader()
@@ -196,6 +217,7 @@ class Checkpoint:
 
     @property
     def step(self) -> int:
+        """The number of steps done when the checkpoint was written."""
         return self.state["step"]
 
     def restore(self, **modules) -> None:

@@ -128,6 +128,7 @@ class Windows:
 
     @property
     def margin(self) -> int:
+        """Canvas margin (pixels) the ``near`` and ``far`` capacities need around the sensor."""
         return canvas_margin(self.near, self.far)
 
     def grown(self, outgrown) -> Windows:

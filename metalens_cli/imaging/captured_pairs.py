@@ -62,6 +62,7 @@ class PairLayout:
     captures: dict[str, dict[tuple[str, str], dict[str, Path]]]
 
     def has_recon(self, design: str) -> bool:
+        """Whether ``design`` has any reconstructed (``recon-…``) capture folder."""
         return any(capture == "recon" for capture, _ in self.captures[design])
 
 

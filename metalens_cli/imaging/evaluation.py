@@ -178,6 +178,8 @@ def design_photons(design, settings: EvaluationSettings):
 
 
 def metric_names(lpips_model) -> tuple[str, ...]:
+    """The metric keys in report order: ``psnr_db`` (dB), ``ssim``, and ``lpips`` when an LPIPS
+    model is given."""
     return ("psnr_db", "ssim", "lpips") if lpips_model is not None else ("psnr_db", "ssim")
 
 

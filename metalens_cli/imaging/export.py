@@ -8,6 +8,7 @@ its centre), exactly as ``reconstruct apply`` uses for images within its memory 
 
 from __future__ import annotations
 
+import copy
 import errno
 import io
 import os
@@ -34,6 +35,8 @@ class WholeImage(nn.Module):
         self.net = net
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """A (3, H, W) float32 linear capture → its reconstruction (3, H, W), positions from the
+        image's own size (the optical axis at its centre)."""
         return self.net(x[None].contiguous(memory_format=torch.channels_last))[0].contiguous()
 
 
@@ -53,7 +56,8 @@ def export_program(reconstructor, path: str | Path, tolerance: float = 1e-5) -> 
     reconstructor on seeded random captures of ``CHECK_SIZES``; report sizes, bytes, seconds,
     the largest absolute difference and whether it is within ``tolerance``."""
     start = time.perf_counter()
-    module = WholeImage(reconstructor.net.cpu().eval())  # channels-last weights, as in apply
+    # a CPU copy: the caller's network stays on its device (channels-last weights, as in apply)
+    module = WholeImage(copy.deepcopy(reconstructor.net).cpu().eval())
     example = torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0))
     dynamic = torch.export.Dim.DYNAMIC
     with torch.no_grad():

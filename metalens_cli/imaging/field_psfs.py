@@ -77,6 +77,9 @@ class FieldPsfs:
         return max(self.near.psfs.shape[-1], self.far.psfs.shape[-1]) // 2
 
     def report(self) -> dict:
+        """JSON-ready: the image heights (pixels), field angles (degrees), wavelengths (m), window
+        sides (pixels), the energy the windows kept, the spectral, sampling and height errors, the
+        seconds, and whether and where the PSFs were cached."""
         return {
             "field_heights_px": list(self.near.heights_px),
             "field_angles_deg": [math.degrees(a) for a in self.angles_rad],

@@ -198,6 +198,9 @@ class Lpips(nn.Module):
         return out
 
     def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """LPIPS distance (B,) between ``x`` and ``y``, both (B, 3, H, W) in −1..1: at each of the
+        five taps the channel-normalised features' squared difference, weighted by the learned 1×1
+        layer and averaged over space, summed over the taps."""
         feats = self.layer_features(torch.cat([x, y]))
         total = 0
         for f, lin in zip(feats, self.lins):

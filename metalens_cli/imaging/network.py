@@ -79,14 +79,19 @@ class NetworkShape:
             raise ValueError("spectral_bins 1 leaves the filter only its fixed DC knot: 0 (no filter) or ≥ 2")
 
     def to_dict(self) -> dict:
+        """The fields as a plain dict (as model files and reports store them)."""
         return asdict(self)
 
     @property
     def signal_channels(self) -> int:
+        """Channels of the signal planes: the 3 contrast channels and the luminance-gradient
+        magnitude (4)."""
         return 3 + 1
 
     @property
     def context_channels(self) -> int:
+        """Channels of the context planes: the over-exposure mask and sin, cos of x and y at each of
+        the ``frequencies`` (1 + 4F)."""
         return 1 + 4 * self.frequencies
 
 
@@ -148,6 +153,7 @@ class SpectralFilter(nn.Module):
         self.pad = pad
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, C, H, W) → the filtered image, same shape: x + :meth:`change` (x)."""
         return x + self.change(x)
 
     def change(self, x: torch.Tensor) -> torch.Tensor:
@@ -179,6 +185,7 @@ class Cbam(nn.Module):
         self.spatial = nn.Conv2d(2, 1, kernel, padding=kernel // 2)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, C, H, W) → the same shape, reweighted by channel, then by spatial attention."""
         # adaptive pooling: 10× faster than amax over (H, W) of a channels-last tensor on the CPU
         x = x * torch.sigmoid(self.mlp(F.adaptive_avg_pool2d(x, 1)) + self.mlp(F.adaptive_max_pool2d(x, 1)))
         pooled = torch.cat([x.mean(dim=1, keepdim=True), x.amax(dim=1, keepdim=True)], dim=1)

@@ -42,10 +42,12 @@ class Obstruction:
 
     @property
     def sensor_rgb(self) -> np.ndarray:
+        """``rgb`` cropped to the sensor's field: (3, H, W)."""
         return sensor_crop(self.rgb, self.margin)
 
     @property
     def sensor_mask(self) -> np.ndarray:
+        """``mask`` cropped to the sensor's field: (1, H, W)."""
         return sensor_crop(self.mask, self.margin)
 
     @property

@@ -71,6 +71,7 @@ class Reconstructor:
 
     @property
     def shape(self) -> NetworkShape:
+        """The network's :class:`NetworkShape`."""
         return self.net.shape
 
     def tile_side(self, height: int, width: int) -> int | None:

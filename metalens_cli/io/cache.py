@@ -95,6 +95,8 @@ def _plain(value: Any) -> Any:
 
 
 def entry_path(kind: str, key: str) -> Path:
+    """Where the entry ``key`` of ``kind`` lives: ``cache_folder()/kind/key.npz`` (nothing is
+    created)."""
     return cache_folder() / kind / f"{key}.npz"
 
 

@@ -280,6 +280,8 @@ def check_name(name: str) -> None:
 
 
 def as_str(value: Any, path: str, form: str) -> str:
+    """``value`` when it is a str, else an :class:`InputError` at ``path`` naming its type and the
+    ``form`` expected."""
     if not isinstance(value, str):
         raise InputError(path, f"expected a string, got {type(value).__name__}", form)
     return value
@@ -414,6 +416,10 @@ def _number(value: Any, path: str, *, lo=None, hi=None, form: str, open_lo: bool
 
 
 def build_section(cls: type, table: Any, section: str) -> Any:
+    """The section dataclass ``cls`` built from the TOML ``table`` of ``[section]``: each key
+    converted by its field's kind and limits (lengths to metres, angles to radians); an
+    :class:`InputError` names ``section.key`` for a value that is not a table, an unknown key, a
+    missing required key or a bad value."""
     if not isinstance(table, dict):
         raise InputError(section, "expected a table", f"[{section}] with keys")
     fields = {f.metadata["key"]: f for f in dataclasses.fields(cls)}
@@ -901,6 +907,10 @@ def section_toml(section: str, config: Any) -> str:
 
 
 def toml_field(value: Any, kind: str) -> str:
+    """TOML text of one field's value by its kind: lengths as ``"<repr>m"`` strings (``"inf"`` for
+    infinity), length lists and intervals as arrays of them, angle lists as ``"<repr>rad"`` strings,
+    the rest by :func:`toml_value`."""
+
     def length(v: float) -> str:
         return '"inf"' if math.isinf(v) else f'"{v!r}m"'
 
@@ -914,6 +924,8 @@ def toml_field(value: Any, kind: str) -> str:
 
 
 def toml_value(value: Any) -> str:
+    """TOML text of a bool, a number (its ``repr``), a list or tuple (an array), or anything else as
+    a basic string with TOML escapes."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (int, float)):

@@ -110,6 +110,10 @@ class DataConfig:
 
 @dataclass(frozen=True)
 class ReconstructPreset:
+    """A checked reconstruction preset: its ``name`` (a plain name), the ``network``, ``train`` and
+    ``data`` sections, a ``description``, and the ``source`` file it was read from (None when not
+    read from one)."""
+
     name: str
     network: NetworkConfig = field(default_factory=NetworkConfig)
     train: TrainConfig = field(default_factory=lambda: TrainConfig(steps=1000))

@@ -37,6 +37,9 @@ class Estimate:
     seconds_max: float | None = None
 
     def describe(self) -> str:
+        """One line for the user, ``WHAT: about MEMORY of memory, DISK on disk, about TIME (up to
+        LONGEST)``: the disk only when non-zero, the time only when estimated, the longest only
+        above 1.5× the time."""
         parts = [f"about {format_bytes(self.memory_bytes)} of memory"]
         if self.disk_bytes:
             parts.append(f"{format_bytes(self.disk_bytes)} on disk")

@@ -71,6 +71,7 @@ class AsmGrid:
 
     @property
     def extent_m(self) -> float:
+        """Side S = size·pitch of the padded grid (m)."""
         return self.size * self.pitch_m
 
     @property
@@ -85,6 +86,7 @@ class AsmGrid:
 
     @property
     def window_samples(self) -> int:
+        """Samples along each side of the output window: 2·window_half + 1."""
         return 2 * self.window_half + 1
 
     def window_coords(self, dtype: torch.dtype = torch.float64) -> torch.Tensor:
@@ -189,6 +191,9 @@ class TransferCache:
     store: OrderedDict = field(default_factory=OrderedDict)
 
     def get(self, grid: AsmGrid, wavelength_m: float, distance_m: float, dtype, device):
+        """:func:`asm_transfer`'s (H, K) for this grid, wavelength (m), distance (m), dtype and
+        device: the held one (made the most recent), else built after dropping the oldest to stay
+        within ``capacity``."""
         key = (float(wavelength_m), float(distance_m), grid.size, grid.pitch_m, dtype, str(device))
         if key in self.store:
             self.store.move_to_end(key)

@@ -68,6 +68,9 @@ class GridPixels:
 
     @classmethod
     def build(cls, coords_m: np.ndarray, n_pixels: int, pixel_pitch_m: float, device=None, dtype=torch.float32):
+        """The operator for samples at the uniform positions ``coords_m`` (m) onto ``n_pixels``
+        pixels of ``pixel_pitch_m`` (m), as ``dtype`` on ``device``: sparse CSR on the CPU and CUDA,
+        dense elsewhere."""
         dense = torch.from_numpy(grid_pixel_matrix(coords_m, n_pixels, pixel_pitch_m)).to(device, dtype)
         if dense.device.type not in ("cpu", "cuda"):
             return cls(dense)
@@ -157,6 +160,8 @@ class SparseRows:
         self._copies: dict = {}
 
     def on(self, dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+        """(matrix, transpose) as torch CSR tensors of ``dtype`` on ``device``, made at the first
+        request and kept."""
         key = (dtype, str(device))
         if key not in self._copies:
             self._copies[key] = tuple(_torch_csr(m, dtype, device) for m in (self.csr, self.csr.T.tocsr()))

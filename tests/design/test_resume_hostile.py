@@ -202,3 +202,17 @@ def test_apply_refuses_a_hostile_model(tmp_path, capsys, corrupt, message):
     assert run(["reconstruct", "apply", str(model.parent), str(capture), "-o", str(tmp_path / "out")]) == 2
     _refused(capsys, "RUN", message, str(model))
     assert not (tmp_path / "out").exists()
+
+
+def test_checkpoints_past_a_million_steps_keep_their_order(tmp_path):
+    """Checkpoint names pad the step to six digits, so step 1 000 000 sorts before 999 500 as
+    text: the newest is found, and pruning keeps the newest, by the step itself."""
+    from metalens_cli.design.rundir import KEEP, RunDirectory
+
+    run = RunDirectory(tmp_path / "run")
+    run.path.mkdir()
+    for step in (999_000, 999_500, 1_000_000, 1_000_500)[-(KEEP + 1) :]:
+        run.save_checkpoint({"step": step})
+    names = [p.name for p in run.checkpoint_files()]
+    assert names[-1] == "step_1000500.pt" and len(names) == KEEP
+    assert "step_1000000.pt" in names
