@@ -64,8 +64,8 @@ from metalens_cli.optics.psf import PsfCost
 from metalens_cli.optics.sampling import PsfGrid
 from metalens_cli.runtime import Stopwatch
 
-FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and per-term gradient
-# norms (2 × 2 draws) at θ_init and θ_final, the results' PSF scan: 53 (quick preset) and 66 (tests' tiny) measured
+FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and what steers θ (2 × 8
+# draws, each term's gradient: design.validation) at θ_init and θ_final, the results' PSF scan: tests' tiny 30 measured
 THETA_GRID_COPIES = 12  # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
 LARGE_GRID_BYTES = 1 << 30  # a 2-D θ grid above this is estimated (and refused) before it is built
 FIELD_COLUMNS = ("field_angle_deg", "field_azimuth_deg")  # loss.csv columns of a run with field angles
