@@ -56,6 +56,7 @@ def test_run_directory_contents(tiny, tmp_path):
         "psf.exr",
         "loss.csv",
         "loss.png",
+        "steering.png",
         "run.json",
     ):
         assert (run / name).is_file(), name
@@ -64,6 +65,11 @@ def test_run_directory_contents(tiny, tmp_path):
     assert report["settings"]["steps"] == 3 and report["cost"]["seconds_per_step_median"] > 0
     assert len(report["psf"]["energy_center_5x5"]) == 2  # near and far
     assert report["efficiency"]["source"] == "table"  # which η the run used
+    steering = report["validation_loss"]["steering"]  # what steers θ, at the start and the end
+    for stage in ("initial", "final"):
+        assert steering[stage]["draws"] == 8 and -1 <= steering[stage]["cosine_image_psf"] <= 1
+        assert {"l1", "ssim", "bright", "sharp", "image", "psf"} <= set(steering[stage]["terms"])
+    assert report["validation_loss"]["gradient_norms"]["final"]["sharp"] > 0
     theta = np.load(run / "theta.npy")
     np.testing.assert_array_equal(theta, summary.theta)
     # the run directory is a design spec carrying its lens and preset
