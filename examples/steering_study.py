@@ -35,6 +35,9 @@ CONFIGS = (  # (batch size, crop pixels, wavelengths per channel, light: None = 
     (8, 256, 3, None),
     (2, 128, 6, None),
     (2, 128, 12, None),
+    (2, 128, 12, 0.0),
+    (8, 128, 12, None),
+    (2, 128, 24, None),
 )
 
 
@@ -51,8 +54,10 @@ def configured(preset, batch: int, pixels: int, per_channel: int, light: float):
 
 
 def measure(preset_path: Path, draws: int, light: float, theta_run: Path | None) -> list[dict]:
+    """One row per configuration at θ_init (``theta_run`` None) or at a run's last checkpoint."""
     base = load_preset(preset_path)
     rows = []
+    start_name = "θ_init" if theta_run is None else theta_run.name
     for batch, pixels, per_channel, level in CONFIGS:
         level = light if level is None else level
         preset = configured(base, batch, pixels, per_channel, level)
@@ -66,11 +71,12 @@ def measure(preset_path: Path, draws: int, light: float, theta_run: Path | None)
         report = steering(model, preset, draws, "cpu", plan_frequency(preset))
         seconds = time.perf_counter() - start
         rows.append(
-            {"batch": batch, "pixels": pixels, "per_channel": per_channel, "light": level, "seconds": seconds, **report}
+            {"theta": start_name, "batch": batch, "pixels": pixels, "per_channel": per_channel, "light": level}
+            | {"seconds": seconds, **report}
         )
         terms = report["terms"]
         print(
-            f"batch {batch:3d} crop {pixels:3d}² λ/ch {per_channel} light {level:g}: "
+            f"{start_name}: batch {batch:3d} crop {pixels:3d}² λ/ch {per_channel} light {level:g}: "
             f"image SNR {terms['image']['rms_snr']:.3g} "
             f"(l1 {terms['l1']['rms_snr']:.3g}, ssim {terms['ssim']['rms_snr']:.3g}), psf SNR "
             f"{terms['psf']['rms_snr']:.3g}, cos {report['cosine_image_psf']:+.3f}, {seconds:.0f} s",
@@ -85,15 +91,16 @@ def _light(level: float) -> str:
 
 def table(rows: list[dict]) -> str:
     head = (
-        "| light (e⁻) | batch | crop | λ per channel | image SNR (rms / median / share > 1) | L1 SNR | 1 − SSIM SNR | "
-        "PSF SNR | ‖image‖ / ‖PSF‖ | cos(image, PSF) | seconds |\n|---|---|---|---|---|---|---|---|---|---|---|\n"
+        "| θ | light (e⁻) | batch | crop | λ per channel | image SNR (rms / median / share > 1) | L1 SNR | "
+        "1 − SSIM SNR | PSF SNR | ‖image‖ / ‖PSF‖ | cos(image, PSF) | seconds |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
     )
     lines = []
     for r in rows:
         t = r["terms"]
         img, psf = t["image"], t["psf"]
         lines.append(
-            f"| {_light(r['light'])} | {r['batch']} | {r['pixels']}² | {r['per_channel']} | "
+            f"| {r['theta']} | {_light(r['light'])} | {r['batch']} | {r['pixels']}² | {r['per_channel']} | "
             f"{img['rms_snr']:.3g} / {img['median_snr']:.3g} / "
             f"{100 * img['share_above_1']:.0f} % | {t['l1']['rms_snr']:.3g} | {t['ssim']['rms_snr']:.3g} | "
             f"{psf['rms_snr']:.3g} | {img['mean_norm'] / psf['mean_norm']:.3g} | {r['cosine_image_psf']:+.3f} | "
@@ -107,19 +114,21 @@ def main() -> None:
     parser.add_argument("--preset", type=Path, default=ROOT / "presets" / "quick-split-spectrum.toml")
     parser.add_argument("--draws", type=int, default=8)
     parser.add_argument("--light", type=float, default=2000.0)
-    parser.add_argument("--theta", type=Path, default=None, help="a finished run whose θ to measure at")
+    parser.add_argument(
+        "--theta", type=Path, action="append", default=[], help="a finished run whose θ to measure at too"
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "steering")
     parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "steering.md")
     args = parser.parse_args()
     torch.set_num_threads(2)
-    rows = measure(args.preset, args.draws, args.light, args.theta)
+    rows = [row for theta in (None, *args.theta) for row in measure(args.preset, args.draws, args.light, theta)]
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / "steering.json", rows)
-    where = "θ_init" if args.theta is None else f"the θ of `{args.theta}`"
+    where = "θ_init" + "".join(f" and at the last checkpoint of `{t}`" for t in args.theta)
     doc = (
         "# What steers θ: gradient signal-to-noise ratio against batch, crop and spectral sampling\n\n"
         f"Written by `python examples/steering_study.py --draws {args.draws} --light {args.light:g}"
-        + ("" if args.theta is None else f" --theta {args.theta}")
+        + "".join(f" --theta {t}" for t in args.theta)
         + f"` (re-running it rewrites this file). `{args.preset.relative_to(ROOT)}` at {where}, under the verdict's "
         f"camera: {args.light:g} e⁻ at full scale before the filter (each channel collects that × t_c), 2.5 e⁻ read "
         "noise, the zero order's veil; image terms on the metric's images (`loss.space = \"metric\"`: least-squares "
