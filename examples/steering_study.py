@@ -109,6 +109,44 @@ def table(rows: list[dict]) -> str:
     return head + "\n".join(lines) + "\n"
 
 
+def findings(rows: list[dict]) -> str:
+    """What the table says, from its numbers: per θ, the largest image SNR and where, and whether any
+    configuration lifts it past 1."""
+    out = []
+    for theta in dict.fromkeys(r["theta"] for r in rows):
+        mine = [r for r in rows if r["theta"] == theta]
+        best = max(mine, key=lambda r: r["terms"]["image"]["rms_snr"] or 0.0)
+        snr = best["terms"]["image"]["rms_snr"] or 0.0
+        where = f"batch {best['batch']}, {best['pixels']}² crops, {best['per_channel']} wavelengths per channel"
+        verdict = "exceeds 1" if snr > 1 else "stays below 1 in every configuration measured"
+        out.append(
+            f"- At {theta} the image terms' RMS SNR {verdict}; its largest is {snr:.2f} "
+            f"({where}, {_light(best['light'])} e⁻)."
+        )
+    return "\n".join(out) + "\n"
+
+
+def write_doc(rows: list[dict], doc: Path, preset: Path, draws: int, light: float, thetas: list[str]) -> None:
+    """docs/steering.md from the measured ``rows``."""
+    where = "θ_init" + "".join(f" and at the last checkpoint of `{t}`" for t in thetas)
+    text = (
+        "# What steers θ: gradient signal-to-noise ratio against batch, crop and spectral sampling\n\n"
+        f"Written by `python examples/steering_study.py --draws {draws} --light {light:g}"
+        + "".join(f" --theta {t}" for t in thetas)
+        + f"` (re-running it rewrites this file). `{preset}` at {where}, under the verdict's "
+        f"camera: {light:g} e⁻ at full scale before the filter (each channel collects that × t_c), 2.5 e⁻ read "
+        "noise, the zero order's veil; image terms on the metric's images (`loss.space = \"metric\"`: least-squares "
+        "match, sRGB), L_bright over the whole 512² sensor. Each row: the same "
+        f"{draws} fixed validation draws (depths, wavelengths, scenes, obstructions, noise; "
+        "`design.validation.steering`). SNR is each gradient's mean over its standard deviation across draws, per "
+        "parameter (256 spline coefficients), summarised as the root of the mean unbiased SNR² (rms; 0 where the "
+        "estimate is at or below 0), the median, and the share of parameters above 1; image = L1 + (1 − SSIM), "
+        "PSF = L_bright + L_sharp, each weighted as the preset weighs it. Under Adam a term steers a parameter when "
+        "its SNR is of order 1 or more: below, its updates are mostly noise.\n\n" + findings(rows) + "\n" + table(rows)
+    )
+    doc.write_text(text, encoding="utf-8")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--preset", type=Path, default=ROOT / "presets" / "quick-split-spectrum.toml")
@@ -119,28 +157,17 @@ def main() -> None:
     )
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "steering")
     parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "steering.md")
+    parser.add_argument("--from-json", type=Path, default=None, help="rewrite the doc from a saved steering.json")
     args = parser.parse_args()
     torch.set_num_threads(2)
-    rows = [row for theta in (None, *args.theta) for row in measure(args.preset, args.draws, args.light, theta)]
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_json(args.out / "steering.json", rows)
-    where = "θ_init" + "".join(f" and at the last checkpoint of `{t}`" for t in args.theta)
-    doc = (
-        "# What steers θ: gradient signal-to-noise ratio against batch, crop and spectral sampling\n\n"
-        f"Written by `python examples/steering_study.py --draws {args.draws} --light {args.light:g}"
-        + "".join(f" --theta {t}" for t in args.theta)
-        + f"` (re-running it rewrites this file). `{args.preset.relative_to(ROOT)}` at {where}, under the verdict's "
-        f"camera: {args.light:g} e⁻ at full scale before the filter (each channel collects that × t_c), 2.5 e⁻ read "
-        "noise, the zero order's veil; image terms on the metric's images (`loss.space = \"metric\"`: least-squares "
-        "match, sRGB), L_bright over the whole 512² sensor. Each row: the same "
-        f"{args.draws} fixed validation draws (depths, wavelengths, scenes, obstructions, noise; "
-        "`design.validation.steering`). SNR is each gradient's mean over its standard deviation across draws, per "
-        "parameter (256 spline coefficients), summarised as the root of the mean unbiased SNR² (rms), the median, "
-        "and the share of parameters above 1; image = L1 + (1 − SSIM), PSF = L_bright + L_sharp, each weighted as "
-        "the preset weighs it. Under Adam a term steers a parameter when its SNR is of order 1 or more: below, its "
-        "updates are mostly noise.\n\n" + table(rows)
-    )
-    args.doc.write_text(doc, encoding="utf-8")
+    if args.from_json is not None:
+        rows = json.loads(args.from_json.read_text())
+    else:
+        rows = [row for theta in (None, *args.theta) for row in measure(args.preset, args.draws, args.light, theta)]
+        args.out.mkdir(parents=True, exist_ok=True)
+        write_json(args.out / "steering.json", rows)
+    thetas = [f"runs/{t.name}" for t in args.theta]
+    write_doc(rows, args.doc, args.preset.resolve().relative_to(ROOT), args.draws, args.light, thetas)
     print(json.dumps({"doc": str(args.doc), "rows": len(rows)}))
 
 
