@@ -53,12 +53,22 @@ def configured(preset, batch: int, pixels: int, per_channel: int, light: float):
     )
 
 
-def measure(preset_path: Path, draws: int, light: float, theta_run: Path | None) -> list[dict]:
+def parse_configs(text: str) -> tuple:
+    """``--configs`` "BxNxW[xL],…" (batch, crop pixels, wavelengths per channel, light; L 0: noise-free)."""
+    configs = []
+    for part in text.split(","):
+        values = [float(v) for v in part.lower().split("x")]
+        batch, pixels, per_channel = (int(v) for v in values[:3])
+        configs.append((batch, pixels, per_channel, values[3] if len(values) > 3 else None))
+    return tuple(configs)
+
+
+def measure(preset_path: Path, draws: int, light: float, theta_run: Path | None, configs=CONFIGS) -> list[dict]:
     """One row per configuration at θ_init (``theta_run`` None) or at a run's last checkpoint."""
     base = load_preset(preset_path)
     rows = []
     start_name = "θ_init" if theta_run is None else theta_run.name
-    for batch, pixels, per_channel, level in CONFIGS:
+    for batch, pixels, per_channel, level in configs:
         level = light if level is None else level
         preset = configured(base, batch, pixels, per_channel, level)
         model = build_model(preset)
@@ -158,12 +168,16 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "steering")
     parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "steering.md")
     parser.add_argument("--from-json", type=Path, default=None, help="rewrite the doc from a saved steering.json")
+    parser.add_argument("--configs", type=parse_configs, default=CONFIGS, help='"BxNxW[xL],…" instead of the built-in')
+    parser.add_argument("--merge", type=Path, default=None, help="a steering.json whose rows come first")
     args = parser.parse_args()
     torch.set_num_threads(2)
     if args.from_json is not None:
         rows = json.loads(args.from_json.read_text())
     else:
-        rows = [row for theta in (None, *args.theta) for row in measure(args.preset, args.draws, args.light, theta)]
+        rows = json.loads(args.merge.read_text()) if args.merge else []
+        for theta in (None, *args.theta):
+            rows += measure(args.preset, args.draws, args.light, theta, args.configs)
         args.out.mkdir(parents=True, exist_ok=True)
         write_json(args.out / "steering.json", rows)
     thetas = [f"runs/{t.name}" for t in args.theta]
