@@ -106,7 +106,8 @@ def table(rows: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
     )
     lines = []
-    for r in rows:
+    order = list(dict.fromkeys(r["theta"] for r in rows))
+    for r in sorted(rows, key=lambda r: order.index(r["theta"])):  # stable: each θ's rows together
         t = r["terms"]
         img, psf = t["image"], t["psf"]
         lines.append(
