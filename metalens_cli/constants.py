@@ -23,6 +23,14 @@ SENSOR_PIXELS = 512  # the paper's sensor side (pixels of 1.85 µm); smaller cap
 PAPER_Z_NEAR_M = (0.040, 0.050)
 PAPER_Z_FAR_M = (1.0, 20.0)
 
+# The camera of a verdict (imaging.camera): light levels in electrons a full-scale white pixel collects
+# before the filter through an ideal lens, the read noise, and the share of the unconverted light an
+# analyzer passes (an achromatic quarter-wave plate and a linear polariser, the paper's setup:
+# retardance errors of λ/30 over 450-650 nm leave sin²(π/30) ≈ 0.011 of it)
+LIGHT_NAMES = {"dim": 250.0, "indoor": 2000.0, "daylight": 20000.0}
+DEFAULT_READ_ELECTRONS = 2.5  # rms; current CMOS sensors read 1-3 e⁻
+DEFAULT_ZERO_ORDER_LEAK = 0.01
+
 # Environment variable naming the folder of the LPIPS weight files (--lpips-weights reads it too)
 LPIPS_WEIGHTS_ENV = "METALENS_LPIPS_WEIGHTS"
 
@@ -31,6 +39,9 @@ OBSTRUCTION_KINDS = ("dirt", "fence", "drops", "rain")  # built-in procedural ob
 REFINEMENTS = ("flow", "tps", "none")  # align: refinement after the homography
 
 __all__ = [
+    "DEFAULT_READ_ELECTRONS",
+    "DEFAULT_ZERO_ORDER_LEAK",
+    "LIGHT_NAMES",
     "LPIPS_WEIGHTS_ENV",
     "OBSTRUCTION_KINDS",
     "PAPER_BANDS_M",

@@ -207,7 +207,7 @@ class LightLevels(click.ParamType):
         """The light levels as a list: None (noise-free) first, then the electrons at full scale
         ascending (numbers > 0, names resolved by ``LIGHT_NAMES``), repeats dropped; a bad value
         fails with the accepted form."""
-        from metalens_cli.imaging.camera import LIGHT_NAMES
+        from metalens_cli.constants import LIGHT_NAMES
 
         if isinstance(value, list):
             return value

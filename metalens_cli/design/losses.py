@@ -1,6 +1,8 @@
 """Training losses of Suppl. Note 4, as pure torch functions (differentiable, batched).
 
-L = w_l1·L1 + w_ssim·(1 − SSIM) + w_da·L_DA  (image terms, capture against clean scene)
+L = w_l1·L1 + w_ssim·(1 − SSIM) + w_da·L_DA  (image terms, capture against clean scene; linear
+                                              values, or with ``loss.space = "metric"`` the
+                                              evaluation's matched sRGB values)
   + w_bright·L_bright + w_sharp·L_sharp         (PSF terms, far PSF)
 
 The paper writes L_bright = 3N/ΣP − 1 and L_sharp = N/Σ_{|i|,|j|≤2} P(x_c+i, y_c+j) − 1 for a
@@ -18,7 +20,7 @@ from __future__ import annotations
 import torch
 
 from metalens_cli.errors import InputError
-from metalens_cli.imaging.metrics import ssim
+from metalens_cli.imaging.metrics import metric_view, ssim
 from metalens_cli.io.presets import SHARP_MODES, WAVELENGTH_MODES
 
 
@@ -92,7 +94,12 @@ def training_loss(
     ``image_share``/``psf_share`` scale the image and PSF terms in the total only (data-parallel
     ranks: the local fraction of the global batch, and 1/world size), never the reported parts.
     ``cores_far``: each wavelength's far core energy (the ``WAVELENGTH_MODES`` of ``sharp_mode``).
+    With ``weights.space = "metric"`` the image terms compare what the evaluation scores
+    (``imaging.metrics.metric_view``: the capture matched to the scene by least squares, both
+    sRGB-encoded): 1 − SSIM is then 1 − the evaluation's SSIM of the capture.
     """
+    if weights.space == "metric":
+        captured, clean = metric_view(captured, clean)
     parts = {"l1": l1_loss(captured, clean).mean(), "ssim": ssim_loss(captured, clean).mean()}
     if features is not None:
         from metalens_cli.design.features import feature_l1

@@ -76,13 +76,13 @@ def write_results(
     filter_report: dict | None = None,
 ) -> dict:
     """Write a finished optimize run's results into ``run`` (theta.npy and theta_radial.csv,
-    psf.exr, loss.csv, loss.png, filter.png with a learned filter, theta.png, run.json) and return
-    the run.json report.
+    psf.exr, loss.csv, loss.png, steering.png, filter.png with a learned filter, theta.png, run.json)
+    and return the run.json report.
 
     ``summary`` is the training's (θ, history, steps, resumed step); ``grid``, ``timing`` (seconds
     by stage), ``notes``, ``validation``, ``windows`` and ``filter_report`` go into the report as
     they are."""
-    from metalens_cli.plotting.optimize import filter_figure, loss_figure, theta_figure
+    from metalens_cli.plotting.optimize import filter_figure, loss_figure, steering_figure, theta_figure
 
     start = time.perf_counter()
     theta = summary.theta
@@ -121,6 +121,8 @@ def write_results(
     run.write_loss_csv(summary.history)
     if summary.history:
         loss_figure(run.path / "loss.png", summary.history)
+    if any("terms" in validation.get("steering", {}).get(s, {}) for s in ("initial", "final")):
+        steering_figure(run.path / "steering.png", validation["steering"])
     if filter_report is not None and summary.history:
         filter_figure(run.path / "filter.png", summary.history, preset.sensor.wavelength_range_m)
     initial = None

@@ -7,6 +7,8 @@
       theta.png              the profile or the map
       psf.exr                near and far PSFs, per wavelength and R, G, B (docs/formats.md)
       loss.csv, loss.png     one row per step: lr, loss parts, depths, seconds
+      steering.png           what steers θ at the start and the end: each term's gradient SNR over
+                             draws and mean norm (run.json: validation_loss.steering)
       samples/step_NNNNNN.png   clean | obstruction | capture every optimize.sample_every steps
       checkpoints/step_NNNNNN.pt   θ, optimiser, scheduler and history (the last ``KEEP`` kept)
       run.json               settings, cost, accuracy and final metrics

@@ -21,11 +21,12 @@ from metalens_cli.design.losses import training_loss, weighted_total
 from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_range
 from metalens_cli.design.scenes import training_scene
 from metalens_cli.design.train_loop import update
+from metalens_cli.design.training_camera import TrainingCamera, expose, zero_order_veil
 from metalens_cli.errors import InputError, SamplingError
 from metalens_cli.imaging.canvas import sensor_crop
-from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image
+from metalens_cli.imaging.formation import canvas_margin, form_image
 from metalens_cli.imaging.obstructions import make_obstruction
-from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
+from metalens_cli.io.preset_spectra import preset_sensitivity
 from metalens_cli.io.presets import WAVELENGTH_MODES
 from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import (
@@ -272,32 +273,49 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
     return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
 
 
+def image_pool(preset, margin: int):
+    """Training photographs at twice the canvas size (random crops are resized down to it)."""
+    if preset.optimize.images is None:
+        return None
+    from metalens_cli.imaging.images import load_images
+
+    n = 2 * (preset.sensor.pixels + 2 * margin)
+    return [image.linear for image in load_images(preset.optimize.images, (n, n))]
+
+
 def sensor_psf(psf: torch.Tensor, preset) -> torch.Tensor:
-    """The part of a far PSF on the sensor (the paper's L_bright and L_sharp see N sensor pixels)."""
-    return crop_window(psf, min(preset.sensor.pixels, psf.shape[-1]))
-
-
-def fixed_throughput(preset) -> torch.Tensor | None:
-    """The preset filter's channel throughputs (3,) (``io.preset_spectra.channel_throughput``),
-    once per run, when its captures carry shot noise."""
-    return torch.as_tensor(channel_throughput(preset)) if preset.optimize.photons else None
-
-
-def noisy_capture(capture: torch.Tensor, preset, throughput: torch.Tensor | None, seed: int) -> torch.Tensor:
-    """``capture`` (B, 3, H, W) with the preset's photon and read noise (``imaging.formation.add_noise``):
-    full-well electrons ``optimize.photons`` times the filter's ``throughput`` (3,) per channel (a
-    learned filter's is differentiable: it pays for narrow bands in noise), drawn from ``seed``;
-    unchanged when the preset is noise-free."""
-    o = preset.optimize
-    if not (o.photons or o.read_noise):
-        return capture
-    photons = None if not o.photons else (o.photons * throughput).to(capture.device, torch.float32).reshape(3, 1, 1)
-    return add_noise(capture, photons, read_noise=o.read_noise, generator=seed)
+    """The part of a far PSF on the whole sensor (``sensor.full_pixels``, else the step's crop
+    ``sensor.pixels``): the paper's L_bright counts the light on its N sensor pixels."""
+    return crop_window(psf, min(preset.sensor.full_pixels or preset.sensor.pixels, psf.shape[-1]))
 
 
 def noise_seed(seed: int, step: int, shard: list[int]) -> int:
     """The noise stream of batch entries ``shard`` at ``step``."""
     return int(np.random.default_rng([seed, step, 31, *shard]).integers(2**62))
+
+
+def camera_capture(
+    clean,
+    colour,
+    mask,
+    near,
+    far,
+    margin: int,
+    camera: TrainingCamera | None,
+    draw: StepDraw,
+    seed: int,
+    step: int,
+    shard: list[int],
+) -> torch.Tensor:
+    """The obstructed captures (B, 3, H + 2M, W + 2M) of a step's canvases (``imaging.formation.
+    form_image``) as ``camera`` takes them: the zero order's veil, then shot and read noise of the
+    draw's filter share (``design.training_camera``), from the noise stream of ``shard``."""
+    capture = form_image(clean, colour, mask, near, far, margin).obstructed
+    if camera is None:
+        return capture
+    if camera.zero_order is not None:
+        capture = capture + zero_order_veil(clean, colour, mask, camera.zero_order)
+    return expose(capture, camera, draw.throughput, noise_seed(seed, step, shard))
 
 
 @dataclass
@@ -317,7 +335,7 @@ class Session:
     notes: list[str]
     band_filter: LearnedFilter | None = None  # the filter learned with θ ([filter] learn = true)
     incidence: float = 1.0  # its bands' blue shift over the cone (analysis.bands)
-    throughput: torch.Tensor | None = None  # (3,) the preset filter's share of the light, with shot noise
+    camera: TrainingCamera | None = None  # the light, noise and zero order the captures carry (design.training_camera)
 
 
 def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tuple[dict, dict, torch.Tensor]:
@@ -356,9 +374,7 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
         preset, o.seed, step, session.shard, draw.z_near_m, session.pool, margin, ctx.device
     )
     watch.lap("scenes")
-    capture = form_image(clean, colour, mask, near, far, margin).obstructed
-    light = draw.throughput if draw.throughput is not None else session.throughput
-    capture = noisy_capture(capture, preset, light, noise_seed(o.seed, step, session.shard))
+    capture = camera_capture(clean, colour, mask, near, far, margin, session.camera, draw, o.seed, step, session.shard)
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
     sample = torch.cat([clean[0], grey, capture[0]], dim=-1).detach()  # rank 0's shard starts at scene 0

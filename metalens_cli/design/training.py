@@ -17,11 +17,11 @@ run repeats an uninterrupted one exactly and every data-parallel rank agrees on 
    formation of ``imaging.formation``;
 5. loss (``design.losses``), backward, gradient sum over ranks, AdamW and the LR schedule.
 
-This module holds the session around the steps (``train``, ``time_steps``), the cost estimate of
-a run (``estimate_training``) and the fixed validation draws (``validation_loss``,
-``term_gradient_norms``). The core never prints: progress goes to the ``on_step`` callback. The
-loop around the steps (resume, checkpoints, Ctrl-C: a checkpoint of the last completed step, then
-``TrainingInterrupted``) is ``design.train_loop``'s.
+This module holds the session around the steps (``train``, ``time_steps``) and the cost estimate
+of a run (``estimate_training``); the fixed validation draws measured at its start and end (the
+loss, and what steers θ) are ``design.validation``'s. The core never prints: progress goes to the
+``on_step`` callback. The loop around the steps (resume, checkpoints, Ctrl-C: a checkpoint of the
+last completed step, then ``TrainingInterrupted``) is ``design.train_loop``'s.
 """
 
 from __future__ import annotations
@@ -40,30 +40,22 @@ import torch
 from metalens_cli import arguments
 from metalens_cli.design import distributed
 from metalens_cli.design.filter_learning import LearnedFilter, filter_columns, learned_filter, make_feasible
-from metalens_cli.design.losses import training_loss
 from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_frequency, plan_range
 from metalens_cli.design.report import write_results
 from metalens_cli.design.rundir import RunDirectory
 from metalens_cli.design.step import (
     Session,
     Windows,
-    draw_step,
-    far_cores,
     field_capacities,
     field_training,
-    fixed_throughput,
-    noise_seed,
-    noisy_capture,
+    image_pool,
     one_step,
     plan_windows,
-    sensor_psf,
     spectral_source,
-    step_batch,
-    step_psfs,
 )
 from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides
-from metalens_cli.imaging.canvas import sensor_crop
-from metalens_cli.imaging.formation import canvas_margin, form_image
+from metalens_cli.design.training_camera import training_camera
+from metalens_cli.design.validation import STEERING_DRAWS, norms_of, steering, validation_loss
 from metalens_cli.io.preset_spectra import preset_sensitivity
 from metalens_cli.io.presets import Preset, preset_incidence_factor, to_toml
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY
@@ -72,8 +64,8 @@ from metalens_cli.optics.psf import PsfCost
 from metalens_cli.optics.sampling import PsfGrid
 from metalens_cli.runtime import Stopwatch
 
-FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and per-term gradient
-# norms (2 × 2 draws) at θ_init and θ_final, the results' PSF scan: 53 (quick preset) and 66 (tests' tiny) measured
+FINISH_STEPS = 60  # the end of a run in estimated steps: validation loss (2 × 4 draws) and what steers θ (2 × 8
+# draws, each term's gradient: design.validation) at θ_init and θ_final, the results' PSF scan: tests' tiny 30 measured
 THETA_GRID_COPIES = 12  # float32 copies of a 2-D θ grid in a step: θ, its gradient, Adam's moments, phase, field
 LARGE_GRID_BYTES = 1 << 30  # a 2-D θ grid above this is estimated (and refused) before it is built
 FIELD_COLUMNS = ("field_angle_deg", "field_azimuth_deg")  # loss.csv columns of a run with field angles
@@ -217,14 +209,14 @@ def _session(preset, ctx) -> Session:
         _scheduler(optimizer, o),
         sensitivity,
         _features(preset, notes),
-        _image_pool(preset, windows.margin),
+        image_pool(preset, windows.margin),
         ctx.shard(o.batch_size),
         plan_frequency(preset),
         windows,
         notes,
         band_filter,
         incidence,
-        fixed_throughput(preset),
+        training_camera(preset),
     )
 
 
@@ -328,16 +320,17 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
         learned, filter_report = preset, None
         if session.band_filter is not None:  # checked (and snapped) before anything is written with it
             learned, filter_report = learned_filter(run, preset, session.band_filter)
+        start_model = build_model(preset).to(ctx.device)
+        steer = {
+            "initial": steering(start_model, preset, STEERING_DRAWS, ctx.device, session.frequency, session.features),
+            "final": steering(model, learned, STEERING_DRAWS, ctx.device, session.frequency, session.features),
+        }
         validation = {
             "draws": 4,
             "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
             "final": validation_loss(model, learned, 4, ctx.device, session.frequency),
-            "gradient_norms": {
-                "initial": term_gradient_norms(
-                    build_model(preset).to(ctx.device), preset, 2, ctx.device, session.frequency, session.features
-                ),
-                "final": term_gradient_norms(model, learned, 2, ctx.device, session.frequency, session.features),
-            },
+            "gradient_norms": {k: norms_of(v) for k, v in steer.items()},
+            "steering": steer,
         }
         summary.report = _finish(
             run,
@@ -360,68 +353,6 @@ def _bands_text(band_filter: LearnedFilter) -> str:
     return ", ".join(f"{(c - w / 2) * 1e9:.1f}-{(c + w / 2) * 1e9:.1f} nm" for c, w in zip(centres, widths))
 
 
-VALIDATION_STEP = 10**9  # draws for the fixed validation loss start here, far from any training step
-GRADIENT_TERMS = ("l1", "ssim", "domain_adaptation", "bright", "sharp")
-
-
-def _validation_parts(model, preset, draws: int, device, frequency: float | None, features=None):
-    """For each of the ``draws`` fixed validation draws (step numbers no training step uses):
-    the weighted loss and its parts on the whole batch (``design.losses.training_loss``)."""
-    sensitivity = spectral_source(preset)
-    o = preset.optimize
-    windows = plan_windows(preset, sensitivity)
-    pool = _image_pool(preset, windows.margin)
-    fixed = fixed_throughput(preset)
-    for k in range(draws):
-        step = VALIDATION_STEP + k
-        draw = draw_step(preset, sensitivity, o.seed, step)
-        stack, windows = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
-        near, far = stack.psfs
-        margin = canvas_margin(near.shape[-1], far.shape[-1])
-        clean, colour, mask = step_batch(
-            preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device
-        )
-        capture = form_image(clean, colour, mask, near, far, margin).obstructed
-        light = draw.throughput if draw.throughput is not None else fixed
-        capture = noisy_capture(capture, preset, light, noise_seed(o.seed, step, [0]))
-        yield training_loss(
-            capture,
-            sensor_crop(clean, margin),
-            sensor_psf(far, preset),
-            preset.loss,
-            features,
-            cores_far=far_cores(stack),
-        )
-
-
-def term_gradient_norms(
-    model, preset, draws: int = 4, device="cpu", frequency: float | None = None, features=None
-) -> dict[str, float]:
-    """‖∂(w_t·L_t)/∂c‖₂ for each weighted loss term t, c the optimiser's parameters (design
-    samples or spline coefficients), mean over the ``draws`` fixed validation draws (the whole
-    batch each): which terms steer the lens, measured rather than inherited (docs/training.md)."""
-    w = preset.loss
-    params = [p for p in model.parameters() if p.requires_grad]
-    sums: dict[str, float] = {}
-    for _, parts in _validation_parts(model, preset, draws, device, frequency, features):
-        terms = [t for t in GRADIENT_TERMS if t in parts]
-        for i, t in enumerate(terms):
-            grads = torch.autograd.grad(
-                getattr(w, t) * parts[t], params, retain_graph=i < len(terms) - 1, allow_unused=True
-            )
-            norm = math.sqrt(sum(float(g.double().pow(2).sum()) for g in grads if g is not None))
-            sums[t] = sums.get(t, 0.0) + norm / draws
-    return sums
-
-
-def validation_loss(model, preset, draws: int = 4, device="cpu", frequency: float | None = None) -> float:
-    """Mean weighted loss (without L_DA) over ``draws`` fixed draws that training never uses:
-    the same number before and after training measures progress without sampling noise."""
-    with torch.no_grad():
-        totals = [float(total) for total, _ in _validation_parts(model, preset, draws, device, frequency)]
-    return sum(totals) / len(totals)
-
-
 def _modules(session: Session) -> dict:
     """What a checkpoint holds the state dicts of: θ, the learned filter, optimiser and schedule."""
     learned = {"filter": session.band_filter} if session.band_filter is not None else {}
@@ -442,16 +373,6 @@ def _load_windows(session: Session, state: dict) -> None:
 
 def _seconds_per_step(rows: list[dict]) -> float | None:
     return statistics.median(r["seconds"] for r in rows) if rows else None
-
-
-def _image_pool(preset, margin: int):
-    """Training photographs at twice the canvas size (random crops are resized down to it)."""
-    if preset.optimize.images is None:
-        return None
-    from metalens_cli.imaging.images import load_images
-
-    n = 2 * (preset.sensor.pixels + 2 * margin)
-    return [image.linear for image in load_images(preset.optimize.images, (n, n))]
 
 
 def _write_sample(run: RunDirectory, sample: torch.Tensor, step: int) -> None:

@@ -22,12 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-LIGHT_NAMES = {"dim": 250.0, "indoor": 2000.0, "daylight": 20000.0}  # electrons at full scale (above)
-DEFAULT_READ_ELECTRONS = 2.5  # rms; current CMOS sensors read 1-3 e⁻
-# The fraction of co-polarised light a circular analyzer passes (an achromatic quarter-wave plate
-# and a linear polariser, the paper's setup): retardance errors of λ/30 over 450-650 nm leave
-# sin²(π/30) ≈ 0.011 of it.
-DEFAULT_ZERO_ORDER_LEAK = 0.01
+from metalens_cli.constants import DEFAULT_READ_ELECTRONS, DEFAULT_ZERO_ORDER_LEAK
 
 
 @dataclass(frozen=True)
@@ -66,13 +61,34 @@ def design_factors(design, wavelengths_m: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def channel_budget(design, zero_order_leak: float = DEFAULT_ZERO_ORDER_LEAK) -> ChannelBudget:
     """t_c and ζ_c of ``design`` (module docstring)."""
-    from metalens_cli.errors import InputError
     from metalens_cli.optics.spectra import wavelength_grid
+
+    return _budget(*design_factors(design, wavelength_grid()), zero_order_leak)
+
+
+def preset_budget(preset, zero_order_leak: float = DEFAULT_ZERO_ORDER_LEAK) -> ChannelBudget:
+    """t_c and ζ_c of a preset's camera, lens-independent (module docstring): what ``optimize``
+    trains under with ``[optimize] light``, as ``evaluate --light`` images the preset's design."""
+    from metalens_cli.io.preset_spectra import camera_factors
+    from metalens_cli.optics.spectra import wavelength_grid
+
+    return _budget(*camera_factors(preset, wavelength_grid()), zero_order_leak)
+
+
+def efficiency_share(preset) -> np.ndarray:
+    """(3,) ∫CRF_c·η dλ / ∫CRF_c dλ: t_c of the preset's camera without its filter (the nanofins'
+    share of each channel's light; times a filter's share of the rest, g_c, it gives t_c)."""
+    import dataclasses
+
+    return preset_budget(dataclasses.replace(preset, filter=None), 0.0).throughput
+
+
+def _budget(crf: np.ndarray, transmission: np.ndarray, eta: np.ndarray, zero_order_leak: float) -> ChannelBudget:
+    """t_c and ζ_c from the camera response (3, L), filter (L,) and η (L,) on a uniform grid."""
+    from metalens_cli.errors import InputError
 
     if not 0 <= zero_order_leak <= 1:
         raise InputError("--zero-order-leak", repr(zero_order_leak), "a fraction in 0..1")
-    grid = wavelength_grid()
-    crf, transmission, eta = design_factors(design, grid)
     bare = crf.sum(axis=1)
     focused = (crf * transmission * eta).sum(axis=1)
     unconverted = (crf * transmission * (1 - eta)).sum(axis=1)

@@ -183,6 +183,25 @@ def photometric_match(estimate: torch.Tensor, reference: torch.Tensor, method: s
     return gain * estimate + bias, gain.reshape(estimate.shape[:-3]), bias.reshape(estimate.shape[:-3])
 
 
+def metric_view(estimate: torch.Tensor, reference: torch.Tensor, match: str = DEFAULT_MATCH):
+    """The images the evaluation scores (``imaging.pipeline.score``): ``estimate`` matched to
+    ``reference`` (:func:`photometric_match`), both clipped to 0..1 and sRGB-encoded; differentiable
+    (zero gradient where a value is clipped), so a training loss on them is the metric.
+
+    Args:
+        estimate: linear RGB (..., 3, H, W), e.g. a capture.
+        reference: the clean linear image, same shape.
+        match: ``lstsq`` or ``luminance`` (:data:`MATCH_METHODS`).
+
+    Returns:
+        (estimate, reference) in sRGB display values 0..1.
+    """
+    from metalens_cli.io.image_files import srgb_encode_tensor
+
+    matched = photometric_match(estimate, reference, match)[0]
+    return srgb_encode_tensor(matched.clamp(0, 1)), srgb_encode_tensor(reference.clamp(0, 1))
+
+
 def lpips_note(directory=None) -> str | None:
     """None when LPIPS weights are present locally; else the one-line reason it is skipped
     (see :func:`metalens_cli.imaging.lpips.find_lpips_weights`)."""

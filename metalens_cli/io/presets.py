@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from metalens_cli import arguments
-from metalens_cli.constants import SENSOR_RANGE_M
+from metalens_cli.constants import DEFAULT_READ_ELECTRONS, DEFAULT_ZERO_ORDER_LEAK, LIGHT_NAMES, SENSOR_RANGE_M
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
 from metalens_cli.io.input_files import read_text, regular_file
@@ -122,6 +122,9 @@ class SensorConfig:
 
     pixel_pitch_m: float = toml_key("pixel_pitch", "length")
     pixels: int = toml_key("pixels", "int", lo=1, hi=8192)
+    # the whole sensor (pixels a side) of which ``pixels`` is the central crop a training step images: L_bright
+    # counts the light on it, and ``field_angles = "sensor"`` samples its field; none: the crop is the sensor
+    full_pixels: int | None = toml_key("full_pixels", "int", lo=1, hi=65536, default=None)
     camera_response: str = toml_key("camera_response", "string", default="Nikon 5100 (NPL)")  # name or CSV path
     wavelength_range_m: tuple[float, float] = toml_key("wavelength_range", "interval", default=SENSOR_RANGE_M)
 
@@ -162,11 +165,22 @@ class OptimizeConfig:
         "photons", "float", lo=0.0, hi=1e15, default=0.0
     )  # full-well e⁻ before the filter; 0: no shot noise
     read_noise: float = toml_key("read_noise", "float", lo=0.0, hi=1.0, default=0.0)  # σ, fraction of full scale
+    # the verdict's camera (imaging.camera): e⁻ a full-scale white pixel collects before the filter through an ideal
+    # lens (a number or dim, indoor, daylight; 0: noise-free), its read noise (e⁻ rms) and the analyzer's leak of the
+    # unconverted light; each channel then collects light × t_c (the filter and the nanofins' η both cost light)
+    light: float = toml_key("light", "light", default=0.0)
+    read_electrons: float = toml_key("read_electrons", "float", lo=0.0, hi=1e6, default=DEFAULT_READ_ELECTRONS)
+    zero_order_leak: float = toml_key("zero_order_leak", "float", lo=0.0, hi=1.0, default=DEFAULT_ZERO_ORDER_LEAK)
     images: str | None = toml_key("images", "folder", default=None)  # training images; none: procedural scenes
     checkpoint_every: int = toml_key("checkpoint_every", "int", lo=1, hi=10_000_000, default=100)
     sample_every: int = toml_key("sample_every", "int", lo=1, hi=10_000_000, default=100)
     # field angles (rad) a step draws its PSFs at, equally likely (design.step.draw_field); (0,): on axis, the paper's
+    # "sensor" or "sensor:K": the K (4) radii that split a uniform point on the whole sensor (sensor.full_pixels)
+    # into equal shares, as field angles at the focal length (io.presets.sensor_field_angles)
     field_angles_rad: tuple[float, ...] = toml_key("field_angles", "angle_list", default=(0.0,), hi=math.radians(60))
+
+
+LOSS_SPACES = ("linear", "metric")  # design.losses.training_loss
 
 
 @dataclass(frozen=True)
@@ -180,6 +194,8 @@ class LossConfig:
     sharp: float = toml_key("sharp", "float", lo=0.0, hi=1e3, default=1.0)
     sharp_window: int = toml_key("sharp_window", "int", lo=1, hi=101, default=5)
     sharp_mode: str = toml_key("sharp_mode", "choice", choices=SHARP_MODES, default="total")  # see design.losses
+    # what the image terms compare: "linear" values, or "metric": the evaluation's (least-squares match, sRGB)
+    space: str = toml_key("space", "choice", choices=LOSS_SPACES, default="linear")
     domain_adaptation_weights: str | None = toml_key(
         "domain_adaptation_weights", "path", default=None
     )  # DeepLabv3+ checkpoint
@@ -300,6 +316,18 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
         if max(angles) > meta["hi"] * (1 + 1e-12):
             raise InputError(path, f"{math.degrees(max(angles)):g}° is past {top:g}°", f"angles from 0 to {top:g}°")
         return tuple(angles)
+    if kind == "light":
+        if isinstance(value, str):
+            word = value.strip().lower()
+            if word in ("none", "noise-free"):
+                return 0.0
+            if word in LIGHT_NAMES:
+                return LIGHT_NAMES[word]
+        names = ", ".join(f"{k} ({v:g})" for k, v in LIGHT_NAMES.items())
+        form = f"electrons ≥ 0 (0: noise-free), none, or one of {names}"
+        if isinstance(value, str) or isinstance(value, bool):
+            raise InputError(path, f"{value!r} is not a light level", form)
+        return _number(value, path, lo=0.0, hi=1e15, form=form)
     if kind == "fraction_pair":
         if not isinstance(value, list) or len(value) != 2:
             raise InputError(path, "expected two numbers [lo, hi] in [0, 1]", "[0.15, 0.35]")
@@ -438,6 +466,18 @@ def _check_consistency(p: Preset) -> None:
                 f"{value:g} m is not a feature on a cover glass",
                 f"at most {MAX_OBSTRUCTION_M * 1e3:g} mm",
             )
+    if p.optimize.light > 0 and (p.optimize.photons > 0 or p.optimize.read_noise > 0):
+        raise InputError(
+            "optimize.light",
+            "given with optimize.photons or optimize.read_noise",
+            "one camera: light (the verdict's, with read_electrons) or photons and read_noise",
+        )
+    if p.sensor.full_pixels is not None and p.sensor.full_pixels < p.sensor.pixels:
+        raise InputError(
+            "sensor.full_pixels",
+            f"{p.sensor.full_pixels} is below sensor.pixels ({p.sensor.pixels})",
+            "the whole sensor",
+        )
     camera = p.sensor.camera_response
     if camera not in CAMERA_NAMES and not camera.lower().endswith(".csv"):
         raise InputError(
@@ -601,7 +641,10 @@ def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | N
     sections = {}
     for section, (cls, required) in SECTIONS.items():
         if section in data:
-            sections[section] = build_section(cls, data[section], section)
+            table = data[section]
+            if section == "optimize" and isinstance(table, dict) and isinstance(table.get("field_angles"), str):
+                table = {**table, "field_angles": _field_angles_over_sensor(table["field_angles"], sections)}
+            sections[section] = build_section(cls, table, section)
         elif required:
             raise InputError(section, "missing section", f"a [{section}] table")
         elif section in OPTIONAL_DEFAULTS:
@@ -614,6 +657,46 @@ def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | N
     )
     _check_consistency(preset)
     return preset
+
+
+SENSOR_FIELD_FORM = '"sensor" or "sensor:K" (K field angles over the whole sensor), or angles such as "0deg,10deg"'
+
+
+def _field_angles_over_sensor(text: str, sections: dict) -> str | list[str]:
+    """``optimize.field_angles = "sensor[:K]"`` as the angles of :func:`sensor_field_angles` over
+    the whole sensor (``sensor.full_pixels``, else ``sensor.pixels``) at the focal length; any
+    other text is returned to be parsed as angles."""
+    word, _, count = text.strip().partition(":")
+    if word.strip().lower() != "sensor":
+        return text
+    try:
+        k = int(count) if count.strip() else SENSOR_FIELD_COUNT
+    except ValueError:
+        k = 0
+    if not 1 <= k <= 64:
+        raise InputError("optimize.field_angles", f"{text!r}", SENSOR_FIELD_FORM + "; K from 1 to 64")
+    sensor, lens = sections["sensor"], sections["lens"]
+    side = sensor.full_pixels or sensor.pixels
+    angles = sensor_field_angles(side, sensor.pixel_pitch_m, lens.focal_length_m, k)
+    return [f"{a!r}rad" for a in angles]
+
+
+SENSOR_FIELD_COUNT = 4
+
+
+def sensor_field_angles(pixels: int, pixel_pitch_m: float, distance_m: float, count: int = SENSOR_FIELD_COUNT):
+    """Field angles (rad) that sample a square sensor of ``pixels``² pixels of pitch
+    ``pixel_pitch_m`` evenly by area: the image heights ρ at the middle quantiles (k + ½)/``count``
+    of the height of a point uniform on the sensor, as angles atan(ρ/``distance_m``) (the chief
+    ray's image height at the lens-to-sensor distance). Drawn equally likely, they weigh the field
+    as the sensor's pixels do: the corners count as much as the area they hold."""
+    import numpy as np
+
+    n = 1024  # cell centres of a fine grid over one quadrant: the height distribution to < 1e-3 of the half side
+    u = (np.arange(n) + 0.5) / n
+    heights = np.sort(np.hypot(*np.meshgrid(u, u)).ravel()) * pixels * pixel_pitch_m / 2
+    quantiles = (np.arange(count) + 0.5) / count
+    return tuple(float(math.atan(h / distance_m)) for h in np.quantile(heights, quantiles))
 
 
 def read_toml(path: Path, field: str = "preset") -> dict[str, Any]:

@@ -44,6 +44,37 @@ def loss_figure(path: str | Path, history: list[dict], parts: tuple[str, ...] = 
     return save_figure(fig, path)
 
 
+def steering_figure(path: str | Path, steering: dict) -> Path:
+    """loss.png's companion: what steers θ at the run's start and end (``design.validation.
+    steering``): per term and for the image and PSF sums, the gradient's RMS signal-to-noise
+    ratio over draws (log scale; 1 marked: below it a term's pull is mostly noise) and its mean
+    norm; the cosine between the image and PSF pulls in the title."""
+    stages = [s for s in ("initial", "final") if "terms" in steering.get(s, {})]
+    names = [t for t in ("l1", "ssim", "domain_adaptation", "image", "bright", "sharp", "psf")
+             if any(t in steering[s]["terms"] for s in stages)]  # fmt: skip
+    fig, axes = new_figure(1, 2, figsize=(11, 3.6))
+    x = np.arange(len(names))
+    for k, stage in enumerate(stages):
+        terms = steering[stage]["terms"]
+        for ax, key in zip(axes, ("rms_snr", "mean_norm")):
+            values = [terms.get(t, {}).get(key) or np.nan for t in names]
+            ax.bar(x + (k - 0.5) * 0.38, values, width=0.38, label=stage)
+    cosines = ", ".join(
+        f"{s} {steering[s]['cosine_image_psf']:+.2f}" for s in stages if steering[s].get("cosine_image_psf") is not None
+    )
+    for ax, label in zip(axes, ("RMS SNR over draws", "mean ‖gradient‖")):
+        ax.set_xticks(x, names, fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3, which="both", axis="y")
+        ax.legend(fontsize=7)
+    axes[0].axhline(1.0, color="k", lw=0.8, ls="--")
+    fig.suptitle(f"What steers θ ({steering.get(stages[0], {}).get('draws', '?')} draws); cos(image, PSF): {cosines}",
+                 fontsize=9)  # fmt: skip
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
 def theta_figure(path: str | Path, theta: np.ndarray, pitch_m: float, initial: np.ndarray | None = None) -> Path:
     """Radial profile φ(r) = 2θ (unwrapped, and wrapped to 0..2π) or the 2-D map of 2θ mod 2π."""
     if theta.ndim == 1:

@@ -13,7 +13,8 @@ import torch
 from metalens_cli.design.model import build_model
 from metalens_cli.design.step import step_batch
 from metalens_cli.design.train_loop import TrainingInterrupted
-from metalens_cli.design.training import time_steps, train, validation_loss
+from metalens_cli.design.training import time_steps, train
+from metalens_cli.design.validation import validation_loss
 from metalens_cli.io.designs import resolve_design
 from metalens_cli.io.presets import load_preset
 
@@ -55,6 +56,7 @@ def test_run_directory_contents(tiny, tmp_path):
         "psf.exr",
         "loss.csv",
         "loss.png",
+        "steering.png",
         "run.json",
     ):
         assert (run / name).is_file(), name
@@ -63,6 +65,11 @@ def test_run_directory_contents(tiny, tmp_path):
     assert report["settings"]["steps"] == 3 and report["cost"]["seconds_per_step_median"] > 0
     assert len(report["psf"]["energy_center_5x5"]) == 2  # near and far
     assert report["efficiency"]["source"] == "table"  # which η the run used
+    steering = report["validation_loss"]["steering"]  # what steers θ, at the start and the end
+    for stage in ("initial", "final"):
+        assert steering[stage]["draws"] == 8 and -1 <= steering[stage]["cosine_image_psf"] <= 1
+        assert {"l1", "ssim", "bright", "sharp", "image", "psf"} <= set(steering[stage]["terms"])
+    assert report["validation_loss"]["gradient_norms"]["final"]["sharp"] > 0
     theta = np.load(run / "theta.npy")
     np.testing.assert_array_equal(theta, summary.theta)
     # the run directory is a design spec carrying its lens and preset
@@ -157,7 +164,7 @@ def test_step_windows_follow_the_light_when_theta_is_perturbed(tiny):
 
 def test_gradient_norms_of_each_term(tiny):
     """Every weighted term has a finite, positive gradient norm, and a term weighted 0 has none."""
-    from metalens_cli.design.training import term_gradient_norms
+    from metalens_cli.design.validation import term_gradient_norms
 
     norms = term_gradient_norms(build_model(tiny), tiny, draws=1)
     assert {"l1", "ssim", "bright", "sharp"} <= set(norms) and all(np.isfinite(v) and v > 0 for v in norms.values())
@@ -169,7 +176,7 @@ def test_gradient_norms_of_each_term(tiny):
 def test_per_wavelength_sharpness_steers_the_lens(tiny, tmp_path, mode):
     """sharp_mode on each wavelength's own core: the loss sees each wavelength's core (a finite,
     positive gradient through it), and an even window, which has no centre pixel, is refused."""
-    from metalens_cli.design.training import term_gradient_norms
+    from metalens_cli.design.validation import term_gradient_norms
     from metalens_cli.errors import InputError
     from metalens_cli.io.presets import to_toml
 
@@ -190,7 +197,7 @@ def test_gradient_norm_ratio_at_theta_init_is_the_documented_one():
     import math
 
     from metalens_cli.design.model import plan_frequency
-    from metalens_cli.design.training import term_gradient_norms
+    from metalens_cli.design.validation import term_gradient_norms
 
     preset = load_preset(Path(__file__).parents[2] / "presets" / "quick-split-spectrum.toml")
     norms = term_gradient_norms(build_model(preset), preset, draws=1, frequency=plan_frequency(preset))
