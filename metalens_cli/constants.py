@@ -7,7 +7,7 @@ values of options and preset keys; the modules that act on them check against th
 
 from __future__ import annotations
 
-__version__ = "0.1.0"  # the package version (pyproject reads it here); files this tool writes record it
+__version__ = "0.9.0.dev0"  # the package version (pyproject reads it here); files this tool writes record it
 
 # The paper's lens and meta-atom
 PAPER_FOCAL_LENGTH_M = 4e-3
