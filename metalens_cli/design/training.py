@@ -327,7 +327,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
         }
         validation = {
             "draws": 4,
-            "initial": validation_loss(build_model(preset), preset, 4, ctx.device, session.frequency),
+            "initial": validation_loss(start_model, preset, 4, ctx.device, session.frequency),
             "final": validation_loss(model, learned, 4, ctx.device, session.frequency),
             "gradient_norms": {k: norms_of(v) for k, v in steer.items()},
             "steering": steer,

@@ -659,6 +659,7 @@ def preset_from_dict(data: dict[str, Any], name: str = "preset", source: str | N
     return preset
 
 
+SENSOR_FIELD_COUNT = 4  # field angles of optimize.field_angles = "sensor"
 SENSOR_FIELD_FORM = '"sensor" or "sensor:K" (K field angles over the whole sensor), or angles such as "0deg,10deg"'
 
 
@@ -679,9 +680,6 @@ def _field_angles_over_sensor(text: str, sections: dict) -> str | list[str]:
     side = sensor.full_pixels or sensor.pixels
     angles = sensor_field_angles(side, sensor.pixel_pitch_m, lens.focal_length_m, k)
     return [f"{a!r}rad" for a in angles]
-
-
-SENSOR_FIELD_COUNT = 4
 
 
 def sensor_field_angles(pixels: int, pixel_pitch_m: float, distance_m: float, count: int = SENSOR_FIELD_COUNT):
