@@ -31,10 +31,11 @@ import numpy as np
 import torch
 
 from metalens_cli.analysis.bands import BandsReport, bands_from_centers, check_bands
+from metalens_cli.design.rundir import run_preset_toml
 from metalens_cli.errors import InputError, ResultFailed
 from metalens_cli.io.filter_catalogue import CatalogueFilter, read_catalogue
 from metalens_cli.io.preset_spectra import channel_throughput, preset_sensitivity
-from metalens_cli.io.presets import catalogue_candidates, preset_incidence_factor, to_toml
+from metalens_cli.io.presets import catalogue_candidates, preset_incidence_factor
 from metalens_cli.optics.spectra import bandpass_transmission, wavelength_grid
 from metalens_cli.optics.split_spectrum import Band, label_bands, oblique_bands, split_conditions
 
@@ -340,7 +341,7 @@ def learned_filter(run, preset, band_filter: LearnedFilter) -> tuple[object, dic
             "conditions": _conditions(check_filter(config, preset), start.split_margin_m),
         }
     result = dataclasses.replace(preset, filter=config)
-    run.write_text("preset.toml", to_toml(result))
+    run.write_text("preset.toml", run_preset_toml(result))
     lo, hi = preset.sensor.wavelength_range_m
     grid = wavelength_grid(lo, hi, FILTER_CSV_STEP_M)
     t = bandpass_transmission(

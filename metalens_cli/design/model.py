@@ -5,6 +5,9 @@ frequency with headroom for the lens to steepen (``optics.sampling``)."""
 from __future__ import annotations
 
 from metalens_cli.design.parameterization import initial_parameterization
+from metalens_cli.errors import InputError
+from metalens_cli.io.input_files import read_npy
+from metalens_cli.io.presets import INITIAL_THETA
 from metalens_cli.optics.sampling import check_lens_sampling
 
 DEFAULT_LAMBDA_D_M = 532e-9  # the hyperbolic start's design wavelength when the preset names none
@@ -18,8 +21,13 @@ def design_wavelength(preset) -> float:
 
 def build_model(preset):
     """θ's parameterisation at the start of a run of ``preset`` (its lens, pitch, design grid,
-    basis and seed)."""
+    basis and seed; from ``optimize.init_from``'s θ where the preset names one)."""
     o = preset.optimize
+    if o.init_from is not None and o.init == "random":
+        raise InputError("optimize.init_from", "given with init = random", "one of init_from and init = random")
+    if o.init_from is not None and preset.lens.design == "hyperbolic":
+        raise InputError("optimize.init_from", "given for a hyperbolic lens.design", "lens.design = learned")
+    start = None if o.init_from is None else read_npy(o.init_from, "optimize.init_from", INITIAL_THETA)
     return initial_parameterization(
         preset.lens.parameterization,
         "hyperbolic" if preset.lens.design == "hyperbolic" else o.init,
@@ -30,6 +38,7 @@ def build_model(preset):
         design_grid=o.design_grid,
         seed=o.seed,
         basis=o.theta_basis,
+        start=start,
     )
 
 

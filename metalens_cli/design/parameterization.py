@@ -130,20 +130,37 @@ def initial_parameterization(
     design_grid: int = 0,
     seed: int = 0,
     basis: str = "samples",
+    start: np.ndarray | None = None,
 ):
     """The module to optimise: ``radial`` or ``2d``, initialised ``hyperbolic`` (λd, f) or ``random``.
     ``design_grid``: radial, the number of design samples (``basis = "samples"``) or spline
     coefficients (``"spline"``) along the radius; 2-D, the side of the design grid; 0 = one
-    parameter per meta-atom ring or site (samples only)."""
+    parameter per meta-atom ring or site (samples only). ``start``: a radial θ (rad) on the lens's
+    K + 1 rings r_k = k·pitch to start from instead of ``init`` (a learned lens to fine-tune): the
+    spline's base, or interpolated linearly in r to the design samples or sites."""
     if init not in ("hyperbolic", "random"):
         raise InputError("optimize.init", f"unknown initialisation {init!r}", "hyperbolic or random")
+    rings = radial_radii(pitch_m, aperture_m)
+    if start is not None and np.asarray(start).shape != rings.shape:
+        raise InputError(
+            "optimize.init_from",
+            f"a θ of {np.asarray(start).size} rings for a lens of {rings.size}",
+            f"a radial θ on the {rings.size} rings r = k·pitch of this lens (its pitch and aperture)",
+        )
+
+    def initial(r: np.ndarray) -> np.ndarray:
+        if start is not None:
+            return np.interp(r, rings, start)
+        if init == "hyperbolic":
+            return hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2
+        return random_radial_theta(r, aperture_m, na / lambda_d_m, seed)
+
     if basis not in ("samples", "spline") or (basis == "spline" and parameterization != "radial"):
         raise InputError(
             "optimize.theta_basis", f"{basis!r} for a {parameterization} θ", "samples, or spline for a radial θ"
         )
     na = math.sin(math.atan(aperture_m / 2 / focal_length_m))
     if parameterization == "radial":
-        rings = radial_radii(pitch_m, aperture_m)
         if basis == "spline":
             if not 4 <= design_grid <= rings.size:
                 raise InputError(
@@ -151,24 +168,13 @@ def initial_parameterization(
                     f"{design_grid} spline coefficients for {rings.size} rings",
                     f"4..{rings.size}",
                 )
-            base = (
-                hyperbolic_phase(rings, lambda_d_m, focal_length_m) / 2
-                if init == "hyperbolic"
-                else random_radial_theta(rings, aperture_m, na / lambda_d_m, seed)
-            )
-            return SplineTheta(base, design_grid, pitch_m, aperture_m, focal_length_m)
+            return SplineTheta(initial(rings), design_grid, pitch_m, aperture_m, focal_length_m)
         g = rings.size if design_grid in (0, rings.size) else design_grid
         if g < 2 or g > rings.size:
             raise InputError(
                 "optimize.design_grid", f"{design_grid} radial samples for {rings.size} rings", f"0 or 2..{rings.size}"
             )
-        r = np.linspace(0.0, rings[-1], g)
-        theta = (
-            hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2
-            if init == "hyperbolic"
-            else random_radial_theta(r, aperture_m, na / lambda_d_m, seed)
-        )
-        return RadialTheta(theta, rings.size, pitch_m, aperture_m, focal_length_m)
+        return RadialTheta(initial(np.linspace(0.0, rings[-1], g)), rings.size, pitch_m, aperture_m, focal_length_m)
     if parameterization != "2d":
         raise InputError("lens.parameterization", f"unknown {parameterization!r}", "radial or 2d")
     half = math.floor(aperture_m / 2 / pitch_m + 1e-9)
@@ -179,10 +185,4 @@ def initial_parameterization(
             "optimize.design_grid", f"{design_grid} for a {m} × {m} meta-atom grid", f"0 or an odd size 3..{m}"
         )
     c = np.linspace(-half, half, g) * pitch_m
-    r = np.hypot(c[:, None], c[None, :])
-    theta = (
-        hyperbolic_phase(r, lambda_d_m, focal_length_m) / 2
-        if init == "hyperbolic"
-        else random_radial_theta(r, aperture_m, na / lambda_d_m, seed)
-    )
-    return GridTheta(theta, m, pitch_m, aperture_m, focal_length_m)
+    return GridTheta(initial(np.hypot(c[:, None], c[None, :])), m, pitch_m, aperture_m, focal_length_m)

@@ -147,6 +147,7 @@ def write_results(
             "threads": threads,
             "parameterization": preset.lens.parameterization,
             "init": preset.optimize.init,
+            "init_from": preset.optimize.init_from,
             "theta_shape": list(theta.shape),
             "resumed_from_step": summary.resumed_from,
         },

@@ -2,6 +2,7 @@
 
     RUN_DIR/
       preset.toml            the resolved preset (steps and seed as run), read back by --resume
+      start_theta.npy        with [optimize] init_from: the θ the run started from (init_from names it)
       theta.npy              θ (rad): the radial profile θ(k·p) (radial) or the M × M map (2-D)
       theta_radial.csv       radial runs: r_m, theta_rad
       theta.png              the profile or the map
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import io
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,9 +39,10 @@ import torch
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.restore import load_tensors
 from metalens_cli.io.atomic import atomic_write
-from metalens_cli.io.presets import load_preset
+from metalens_cli.io.presets import load_preset, to_toml
 
 KEEP = 2
+START_THETA = "start_theta.npy"  # the copy of optimize.init_from's θ a run started from
 STATES = ("model", "optimizer", "scheduler")  # the state dicts of a checkpoint, restored by Checkpoint.restore
 LOSS_COLUMNS = (
     "step",
@@ -56,6 +59,12 @@ LOSS_COLUMNS = (
     "window_near",
     "window_far",
 )
+
+
+def run_preset_toml(preset) -> str:
+    """The preset's TOML as an optimize run directory holds it: ``optimize.init_from``, if any,
+    names the run's own copy of the start θ (``START_THETA``, beside preset.toml)."""
+    return to_toml(preset, optimize={"init_from": START_THETA} if preset.optimize.init_from is not None else {})
 
 
 class RunDirectory:
@@ -103,12 +112,18 @@ class RunDirectory:
                 "--resume", f"{str(self.path)!r} holds no run to resume", f"a run directory written by {self.made_by}"
             )
 
-    def create(self, preset_text: str, folders: tuple[str, ...] = ("samples",)) -> None:
-        """Start a fresh run with its preset file: refuse a folder that already holds one. The
-        preset is written first: a run killed (SIGKILL) at any moment leaves a folder that is
-        either empty or resumable (``--resume`` recreates missing subfolders as it writes)."""
+    def create(
+        self, preset_text: str, folders: tuple[str, ...] = ("samples",), copies: dict[str, Path] | None = None
+    ) -> None:
+        """Start a fresh run with its preset file: refuse a folder that already holds one.
+        ``copies`` (name → source file) are copied in before the preset, which may name them;
+        the preset is written next: a run killed (SIGKILL) at any moment leaves a folder that is
+        without a preset or resumable (``--resume`` recreates missing subfolders as it writes)."""
         self.check_fresh()
         self.path.mkdir(parents=True, exist_ok=True)
+        for name, source in (copies or {}).items():
+            with atomic_write(self.path / name) as temporary:
+                shutil.copyfile(source, temporary)
         self.write_text(self.preset_name, preset_text)
         for folder in (*folders, "checkpoints"):
             (self.path / folder).mkdir(exist_ok=True)

@@ -42,7 +42,7 @@ from metalens_cli.design import distributed
 from metalens_cli.design.filter_learning import LearnedFilter, filter_columns, learned_filter, make_feasible
 from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_frequency, plan_range
 from metalens_cli.design.report import write_results
-from metalens_cli.design.rundir import RunDirectory
+from metalens_cli.design.rundir import START_THETA, RunDirectory, run_preset_toml
 from metalens_cli.design.step import (
     Session,
     Windows,
@@ -57,7 +57,7 @@ from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, over
 from metalens_cli.design.training_camera import training_camera
 from metalens_cli.design.validation import STEERING_DRAWS, norms_of, steering, validation_loss
 from metalens_cli.io.preset_spectra import preset_sensitivity
-from metalens_cli.io.presets import Preset, preset_incidence_factor, to_toml
+from metalens_cli.io.presets import Preset, preset_incidence_factor
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY
 from metalens_cli.optics.field import ON_AXIS_MARGIN, estimate_field_psf
 from metalens_cli.optics.psf import PsfCost
@@ -287,7 +287,8 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     checkpoint = checkpoint_to_resume(run, resume, o.steps)
     session = _session(preset, ctx)
     if ctx.is_main and not resume:
-        run.create(to_toml(preset))
+        start = {} if o.init_from is None else {START_THETA: Path(o.init_from)}
+        run.create(run_preset_toml(preset), copies=start)
     model = session.model
     loop = TrainLoop(
         run,
@@ -298,7 +299,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
         lambda: _windows_state(session),
         lambda state: _load_windows(session, state),
     )
-    loop.resume(checkpoint, to_toml(preset) if resume and given else None)
+    loop.resume(checkpoint, run_preset_toml(preset) if resume and given else None)
     watch = Stopwatch(ctx.device)
     grid: dict = {}
     sample = None

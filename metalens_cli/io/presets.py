@@ -151,6 +151,9 @@ class OptimizeConfig:
     wavelengths_per_channel: int = toml_key("wavelengths_per_channel", "int", lo=1, hi=1024, default=3)
     seed: int = toml_key("seed", "int", lo=0, hi=2**63 - 1, default=0)
     init: str = toml_key("init", "choice", choices=("hyperbolic", "random"), default="hyperbolic")
+    # a learned θ to start from instead: a run directory of ``metalens optimize`` (its theta.npy) or a radial θ .npy
+    # (rad at r = k·pitch) with as many rings as this lens; resolved to the .npy's absolute path
+    init_from: str | None = toml_key("init_from", "path", default=None)
     design_grid: int = toml_key(
         "design_grid", "int", lo=0, hi=100_000, default=0
     )  # radial samples / 2-D side; 0 = per meta-atom
@@ -781,6 +784,9 @@ def _resolve_paths(preset: Preset, folder: Path) -> Preset:
         obstructions=tuple(
             obstruction_file(kind, folder, "optimize.obstructions") for kind in preset.optimize.obstructions
         ),
+        init_from=None
+        if preset.optimize.init_from is None
+        else str(initial_theta_file(folder / preset.optimize.init_from, "optimize.init_from")),
     )
     result = dataclasses.replace(
         preset, nanofin=nanofin, filter=band_filter, sensor=sensor, loss=loss, optimize=optimize
@@ -817,6 +823,26 @@ def image_folder(path: Path, key: str) -> Path:
         raise InputError(key, f"{str(path)!r} holds no images", form)
     for file in files:
         check_image_file(file, key)
+    return path
+
+
+INITIAL_THETA = "a run directory of metalens optimize or a radial θ .npy (rad), relative to the preset"
+
+
+def initial_theta_file(path: Path, key: str) -> Path:
+    """The θ file of ``optimize.init_from``: a run directory's ``theta.npy`` or the .npy itself,
+    holding a finite 1-D radial θ (rad at r = k·pitch), checked here; its ring count is checked
+    against the lens where the run builds its model (``design.model``)."""
+    import numpy as np
+
+    from metalens_cli.io.input_files import read_npy
+
+    path = path.resolve()
+    if path.is_dir():
+        path = path / "theta.npy"
+    theta = read_npy(path, key, INITIAL_THETA)
+    if theta.ndim != 1 or theta.size < 2 or not np.all(np.isfinite(theta)):
+        raise InputError(key, f"{path.name} holds a {theta.shape} array, not a finite radial θ", INITIAL_THETA)
     return path
 
 

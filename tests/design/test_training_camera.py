@@ -204,3 +204,64 @@ def test_an_image_only_fine_tune_removes_a_defocus(tiny):
     assert before == pytest.approx(6.0, rel=0.02)
     assert abs(after) < 0.8 * abs(before), (before, after)
     assert math.isfinite(after)
+
+
+# ------------------------------------------------------------------------------ starting from a learned θ
+
+
+def _hyperbolic_rings(preset) -> np.ndarray:
+    from metalens_cli.design.parameterization import radial_radii
+    from metalens_cli.optics.lens import hyperbolic_phase
+
+    r = radial_radii(preset.nanofin.pitch_m, preset.lens.aperture_m)
+    return hyperbolic_phase(r, preset.lens.design_wavelength_m, preset.lens.focal_length_m) / 2, r
+
+
+def test_init_from_starts_the_run_at_that_theta_and_the_run_keeps_its_copy(tiny, tmp_path):
+    """optimize.init_from = a θ .npy: the model starts at that θ exactly (per-ring samples and the
+    spline's base alike); a 0-step run writes it back as its θ, keeps a copy beside its preset
+    (named relative), and stays a design spec after the source is deleted."""
+    from metalens_cli.design.model import build_model
+    from metalens_cli.design.training import train
+    from metalens_cli.io.designs import resolve_design
+
+    hyperbolic, r = _hyperbolic_rings(tiny)
+    source = hyperbolic + 3.0 * (r / r[-1]) ** 2  # a defocused lens, not what init = hyperbolic gives
+    np.save(tmp_path / "source.npy", source)
+    (tmp_path / "start.toml").write_text(to_toml(_with(tiny, "optimize", init_from="source.npy")))
+    preset = load_preset(tmp_path / "start.toml")
+    assert preset.optimize.init_from == str(tmp_path / "source.npy")
+    np.testing.assert_array_equal(build_model(preset).full_theta().detach().numpy(), source)
+    spline = build_model(_with(preset, "optimize", theta_basis="spline", design_grid=8))
+    np.testing.assert_array_equal(spline.full_theta().detach().numpy(), source)
+
+    train(preset, tmp_path / "run", steps=0)
+    (tmp_path / "source.npy").unlink()
+    assert 'init_from = "start_theta.npy"' in (tmp_path / "run" / "preset.toml").read_text()
+    np.testing.assert_array_equal(np.load(tmp_path / "run" / "start_theta.npy"), source)
+    np.testing.assert_allclose(np.load(tmp_path / "run" / "theta.npy"), source, rtol=0, atol=1e-12)
+    design = resolve_design(str(tmp_path / "run"))
+    assert design.preset.optimize.init_from == str(tmp_path / "run" / "start_theta.npy")
+
+
+def test_init_from_refuses_what_is_not_this_lens_radial_theta(tiny, tmp_path):
+    """A 2-D map, a folder without theta.npy, a θ of another ring count, init = random beside it:
+    each an InputError naming optimize.init_from."""
+    from metalens_cli.design.model import build_model
+
+    hyperbolic, _ = _hyperbolic_rings(tiny)
+    np.save(tmp_path / "map.npy", np.zeros((5, 5)))
+    np.save(tmp_path / "short.npy", hyperbolic[:-3])
+    np.save(tmp_path / "good.npy", hyperbolic)
+    (tmp_path / "empty").mkdir()
+    for value in ("map.npy", "empty", "missing.npy"):
+        (tmp_path / "p.toml").write_text(to_toml(tiny).replace("[optimize]", f'[optimize]\ninit_from = "{value}"'))
+        with pytest.raises(InputError) as caught:
+            load_preset(tmp_path / "p.toml")
+        assert "optimize.init_from" in caught.value.field
+    with pytest.raises(InputError, match="rings") as caught:
+        build_model(_with(tiny, "optimize", init_from=str(tmp_path / "short.npy")))
+    assert caught.value.field == "optimize.init_from"
+    with pytest.raises(InputError) as caught:
+        build_model(_with(tiny, "optimize", init_from=str(tmp_path / "good.npy"), init="random"))
+    assert caught.value.field == "optimize.init_from"
