@@ -86,7 +86,9 @@ def metalens(*args: str) -> dict:
     return json.loads(done.stdout)
 
 
-def train(runs: Path, reuse: bool, names=DESIGNS) -> dict[str, dict]:
+def train(runs: Path, reuse: bool, names=DESIGNS, preset_of=lambda name: f"presets/{name}.toml") -> dict[str, dict]:
+    """``metalens optimize`` of each run ``names`` into RUNS/NAME from the preset ``preset_of(name)``
+    (``reuse``: finished runs are read back); each run's run.json, with ``wall_s`` where it ran."""
     reports = {}
     for name in names:
         run = runs / name
@@ -96,7 +98,7 @@ def train(runs: Path, reuse: bool, names=DESIGNS) -> dict[str, dict]:
         if run.exists():
             raise SystemExit(f"{run} exists: remove it or pass --reuse")
         start = time.perf_counter()
-        reports[name] = metalens("optimize", f"presets/{name}.toml", "-o", str(run), "--quiet")
+        reports[name] = metalens("optimize", preset_of(name), "-o", str(run), "--quiet")
         reports[name]["wall_s"] = time.perf_counter() - start
     return reports
 

@@ -20,6 +20,11 @@ as they are (with ``--longer``, also the split one trained 3× longer) are train
 the hyperbolic lens at the paper's 512 × 512 sensor over 3 seeds, with paired CIs
 (``--no-final`` skips that part). Every number in the written file comes from those outputs;
 ``--reuse`` keeps finished run directories.
+
+    python examples/training_study.py --image-learning [--reuse]
+
+runs only issue 59's experiment (examples/image_learning.py: learning θ from images under the
+verdict's camera) and rewrites only its section of this file.
 """
 
 from __future__ import annotations
@@ -317,7 +322,7 @@ def write(results: list[dict], reference: dict, steps: int, final: list[str]) ->
     marker = "<!-- findings -->"
     if OUT_DOC.is_file() and marker in OUT_DOC.read_text():  # the written findings below the tables are kept
         text += "\n" + marker + OUT_DOC.read_text().split(marker, 1)[1]
-    OUT_DOC.write_text(text)
+    OUT_DOC.write_text(text)  # (the findings part holds --image-learning's section)
 
 
 FINAL = [("quick-split-spectrum", 1), ("quick-broadband", 1), ("hyperbolic-532", 1)]
@@ -453,7 +458,18 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", help="variant names to run (others are skipped)")
     parser.add_argument("--no-final", action="store_true", help="skip the quick presets' full runs at 512²")
     parser.add_argument("--longer", action="store_true", help="also train the split preset 3× longer (convergence)")
+    parser.add_argument(
+        "--image-learning",
+        action="store_true",
+        help="only issue 59's experiment (examples/image_learning.py): image-only training under the camera; "
+        "rewrites its own section of docs/training.md",
+    )
     args = parser.parse_args()
+    if args.image_learning:
+        import image_learning
+
+        image_learning.run(ROOT / "runs", args.reuse, OUT_DOC)
+        return
     results = []
     for name, preset_name, overrides, what in VARIANTS:
         if args.only and name not in args.only:
