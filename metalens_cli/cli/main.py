@@ -85,6 +85,7 @@ COMMANDS = {
     "nanofin": ("nanofin", "The meta-atom: conversion efficiency η(λ) by RCWA (nanofin efficiency)."),
     "obstruction": ("obstruction", "Obstruction generators (obstruction preview)."),
     "align": ("align", "Register captured photographs onto a reference (homography, then a smooth refinement)."),
+    "tolerance": ("tolerance", "Fabrication tolerance of a design: sensitivity, Monte Carlo, budgets, photographs."),
     "export-gds": ("export_gds", "Nanofin layout of a design as GDSII or OASIS for e-beam lithography."),
     "psf": ("psf", "Measured PSFs: psf import (bench frames to a PSF cube), psf compare (measured against simulated)."),
     "psf-scan": ("psf_scan", "PSF cubes over wavelength and depth of a design, written as EXR, .npz, .mat or TIFF."),
