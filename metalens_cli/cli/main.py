@@ -87,6 +87,10 @@ COMMANDS = {
     "align": ("align", "Register captured photographs onto a reference (homography, then a smooth refinement)."),
     "tolerance": ("tolerance", "Fabrication tolerance of a design: sensitivity, Monte Carlo, budgets, photographs."),
     "export-gds": ("export_gds", "Nanofin layout of a design as GDSII or OASIS for e-beam lithography."),
+    "export-phase": (
+        "export_phase",
+        "A design's phase as a lens-design surface: Zemax Binary 2 (.zmx), JSON or CSV.",
+    ),
     "psf": ("psf", "Measured PSFs: psf import (bench frames to a PSF cube), psf compare (measured against simulated)."),
     "psf-scan": ("psf_scan", "PSF cubes over wavelength and depth of a design, written as EXR, .npz, .mat or TIFF."),
     "mtf": ("mtf", "MTFs of a PSF cube (EXR, .npz, .mat, TIFF) or the slanted-edge SFR of an image."),
