@@ -86,7 +86,11 @@ COMMANDS = {
     "obstruction": ("obstruction", "Obstruction generators (obstruction preview)."),
     "align": ("align", "Register captured photographs onto a reference (homography, then a smooth refinement)."),
     "export-gds": ("export_gds", "Nanofin layout of a design as GDSII or OASIS for e-beam lithography."),
-    "psf": ("psf", "Measured PSFs: psf import (bench frames to a PSF cube), psf compare (measured against simulated)."),
+    "psf": (
+        "psf",
+        "Measured PSFs: psf import (bench frames to a PSF cube), psf compare (measured against simulated), "
+        "psf retrieve (the lens's phase from them).",
+    ),
     "psf-scan": ("psf_scan", "PSF cubes over wavelength and depth of a design, written as EXR, .npz, .mat or TIFF."),
     "mtf": ("mtf", "MTFs of a PSF cube (EXR, .npz, .mat, TIFF) or the slanted-edge SFR of an image."),
     "simulate": ("simulate", "Simulated captures of images through a design with a near obstruction."),
