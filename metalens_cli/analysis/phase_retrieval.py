@@ -74,8 +74,13 @@ MAX_SAMPLES = 5e7  # PSFs × pixels: the Jacobian is (K + 4) float64 values per 
 FTOL = 1e-9  # stop when an accepted step lowers the cost by less than this fraction
 XTOL = 1e-9  # ... or moves no parameter by more than this (relative, in units of its scale)
 MAX_DAMPING = 1e12
-PASSES_PER_ITERATION = 3  # compute_psf-equivalents per iteration besides the K forward-mode passes (~2× one each)
+PASSES_PER_ITERATION = 3  # plain passes per iteration besides the K forward-mode ones (the step and rejected steps)
 TYPICAL_ITERATIONS = 15
+# seconds per forward-mode pass, at least (the radial path's fixed costs, float64 and dual numbers): measured
+# 2 s for the 60 µm test lens (6 PSFs of 40², 12 Jacobians of 4 terms, 1 core) and 15 s for the paper's lens
+# (6 PSFs of 64², 11 Jacobians, 2 busy cores), where estimate_psf plans 0.02 s a pass
+PASS_OVERHEAD_S = 0.08
+PASS_FACTOR = 3.0  # forward-mode passes over estimate_psf's forward
 
 
 @dataclass
@@ -230,7 +235,8 @@ def estimate_retrieval(lens: Metalens, grid: PsfGrid, terms: int, max_iterations
     cost = estimate_psf(lens, grid, propagator="radial", dtype=torch.float64)
     samples = grid.count * grid.pixels**2
     memory = 3 * cost.memory_bytes + samples * 8 * (terms + 4 + 12)
-    per_iteration = (2 * terms + PASSES_PER_ITERATION) * max(cost.seconds - cost.setup_seconds, 1e-3)
+    per_pass = max(PASS_FACTOR * (cost.seconds - cost.setup_seconds), PASS_OVERHEAD_S)
+    per_iteration = (terms + PASSES_PER_ITERATION) * per_pass
     return Estimate(
         f"psf retrieve of {grid.count} PSFs of {grid.pixels}² pixels with {terms} terms",
         int(memory),

@@ -183,3 +183,16 @@ def test_terms_and_nuisance_are_checked():
         retrieve(psf, terms=0)
     with pytest.raises(InputError, match="--nuisance: unknown tilt"):
         retrieve(psf, nuisance=("tilt",))
+
+
+def test_giant_cubes_are_refused_and_the_fit_is_estimated(monkeypatch):
+    from metalens_cli.analysis import phase_retrieval
+    from metalens_cli.analysis.phase_retrieval import estimate_retrieval, model_grid
+
+    monkeypatch.setattr(phase_retrieval, "MAX_SAMPLES", 1000)
+    with pytest.raises(InputError, match="6 PSFs of 40² pixels: 9.6e\\+03 samples, over the 1e\\+03"):
+        check_retrievable(np.ones((2, 3, PIXELS, PIXELS)), WAVELENGTHS, DEPTHS, PIXEL_PITCH, nominal(), F)
+    small = estimate_retrieval(nominal(), model_grid(WAVELENGTHS, DEPTHS, PIXELS, PIXEL_PITCH, F), 4, 50)
+    large = estimate_retrieval(nominal(), model_grid(WAVELENGTHS * 4, DEPTHS, 4 * PIXELS, PIXEL_PITCH, F), 4, 50)
+    assert "6 PSFs of 48² pixels with 4 terms" in small.describe()
+    assert small.memory_bytes < large.memory_bytes and 0 < small.seconds <= small.seconds_max <= large.seconds_max
