@@ -24,11 +24,13 @@ nominal PSF and no shift. The Jacobian columns of the K coefficients come from f
 automatic differentiation through the propagator (one pass per coefficient); those of the
 nuisance parameters, each of which moves one PSF only, from one forward-mode pass of the cheap
 shift-scale-background step per kind. Stage 1 weighs each PSF by its norm (σ_m ∝ ‖M_m‖: the
-relative L2 error); at its end σ_m² is set to the PSF's residual power per degree of freedom and
-stage 2 refits with those weights, so that PSFs of different noise count by their noise.
+relative L2 error); at its end each pixel's noise variance is modelled as σ² = a_m + b_m·model
+(a read-noise floor and a shot-noise slope, fitted per PSF to its squared residuals) and stage 2
+refits with those weights, so that PSFs and pixels count by their noise. (With one σ per PSF,
+Poisson data gave uncertainties 2-3× too small: bright pixels are the noisiest.)
 
-Uncertainty. The coefficients' covariance is the Gauss-Newton (JᵀWJ)⁻¹ at the solution
-(W = 1/σ_m², σ_m from the residual: the cube's own noise plus anything the model misses), of which
+Uncertainty. The coefficients' covariance is the Gauss-Newton (JᵀWJ)⁻¹·χ²_red at the solution
+(W = 1/σ², σ from the residual: the cube's own noise plus anything the model misses), of which
 the coefficients' block is reported as 1-σ uncertainties and correlations. The condition number
 is that of the coefficients' block of JᵀWJ after eliminating the nuisance parameters (their Schur
 complement), its columns scaled to unit diagonal: 1 for independent terms.
@@ -74,6 +76,7 @@ MAX_SAMPLES = 5e7  # PSFs × pixels: the Jacobian is (K + 4) float64 values per 
 FTOL = 1e-9  # stop when an accepted step lowers the cost by less than this fraction
 XTOL = 1e-9  # ... or moves no parameter by more than this (relative, in units of its scale)
 MAX_DAMPING = 1e12
+NOISE_FLOOR = 0.01  # stage 2's σ² at least this fraction of the PSF's σ² at its peak
 PASSES_PER_ITERATION = 3  # plain passes per iteration besides the K forward-mode ones (the step and rejected steps)
 TYPICAL_ITERATIONS = 15
 # seconds per forward-mode pass, at least (the radial path's fixed costs, float64 and dual numbers): measured
@@ -97,7 +100,8 @@ class PhaseRetrieval:
         correlation: (K, K) their correlation matrix.
         psfs: per measured PSF: ``depth_m`` (None: infinity), ``wavelength_m``,
             ``relative_l2_nominal`` (‖M − model‖/‖M‖ at δ = 0, least-squares scale and background,
-            no shift), ``relative_l2`` (after the fit), ``noise_sigma`` (σ_m, the cube's units),
+            no shift), ``relative_l2`` (after the fit), ``noise_sigma`` (RMS of the pixels' σ, the
+            cube's units), ``noise_model`` (``read_variance`` a, ``shot_slope`` b: σ² = a + b·model),
             ``shift_px`` [dy, dx], ``scale``, ``background``.
         condition_number: of the normalised Schur complement at the solution (module docstring).
         chi2_reduced: Σ r²/σ² per degree of freedom at the solution (≈ 1 by construction).
@@ -344,7 +348,9 @@ class _Fit:
         self.nuisance = tuple(nuisance)
         # per-PSF slots: dy, dx (pixels), a (scale = s0·(1 + a)), beta (background = beta·bref)
         self.free = [0, 1] * ("shift" in nuisance) + [2] + [3] * ("background" in nuisance)
-        self.weights = 1 / torch.linalg.vector_norm(self.data, dim=(-2, -1))  # stage 1: relative L2
+        # per pixel, 1/σ; stage 1: 1/‖M_m‖ (each PSF's relative L2 error)
+        self.weights = (1 / torch.linalg.vector_norm(self.data, dim=(-2, -1)))[:, None, None].expand(-1, n, n)
+        self.noise_model = torch.zeros(self.count, 2, dtype=torch.float64)
         self.coefficients = torch.zeros(terms, dtype=torch.float64)
         self.slots = torch.zeros(self.count, 4, dtype=torch.float64, device=self.device)
         self.bref = self.data.abs().amax(dim=(-2, -1))
@@ -408,11 +414,11 @@ class _Fit:
         with torch.no_grad():
             simulated = self._simulate(coefficients) if simulated is None else simulated
             model = self._model(simulated, slots)
-        return ((self.data - model) * self.weights[:, None, None]).reshape(self.count, -1)
+        return ((self.data - model) * self.weights).reshape(self.count, -1)
 
     def relative_l2(self, coefficients=None, slots=None) -> torch.Tensor:
         """(M,) ‖M − model‖/‖M‖ per PSF."""
-        r = self.residual(coefficients, slots) / self.weights[:, None]
+        r = self.residual(coefficients, slots) / self.weights.reshape(self.count, -1)
         return torch.linalg.vector_norm(r, dim=-1) / torch.linalg.vector_norm(self.data.reshape(self.count, -1), dim=-1)
 
     def jacobian(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -430,7 +436,7 @@ class _Fit:
                 if simulated is None:
                     simulated = fwad.unpack_dual(dual).primal.detach()
             columns.append(derivative.detach().reshape(self.count, -1))
-        w = self.weights[:, None, None]
+        w = self.weights.reshape(self.count, -1, 1)
         jc = torch.stack(columns, -1) * w
         slot_columns = []
         for slot in self.free:
@@ -441,7 +447,7 @@ class _Fit:
                 derivative = fwad.unpack_dual(model).tangent
             slot_columns.append(derivative.detach().reshape(self.count, -1))
         jn = torch.stack(slot_columns, -1) * w
-        r = ((self.data.reshape(self.count, -1) - plain.detach().reshape(self.count, -1)) * self.weights[:, None]).cpu()
+        r = ((self.data - plain.detach()) * self.weights).reshape(self.count, -1).cpu()
         return r, jc.cpu(), jn.cpu()
 
     # ------------------------------------------------------------------------------- algebra
@@ -504,12 +510,26 @@ class _Fit:
         return False
 
     def reweight(self) -> None:
-        """Stage 2's weights: σ_m² = the PSF's residual power per degree of freedom."""
-        r = self.residual() / self.weights[:, None]
+        """Stage 2's weights: per pixel 1/σ with σ² = a_m + b_m·max(model, 0), a read-noise floor and
+        a shot-noise slope fitted per PSF to its squared residuals (least squares; b ≥ 0; σ² at
+        least ``NOISE_FLOOR`` of its value at the PSF's peak), scaled by pixels per degree of freedom."""
+        with torch.no_grad():
+            model = self._model(self._simulate(self.coefficients), self.slots)
+        squared = (self.data - model).reshape(self.count, -1) ** 2
+        light = model.reshape(self.count, -1).clamp(min=0)
         dof = self.n**2 - len(self.free) - self.terms / self.count
-        sigma = torch.sqrt((r**2).sum(-1) / dof)
-        floor = 1e-12 * torch.linalg.vector_norm(self.data.reshape(self.count, -1), dim=-1) / self.n
-        self.weights = 1 / torch.maximum(sigma, floor)
+        for m in range(self.count):
+            design = torch.stack([torch.ones_like(light[m]), light[m]], -1)
+            a, b = torch.linalg.lstsq(design, squared[m][:, None]).solution[:, 0]
+            if b < 0:
+                a, b = squared[m].mean(), torch.zeros_like(b)
+            self.noise_model[m] = torch.stack([a, b]).cpu() * (self.n**2 / dof)
+        a, b = self.noise_model[:, :1].to(self.device), self.noise_model[:, 1:].to(self.device)
+        peak = a + b * light.amax(-1, keepdim=True)
+        variance = torch.maximum(a + b * light, NOISE_FLOOR * peak)
+        norms = torch.linalg.vector_norm(self.data.reshape(self.count, -1), dim=-1, keepdim=True)
+        floor = (1e-12 * norms / self.n) ** 2
+        self.weights = (1 / torch.sqrt(torch.maximum(variance, floor))).reshape(self.count, self.n, self.n)
 
     # -------------------------------------------------------------------------------- report
 
@@ -547,7 +567,7 @@ class _Fit:
             for k in range(self.terms)
         ]
         final_l2 = self.relative_l2()
-        noise = 1 / self.weights
+        noise = torch.sqrt(torch.mean(1 / self.weights**2, dim=(-2, -1)))
         slots = self.slots.cpu()
         psfs = []
         for index in range(self.count):
@@ -560,6 +580,10 @@ class _Fit:
                     "relative_l2_nominal": float(nominal_l2[index]),
                     "relative_l2": float(final_l2[index]),
                     "noise_sigma": float(noise[index]),
+                    "noise_model": {
+                        "read_variance": float(self.noise_model[index, 0]),
+                        "shot_slope": float(self.noise_model[index, 1]),
+                    },
                     "shift_px": [float(slots[index, 0]), float(slots[index, 1])],
                     "scale": float(self.s0[index] * (1 + slots[index, 2])),
                     "background": float(slots[index, 3] * self.bref[index]),

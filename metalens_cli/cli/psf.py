@@ -488,8 +488,9 @@ def retrieve(
     PSF on the cube's pixels (radial propagator) with its own scale and, with --nuisance, a
     sub-pixel shift and a constant background. Levenberg-Marquardt from δ = 0, the Jacobian by
     forward-mode automatic differentiation through the propagator; PSFs weighted by their norm,
-    then by their noise σ estimated from the residual; 1-σ uncertainties from the Gauss-Newton
-    covariance. The defocus term also absorbs an error in the lens-to-sensor distance.
+    then each pixel by its noise, σ² = a + b·model (read and shot noise) fitted per PSF to the
+    residual; 1-σ uncertainties from the Gauss-Newton covariance. The defocus term also absorbs
+    an error in the lens-to-sensor distance.
 
     Refused: one depth and one wavelength (δ and −δ give the same PSF), non-finite values,
     frames imported with saturated pixels, pixels wider than the Airy core, a 2-D design, terms
@@ -587,7 +588,7 @@ def _retrieve_report(measured, output, design, result) -> dict:
         "correlation": result.correlation.tolist(),
         "condition_number": result.condition_number,
         "chi2_reduced": result.chi2_reduced,
-        "noise": "per-PSF sigma from its residual",
+        "noise": "per pixel sigma^2 = a + b * model, a and b fitted per PSF to its residual",
         "iterations": result.iterations,
         "converged": result.converged,
         "seconds": result.seconds,

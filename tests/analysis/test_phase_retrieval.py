@@ -96,6 +96,24 @@ def test_defocus_and_spherical_recovered_within_their_uncertainty_at_two_snrs(ab
     assert result.condition_number < 1e3
 
 
+def test_photon_noise_is_weighed_by_its_own_variance(aberrated):
+    """Shot noise (10⁵ photons per PSF) and 3 e⁻ of read noise: the fitted variance model
+    σ² = a + b·model finds b ≈ 1/photons (a, the read noise's 3²/photons², is lost under the shot
+    noise of a window this bright), and the coefficients lie within 3 σ
+    (with one σ per PSF they fell 3-5 σ off: the bright core is the noisiest)."""
+    photons = 1e5
+    rng = np.random.default_rng(8)
+    data = (rng.poisson(aberrated * photons) + 3 * rng.normal(size=aberrated.shape)) / photons
+    result = retrieve(data)
+    found, sigma = coefficients(result)
+    np.testing.assert_array_less(np.abs(found - TRUTH), 3 * sigma)
+    slopes = np.array([p["noise_model"]["shot_slope"] for p in result.psfs])
+    # a sharp PSF's slope rests on its few bright pixels (χ² scatter: 0.49-1.67 here): each within 3×,
+    # their geometric mean within 30 %
+    assert np.all((slopes > 1 / 3 / photons) & (slopes < 3 / photons)), slopes * photons
+    assert np.exp(np.mean(np.log(slopes))) == pytest.approx(1 / photons, rel=0.3), slopes * photons
+
+
 def test_retrieved_theta_is_the_nominal_plus_half_the_fitted_delta(aberrated):
     data, _ = noisy(aberrated, 1000, seed=5)
     result = retrieve(data, terms=2)
