@@ -105,7 +105,7 @@ class PhaseRetrieval:
             ``shift_px`` [dy, dx], ``scale``, ``background``.
         condition_number: of the normalised Schur complement at the solution (module docstring).
         chi2_reduced: Σ r²/σ² per degree of freedom at the solution (≈ 1 by construction).
-        iterations: accepted and rejected Levenberg-Marquardt steps, both stages.
+        iterations: Levenberg-Marquardt iterations (Jacobians), both stages.
         converged: whether the fit stopped by its tolerances (not by the iteration limit).
         seconds: wall time of the fit.
         nuisance: the optional per-PSF parameters fitted.
