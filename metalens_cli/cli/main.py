@@ -91,7 +91,11 @@ COMMANDS = {
         "export_phase",
         "A design's phase as a lens-design surface: Zemax Binary 2 (.zmx), JSON or CSV.",
     ),
-    "psf": ("psf", "Measured PSFs: psf import (bench frames to a PSF cube), psf compare (measured against simulated)."),
+    "psf": (
+        "psf",
+        "Measured PSFs: psf import (bench frames to a PSF cube), psf compare (measured against simulated), "
+        "psf retrieve (the lens's phase from them).",
+    ),
     "psf-scan": ("psf_scan", "PSF cubes over wavelength and depth of a design, written as EXR, .npz, .mat or TIFF."),
     "mtf": ("mtf", "MTFs of a PSF cube (EXR, .npz, .mat, TIFF) or the slanted-edge SFR of an image."),
     "simulate": ("simulate", "Simulated captures of images through a design with a near obstruction."),

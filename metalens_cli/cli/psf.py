@@ -1,5 +1,6 @@
 """`metalens psf`: measured PSFs. `psf import` turns bench frames into a PSF cube; `psf compare`
-sets a measured cube beside a simulated one."""
+sets a measured cube beside a simulated one; `psf retrieve` fits the fabricated lens's radial phase
+to a measured cube."""
 
 from __future__ import annotations
 
@@ -10,17 +11,22 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
+    DESIGN_HELP,
     Length,
     LengthList,
     MetalensGroup,
     Number,
     OutputFile,
     announce,
+    device_option,
+    geometry_options,
     json_option,
+    load_preset_option,
     max_memory_option,
     plot_option,
     quiet_option,
     refuse_overwriting,
+    torch_device,
 )
 from metalens_cli.cli.progress import progress_bar
 
@@ -30,7 +36,8 @@ CENTRINGS = ("centroid", "peak")
 
 @click.group("psf", cls=MetalensGroup, context_settings={"help_option_names": ["-h", "--help"]})
 def psf():
-    """Measured PSFs: import bench frames into a PSF cube, compare it with a simulation."""
+    """Measured PSFs: import bench frames into a PSF cube, compare it with a simulation, retrieve the
+    lens's phase from it."""
 
 
 def _hot_sigma(ctx, param, value: float) -> float:
@@ -403,3 +410,232 @@ def _render_compare(result, measured, simulated) -> None:
                 f"field {f['angle_deg']:.3g}°: the simulated window's centre lies ({dy:.3g}, {dx:.3g}) measured pixels "
                 "(y, x) from the measured one's; sensor_shift_px in --json and --csv takes it into account"
             )
+
+
+NUISANCE_FORM = "a comma list of shift and background, or none"
+
+
+def _nuisance(ctx, param, value: str) -> tuple[str, ...]:
+    """The per-PSF parameters fitted besides the scale: 'shift,background' → ('shift', 'background')."""
+    text = value.strip().lower()
+    if text in ("", "none"):
+        return ()
+    names = tuple(dict.fromkeys(part.strip() for part in text.split(",")))
+    unknown = [n for n in names if n not in ("shift", "background")]
+    if unknown:
+        raise click.BadParameter(f"unknown {', '.join(repr(n) for n in unknown)} (expected {NUISANCE_FORM})")
+    return names
+
+
+@psf.command("retrieve")
+@click.argument("measured", type=click.Path(dir_okay=False))
+@click.option(
+    "-o",
+    "--output",
+    type=OutputFile((".npy",)),
+    required=True,
+    help="The retrieved radial θ (rad) at r = k·pitch: a design spec with the nominal's --f/--aperture/--pitch.",
+)
+@click.option("--design", "spec", help=DESIGN_HELP + " The nominal lens [the cube's header design].")
+@geometry_options
+@click.option(
+    "--terms",
+    type=click.IntRange(1, 10),
+    default=4,
+    show_default=True,
+    help="Even Zernike radial terms of δ: defocus, primary, secondary spherical, ...",
+)
+@click.option(
+    "--nuisance",
+    default="shift,background",
+    show_default=True,
+    callback=_nuisance,
+    help="Per-PSF parameters fitted besides the scale: shift (sub-pixel), background (constant), or none.",
+)
+@click.option(
+    "--max-iterations",
+    type=click.IntRange(1, 1000),
+    default=50,
+    show_default=True,
+    help="Levenberg-Marquardt iterations per stage (two stages).",
+)
+@device_option
+@quiet_option()
+@max_memory_option
+@json_option
+def retrieve(
+    measured,
+    output,
+    spec,
+    preset_path,
+    f_m,
+    aperture_m,
+    pitch_m,
+    terms,
+    nuisance,
+    max_iterations,
+    device,
+    quiet,
+    max_memory,
+    as_json,
+):
+    """The effective radial phase of a fabricated lens from a measured PSF cube.
+
+    MEASURED: a PSF cube (.exr, .npz, .mat, .tif; docs/formats.md) of two or more depths or
+    wavelengths. The lens's phase is φ = φ_nominal + δ, δ(r) = Σ c_k·R_2k(ρ) over ρ = r/(D/2)
+    (Zernike radial polynomials, R(1) = 1: defocus, primary spherical, ...; one δ at every
+    wavelength, as a geometric phase is). Each measured PSF is modelled as the lens's simulated
+    PSF on the cube's pixels (radial propagator) with its own scale and, with --nuisance, a
+    sub-pixel shift and a constant background. Levenberg-Marquardt from δ = 0, the Jacobian by
+    forward-mode automatic differentiation through the propagator; PSFs weighted by their norm,
+    then each pixel by its noise, σ² = a + b·model (read and shot noise) fitted per PSF to the
+    residual; 1-σ uncertainties from the Gauss-Newton covariance. The defocus term also absorbs
+    an error in the lens-to-sensor distance.
+
+    Refused: one depth and one wavelength (δ and −δ give the same PSF), non-finite values,
+    frames imported with saturated pixels, pixels wider than the Airy core, a 2-D design, terms
+    the cube cannot tell apart (named). -o gets θ = (φ_nominal + δ)/2 at the nominal's radii.
+    """
+    from metalens_cli.analysis.phase_retrieval import (
+        check_retrievable,
+        estimate_retrieval,
+        model_grid,
+        retrieve_phase,
+    )
+    from metalens_cli.io.atomic import atomic_write
+    from metalens_cli.io.psf_cube_files import read_psf_cube
+
+    refuse_overwriting([("-o", output)], [measured] + ([spec] if spec else []))
+    cube = read_psf_cube(measured)
+    if cube.is_field_cube and (cube.field_count > 1 or float(cube.field_angles_rad[0]) != 0.0):
+        from metalens_cli.errors import InputError
+
+        raise InputError("MEASURED", "a field cube (off-axis PSFs)", "an on-axis PSF cube")
+    design = _retrieval_design(cube, spec, load_preset_option(preset_path), f_m, aperture_m, pitch_m)
+    check_retrievable(
+        cube.psf,
+        cube.wavelengths_m,
+        cube.depths_m,
+        cube.pixel_pitch_m,
+        design.lens,
+        design.focal_length_m,
+        cube.metadata,
+    )
+    run_device = torch_device(device)
+    grid = model_grid(cube.wavelengths_m, cube.depths_m, cube.psf.shape[-1], cube.pixel_pitch_m, design.focal_length_m)
+    announce(estimate_retrieval(design.lens, grid, terms, max_iterations), max_memory, output, run_device)
+    with progress_bar("psf retrieve", quiet) as update:
+        result = retrieve_phase(
+            cube.psf,
+            cube.wavelengths_m,
+            cube.depths_m,
+            cube.pixel_pitch_m,
+            design.lens,
+            distance_m=design.focal_length_m,
+            terms=terms,
+            nuisance=nuisance,
+            max_iterations=max_iterations,
+            device=run_device,
+            progress=update,
+            metadata=cube.metadata,
+        )
+    import numpy as np
+
+    with atomic_write(output) as temporary, open(temporary, "wb") as handle:
+        np.save(handle, result.theta)
+    render.say(result.warnings)
+    if as_json:
+        render.emit_json(_retrieve_report(measured, output, design, result))
+        return
+    _render_retrieve(result, measured, output, design)
+
+
+def _retrieval_design(cube, spec, preset, f_m, aperture_m, pitch_m):
+    """The nominal design: --design, else the cube header's design (psf-scan writes its spec and
+    geometry; options win over the header's f, aperture and pitch)."""
+    from metalens_cli.errors import InputError
+    from metalens_cli.io.designs import resolve_design
+
+    if spec:
+        return resolve_design(spec, preset, f_m=f_m, aperture_m=aperture_m, pitch_m=pitch_m)
+    header = cube.metadata.get("design")
+    record = header if isinstance(header, dict) else {}
+    named = record.get("spec") if record else header
+    if not isinstance(named, str) or not named.strip():
+        raise InputError("--design", "not given, and the cube's header names no design", "--design SPEC")
+    geometry = {
+        "f_m": f_m or record.get("f_m") or cube.metadata.get("f_m"),
+        "aperture_m": aperture_m or record.get("aperture_m") or cube.metadata.get("aperture_m"),
+        "pitch_m": pitch_m or record.get("pitch_m"),
+    }
+    try:
+        return resolve_design(named, preset, **geometry)
+    except InputError as exc:
+        raise InputError(
+            "--design", f"not given, and the cube's design {named!r} does not resolve: {exc.message}", exc.expected
+        ) from None
+
+
+def _retrieve_report(measured, output, design, result) -> dict:
+    """The --json object: inputs, design, terms with uncertainties, per-PSF fit, fit statistics."""
+    return {
+        "measured": str(measured),
+        "output": str(output),
+        "design": design.describe(),
+        "model": "phi = phi_nominal + sum_k c_k R_2k^0(r / (D/2)); theta = phi / 2",
+        "nuisance": ["scale", *result.nuisance],
+        "terms": result.terms,
+        "correlation": result.correlation.tolist(),
+        "condition_number": result.condition_number,
+        "chi2_reduced": result.chi2_reduced,
+        "noise": "per pixel sigma^2 = a + b * model, a and b fitted per PSF to its residual",
+        "iterations": result.iterations,
+        "converged": result.converged,
+        "seconds": result.seconds,
+        "psfs": result.psfs,
+        "warnings": result.warnings,
+    }
+
+
+def _render_retrieve(result, measured, output, design) -> None:
+    from metalens_cli.io.units import format_length
+
+    con = render.console()
+    con.print(
+        render.table(
+            f"Phase of {design.spec} retrieved from {measured}: δ(r) = Σ c·R_n(r/(D/2))",
+            ["term", "c (rad)", "± 1σ (rad)", "c (waves)", "± 1σ (waves)"],
+            [
+                [
+                    t["name"],
+                    f"{t['coefficient_rad']:+.4f}",
+                    f"{t['sigma_rad']:.4f}",
+                    f"{t['coefficient_waves']:+.4f}",
+                    f"{t['sigma_waves']:.4f}",
+                ]
+                for t in result.terms
+            ],
+        )
+    )
+    con.print(
+        render.table(
+            "Fit per PSF (relative L2 error: ‖measured − model‖/‖measured‖)",
+            ["depth", "λ (nm)", "rel. L2 nominal", "rel. L2 fitted", "noise σ", "shift (y, x) px"],
+            [
+                [
+                    format_length(math.inf if p["depth_m"] is None else p["depth_m"]),
+                    render.nm(p["wavelength_m"], 1),
+                    f"{p['relative_l2_nominal']:.4f}",
+                    f"{p['relative_l2']:.4f}",
+                    f"{p['noise_sigma']:.3g}",
+                    f"{p['shift_px'][0]:+.3f}, {p['shift_px'][1]:+.3f}",
+                ]
+                for p in result.psfs
+            ],
+        )
+    )
+    con.print(
+        f"condition number {result.condition_number:.3g}; reduced χ² {result.chi2_reduced:.3g}; "
+        f"{result.iterations} iterations{'' if result.converged else ' (not converged)'}; {result.seconds:.2f} s; "
+        f"θ written to {output}"
+    )

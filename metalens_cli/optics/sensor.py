@@ -191,12 +191,18 @@ def _csr(crow, cols, values, shape) -> torch.Tensor:
 class _OctantRows(torch.autograd.Function):
     """``weights @ intensity`` for a CSR prefix of an operator, its backward through the whole
     operator's transpose (the gradient's missing rows padded with zeros): torch's own backward of
-    a sparse product builds the transpose at every call, which cost 20× the product."""
+    a sparse product builds the transpose at every call, which cost 20× the product. Its forward-mode
+    derivative (``jvp``, for ``torch.autograd.forward_ad``: a Jacobian over a few parameters, as the
+    phase retrieval builds) is the same product applied to the tangent."""
 
     @staticmethod
     def forward(ctx, intensity, weights, transposed):
-        ctx.transposed, ctx.n_radii = transposed, intensity.shape[0]
+        ctx.transposed, ctx.n_radii, ctx.weights = transposed, intensity.shape[0], weights
         return weights @ intensity
+
+    @staticmethod
+    def jvp(ctx, intensity_tangent, weights_tangent, transposed_tangent):
+        return ctx.weights @ intensity_tangent
 
     @staticmethod
     def backward(ctx, grad):

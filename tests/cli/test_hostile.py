@@ -291,6 +291,17 @@ CASES = {  # argv (with {names} from the bench), exit code, words the one error 
         2,
         "not a regular file",
     ),
+    "psf retrieve of garbage": (
+        ["psf", "retrieve", "{garbage_exr}", "-o", "{tmp}/t.npy", "--design", "hyperbolic:532nm"],
+        2,
+        "not a readable OpenEXR file",
+    ),
+    "psf retrieve -o onto its design": (
+        ["psf", "retrieve", "{cube_exr}", "-o", "{tmp}/theta.npy", "--design", "{tmp}/theta.npy"],
+        2,
+        "also an input",
+    ),
+    "psf retrieve -o not .npy": (["psf", "retrieve", "{cube_exr}", "-o", "{tmp}/t.exr"], 2, "does not end in .npy"),
     "evaluate --pairs of a file": (["evaluate", "--pairs", "{a_file}"], 2, "is a file"),
     "evaluate --pairs --plot onto a capture": (
         ["evaluate", "--pairs", "{pairs}", "--plot", "{pairs}/lens/obstructed/a.png"],

@@ -108,6 +108,21 @@ def test_radial_operator_gradient_matches_finite_differences():
     assert torch.autograd.gradcheck(op.apply, (x,), eps=1e-6, atol=1e-9)
 
 
+def test_radial_operator_forward_mode_derivative_is_the_operator():
+    """The operator's jvp (forward-mode AD, what psf retrieve's Jacobian uses) is the linear map
+    applied to the tangent, for a window cut from a larger operator too."""
+    import torch.autograd.forward_ad as fwad
+
+    S.radial_sensor(0.4e-6, 11, 1.85e-6)  # a larger operator cached: the 7-pixel one is cut from it
+    op = S.radial_sensor(0.4e-6, 7, 1.85e-6)
+    x = torch.rand(op.n_radii, 2, dtype=torch.float64)
+    tangent = torch.rand(op.n_radii, 2, dtype=torch.float64)
+    with fwad.dual_level():
+        out = fwad.unpack_dual(op.apply(fwad.make_dual(x, tangent)))
+    assert torch.equal(out.primal, op.apply(x))
+    assert_allclose(out.tangent.numpy(), op.apply(tangent).numpy(), rtol=1e-14, atol=0)
+
+
 def test_an_extended_operator_equals_a_fresh_build():
     """Extending an operator computes only the rows of the pixels it lacks: the result is the
     operator built at once, entry for entry; the cache extends by at least ``larger_window``."""
