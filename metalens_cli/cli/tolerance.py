@@ -4,7 +4,6 @@ budgets, photographs)."""
 from __future__ import annotations
 
 import math
-import re
 
 import click
 
@@ -28,8 +27,6 @@ from metalens_cli.cli.options import (
 from metalens_cli.errors import InputError
 from metalens_cli.io import units
 
-ZERO_LENGTH = re.compile(r"[+-]?0*\.?0+\s*(pm|nm|um|µm|mm|cm|m)")
-
 
 class SignedLength(click.ParamType):
     """A length that may be negative or zero: ``10nm``, ``-5nm``, ``0nm`` → metres."""
@@ -37,17 +34,14 @@ class SignedLength(click.ParamType):
     name = "length"
 
     def convert(self, value, param, ctx):
-        """The signed length in metres; a bad value fails with the accepted form."""
+        """The signed length in metres (``io.units.parse_signed_length``); a bad value fails with
+        the accepted form."""
         if not isinstance(value, str):
             return value
-        text = value.strip()
-        if ZERO_LENGTH.fullmatch(text):
-            return 0.0
-        sign = -1.0 if text.startswith("-") else 1.0
         try:
-            return sign * units.parse_length(text.lstrip("+-"), param.opts[0])
+            return units.parse_signed_length(value, param.opts[0])
         except InputError as exc:
-            self.fail(f"{exc.message} (expected a signed length, e.g. 10nm or -5nm)", param, ctx)
+            self.fail(f"{exc.message} (expected {exc.expected})", param, ctx)
 
 
 class Fraction(click.ParamType):
@@ -92,13 +86,9 @@ class Fraction(click.ParamType):
     help='A loss the design may take, "strehl -10%", "mtf50 -10%" or "core-far -5%": the largest error of each '
     "source that keeps it, and the Monte Carlo yield.",
 )
-@click.option(
-    "--draws", type=click.IntRange(0, 10000), default=0, show_default=True, help="Monte Carlo draws of 2-D maps."
-)
+@click.option("--draws", type=click.IntRange(0, 10000), help="Monte Carlo draws of 2-D maps [0].")
 @click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of the draws and photographs.")
-@click.option(
-    "--photos", type=click.IntRange(0, 1000), default=0, show_default=True, help="Obstructed photographs scored."
-)
+@click.option("--photos", type=click.IntRange(0, 1000), help="Obstructed photographs scored [0].")
 @click.option(
     "--light",
     "light_levels",
@@ -177,20 +167,29 @@ def tolerance(
 
     preset = load_preset_option(preset_path)
     design = resolve_design(spec, preset, f_m=f_m, aperture_m=aperture_m, pitch_m=pitch_m)
+    table = design.preset.tolerance if design.preset is not None else None
     given = {
         "rotation_sigma_rad": rotation_sigma,
         "theta_levels": theta_levels,
         "missing": missing,
+        "stitch_field_m": stitch_field_m,
         "stitch_sigma_m": stitch_sigma_m,
         "width_bias_m": width_bias_m,
         "width_sigma_m": width_sigma_m,
         "length_bias_m": length_bias_m,
         "length_sigma_m": length_sigma_m,
     }
-    errors = fab.FabricationErrors(stitch_field_m=stitch_field_m, **{k: v for k, v in given.items() if v is not None})
+    errors = tol.errors_from(given, table)
+    budget = budget if budget is not None else (table.budget if table is not None else None)
+    draws = draws if draws is not None else (table.draws or 0 if table is not None else 0)
+    photos = photos if photos is not None else (table.photos or 0 if table is not None else 0)
     if not errors.sources():
         raise InputError(
-            "--rotation-sigma", "no error source given", "at least one of " + ", ".join(fab.OPTIONS.values())
+            "--rotation-sigma",
+            "no error source given",
+            "at least one of "
+            + ", ".join(o for o in fab.OPTIONS.values() if o != "--stitch-field")
+            + " (or the preset's [tolerance])",
         )
     parsed_budget = tol.parse_budget(budget) if budget is not None else None
     if errors.dimensional() and design.preset is None:

@@ -506,6 +506,32 @@ def photo_scores(design, cases, evaluation_settings, kinds, seeds, *, on_progres
     return changes, {"design_rows": rows, "images": result.images, "warnings": warnings, "notes": result.notes}
 
 
+def errors_from(given: dict, table) -> fab.FabricationErrors:
+    """The errors of ``given`` (FabricationErrors field → a CLI value, None when not given), each
+    missing one from a preset's ``[tolerance]`` ``table`` (or None); a bad value from the table is
+    refused naming its key (``tolerance.KEY``)."""
+    from dataclasses import fields as dataclass_fields
+
+    values, from_table = {}, {}
+    for name, value in given.items():
+        if value is not None:
+            values[name] = value
+        elif table is not None and getattr(table, name) is not None:
+            values[name] = from_table[name] = getattr(table, name)
+    try:
+        return fab.FabricationErrors(**values)
+    except InputError as exc:
+        keys = {
+            fab.OPTIONS[n]: f.metadata["key"]
+            for f in dataclass_fields(table or ())
+            for n in [f.name]
+            if n in from_table
+        }
+        if exc.field in keys:
+            raise InputError(f"tolerance.{keys[exc.field]}", exc.message, exc.expected) from None
+        raise
+
+
 def preset_bands(preset) -> tuple[tuple[float, float], ...]:
     """The pass bands (centre, FWHM) of a preset's filter; the paper's tri-band filter for a
     design without one (a broadband lens is judged on the same bands)."""

@@ -117,6 +117,26 @@ class FilterConfig:
 
 
 @dataclass(frozen=True)
+class ToleranceConfig:
+    """What ``metalens tolerance`` analyses for this preset's lens when its options do not say:
+    the fabrication error sources and their magnitudes (``optics.fabrication``; a bias may be
+    negative), the ``budget`` ("strehl -10%"), Monte Carlo ``draws`` and ``photos``. Optional."""
+
+    rotation_sigma_rad: float | None = toml_key("rotation_sigma", "angle", default=None)
+    theta_levels: int | None = toml_key("theta_levels", "int", lo=2, hi=4096, default=None)
+    missing: float | None = toml_key("missing", "float", lo=0.0, hi=0.999999, default=None)
+    stitch_field_m: float | None = toml_key("stitch_field", "length", default=None)
+    stitch_sigma_m: float | None = toml_key("stitch_sigma", "signed_length", default=None)
+    width_bias_m: float | None = toml_key("width_bias", "signed_length", default=None)
+    width_sigma_m: float | None = toml_key("width_sigma", "signed_length", default=None)
+    length_bias_m: float | None = toml_key("length_bias", "signed_length", default=None)
+    length_sigma_m: float | None = toml_key("length_sigma", "signed_length", default=None)
+    budget: str | None = toml_key("budget", "string", default=None)
+    draws: int | None = toml_key("draws", "int", lo=0, hi=10000, default=None)
+    photos: int | None = toml_key("photos", "int", lo=0, hi=1000, default=None)
+
+
+@dataclass(frozen=True)
 class SensorConfig:
     """Colour sensor: square pixels, window size, spectral response and range."""
 
@@ -252,6 +272,7 @@ class Preset:
     loss: LossConfig
     filter: FilterConfig | None = None
     obstruction: ObstructionConfig = field(default_factory=ObstructionConfig)
+    tolerance: ToleranceConfig | None = None
     description: str = ""
     source: str | None = None
 
@@ -265,6 +286,7 @@ SECTIONS: dict[str, tuple[type, bool]] = {
     "optimize": (OptimizeConfig, True),
     "loss": (LossConfig, False),
     "obstruction": (ObstructionConfig, False),
+    "tolerance": (ToleranceConfig, False),
 }
 OPTIONAL_DEFAULTS = {"loss": LossConfig, "obstruction": ObstructionConfig}
 TOP_LEVEL_KEYS = {"name", "description"}
@@ -308,6 +330,11 @@ def _convert(value: Any, meta: dict[str, Any], path: str) -> Any:
                 raise InputError(path, "upper end below lower end", units.INTERVAL_FORM)
             return lo, hi
         return units.parse_interval(as_str(value, path, units.INTERVAL_FORM), path, allow_inf=True)
+    if kind == "angle":
+        return units.parse_angle(as_str(value, path, units.ANGLE_FORM), path)
+    if kind == "signed_length":
+        text = as_str(value, path, "a length, e.g. 10nm or -5nm").strip()
+        return units.parse_signed_length(text, path)
     if kind == "angle_list":
         if isinstance(value, list):
             if not value:
@@ -938,8 +965,10 @@ def toml_field(value: Any, kind: str) -> str:
     def length(v: float) -> str:
         return '"inf"' if math.isinf(v) else f'"{v!r}m"'
 
-    if kind == "length":
-        return length(value)
+    if kind in ("length", "signed_length"):
+        return f'"{value!r}m"' if kind == "signed_length" else length(value)
+    if kind == "angle":
+        return f'"{value!r}rad"'
     if kind in ("length_list", "interval"):
         return "[" + ", ".join(length(v) for v in value) + "]"
     if kind == "angle_list":

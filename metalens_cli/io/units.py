@@ -234,6 +234,27 @@ def parse_range(text: str, field: str) -> list[float]:
     return _expand_range(arguments.instance(text, field, str, LIST_FORM), field, MAX_RANGE_VALUES)
 
 
+ZERO_LENGTH = re.compile(r"[+-]?0*\.?0+\s*(pm|nm|um|µm|mm|cm|m)")
+SIGNED_LENGTH_FORM = "a length with a unit that may be negative or zero, e.g. 10nm, -5nm or 0nm"
+
+
+def parse_signed_length(text: str, field: str) -> float:
+    """A length that may be negative or zero (a fabrication bias), in metres.
+
+    Examples:
+        >>> parse_signed_length("-5nm", "--width-bias"), parse_signed_length("0nm", "--width-bias")
+        (-5e-09, 0.0)
+    """
+    text = arguments.instance(text, field, str, SIGNED_LENGTH_FORM).strip()
+    if ZERO_LENGTH.fullmatch(text):
+        return 0.0
+    sign = -1.0 if text.startswith("-") else 1.0
+    try:
+        return sign * parse_length(text[1:] if text[:1] in "+-" else text, field)
+    except InputError as exc:
+        raise InputError(field, exc.message, SIGNED_LENGTH_FORM) from None
+
+
 def parse_length_list(text: str, field: str, *, allow_inf: bool = False) -> list[float]:
     """Parse a comma-separated list whose items are lengths or ranges, in metres, in the
     order given (at most :data:`MAX_LIST_VALUES` values in all)."""

@@ -172,3 +172,55 @@ def test_hostile_inputs_exit_2_naming_the_option(capsys, args, option):
     code, out, err = invoke(capsys, "tolerance", "hyperbolic:532nm", *SMALL, *args)
     assert code == 2 and out == ""
     assert option in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+PRESET = """name = "tol"
+[lens]
+focal_length = "300um"
+aperture = "80um"
+design = "hyperbolic"
+design_wavelength = "532nm"
+[nanofin]
+pitch = "395nm"
+height = "700nm"
+width = "305nm"
+length = "125nm"
+efficiency_wavelengths = ["457nm", "530nm", "628nm"]
+efficiency = [0.784, 0.729, 0.669]
+[sensor]
+pixel_pitch = "0.5um"
+pixels = 32
+[scene]
+z_near = "10mm:12mm"
+z_far = "1m:20m"
+[optimize]
+steps = 1
+learning_rate = 0.1
+t_max = 1
+[tolerance]
+rotation_sigma = "2deg"
+missing = 0.001
+stitch_sigma = "STITCH"
+budget = "strehl -10%"
+"""
+
+
+def test_a_presets_tolerance_table_sets_what_options_do_not(capsys, tmp_path):
+    preset = tmp_path / "tol.toml"
+    preset.write_text(PRESET.replace("STITCH", "20nm"), encoding="utf-8")
+    code, out, _ = invoke(capsys, "tolerance", preset, "--band-samples", "1", "--missing", "0.2%", "--json")
+    report = json.loads(out)
+    assert code == 0 and [c["errors"] for c in report["cases"][:3]] == [
+        {"rotation_sigma_rad": pytest.approx(math.radians(2))},
+        {"missing": 0.002},  # the option wins over the table
+        {"stitch_sigma_m": 20e-9},
+    ]
+    assert {b["source"] for b in report["budgets"]} == {"rotation_sigma_rad", "missing", "stitch_sigma_m"}
+    from metalens_cli.io.presets import to_toml
+
+    again = tmp_path / "again.toml"
+    again.write_text(to_toml(load_preset(preset)), encoding="utf-8")
+    assert load_preset(again).tolerance == load_preset(preset).tolerance
+    preset.write_text(PRESET.replace("STITCH", "-3nm"), encoding="utf-8")
+    code, out, err = invoke(capsys, "tolerance", preset)
+    assert code == 2 and "tolerance.stitch_sigma" in err
