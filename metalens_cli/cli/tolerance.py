@@ -14,6 +14,7 @@ from metalens_cli.cli.options import (
     LightLevels,
     MetalensCommand,
     OutputFile,
+    SeedList,
     announce,
     device_option,
     geometry_options,
@@ -87,7 +88,14 @@ class Fraction(click.ParamType):
     "source that keeps it, and the Monte Carlo yield.",
 )
 @click.option("--draws", type=click.IntRange(0, 10000), help="Monte Carlo draws of 2-D maps [0].")
-@click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of the draws and photographs.")
+@click.option(
+    "--seed",
+    "seeds",
+    type=SeedList(),
+    default="0",
+    show_default=True,
+    help="Seeds: the first draws the Monte Carlo maps; each is a noise and obstruction draw of every photograph.",
+)
 @click.option("--photos", type=click.IntRange(0, 1000), help="Obstructed photographs scored [0].")
 @click.option(
     "--light",
@@ -129,7 +137,7 @@ def tolerance(
     length_sigma_m,
     budget,
     draws,
-    seed,
+    seeds,
     photos,
     light_levels,
     obstruction,
@@ -224,11 +232,11 @@ def tolerance(
         result = tol.analyse(design, errors, settings, budget=parsed_budget, on_progress=step)
         if draws:
             result.monte_carlo = tol.monte_carlo(
-                design, errors, settings, draws, seed, budget=parsed_budget, on_draw=update
+                design, errors, settings, draws, seeds[0], budget=parsed_budget, on_draw=update
             )
         if photos:
             cases = [(label, case) for label, case in tol.cases_of(errors)]
-            result.photos, report = tol.photo_scores(design, cases, evaluation, kinds, [seed], on_progress=update)
+            result.photos, report = tol.photo_scores(design, cases, evaluation, kinds, seeds, on_progress=update)
             result.warnings += report["warnings"]
     report = tol.report(result)
     from metalens_cli.io.atomic import atomic_files

@@ -42,7 +42,6 @@ from metalens_cli.errors import InputError
 from metalens_cli.optics import fabrication as fab
 
 PAPER_BANDS = ((457e-9, 22e-9), (530e-9, 20e-9), (628e-9, 28e-9))  # the paper's tri-band filter (centre, FWHM)
-BAND_NAMES = ("B", "G", "R")
 METRICS = ("core_far", "core_near", "peak", "mtf50_lpmm")  # per band, of the expected PSFs
 RELATIVE = ("strehl", "core_far", "core_near", "mtf50_lpmm")  # their ratios to the design's (strehl: the peaks')
 BUDGET_METRICS = {"strehl": "strehl", "mtf50": "mtf50_lpmm", "core-far": "core_far"}
@@ -64,7 +63,7 @@ SEARCH_STEPS = 14  # bisections: 2^-14 of the range
 class ToleranceSettings:
     """Where the metrics are taken: the pass bands (centre, FWHM in m), wavelengths per band,
     the far and near depths (m; inf: a plane wave), the sensor pixel pitch (m), the analyzer's
-    zero-order leak, the torch device and, for budgets, the :class:`Budget` (or None)."""
+    zero-order leak and the torch device."""
 
     bands: tuple[tuple[float, float], ...] = PAPER_BANDS
     band_samples: int = 3
@@ -276,14 +275,6 @@ class ToleranceResult:
     photos: list[dict] = field(default_factory=list)
     seconds: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
-
-
-def magnitudes(errors: fab.FabricationErrors, name: str) -> dict:
-    """The magnitude of ``name`` (and the write field with stitching) as JSON-ready values."""
-    out = {name: getattr(errors, name)}
-    if name == "stitch_sigma_m":
-        out["stitch_field_m"] = errors.stitch_field_m
-    return out
 
 
 def cases_of(errors: fab.FabricationErrors) -> list[tuple[str, fab.FabricationErrors]]:
@@ -608,22 +599,6 @@ def estimate(design, errors: fab.FabricationErrors, settings: ToleranceSettings,
     return Estimate(what, int(memory), "--draws" if draws else "--band-samples", seconds)
 
 
-def _json_number(value):
-    """A float for JSON: None for NaN or inf (an MTF that never falls to 0.5)."""
-    return None if value is None or not math.isfinite(value) else float(value)
-
-
-def _clean(value):
-    """``value`` with every NaN or inf float replaced by None, recursively."""
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return _json_number(float(value))
-    return value
-
-
 def report(result: ToleranceResult) -> dict:
     """The result as one JSON-ready dict (NaN, an MTF50 not reached in the window, as null)."""
     out = {
@@ -637,7 +612,9 @@ def report(result: ToleranceResult) -> dict:
         "seconds": result.seconds,
         "warnings": result.warnings,
     }
-    return _clean(out)
+    from metalens_cli.io.json_files import jsonable
+
+    return jsonable(out)
 
 
 def csv_text(result: ToleranceResult) -> str:

@@ -129,7 +129,7 @@ def invoke(capsys, *args):
 
 
 def test_command_json_and_csv(capsys, tmp_path):
-    csv = tmp_path / "t.csv"
+    csv, plot = tmp_path / "t.csv", tmp_path / "t.png"
     code, out, _ = invoke(
         capsys,
         "tolerance",
@@ -145,6 +145,8 @@ def test_command_json_and_csv(capsys, tmp_path):
         "core-far -5%",
         "--csv",
         csv,
+        "--plot",
+        plot,
         "--json",
     )
     assert code == 0
@@ -153,6 +155,7 @@ def test_command_json_and_csv(capsys, tmp_path):
     combined = report["cases"][-1]["relative"]["strehl"]
     assert combined == pytest.approx([math.exp(-((2 * math.radians(3)) ** 2)) * 0.995**2] * 3, rel=1e-4)
     assert len(csv.read_text().splitlines()) == 1 + 4 * 3  # the design and three cases, three bands
+    assert plot.stat().st_size > 0 and report["plot"] == str(plot)
 
 
 @pytest.mark.parametrize(
