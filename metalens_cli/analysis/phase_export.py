@@ -219,10 +219,11 @@ def export_phase(
     tolerance_given: bool = False,
     norm_radius_m: float | None = None,
 ) -> tuple[PhaseExport, list[str]]:
-    """Write ``design``'s phase to ``output`` by its suffix (.zmx, .json, .csv) and report it.
+    """Write ``design``'s phase to ``output`` by its suffix (.zmx, .json, .csv, .dat) and report it.
 
     A radial design is fitted (:func:`choose_binary2`; R_norm defaults to D/2); a 2-D design is
-    written as its grid phase (.json with a .npy sidecar, or .csv; .zmx refused). With an explicit
+    written as its grid phase (.json with a .npy sidecar, or .csv; .zmx refused); .dat writes
+    either as OpticStudio Grid Phase data on the meta-atom grid (a radial profile at each site). With an explicit
     ``order`` whose residual exceeds the tolerance, the file is written and a warning returned,
     unless the tolerance was given too (``tolerance_given``): then it is refused.
 
@@ -236,7 +237,7 @@ def export_phase(
     suffix = Path(output).suffix.lower()
     lens = design.lens
     warnings: list[str] = []
-    if not lens.radial:
+    if not lens.radial or suffix == ".dat":
         return _export_grid(design, output, suffix, start, order, norm_radius_m, tolerance_given), warnings
     radius = lens.radius_m if norm_radius_m is None else norm_radius_m
     tolerance_rad = tolerance_waves * WAVE_RAD
@@ -308,13 +309,39 @@ def _export_grid(design, output, suffix, start, order, norm_radius_m, tolerance_
         raise InputError(
             "--output",
             "a 2-D design has no Binary 2 surface (a .zmx Grid Phase surface is not written)",
-            "a .json (grid phase with a .npy map beside it) or .csv (x_m,y_m,phase_rad) output",
+            "a .dat (OpticStudio Grid Phase data), .json (grid phase with a .npy map beside it) or .csv "
+            "(x_m,y_m,phase_rad) output",
         )
+    what = "a 2-D map" if not lens.radial else "a Grid Phase .dat"
     for option, value in (("--order", order), ("--norm-radius", norm_radius_m)):
         if value is not None:
-            raise InputError(option, "applies to a radial design's Binary 2 fit, not to a 2-D map", "no " + option)
+            raise InputError(option, f"applies to a radial design's Binary 2 fit, not to {what}", "no " + option)
     if tolerance_given:
-        raise InputError("--tolerance", "applies to a radial design's Binary 2 fit, not to a 2-D map", "no --tolerance")
+        raise InputError("--tolerance", f"applies to a radial design's Binary 2 fit, not to {what}", "no --tolerance")
+    if suffix == ".dat":
+        m = lens.grid_size
+        if m > phase_files.MAX_DAT_SIDE:
+            raise InputError(
+                "--output",
+                f"a Grid Phase .dat of this lens would hold {m} × {m} points "
+                f"(about {phase_files.DAT_BYTES_PER_POINT * m * m / 1e9:.1f} GB of text)",
+                f"at most {phase_files.MAX_DAT_SIDE} per side: a .json grid (with its .npy map) or, for a radial "
+                "design, the Binary 2 .zmx",
+            )
+        import torch
+
+        phase, r = lens.grid_phase(torch.float64)
+        phase_files.write_grid_dat(
+            output, phase.detach().cpu().numpy(), lens.pitch_m, r.numpy() <= lens.radius_m * (1 + 1e-12)
+        )
+        return PhaseExport(
+            file=str(output),
+            files=(str(output),),
+            format="dat",
+            kind="grid",
+            seconds=time.perf_counter() - start,
+            sites=m * m,
+        )
     files = [str(output)]
     if suffix == ".json":
         phase = 2 * lens.theta.detach().cpu().numpy().astype(np.float64)

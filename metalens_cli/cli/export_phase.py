@@ -16,7 +16,7 @@ from metalens_cli.cli.options import (
     load_preset_option,
 )
 
-SUFFIXES = (".zmx", ".json", ".csv")  # io.phase_files.PHASE_SUFFIXES (not imported: it pulls in numpy)
+SUFFIXES = (".zmx", ".json", ".csv", ".dat")  # io.phase_files.PHASE_SUFFIXES (not imported: it pulls in numpy)
 MAX_TERMS = 64  # analysis.phase_export.MAX_TERMS
 
 
@@ -24,7 +24,11 @@ MAX_TERMS = 64  # analysis.phase_export.MAX_TERMS
 @click.argument("spec", metavar="DESIGN")
 @geometry_options
 @click.option(
-    "-o", "--output", type=OutputFile(SUFFIXES), required=True, help="Output file: .zmx, .json or .csv (by suffix)."
+    "-o",
+    "--output",
+    type=OutputFile(SUFFIXES),
+    required=True,
+    help="Output file: .zmx, .json, .csv or .dat (OpticStudio Grid Phase data), by suffix.",
 )
 @click.option(
     "--order",

@@ -1,6 +1,6 @@
 """Phase files that lens-design programs read: a Zemax OpticStudio lens file holding a Binary 2
-surface (``.zmx``), the documented JSON ``metalens-phase/1`` and CSV tables (docs/formats.md,
-"Exported phase").
+surface (``.zmx``), a Grid Phase data file (``.dat``), the documented JSON ``metalens-phase/1``
+and CSV tables (docs/formats.md, "Exported phase").
 
 A radial design is written as a Binary 2 phase, phase(ρ) = M · Σ_{i=1..N} A_i ρ^{2i} with
 ρ = r / R_norm, A_i in radians, M the diffraction order; a 2-D design as its phase on the
@@ -28,13 +28,15 @@ from metalens_cli.io.atomic import atomic_files, atomic_write
 from metalens_cli.io.json_files import jsonable
 
 PHASE_FORMAT = "metalens-phase/1"
-PHASE_SUFFIXES = (".zmx", ".json", ".csv")
+PHASE_SUFFIXES = (".zmx", ".json", ".csv", ".dat")
 SIGN_CONVENTION = (
     "phase added to the transmitted field, exp(+i*phase) under exp(+i(kz - wt)): optical path "
     "+ phase*lambda/(2*pi); a converging lens has phase decreasing away from the axis"
 )
 ZMX_MM = 1e3  # metres → the .zmx lens unit (millimetres)
 GRID_SIDECAR = ".phase.npy"  # a 2-D design's JSON names its phase map NAME.phase.npy beside it
+MAX_DAT_SIDE = 4097  # grid points per side of a Grid Phase .dat (16.8 M lines, about 1 GB of text)
+DAT_BYTES_PER_POINT = 80  # "z dz/dx dz/dy d2z/dxdy nodata" in %.12g
 
 
 @dataclass(frozen=True)
@@ -263,3 +265,46 @@ def _write_csv(path, header: list[str], rows: np.ndarray) -> None:
 def csv_bytes_estimate(rows: int, columns: int) -> int:
     """About how many bytes a CSV of ``rows`` × ``columns`` numbers takes (≤ 24 characters each)."""
     return int(rows * columns * 24 + 64)
+
+
+def write_grid_dat(path: str | os.PathLike[str], phase_rad: np.ndarray, pitch_m: float, inside: np.ndarray) -> None:
+    """OpticStudio's Grid Phase data file of a phase map (M × M, row i at y = (i − M//2)·pitch,
+    column j at x; rad), atomically: the line ``nx ny delx dely unitflag xdec ydec`` (unitflag 0:
+    millimetres, which scale the spacing and the derivatives; the phase stays in radians), then
+    one line ``phase dφ/dx dφ/dy d²φ/dxdy nodata`` per point from the corner (−x, +y) along +x,
+    row by row towards −y; derivatives by central differences (rad/mm, rad/mm²); points outside
+    the pupil (``inside`` False) are ``0 0 0 0 1`` (no data)."""
+    phase = np.asarray(phase_rad, dtype=np.float64)
+    m = phase.shape[0]
+    step = pitch_m * ZMX_MM
+    gy, gx = np.gradient(phase, step)
+    gxy = np.gradient(gx, step, axis=0)
+    rows = np.stack([phase, gx, gy, gxy], axis=-1)[::-1]  # first line: the row of largest y
+    flags = ~np.asarray(inside, dtype=bool)[::-1]
+    rows[flags] = 0.0
+    table = np.concatenate([rows.reshape(-1, 4), flags.reshape(-1, 1).astype(np.float64)], axis=1)
+    with atomic_write(path) as temporary, open(temporary, "w", newline="\r\n", encoding="ascii") as handle:
+        handle.write(f"{m} {m} {step!r} {step!r} 0 0 0\n")
+        np.savetxt(handle, table, fmt=["%.12g", "%.12g", "%.12g", "%.12g", "%d"], delimiter=" ")
+
+
+def read_grid_dat(path: str | os.PathLike[str], field: str = "file") -> tuple[np.ndarray, float, np.ndarray]:
+    """A Grid Phase .dat back as (phase map M × M in this package's row order, rad; the spacing, m;
+    the mask of points with data)."""
+    path = Path(path)
+    try:
+        with open(path, encoding="ascii") as handle:
+            head = handle.readline().split()
+            table = np.loadtxt(handle, ndmin=2)
+        nx, ny, delx, unit = int(head[0]), int(head[1]), float(head[2]), int(head[4])
+    except (OSError, ValueError, IndexError, UnicodeDecodeError) as exc:
+        raise InputError(
+            field,
+            f"{path.name} is not a Grid Phase file ({exc})",
+            "nx ny delx dely unitflag xdec ydec, then nx·ny points",
+        ) from None
+    scale = {0: 1e-3, 1: 1e-2, 2: 0.0254, 3: 1.0}.get(unit)
+    if scale is None or table.shape != (nx * ny, 5):
+        raise InputError(field, f"{path.name} has {table.shape} data for {nx} × {ny} points", "nx·ny lines of 5 values")
+    grid = table.reshape(ny, nx, 5)[::-1]
+    return grid[..., 0], delx * scale, grid[..., 4] == 0

@@ -118,3 +118,48 @@ def test_two_dimensional_design_refuses_zmx(capsys, tmp_path):
         capsys, "export-phase", npy, "--f", "4mm", "--aperture", "8um", "--pitch", "395nm", "-o", tmp_path / "x.zmx"
     )
     assert code == 2 and "--output" in err and "2-D" in err and not (tmp_path / "x.zmx").exists()
+
+
+def test_grid_phase_dat_holds_the_closed_form_phase_and_its_slopes(capsys, tmp_path):
+    from metalens_cli.io.phase_files import read_grid_dat
+
+    out_file = tmp_path / "lens.dat"
+    code, out, _ = invoke(capsys, "export-phase", *SMALL, "-o", out_file, "--json")
+    assert code == 0 and json.loads(out)["format"] == "dat"
+    phase, step, inside = read_grid_dat(out_file)
+    m = phase.shape[0]
+    assert m == 2 * math.floor(100e-6 / 395e-9 + 1e-9) + 1 and step == pytest.approx(395e-9, rel=1e-12)
+    c = (np.arange(m) - m // 2) * 395e-9
+    y, x = np.meshgrid(c, c, indexing="ij")
+    r = np.hypot(x, y)
+    closed = -(2 * math.pi / 532e-9) * (np.sqrt(r**2 + 4e-3**2) - 4e-3)
+    np.testing.assert_array_equal(inside, r <= 100e-6)
+    # the radial profile is interpolated linearly between its samples: ≤ |φ''|·pitch²/8 ≈ 2.3e-4 rad
+    np.testing.assert_allclose(phase[inside], closed[inside], atol=3e-4)
+    assert np.all(phase[~inside] == 0)
+    lines = out_file.read_text().splitlines()
+    first = np.array(lines[1].split(), dtype=float)  # the corner (−x, +y): outside the pupil
+    assert lines[0].split()[:5] == [str(m), str(m), repr(395e-9 * 1e3), repr(395e-9 * 1e3), "0"] and first[4] == 1
+    # the slopes (rad/mm) on the +x axis, row m//2, against dφ/dx = −2πx/(λ√(x² + f²))
+    row = np.array([line.split() for line in lines[1 + (m - 1 - m // 2) * m : 1 + (m - m // 2) * m]], dtype=float)
+    xs = c[5:-5]
+    slope = -2 * math.pi * xs / (532e-9 * np.sqrt(xs**2 + 4e-3**2)) * 1e-3
+    np.testing.assert_allclose(row[5:-5, 1], slope, rtol=2e-3, atol=0.2)  # central differences of a quadratic
+
+
+def test_grid_phase_dat_of_a_2d_map_and_its_refusals(capsys, tmp_path):
+    from metalens_cli.io.phase_files import read_grid_dat
+    from metalens_cli.optics.lens import hyperbolic
+
+    theta = hyperbolic(532e-9, 4e-3, 40e-6, 395e-9, radial=False).theta.numpy()
+    npy = tmp_path / "map.npy"
+    np.save(npy, theta)
+    dat = tmp_path / "map.dat"
+    code, _, _ = invoke(capsys, "export-phase", npy, "--f", "4mm", "--aperture", "40um", "--pitch", "395nm", "-o", dat)
+    phase, _, inside = read_grid_dat(dat)
+    assert code == 0
+    np.testing.assert_allclose(phase[inside], 2 * theta[inside], rtol=1e-11)  # the map's values to 12 digits
+    code, out, err = invoke(capsys, "export-phase", *PAPER, "-o", tmp_path / "big.dat")
+    assert code == 2 and "--output" in err and "6369 × 6369" in err and not (tmp_path / "big.dat").exists()
+    code, out, err = invoke(capsys, "export-phase", *SMALL, "--order", "4", "-o", tmp_path / "o.dat")
+    assert code == 2 and "--order" in err
