@@ -129,9 +129,10 @@ def design_efficiency(design, wavelengths_m: np.ndarray) -> np.ndarray:
 def fabricated_light(design, errors: fab.FabricationErrors, wavelengths_m: np.ndarray, *, phase: bool = True) -> Light:
     """C, V and U of ``design`` fabricated with ``errors`` at ``wavelengths_m`` (any shape).
 
-    Dimensional errors scale the preset's η by the RCWA ratio κ(λ) of the fabricated fins to the
-    design fin (``io.fin_variations``), and add their scattered and unconverted light likewise
-    relative; missing fins then convert nothing; ``phase``: the positional and rotational factor
+    Dimensional errors scale the preset's η by the RCWA ratio κ(λ) of the fabricated fins' coherent
+    light to the design fin's (``io.fin_variations``), their scattered light likewise, and change
+    the unconverted light by the RCWA change of the co-polarised power; missing fins then convert
+    nothing; ``phase``: the positional and rotational factor
     (``fabrication.phase_factor``) moves coherent light into the veil."""
     eta = design_efficiency(design, wavelengths_m)
     coherent, scattered, unconverted, fin = eta.copy(), np.zeros_like(eta), 1 - eta, {}
@@ -147,8 +148,7 @@ def fabricated_light(design, errors: fab.FabricationErrors, wavelengths_m: np.nd
         per = eta / light.design_conversion.reshape(eta.shape)
         coherent = light.coherent.reshape(eta.shape) * per
         scattered = light.scattered.reshape(eta.shape) * per
-        converted_change = (light.coherent + light.scattered - light.design_conversion).reshape(eta.shape) * per
-        unconverted = np.clip(1 - eta - converted_change, 0.0, None)
+        unconverted = np.clip(1 - eta + (light.unconverted - light.design_unconverted).reshape(eta.shape), 0.0, None)
         fin = {"rcwa_solves": light.solves, "seconds": light.seconds, "kappa": light.kappa.tolist()}
     p = errors.missing
     converted = coherent + scattered

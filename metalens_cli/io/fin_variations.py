@@ -32,14 +32,15 @@ NODES = 5  # Gauss-Hermite nodes per spread axis: exact for polynomials of degre
 @dataclass(frozen=True)
 class FinLight:
     """Per wavelength (W,): the fabricated fins' ``coherent``, ``scattered`` and ``unconverted``
-    power fractions, and the design fin's ``design_conversion`` |a₀|² (all by the same RCWA);
-    ``solves`` fin responses computed (0: all cached) in ``seconds``."""
+    power fractions, and the design fin's ``design_conversion`` |a₀|² and ``design_unconverted``
+    (all by the same RCWA); ``solves`` fin responses computed (0: all cached) in ``seconds``."""
 
     wavelengths_m: np.ndarray
     coherent: np.ndarray
     scattered: np.ndarray
     unconverted: np.ndarray
     design_conversion: np.ndarray
+    design_unconverted: np.ndarray
     solves: int
     seconds: float
 
@@ -128,6 +129,7 @@ def fabricated_fin_light(nanofin, wavelengths_m, errors) -> FinLight:
         np.maximum(mean_power - coherent, 0.0),
         mean_co,
         np.abs(design["a"]) ** 2,
+        design["co"],
         counter[0],
         time.perf_counter() - start,
     )

@@ -50,6 +50,7 @@ def test_width_bias_gives_the_nanofin_solvers_efficiency_at_that_width(cache):
     np.testing.assert_allclose(light.coherent, wider.conversion, rtol=1e-9)  # one fin: all coherent
     np.testing.assert_allclose(light.unconverted, wider.co_polarized, rtol=1e-9)
     np.testing.assert_allclose(light.design_conversion, design.conversion, rtol=1e-9)
+    np.testing.assert_allclose(light.design_unconverted, design.co_polarized, rtol=1e-9)
     assert np.all(light.scattered == 0)
     assert light.solves == 2
     again = fabricated_fin_light(nanofin, waves, fab.FabricationErrors(width_bias_m=10e-9))
