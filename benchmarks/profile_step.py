@@ -4,7 +4,9 @@ Run: python benchmarks/profile_step.py [PRESET] [--device cpu|cuda] [--threads 2
 Runs ``--warmup`` steps (the windows grow with the lens, and the kernels' plan with them), then
 profiles ``--steps`` more with ``torch.profiler``: seconds per step by stage (on CUDA each stage
 waits for the device) and the operators that took the most self time (device time on CUDA),
-grouped by input shape. Prints; writes nothing.
+grouped by input shape; then the time a step spends outside torch's operators (Python, numpy, the
+host's share of the scenes and obstructions: what a GPU would wait for) and, on CUDA, the share of
+the step the device is busy. Prints; writes nothing.
 """
 
 from __future__ import annotations
@@ -53,6 +55,15 @@ def main() -> None:
     print(f"{args.preset} on {device}: {seconds:.3f} s/step under the profiler; windows {session.windows}")
     print(f"stages (s/step): {stages}")
     key = "self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total"
+    events = prof.key_averages()
+    operators = sum(e.self_cpu_time_total for e in events if e.key.startswith("aten::")) / 1e6 / args.steps
+    print(
+        f"host: {operators:.3f} s/step inside torch operators (aten self time), "
+        f"{seconds - operators:.3f} s/step outside them ({100 * (1 - operators / seconds):.0f} % of the step)"
+    )
+    if device.type == "cuda":
+        busy = sum(getattr(e, "self_device_time_total", 0.0) for e in events) / 1e6 / args.steps
+        print(f"device busy {busy:.3f} s/step ({100 * busy / seconds:.0f} % of the step)")
     print(
         prof.key_averages(group_by_input_shape=True).table(
             sort_by=key, row_limit=args.rows, max_name_column_width=40, max_shapes_column_width=60
