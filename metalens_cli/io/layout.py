@@ -211,9 +211,10 @@ def quantise(theta: np.ndarray, levels: int) -> tuple[np.ndarray, np.ndarray]:
     The written angle differs from θ by at most π/(2K) (it may differ from k·π/K by a multiple of π,
     the same fin), so the phase error 2·|θ − written| is at most π/K.
     """
-    step = math.pi / levels
-    nearest = np.rint(theta / step)
-    return np.mod(nearest, levels).astype(np.int64), nearest * step
+    from metalens_cli.optics.fabrication import quantize
+
+    written = quantize(theta, levels)
+    return np.mod(np.rint(written / (math.pi / levels)), levels).astype(np.int64), written
 
 
 # --- vertices ----------------------------------------------------------------------------------------------

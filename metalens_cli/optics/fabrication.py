@@ -175,11 +175,12 @@ def veil_per_pixel(site_pitch_m: float, pixel_pitch_m: float, wavelength_m: floa
 
 
 def quantize(theta: np.ndarray, levels: int | None) -> np.ndarray:
-    """θ rounded to the nearest of ``levels`` levels per π (multiples of π/N); None: unchanged."""
+    """θ rounded to the nearest of ``levels`` levels per π (multiples of π/N); None: unchanged.
+    What data preparation writes: ``export-gds --angles N`` (``io.layout.quantise``) uses it too."""
     if levels is None:
         return theta
     step = math.pi / levels
-    return np.round(theta / step) * step
+    return np.rint(theta / step) * step
 
 
 def fabricated_map(lens: Metalens, errors: FabricationErrors, rng: np.random.Generator) -> Metalens:
