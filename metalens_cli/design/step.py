@@ -24,7 +24,7 @@ from metalens_cli.design.train_loop import update
 from metalens_cli.design.training_camera import TrainingCamera, expose, zero_order_veil
 from metalens_cli.errors import InputError, SamplingError
 from metalens_cli.imaging.canvas import sensor_crop
-from metalens_cli.imaging.formation import canvas_margin, form_image
+from metalens_cli.imaging.formation import form_image, psf_margin
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.io.preset_spectra import preset_sensitivity
 from metalens_cli.io.presets import WAVELENGTH_MODES
@@ -32,6 +32,7 @@ from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import (
     MAX_WINDOW,
     ChannelPsfStack,
+    TwoScale,
     channel_psf_stack,
     field_channel_stack,
     grow_until_held,
@@ -39,6 +40,7 @@ from metalens_cli.optics.channel_psf import (
 from metalens_cli.optics.field import field_window
 from metalens_cli.optics.sensor import larger_window
 from metalens_cli.optics.spectra import sample_wavelengths
+from metalens_cli.optics.two_scale import TwoScalePsf, reach, window
 from metalens_cli.optics.window import crop_window
 from metalens_cli.runtime import Stopwatch
 
@@ -126,10 +128,11 @@ class Windows:
             plan = min(larger_window(max(near, far), PLAN_HEADROOM), MAX_WINDOW)
         return cls(near, far, plan)
 
-    @property
-    def margin(self) -> int:
-        """Canvas margin (pixels) the ``near`` and ``far`` capacities need around the sensor."""
-        return canvas_margin(self.near, self.far)
+    def margin(self, scales: TwoScale | None = None) -> int:
+        """Canvas margin (pixels) the ``near`` and ``far`` capacities need around the sensor, their
+        PSFs sampled as ``scales`` says (None: one scale)."""
+        s = scales or TwoScale()
+        return max(reach(n, s.scale, s.core_pixels) for n in (self.near, self.far))
 
     def grown(self, outgrown) -> Windows:
         """The capacities of the depths whose light passed them (``outgrown`` (2, 3)) made larger."""
@@ -172,6 +175,12 @@ def core_window(preset) -> int | None:
     return preset.loss.sharp_window if preset.loss.sharp_mode in WAVELENGTH_MODES else None
 
 
+def two_scale(preset) -> TwoScale:
+    """How the step samples its PSFs: ``[optimize] halo_scale``, ``core_pixels``, ``halo_radial_step``."""
+    o = preset.optimize
+    return TwoScale(o.halo_scale, o.core_pixels, o.halo_radial_step)
+
+
 def far_cores(stack: ChannelPsfStack) -> torch.Tensor | None:
     """Each wavelength sample's far core energy (W,), when the stack holds them."""
     return None if stack.cores is None else stack.cores[1]
@@ -199,6 +208,7 @@ def step_psfs(
             field_capacities(lens, preset, lams, zs, draw.field_angle_rad, windows),
             preset.sensor.pixel_pitch_m, draw.field_angle_rad, azimuth_rad=draw.azimuth_rad,
             distance_m=preset.lens.focal_length_m, device=device, core_window=core_window(preset),
+            two_scale=two_scale(preset),
         )  # fmt: skip
         _add_psf_timing(watch, stack)
         return stack, windows
@@ -219,6 +229,7 @@ def step_psfs(
             plan_depths_m=plan_z,
             plan_frequency=frequency,
             core_window=core_window(preset),
+            two_scale=two_scale(preset),
         )
         _add_psf_timing(watch, stack)
         return stack
@@ -283,10 +294,14 @@ def image_pool(preset, margin: int):
     return [image.linear for image in load_images(preset.optimize.images, (n, n))]
 
 
-def sensor_psf(psf: torch.Tensor, preset) -> torch.Tensor:
+def sensor_psf(psf, preset) -> torch.Tensor:
     """The part of a far PSF on the whole sensor (``sensor.full_pixels``, else the step's crop
-    ``sensor.pixels``): the paper's L_bright counts the light on its N sensor pixels."""
-    return crop_window(psf, min(preset.sensor.full_pixels or preset.sensor.pixels, psf.shape[-1]))
+    ``sensor.pixels``): the paper's L_bright counts the light on its N sensor pixels. A two-scale
+    PSF at the sensor's pixels (``TwoScalePsf.fine``: its halo spread evenly over each block)."""
+    n = preset.sensor.full_pixels or preset.sensor.pixels
+    if isinstance(psf, TwoScalePsf):
+        return psf.fine(min(n, psf.window))
+    return crop_window(psf, min(n, psf.shape[-1]))
 
 
 def noise_seed(seed: int, step: int, shard: list[int]) -> int:
@@ -368,7 +383,7 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
             'a smaller learning rate or a smooth θ (theta_basis = "spline")',
         ) from error
     near, far = stack.psfs
-    margin = canvas_margin(near.shape[-1], far.shape[-1])
+    margin = psf_margin(near, far)
     watch.lap("psf")
     clean, colour, mask = step_batch(
         preset, o.seed, step, session.shard, draw.z_near_m, session.pool, margin, ctx.device
@@ -438,8 +453,8 @@ def _step_record(session: Session, preset, draw: StepDraw, stack: ChannelPsfStac
     return {
         "z_near_m": draw.z_near_m,
         "z_far_m": draw.z_far_m,
-        "window_near": near.shape[-1],
-        "window_far": far.shape[-1],
+        "window_near": window(near),
+        "window_far": window(far),
         "plan_window": session.windows.plan,
         **light,
         **(filter_row(session.band_filter) if session.band_filter is not None else {}),

@@ -52,6 +52,7 @@ from metalens_cli.design.step import (
     one_step,
     plan_windows,
     spectral_source,
+    two_scale,
 )
 from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides
 from metalens_cli.design.training_camera import training_camera
@@ -116,7 +117,10 @@ def estimate_training(preset) -> tuple[int, float | None]:
     zs = [preset.scene.z_near_m[0], preset.scene.z_far_m[0]]
     grid = PsfGrid(waves, zs, max(windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m)
     psf = estimate_psf(build_model(preset).lens(), grid)
-    canvas = preset.sensor.pixels + 2 * windows.margin
+    scales = two_scale(preset)
+    canvas = preset.sensor.pixels + 2 * windows.margin(scales)
+    # the FFT grids of a capture: one canvas, or the core's and the halo's blocks (imaging.formation)
+    grids = [canvas] if scales.single else [preset.sensor.pixels + scales.core_pixels, canvas / scales.scale]
     captures = o.batch_size * 20 * 3 * canvas**2 * 4
     psf_seconds, psf_bytes = 3 * (psf.seconds - psf.setup_seconds), 2 * psf.memory_bytes  # with the backward pass
     if field_training(preset):
@@ -124,7 +128,8 @@ def estimate_training(preset) -> tuple[int, float | None]:
         field = estimate_field_psf_step(preset, windows, waves)
         psf_seconds = (1 - off) * psf_seconds + off * FIELD_BACKWARD * field.seconds
         psf_bytes = max(psf_bytes, field.memory_bytes)
-    per_step = psf_seconds + o.batch_size * 8 * 3 * canvas**2 * max(math.log2(canvas), 1) / FFT_RATE
+    ffts = sum(n**2 * max(math.log2(n), 1) for n in grids)
+    per_step = psf_seconds + o.batch_size * 8 * 3 * ffts / FFT_RATE
     return psf_bytes + captures, psf.setup_seconds + (o.steps + FINISH_STEPS) * per_step
 
 
@@ -209,7 +214,7 @@ def _session(preset, ctx) -> Session:
         _scheduler(optimizer, o),
         sensitivity,
         _features(preset, notes),
-        image_pool(preset, windows.margin),
+        image_pool(preset, windows.margin(two_scale(preset))),
         ctx.shard(o.batch_size),
         plan_frequency(preset),
         windows,

@@ -35,10 +35,11 @@ from metalens_cli.design.step import (
     spectral_source,
     step_batch,
     step_psfs,
+    two_scale,
 )
 from metalens_cli.design.training_camera import training_camera
 from metalens_cli.imaging.canvas import sensor_crop
-from metalens_cli.imaging.formation import canvas_margin
+from metalens_cli.imaging.formation import psf_margin
 
 VALIDATION_STEP = 10**9  # draws for the fixed validation loss start here, far from any training step
 GRADIENT_TERMS = ("l1", "ssim", "domain_adaptation", "bright", "sharp")
@@ -53,14 +54,14 @@ def validation_parts(model, preset, draws: int, device, frequency: float | None,
     sensitivity = spectral_source(preset)
     o = preset.optimize
     windows = plan_windows(preset, sensitivity)
-    pool = image_pool(preset, windows.margin)
+    pool = image_pool(preset, windows.margin(two_scale(preset)))
     camera = training_camera(preset)
     for k in range(draws):
         step = VALIDATION_STEP + k
         draw = draw_step(preset, sensitivity, o.seed, step)
         stack, windows = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
         near, far = stack.psfs
-        margin = canvas_margin(near.shape[-1], far.shape[-1])
+        margin = psf_margin(near, far)
         clean, colour, mask = step_batch(
             preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device
         )

@@ -14,7 +14,9 @@ import numpy as np
 import torch
 
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
-from metalens_cli.imaging.formation import canvas_margin
+from metalens_cli.imaging.formation import canvas_margin, psf_margin
+from metalens_cli.optics.channel_psf import TwoScale
+from metalens_cli.optics.two_scale import split
 
 KEPT_WARNING = 0.99  # warn when a PSF window holds less of the light than this
 
@@ -49,11 +51,18 @@ class ChannelPsfs:
     field_tolerance: float = DEFAULT_TOLERANCE  # of the field transforms (imaging.field_formation)
     formation_seconds: list = field(default_factory=list, repr=False)  # each capture's (simulate_captures)
     zero_order: ZeroOrder | None = None  # the unconverted light (attach_zero_order)
+    two_scale: TwoScale | None = None  # captures use the PSFs as core and halo (optics.two_scale)
+
+    def capture_forms(self) -> tuple:
+        """The near and far PSFs as captures use them: as they are, or split into core and halo."""
+        if self.two_scale is None or self.two_scale.single:
+            return self.near, self.far
+        return tuple(split(p, self.two_scale.scale, self.two_scale.core_pixels) for p in (self.near, self.far))
 
     @property
     def margin(self) -> int:
         """Canvas margin (pixels) these PSFs need around the sensor."""
-        own = canvas_margin(self.near.shape[-1], self.far.shape[-1])
+        own = psf_margin(*self.capture_forms())
         if self.zero_order is not None:
             own = max(own, canvas_margin(self.zero_order.near.shape[-1], self.zero_order.far.shape[-1]))
         return own if self.field_psfs is None else max(own, self.field_psfs.margin)
@@ -105,12 +114,14 @@ def channel_psfs(
     dtype=torch.float32,
     device="cpu",
     window: int | None = None,
+    two_scale: TwoScale | None = None,
 ) -> ChannelPsfs:
     """Monochromatic PSFs at both depths mixed into R, G, B, each depth in the window that holds
     99.9 % of its light on the sensor plane (``optics.channel_psf``), looked for within the
     window its rays need (``optics.blur.psf_window`` over the wavelengths that matter,
     ``spectra.significant``: the rule training uses), grown while the light outgrows it.
-    ``window`` forces one N × N window for both (the kept fractions then tell what it loses)."""
+    ``window`` forces one N × N window for both (the kept fractions then tell what it loses).
+    ``two_scale``: the captures convolve the PSFs as core and halo (``ChannelPsfs.capture_forms``)."""
     from metalens_cli.optics.blur import kept_fraction, psf_window
     from metalens_cli.optics.channel_psf import channel_psf_stack, grow_until_held
     from metalens_cli.optics.psf import compute_psf
@@ -140,6 +151,7 @@ def channel_psfs(
             kept[1],
             [float(c) for c in weights.coverage],
             time.perf_counter() - start,
+            two_scale=two_scale,
         )
     used = list(np.asarray(wavelengths_m)[significant(weights.weights)])
     capacity = [psf_window(design.lens, used, [z], d, pixel_pitch_m) for z in (z_near_m, z_far_m)]
@@ -170,4 +182,5 @@ def channel_psfs(
         [float(c) for c in weights.coverage],
         time.perf_counter() - start,
         held,
+        two_scale=two_scale,
     )

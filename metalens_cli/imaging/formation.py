@@ -23,6 +23,13 @@ Canvas convention (every function here is pure torch: batched, differentiable, a
 - Each convolution is circular on an FFT grid L ≥ its (trimmed) canvas, L the next
   2·3·5·7-smooth size: wrap-around reaches only the margin, never the kept pixels.
 - Images are linear radiance; masks (..., 1, H, W) or (..., 3, H, W).
+
+Two-scale PSFs (``optics.two_scale.TwoScalePsf``): the core is convolved on the sensor's grid as
+above; the halo on the grid of s × s pixel blocks, the canvas averaged over its blocks, the result
+interpolated back bilinearly (block centres at the block's middle pixel). Both parts are divided
+by their common sum, so a uniform canvas stays uniform and the light is conserved; with s = 1
+this is the single-scale convolution (tests/imaging/test_two_scale_formation.py). Such a PSF
+needs a margin of max(K//2, s·(Nc//2 + 2) − 1) pixels (:func:`psf_margin`).
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ import torch
 from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.optics.propagate import fft_size
+from metalens_cli.optics.two_scale import TwoScalePsf, reach
 
 FORMATIONS = ("physical", "paper")
 
@@ -41,6 +49,15 @@ FORMATIONS = ("physical", "paper")
 def canvas_margin(*psf_sizes: int) -> int:
     """Margin M (pixels) a canvas needs around the sensor for PSF windows of these sides."""
     return max(n // 2 for n in psf_sizes)
+
+
+def psf_margin(*psfs) -> int:
+    """Margin M (pixels) a canvas needs around the sensor for these PSFs, (..., N, N) tensors or
+    :class:`TwoScalePsf` (``optics.two_scale.reach``: the halo's blocks reach s·(Nc//2 + 2) − 1
+    pixels, one more block on each side for the interpolation and the sensor's last partial one)."""
+    return max(
+        reach(p.window, p.scale, p.core_pixels) if isinstance(p, TwoScalePsf) else p.shape[-1] // 2 for p in psfs
+    )
 
 
 def unit_sum(psf: torch.Tensor) -> torch.Tensor:
@@ -88,8 +105,39 @@ def _placed(psf: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
     return torch.roll(padded, shifts=(-(n0 // 2), -(n1 // 2)), dims=(-2, -1))
 
 
-def _transform(psf, sensor_hw) -> PsfTransform:
-    if isinstance(psf, PsfTransform):
+@dataclass(frozen=True)
+class TwoScaleTransform:
+    """The transforms of a unit-sum :class:`TwoScalePsf` for H × W sensor images: the core's on
+    the sensor's grid, the halo's for the (⌈H/s⌉ + 2) × (⌈W/s⌉ + 2) blocks of s × s pixels about
+    the sensor (one block more on each side for the interpolation; s = 1: the sensor's pixels);
+    ``margin``: the canvas margin it needs (:func:`psf_margin`)."""
+
+    core: PsfTransform
+    halo: PsfTransform
+    scale: int
+    sensor_hw: tuple[int, int]
+    margin: int
+
+
+def two_scale_transform(psf: TwoScalePsf, sensor_hw: tuple[int, int]) -> TwoScaleTransform:
+    """Both parts of ``psf`` divided by its sum (per channel) and transformed for H × W images."""
+    total = psf.sum()[..., None, None].clamp_min(torch.finfo(psf.core.dtype).tiny)
+    blocks = tuple(sensor_hw) if psf.scale == 1 else tuple(-(-n // psf.scale) + 2 for n in sensor_hw)
+    return TwoScaleTransform(
+        kernel_transform(psf.core / total, sensor_hw),
+        kernel_transform(psf.halo / total, blocks),
+        psf.scale,
+        tuple(sensor_hw),
+        psf_margin(psf),
+    )
+
+
+def transform(psf, sensor_hw: tuple[int, int]) -> PsfTransform | TwoScaleTransform:
+    """The transform a capture of H × W sensor images reuses: :func:`psf_transform` of a (..., C, N, N)
+    tensor, :func:`two_scale_transform` of a :class:`TwoScalePsf`, a transform as it is (checked)."""
+    if isinstance(psf, TwoScalePsf):
+        return two_scale_transform(psf, sensor_hw)
+    if isinstance(psf, (PsfTransform, TwoScaleTransform)):
         if psf.sensor_hw != tuple(sensor_hw):
             raise InputError(
                 "psf",
@@ -133,9 +181,38 @@ def _kept(product: torch.Tensor, psf: PsfTransform) -> torch.Tensor:
 
 def convolve(canvas: torch.Tensor, psf, margin: int) -> torch.Tensor:
     """The sensor crop of ``canvas`` (..., C, H + 2M, W + 2M) convolved with the unit-sum ``psf``
-    (..., C, N, N) or a :class:`PsfTransform`; C broadcasts (a 1-channel mask with 3 PSFs gives 3)."""
-    psf = _transform(psf, _sensor_hw(canvas, margin))
-    return _kept(_canvas_spectrum(canvas, margin, psf) * psf.spectrum, psf)
+    (..., C, N, N), a :class:`TwoScalePsf` or their transform; C broadcasts (a 1-channel mask with
+    3 PSFs gives 3)."""
+    return _blur(canvas, margin, transform(psf, _sensor_hw(canvas, margin)))
+
+
+def _blur(canvas: torch.Tensor, margin: int, psf: PsfTransform | TwoScaleTransform) -> torch.Tensor:
+    """:func:`convolve` with a transform made for this canvas's sensor."""
+    if isinstance(psf, PsfTransform):
+        return _kept(_canvas_spectrum(canvas, margin, psf) * psf.spectrum, psf)
+    if margin < psf.margin:
+        raise InputError(
+            "canvas margin",
+            f"{margin} pixels, the two-scale PSF needs {psf.margin}",
+            "a canvas extending past the sensor by imaging.formation.psf_margin(psf) on every side",
+        )
+    core = _kept(_canvas_spectrum(canvas, margin, psf.core) * psf.core.spectrum, psf.core)
+    if psf.scale == 1:
+        return core + _kept(_canvas_spectrum(canvas, margin, psf.halo) * psf.halo.spectrum, psf.halo)
+    s, extent = psf.scale, psf.halo.margin
+    (h, w), (bh, bw) = psf.sensor_hw, psf.halo.sensor_hw
+    top = margin - s * (extent + 1)  # block −1 − extent starts here; the sensor starts at block 0
+    region = canvas[..., top : top + s * (bh + 2 * extent), top : top + s * (bw + 2 * extent)]
+    lead, c = region.shape[:-3], region.shape[-3]
+    blocks = torch.nn.functional.avg_pool2d(region.reshape(-1, c, *region.shape[-2:]), s)
+    halo = _kept(
+        _canvas_spectrum(blocks.reshape(*lead, c, *blocks.shape[-2:]), extent, psf.halo) * psf.halo.spectrum, psf.halo
+    )
+    c = halo.shape[-3]
+    fine = torch.nn.functional.interpolate(
+        halo.reshape(-1, c, bh, bw), scale_factor=s, mode="bilinear", align_corners=False
+    )  # pixel i of block b at (i + 1/2)/s − 1/2 blocks: the block's centre is its middle pixel
+    return core + fine[..., s : s + h, s : s + w].reshape(*halo.shape[:-2], h, w)
 
 
 def coverage_alpha(blurred_coverage: torch.Tensor, alpha_gain: float | None = None) -> torch.Tensor:
@@ -201,12 +278,16 @@ def form_image(
         - Output: each :math:`(..., 3, H, W)`
     """
     check_capture_inputs(clean, obstruction, mask, margin, formation, alpha_gain)
+    kinds = (torch.Tensor, PsfTransform, TwoScalePsf, TwoScaleTransform)
     for name, psf in (("psf_near", psf_near), ("psf_far", psf_far)):
-        if not isinstance(arguments.instance(psf, name, (torch.Tensor, PsfTransform), PSF_FORM), PsfTransform):
+        if isinstance(arguments.instance(psf, name, kinds, PSF_FORM), torch.Tensor):
             arguments.array(psf, name, ndim=tuple(range(3, 9)), form=PSF_FORM)
     emitted, mask = _obstruction_canvases(obstruction, mask, formation)
     sensor = _sensor_hw(clean, margin)
-    near, far = _transform(psf_near, sensor), _transform(psf_far, sensor)
+    near, far = transform(psf_near, sensor), transform(psf_far, sensor)
+    if isinstance(near, TwoScaleTransform) or isinstance(far, TwoScaleTransform):
+        planes = (_blur(emitted, margin, near), _blur(mask, margin, near), _blur(clean, margin, far))
+        return _composite(*planes, formation, alpha_gain)
     channels = obstruction.shape[-3]
     # one batched transform of [I_obs or m ⊙ I_obs, m]; the mask's spectrum meets each channel's PSF
     f = _canvas_spectrum(torch.cat([emitted, mask], dim=-3), margin, near)
@@ -218,7 +299,7 @@ def form_image(
     return _composite(near_light, blurred_mask, unobstructed, formation, alpha_gain)
 
 
-PSF_FORM = "PSFs (..., C, N, N) as a tensor, or a PsfTransform"
+PSF_FORM = "PSFs (..., C, N, N) as a tensor or a TwoScalePsf, or their transform"
 CANVAS_FORM = "a (..., C, H + 2M, W + 2M) tensor"
 
 

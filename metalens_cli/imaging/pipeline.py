@@ -20,7 +20,14 @@ from metalens_cli.errors import InputError
 from metalens_cli.imaging.channel_psfs import ChannelPsfs, ZeroOrder, channel_psfs
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE, field_transform, form_image_field
 from metalens_cli.imaging.field_psfs import estimate_field_psfs, field_channel_psfs, field_dependence
-from metalens_cli.imaging.formation import add_noise, canvas_margin, form_image, psf_transform, zero_order_light
+from metalens_cli.imaging.formation import (
+    add_noise,
+    canvas_margin,
+    form_image,
+    psf_transform,
+    transform,
+    zero_order_light,
+)
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
 from metalens_cli.imaging.obstructions import Obstruction, make_obstruction
 from metalens_cli.io.presets import ObstructionConfig
@@ -73,14 +80,18 @@ def capture_psfs(
     device="cpu",
     window: int | None = None,
     field_tolerance: float = DEFAULT_TOLERANCE,
+    two_scale=None,
 ) -> ChannelPsfs:
-    """:func:`channel_psfs`, and with ``field_model`` "auto" the field PSF set
+    """:func:`channel_psfs` (``two_scale``: captures with core and halo, ``optics.two_scale``), and
+    with ``field_model`` "auto" the field PSF set
     (``imaging.field_psfs``) when the isoplanatic test says the ``sensor_pixels``² sensor spans
     more than the lens's patch (``field_test`` says which and why); "on-axis": one PSF per depth.
     ``field_tolerance``: the relative L2 error of the field transforms the captures will use."""
     if field_model not in FIELD_MODELS:
         raise InputError("--field", f"{field_model!r}", " or ".join(FIELD_MODELS))
-    psfs = channel_psfs(design, z_near_m, z_far_m, wavelengths_m, pixel_pitch_m, device=device, window=window)
+    psfs = channel_psfs(
+        design, z_near_m, z_far_m, wavelengths_m, pixel_pitch_m, device=device, window=window, two_scale=two_scale
+    )
     psfs.field_tolerance = field_tolerance
     if field_model == "on-axis":
         psfs.field_test = {"requested": "on-axis", "model": "on-axis"}
@@ -370,7 +381,7 @@ def _capture_transforms(psfs: ChannelPsfs, sensor: tuple[int, int]) -> tuple:
     if sensor in psfs.transforms:
         return psfs.transforms[sensor]
     if psfs.field_psfs is None:
-        transforms = psf_transform(psfs.near, sensor), psf_transform(psfs.far, sensor)
+        transforms = tuple(transform(p, sensor) for p in psfs.capture_forms())
     else:
         from metalens_cli.machine import device_memory
 

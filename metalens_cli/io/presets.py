@@ -201,6 +201,12 @@ class OptimizeConfig:
     # "sensor" or "sensor:K": the K (4) radii that split a uniform point on the whole sensor (sensor.full_pixels)
     # into equal shares, as field angles at the focal length (io.presets.sensor_field_angles)
     field_angles_rad: tuple[float, ...] = toml_key("field_angles", "angle_list", default=(0.0,), hi=math.radians(60))
+    # the step's PSFs as core and halo (optics.two_scale; docs/benchmarks.md, two-scale PSF): the central core_pixels
+    # at the sensor's pitch, the rest in halo pixels of halo_scale × halo_scale (odd; 1: one scale, the exact path),
+    # core_pixels an odd multiple of halo_scale; a radial lens's halo sampled halo_radial_step × the core's radial step
+    halo_scale: int = toml_key("halo_scale", "int", lo=1, hi=31, default=5)
+    core_pixels: int = toml_key("core_pixels", "int", lo=1, hi=1023, default=65)
+    halo_radial_step: int = toml_key("halo_radial_step", "int", lo=1, hi=4, default=2)
 
 
 LOSS_SPACES = ("linear", "metric")  # design.losses.training_loss
@@ -471,8 +477,10 @@ def _check_consistency(p: Preset) -> None:
     would otherwise make later (bands disjoint, a known camera, optical wavelengths)."""
     from metalens_cli.io.tables import check_wavelengths
     from metalens_cli.optics.band_rules import CAMERA_NAMES, check_bands
+    from metalens_cli.optics.two_scale import check_scales
 
     check_name(p.name)
+    check_scales(p.optimize.halo_scale, p.optimize.core_pixels, "optimize.")
     for key, values in (
         ("sensor.wavelength_range", p.sensor.wavelength_range_m),
         ("nanofin.efficiency_wavelengths", p.nanofin.efficiency_wavelengths_m),

@@ -40,11 +40,13 @@ from metalens_cli import arguments
 from metalens_cli.errors import InputError
 from metalens_cli.optics import propagate as prop
 from metalens_cli.optics import sampling
+from metalens_cli.optics import two_scale as ts
 from metalens_cli.optics.blur import window_pixels
 from metalens_cli.optics.field import ON_AXIS_MARGIN, field_psf
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.psf import check_psf_memory, compute_psf, psf_inputs, pupil_field
 from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
+from metalens_cli.optics.two_scale import TwoScalePsf, check_scales, core_mask, halo_pixels, split
 from metalens_cli.optics.window import crop_window
 from metalens_cli.runtime import Stopwatch
 
@@ -109,6 +111,7 @@ def channel_psf_stack(
     plan_depths_m=None,
     plan_frequency: float | None = None,
     core_window: int | None = None,
+    two_scale: TwoScale | None = None,
 ) -> ChannelPsfStack:
     """Channel PSFs at every depth, each in the window its light needs (module docstring).
 
@@ -135,6 +138,9 @@ def channel_psf_stack(
         plan_frequency: as in ``compute_psf``.
         core_window: odd pixels ≤ every capacity: also each wavelength's energy in that central
             window (``cores``).
+        two_scale: the PSFs as ``optics.two_scale.TwoScalePsf`` (core and halo; radial lenses
+            compute the halo at its own sampling, others sum it from the sensor's pixels); None:
+            (3, N, N) tensors.
 
     Returns:
         A :class:`ChannelPsfStack`: per depth ``psfs[i]`` (3, N_i, N_i) R, G, B in fractions of the
@@ -175,6 +181,7 @@ def channel_psf_stack(
             plan_depths_m,
             plan_frequency,
             core_window,
+            two_scale or TwoScale(),
         )
     else:
         stack = _grid_stack(
@@ -192,6 +199,7 @@ def channel_psf_stack(
             plan_depths_m,
             plan_frequency,
             core_window,
+            two_scale,
         )
     stack.timing_s["total"] = time.perf_counter() - start
     return stack
@@ -207,8 +215,29 @@ def _capacities_and_mix(capacity, depths: int, weights, wavelengths: int) -> tup
     return caps, mix
 
 
+@dataclass(frozen=True)
+class TwoScale:
+    """How a stack samples its PSFs (``optics.two_scale``): halo pixels of ``scale`` × ``scale``
+    sensor pixels around a ``core_pixels`` core at the sensor's pitch, and, for radial lenses,
+    the halo's radial samples ``radial_step`` times the core's (the core's intensity is sampled
+    4× above its Nyquist rate, ``sampling.plan_radial``). ``scale`` 1: one scale, as before."""
+
+    scale: int = 1
+    core_pixels: int = 1
+    radial_step: int = 1
+
+    def __post_init__(self):
+        check_scales(self.scale, self.core_pixels)
+        arguments.count(self.radial_step, "halo_radial_step", hi=4)
+
+    @property
+    def single(self) -> bool:
+        """Whether this is the single-scale PSF."""
+        return self.scale == 1
+
+
 def _radial_stack(
-    lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window
+    lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window, scales
 ):
     watch = Stopwatch()
     plan_lams = lams + [float(x) for x in np.ravel(plan_l if plan_l is not None else [])]
@@ -216,8 +245,10 @@ def _radial_stack(
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, False), plan_f or 0.0)
     plan = sampling.plan_radial(lens, sampling.PsfGrid(plan_lams, zs, plan_px, pitch, d), f_max)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
-    n_rows = [radial_sensor_radii(plan.step_m, cap, pitch) for cap in caps]
-    out_matrix = prop.hankel_output_rows(kernel, plan.step_m, max(n_rows))  # only the rows the capacities reach
+    # the halo's radial samples and pixels (one scale: the core's)
+    step_h, pitch_h = plan.step_m * (1 if scales.single else scales.radial_step), pitch * scales.scale
+    n_rows = [radial_sensor_radii(step_h, halo_pixels(cap, scales.core_pixels, scales.scale), pitch_h) for cap in caps]
+    rows_h = prop.hankel_output_rows(kernel, step_h, max(n_rows))  # only the rows the capacities reach
     watch.lap("kernels")
     r = kernel.r.double()
     phase_lens = lens.phase_at_radius(r.to(lens.theta.device)).to(device)
@@ -231,22 +262,25 @@ def _radial_stack(
     # Parseval for the Fourier-Bessel series: the power on the sensor plane (within R)
     on_plane = (kernel.coef_out[:n_freq, None] * spec.detach().abs() ** 2).sum(0) / power.detach()
     watch.lap("source")
+
+    def intensity(rows: torch.Tensor, start: int, stop: int) -> torch.Tensor:
+        return prop.real_matmul(rows[start:stop, :n_freq], spec).abs() ** 2 / power  # W/m² per W
+
     w = len(lams)
     mix_d = mix.to(device, dtype)
     mix_n = mix_d.detach()  # the window rule's sums
-    core_op = None if core_window is None else radial_sensor(plan.step_m, core_window, pitch)
     # The rule needs I(ρ) out to each capacity's inscribed disc (a window ≤ cap holds its light
     # there or nowhere); each PSF then needs it out to its own window's corner, often further.
     # Every depth's columns go through one product per range of rows (one pass over the matrix).
-    inner = [min(rows, math.floor((cap // 2 + 0.5) * pitch / plan.step_m) + 1) for cap, rows in zip(caps, n_rows)]
-    mono = prop.real_matmul(out_matrix[: max(inner), :n_freq], spec).abs() ** 2 / power  # W/m² per W
-    windows, on_sensor, outgrown, ops = [], [], [], []
+    inner = [min(rows, math.floor((cap // 2 + 0.5) * pitch / step_h) + 1) for cap, rows in zip(caps, n_rows)]
+    mono = intensity(rows_h, 0, max(inner))
+    windows, on_sensor, outgrown = [], [], []
     for i, cap in enumerate(caps):
         cols = slice(i * w, (i + 1) * w)
         target = (mix_n.double() @ on_plane[cols].double()).cpu().numpy()  # (3,) on the sensor plane
-        rho = np.arange(inner[i]) * plan.step_m
-        ring = 2 * math.pi * rho * plan.step_m
-        ring[0] = math.pi * (plan.step_m / 2) ** 2
+        rho = np.arange(inner[i]) * step_h
+        ring = 2 * math.pi * rho * step_h
+        ring[0] = math.pi * (step_h / 2) ** 2
         enclosed = np.cumsum((mono[: inner[i], cols].detach() @ mix_n.T).double().cpu().numpy() * ring[:, None], axis=0)
         chosen, lost = [], []
         for c in range(3):
@@ -254,22 +288,34 @@ def _radial_stack(
             wanted = window_pixels(rho[reach[0]], pitch) if reach.size else cap + 2
             lost.append(wanted > cap)
             chosen.append(min(cap, wanted))
-        ops.append(radial_sensor(plan.step_m, max(chosen), pitch))
         windows.append(tuple(chosen))
         on_sensor.append(target)
         outgrown.append(lost)
-    need = max([op.n_radii for op in ops] + ([core_op.n_radii] if core_op is not None else []))
+    core_op = None if core_window is None else radial_sensor(plan.step_m, core_window, pitch)
+    if scales.single:
+        ops = [radial_sensor(step_h, max(chosen), pitch) for chosen in windows]
+        center_op, fine_ops = None, ops + [core_op] * (core_op is not None)
+    else:
+        ops = [radial_sensor(step_h, halo_pixels(max(c), scales.core_pixels, scales.scale), pitch_h) for c in windows]
+        center_op = radial_sensor(plan.step_m, scales.core_pixels, pitch)
+        fine_ops = [center_op] + [core_op] * (core_op is not None)
+    need = max(op.n_radii for op in ops + (fine_ops if scales.single else []))
     if need > mono.shape[0]:
-        extra = prop.real_matmul(out_matrix[mono.shape[0] : need, :n_freq], spec).abs() ** 2 / power
-        mono = torch.cat([mono, extra])
+        mono = torch.cat([mono, intensity(rows_h, mono.shape[0], need)])
+    fine = mono  # one scale: the core's samples are the halo's
+    if not scales.single:
+        fine = intensity(prop.hankel_output_rows(kernel, plan.step_m, max(op.n_radii for op in fine_ops)), 0, None)
     psfs, kept, cores = [], [], []
     for i, op in enumerate(ops):
         cols = slice(i * w, (i + 1) * w)
         if core_op is not None:
-            cores.append(core_op.apply(mono[: core_op.n_radii, cols]).sum(dim=(-2, -1)))
+            cores.append(core_op.apply(fine[: core_op.n_radii, cols]).sum(dim=(-2, -1)))
         psf = op.apply(mono[: op.n_radii, cols] @ mix_d.T)  # channels mixed first
+        if not scales.single:
+            core = center_op.apply(fine[: center_op.n_radii, cols] @ mix_d.T)
+            psf = TwoScalePsf(core, psf * core_mask(op.n_pixels, scales.core_pixels, scales.scale, psf), scales.scale)
         psfs.append(psf)
-        kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
+        kept.append(ts.power(psf).detach().double().cpu().numpy())
     watch.lap("propagate")
     grid = {
         "kind": "radial",
@@ -279,6 +325,8 @@ def _radial_stack(
         "pupil_nodes": plan.n_nodes,
         "output_step_m": plan.step_m,
         "plan_pixels": plan_px,
+        **({} if scales.single else {"halo_scale": scales.scale, "core_pixels": scales.core_pixels}),
+        **({} if scales.single else {"halo_output_step_m": step_h}),
     }
     return ChannelPsfStack(
         tuple(psfs),
@@ -293,7 +341,9 @@ def _radial_stack(
     )
 
 
-def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window):
+def _grid_stack(
+    lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window, two_scale
+):
     """Any propagator: the PSFs in the largest capacity, mixed, each depth cropped by its light."""
     result = compute_psf(
         lens,
@@ -305,7 +355,7 @@ def _grid_stack(lens, lams, zs, mix, caps, pitch, d, energy, dtype, device, plan
         plan_depths_m=plan_z,
         plan_frequency=plan_f,
     )
-    return _square_stack(result.psf, mix, caps, energy, core_window, result.grid, dict(result.timing_s))
+    return _square_stack(result.psf, mix, caps, energy, core_window, result.grid, dict(result.timing_s), two_scale)
 
 
 def field_channel_stack(
@@ -323,6 +373,7 @@ def field_channel_stack(
     dtype: torch.dtype = torch.float32,
     device: str | torch.device = "cpu",
     core_window: int | None = None,
+    two_scale: TwoScale | None = None,
 ) -> ChannelPsfStack:
     """:func:`channel_psf_stack` of the field point (α = ``angle_rad``, ψ = ``azimuth_rad``): the
     monochromatic PSFs of ``optics.field.field_psf`` (on-axis angle margin) in the largest
@@ -337,15 +388,16 @@ def field_channel_stack(
     result = field_psf(
         lens, grid, angle_rad, azimuth_rad=azimuth_rad, dtype=dtype, device=device, oversample=ON_AXIS_MARGIN
     )
-    stack = _square_stack(result.psf, mix, caps, energy, core_window, result.grid, dict(result.timing_s))
+    stack = _square_stack(result.psf, mix, caps, energy, core_window, result.grid, dict(result.timing_s), two_scale)
     stack.timing_s["total"] = time.perf_counter() - start
     return stack
 
 
-def _square_stack(mono, mix, caps, energy, core_window, grid, timing) -> ChannelPsfStack:
+def _square_stack(mono, mix, caps, energy, core_window, grid, timing, two_scale=None) -> ChannelPsfStack:
     """Monochromatic PSFs (depths, W, N, N) with N ≥ every capacity mixed into R, G, B by ``mix``
     (3, W), each depth cut to its capacity and then to the concentric square holding ``energy``
-    of what the capacity holds per channel (never outgrown: light beyond it is not seen)."""
+    of what the capacity holds per channel (never outgrown: light beyond it is not seen); with
+    ``two_scale`` beyond one scale, each split into core and halo (``optics.two_scale.split``)."""
     rgb = torch.einsum("zwij,cw->zcij", mono, mix.to(mono.device, mono.dtype))
     psfs, windows, kept, on_sensor, outgrown = [], [], [], [], []
     for i, cap in enumerate(caps):
@@ -354,9 +406,13 @@ def _square_stack(mono, mix, caps, energy, core_window, grid, timing) -> Channel
         total = squares[:, -1]
         chosen = [2 * int(np.argmax(squares[c] >= energy * total[c])) + 1 for c in range(3)]
         psf = crop_window(psf, max(chosen))
+        if two_scale is not None and not two_scale.single:
+            psf = split(psf, two_scale.scale, two_scale.core_pixels)
         psfs.append(psf)
         windows.append(tuple(chosen))
-        kept.append(psf.detach().sum(dim=(-2, -1)).double().cpu().numpy())
+        kept.append(
+            (psf.sum() if isinstance(psf, TwoScalePsf) else psf.sum(dim=(-2, -1))).detach().double().cpu().numpy()
+        )
         on_sensor.append(total)
         outgrown.append([False] * 3)
     cores = (

@@ -119,13 +119,12 @@ def test_gradient_reaches_every_ring_inside_the_pupil(tiny, degrees):
     import math
 
     from metalens_cli.design.step import draw_step, plan_windows, spectral_source, step_psfs
-    from metalens_cli.optics.window import crop_window
 
     model = build_model(tiny)
     sensitivity = spectral_source(tiny)
     draw = dataclasses.replace(draw_step(tiny, sensitivity, 0, 0), field_angle_rad=math.radians(degrees))
     near, far = step_psfs(model.lens(), tiny, draw, plan_windows(tiny, sensitivity), "cpu")[0].psfs
-    (crop_window(near, 15).sum() + crop_window(far, 5).sum()).backward()
+    (near.fine(15).sum() + far.fine(5).sum()).backward()  # core and halo (optics.two_scale)
     grad = model.theta.grad
     inside = np.arange(grad.numel()) * tiny.nanofin.pitch_m < tiny.lens.aperture_m / 2
     assert torch.all(torch.isfinite(grad))
@@ -149,15 +148,15 @@ def test_step_windows_follow_the_light_when_theta_is_perturbed(tiny):
         k = torch.arange(model.theta.numel(), dtype=torch.float64)
         model.theta += 0.3 * torch.sin(2 * np.pi * k / 6)  # ±0.3 rad over 6 rings: ±0.16 rad/µm of slope
     rough, grown = step_psfs(model.lens(), tiny, draw, planned, "cpu")
-    assert all(r.shape[-1] > s.shape[-1] for r, s in zip(rough.psfs, smooth.psfs))
+    assert all(max(r) > max(s) for r, s in zip(rough.windows, smooth.windows))
     assert grown.plan >= planned.plan and not rough.outgrown.any()
     assert np.all(rough.held >= ENCIRCLED_ENERGY - 2e-4)  # pixel integral against the disc rule
     small, regrown = step_psfs(build_model(tiny).lens(), tiny, draw, Windows(9, 9, 9), "cpu")
     assert regrown.plan > 9 and not small.outgrown.any()
-    assert [p.shape[-1] for p in small.psfs] == [p.shape[-1] for p in smooth.psfs]  # the light decides, not the plan
+    assert small.windows == smooth.windows  # the light decides, not the plan
     # the next step looks within its light × the headroom: capacities come down with the light, the plan stays
     calm, after = step_psfs(build_model(tiny).lens(), tiny, draw, grown, "cpu")
-    assert [p.shape[-1] for p in calm.psfs] == [p.shape[-1] for p in smooth.psfs]
+    assert calm.windows == smooth.windows
     assert max(after.near, after.far) < max(grown.near, grown.far) and after.plan == grown.plan
     assert after.near >= max(calm.windows[0]) and after.far >= max(calm.windows[1])
 
@@ -315,8 +314,8 @@ def test_an_off_axis_step_close_to_the_axis_is_the_on_axis_step(tiny):
     assert near_axis.grid["kind"] == "asm-shifted" and axis.grid["kind"] == "radial"
     for a, b in zip(axis.cores, near_axis.cores):
         np.testing.assert_allclose(b.detach().numpy(), a.detach().numpy(), rtol=5e-4)
-    for a, b in zip(axis.psfs, near_axis.psfs):
-        a, b = crop_window(a.detach(), 31).double(), crop_window(b.detach(), 31).double()
+    for a, b in zip(axis.psfs, near_axis.psfs):  # the cores (the sensor's pixels) of the two-scale PSFs
+        a, b = crop_window(a.core.detach(), 31).double(), crop_window(b.core.detach(), 31).double()
         assert float(torch.linalg.vector_norm(b - a) / torch.linalg.vector_norm(a)) < 1e-3
     assert np.all(near_axis.kept <= near_axis.on_sensor + 1e-9)
     assert np.all(near_axis.kept >= 0.999 * near_axis.on_sensor)

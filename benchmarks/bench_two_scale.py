@@ -1,0 +1,174 @@
+"""Benchmark: the two-scale PSF (``optics.two_scale``) against today's single-scale path: the
+error of its captures and what it saves, for evaluation (``simulate``/``evaluate``: the PSFs at
+the sensor's pixels, the halo summed into blocks) and for training (radial halos computed at
+their own sampling, ``optics.channel_psf``).
+
+Evaluation: every photograph of the evaluation set behind dirt and behind a fence, the design's
+PSFs at the preset's depths; the relative L2 of the obstructed captures against the single-scale
+ones, the change in the set's mean PSNR (captures against the clean photographs, ``score``), the
+grey wall's largest deviation from grey and the opaque cover's largest light, and the median
+seconds of one capture (transforms made once). Training: the PSF stack of training step draws
+(the quick preset's depths and wavelength samples) computed both ways; the relative L2 of the
+captures of the steps' procedural scenes and obstructions and the seconds of the stack.
+
+Run: python benchmarks/bench_two_scale.py [--designs D ...] [--pixels 512] [--steps 4]
+Rewrites its section of docs/benchmarks.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+EVALUATION = ((3, 33), (5, 45), (5, 65), (7, 63), (9, 99))  # (s, K)
+TRAINING = ((5, 45, 1), (5, 45, 2), (5, 65, 2), (5, 65, 4), (7, 63, 2), (9, 99, 2))  # (s, K, radial step)
+
+
+def evaluation_rows(design_spec: str, preset, pixels: int, limit: int | None) -> list[dict]:
+    """One row per (s, K): the captures' error and the seconds of one capture."""
+    from metalens_cli.imaging.formation import form_image
+    from metalens_cli.imaging.images import load_images
+    from metalens_cli.imaging.pipeline import capture_psfs, score, simulate_captures
+    from metalens_cli.io.designs import resolve_design
+    from metalens_cli.optics.channel_psf import TwoScale
+    from metalens_cli.optics.spectra import wavelength_grid
+
+    design = resolve_design(design_spec)
+    z_near, z_far = (float(np.mean(preset.scene.z_near_m)), 1.0)
+    pitch, f = preset.sensor.pixel_pitch_m, design.focal_length_m
+    waves = wavelength_grid()
+    reference = capture_psfs(design, z_near, z_far, waves, pitch, pixels)
+    configs = [
+        capture_psfs(design, z_near, z_far, waves, pitch, pixels, two_scale=TwoScale(s, k))
+        for s, k in ((1, 1), *EVALUATION)
+    ]
+    for psfs in configs:
+        psfs.near, psfs.far = reference.near, reference.far  # the same PSFs (and obstructions: one canvas)
+    images = load_images("photos", (pixels, pixels), limit, max(p.margin for p in configs))
+    rows = []
+    base = None
+    for psfs in configs:
+        s, k = psfs.two_scale.scale, psfs.two_scale.core_pixels
+        captures = {
+            kind: simulate_captures(images, kind, psfs, f, pitch, 0, params=preset.obstruction)
+            for kind in ("dirt", "fence")
+        }
+        psnr = statistics.mean(
+            score(c.obstructed, image.sensor)["psnr_db"]
+            for kind in captures
+            for c, image in zip(captures[kind], images)
+        )
+        margin = psfs.margin
+        canvas = pixels + 2 * margin
+        grey = torch.full((3, canvas, canvas), 0.37)
+        ones = torch.ones(1, canvas, canvas)
+        forms = psfs.capture_forms()
+        wall = form_image(grey, torch.zeros_like(grey), torch.zeros_like(ones), *forms, margin).obstructed
+        cover = form_image(grey, torch.zeros_like(grey), ones, *forms, margin).obstructed
+        seconds = statistics.median(psfs.formation_seconds[2:] or psfs.formation_seconds)
+        obstructed = np.stack([c.obstructed for kind in captures for c in captures[kind]])
+        if base is None:
+            base = obstructed, psnr
+        rows.append(
+            {
+                "s": s,
+                "K": k,
+                "margin": margin,
+                "rel_l2": float(np.linalg.norm(obstructed - base[0]) / np.linalg.norm(base[0])),
+                "psnr_db": psnr,
+                "d_psnr_db": psnr - base[1],
+                "grey": float((wall - 0.37).abs().max()),
+                "cover": float(cover.abs().max()),
+                "ms": 1e3 * seconds,
+            }
+        )
+    return rows
+
+
+def training_rows(design_spec: str, preset, steps: int) -> list[dict]:
+    """One row per (s, K, radial step): the training captures' error and the stack's seconds."""
+    from metalens_cli.design.step import draw_step, plan_windows, spectral_source, step_batch
+    from metalens_cli.imaging.canvas import sensor_crop
+    from metalens_cli.imaging.formation import form_image, psf_margin
+    from metalens_cli.io.designs import resolve_design
+    from metalens_cli.optics.channel_psf import TwoScale, channel_psf_stack
+
+    lens = resolve_design(design_spec).lens
+    sens = spectral_source(preset)
+    win = plan_windows(preset, sens)
+    pitch, d = preset.sensor.pixel_pitch_m, preset.lens.focal_length_m
+
+    def stack(draw, scales, caps):
+        return channel_psf_stack(
+            lens, draw.wavelengths_m, [draw.z_near_m, draw.z_far_m], draw.weights, caps, pitch, d,
+            plan_pixels=win.plan, two_scale=scales,
+        )  # fmt: skip
+
+    configs = ((1, 1, 1), *TRAINING)
+    errors = {c: [] for c in configs}
+    seconds = {c: [] for c in configs}
+    for step in range(steps):
+        draw = draw_step(preset, sens, 0, step)
+        caps = (win.near, win.far)
+        stacks = {}
+        for config in configs:
+            scales = TwoScale(*config)
+            stack(draw, scales, caps)  # warm: kernels and operators built
+            t0 = time.perf_counter()
+            stacks[config] = stack(draw, scales, caps)
+            seconds[config].append(time.perf_counter() - t0)
+        big = max(psf_margin(*st.psfs) for st in stacks.values())
+        batch = step_batch(preset, 0, step, [0, 1], draw.z_near_m, None, big, "cpu")
+        captures = {}
+        for config, result in stacks.items():
+            margin = psf_margin(*result.psfs)
+            clean, colour, mask = (sensor_crop(x, big - margin) for x in batch)
+            captures[config] = form_image(clean, colour, mask, *result.psfs, margin).obstructed.detach()
+        ref = captures[configs[0]]
+        for config in configs:
+            errors[config].append(float((captures[config] - ref).norm() / ref.norm()))
+    return [
+        {
+            "s": c[0],
+            "K": c[1],
+            "radial_step": c[2],
+            "rel_l2": max(errors[c]),
+            "stack_s": statistics.median(seconds[c]),
+        }
+        for c in configs
+    ]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--designs", nargs="+", default=None)
+    parser.add_argument("--preset", default=str(ROOT / "presets" / "quick-split-spectrum.toml"))
+    parser.add_argument("--pixels", type=int, default=512)
+    parser.add_argument("--limit", type=int, default=None, help="photographs (default: the whole set)")
+    parser.add_argument("--steps", type=int, default=4)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+
+    from metalens_cli.io.presets import load_preset
+
+    torch.set_num_threads(args.threads)
+    preset = load_preset(args.preset)
+    learned = ROOT / "runs" / "quick-split-spectrum"
+    designs = args.designs or ["hyperbolic:532nm"] + ([str(learned)] if learned.exists() else [])
+    for spec in designs:
+        print(spec)
+        for row in evaluation_rows(spec, preset, args.pixels, args.limit):
+            print("  eval", row)
+        if not spec.startswith("hyperbolic"):
+            for row in training_rows(spec, preset, args.steps):
+                print("  train", row)
+
+
+if __name__ == "__main__":
+    main()
