@@ -36,8 +36,8 @@ def evaluation_rows(design_spec: str, preset, pixels: int, limit: int | None) ->
     from metalens_cli.imaging.images import load_images
     from metalens_cli.imaging.pipeline import capture_psfs, score, simulate_captures
     from metalens_cli.io.designs import resolve_design
-    from metalens_cli.optics.channel_psf import TwoScale
     from metalens_cli.optics.spectra import wavelength_grid
+    from metalens_cli.optics.two_scale import TwoScale
 
     design = resolve_design(design_spec)
     z_near, z_far = (float(np.mean(preset.scene.z_near_m)), 1.0)
@@ -97,7 +97,8 @@ def training_rows(design_spec: str, preset, steps: int) -> list[dict]:
     from metalens_cli.imaging.canvas import sensor_crop
     from metalens_cli.imaging.formation import form_image, psf_margin
     from metalens_cli.io.designs import resolve_design
-    from metalens_cli.optics.channel_psf import TwoScale, channel_psf_stack
+    from metalens_cli.optics.channel_psf import channel_psf_stack
+    from metalens_cli.optics.two_scale import TwoScale
 
     lens = resolve_design(design_spec).lens
     sens = spectral_source(preset)
@@ -118,7 +119,7 @@ def training_rows(design_spec: str, preset, steps: int) -> list[dict]:
         caps = (win.near, win.far)
         stacks = {}
         for config in configs:
-            scales = TwoScale(*config)
+            scales = TwoScale(*config, 1)
             stack(draw, scales, caps)  # warm: kernels and operators built
             t0 = time.perf_counter()
             stacks[config] = stack(draw, scales, caps)

@@ -1,12 +1,15 @@
 """Profile: where a training step of a preset spends its time, by stage and by operator.
 
 Run: python benchmarks/profile_step.py [PRESET] [--device cpu|cuda] [--threads 2] [--warmup 40] [--steps 8]
+[--no-pool]
 Runs ``--warmup`` steps (the windows grow with the lens, and the kernels' plan with them), then
 profiles ``--steps`` more with ``torch.profiler``: seconds per step by stage (on CUDA each stage
 waits for the device) and the operators that took the most self time (device time on CUDA),
 grouped by input shape; then the time a step spends outside torch's operators (Python, numpy, the
 host's share of the scenes and obstructions: what a GPU would wait for) and, on CUDA, the share of
-the step the device is busy. Prints; writes nothing.
+the step the device is busy. Each step's scenes are drawn ahead on the scene pool's thread, as a
+run draws them (``design.scene_pool``: the stage ``scenes`` is the step's wait for them), or with
+``--no-pool`` in the step. Prints; writes nothing.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=40)
     parser.add_argument("--steps", type=int, default=8)
     parser.add_argument("--rows", type=int, default=25)
+    parser.add_argument("--no-pool", action="store_true", help="draw each step's scenes in the step")
     args = parser.parse_args()
 
     from metalens_cli.design import distributed
@@ -42,17 +46,21 @@ def main() -> None:
     device = torch.device(args.device)
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
     with distributed.session(device) as ctx:
-        session = _session(preset, ctx)
-        for step in range(args.warmup):
-            one_step(session, preset, step, ctx, Stopwatch(device))
-        watch = Stopwatch(device)
-        start = time.perf_counter()
-        with profile(activities=activities, record_shapes=True) as prof:
-            for step in range(args.warmup, args.warmup + args.steps):
-                one_step(session, preset, step, ctx, watch)
-        seconds = (time.perf_counter() - start) / args.steps
+        session = _session(preset, ctx, not args.no_pool, args.warmup + args.steps)
+        with session.scenes:
+            for step in range(args.warmup):
+                one_step(session, preset, step, ctx, Stopwatch(device))
+            watch = Stopwatch(device)
+            start = time.perf_counter()
+            with profile(activities=activities, record_shapes=True) as prof:
+                for step in range(args.warmup, args.warmup + args.steps):
+                    one_step(session, preset, step, ctx, watch)
+            seconds = (time.perf_counter() - start) / args.steps
     stages = ", ".join(f"{k} {v / args.steps:.3f}" for k, v in watch.times.items() if not k.startswith("psf_"))
-    print(f"{args.preset} on {device}: {seconds:.3f} s/step under the profiler; windows {session.windows}")
+    pool = "in the step" if args.no_pool else "drawn ahead"
+    print(
+        f"{args.preset} on {device}: {seconds:.3f} s/step under the profiler (scenes {pool}); windows {session.windows}"
+    )
     print(f"stages (s/step): {stages}")
     key = "self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total"
     events = prof.key_averages()

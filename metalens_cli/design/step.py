@@ -2,9 +2,12 @@
 
 A step s draws everything from (seed, s) alone (``draw_step``, ``draw_field``, ``step_batch``), so
 that a resumed run repeats an uninterrupted one and every data-parallel rank agrees on the shared
-draws; its PSFs are computed in the windows their light needs (``Windows``, ``step_psfs``); the
-step (``one_step``) forms the batch's captures, takes the loss and updates θ. The session that
-carries the model and optimiser from step to step is built in ``design.training``.
+draws; its PSFs are computed in the windows their light needs (``Windows``, ``step_psfs``); its
+batch is drawn ahead, while the step before it runs, on the canvas of the capacities it starts
+from, and cropped to the margin its PSFs need (``scene_pool``, ``step_canvases``); the step
+(``one_step``) forms the batch's captures, takes the loss and updates θ, reading on the host only
+what ``HOST_READS`` lists. The session that carries the model and optimiser from step to step is
+built in ``design.training``.
 """
 
 from __future__ import annotations
@@ -19,11 +22,12 @@ import torch
 from metalens_cli.design.filter_learning import BandSampler, LearnedFilter, band_sampler, filter_row, split_penalty
 from metalens_cli.design.losses import training_loss, weighted_total
 from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_range
+from metalens_cli.design.scene_pool import ScenePool
 from metalens_cli.design.scenes import training_scene
 from metalens_cli.design.train_loop import update
 from metalens_cli.design.training_camera import TrainingCamera, expose, zero_order_veil
 from metalens_cli.errors import InputError, SamplingError
-from metalens_cli.imaging.canvas import sensor_crop
+from metalens_cli.imaging.canvas import narrow_margin, sensor_crop
 from metalens_cli.imaging.formation import form_image, psf_margin
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.io.preset_spectra import preset_sensitivity
@@ -32,7 +36,6 @@ from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import (
     MAX_WINDOW,
     ChannelPsfStack,
-    TwoScale,
     channel_psf_stack,
     field_channel_stack,
     grow_until_held,
@@ -40,11 +43,37 @@ from metalens_cli.optics.channel_psf import (
 from metalens_cli.optics.field import field_window
 from metalens_cli.optics.sensor import larger_window
 from metalens_cli.optics.spectra import sample_wavelengths
-from metalens_cli.optics.two_scale import TwoScalePsf, reach, window
+from metalens_cli.optics.two_scale import TwoScale, TwoScalePsf, window, window_reach
 from metalens_cli.optics.window import crop_window
 from metalens_cli.runtime import Stopwatch
 
 IMAGE_TERMS = ("l1", "ssim", "domain_adaptation", "total")  # summed over a rank's share of the batch
+
+# Where a training step reads tensors on the host (on CUDA each read waits for the device), by the
+# code that reads ("module path:function" in the package), and why; nowhere else
+# (tests/design/test_step_sync.py records them: .item, .tolist, .numpy, .cpu, bool, float, int).
+# The step's other waits are its stopwatch's, one a stage on CUDA (``runtime.Stopwatch.lap``).
+HOST_READS = {
+    "optics/lens.py:__post_init__": "the lens the step builds from θ checks θ finite (one bool)",
+    "optics/sampling.py:lens_frequency": "the propagator's sampling check takes θ's steepest phase step on the "
+    "host, to refuse a learned θ it cannot sample (SamplingError)",
+    "optics/propagate.py:hankel_output_matrix": "the Hankel output rows at the radii of the windows the light "
+    "needs are built in float64 by scipy's Bessel functions on the host",
+    "optics/channel_psf.py:_radial_stack": "the window rule: each channel's encircled energy, read to choose "
+    "each depth's window (a shape), and the light the windows keep and hold (loss.csv)",
+    "optics/channel_psf.py:_square_stack": "the same off axis: the concentric squares' energy and the light kept",
+    "optics/field.py:_phase_gradient": "off axis: θ's phase gradient at the rays' sites on the host, to trace the "
+    "geometric rays whose reach sizes the field point's windows (field_capacities)",
+    "optics/field.py:_carrier_free_frequency": "off axis: the lens's largest local frequency, which sets the "
+    "field propagator's sampling (a shape)",
+    "optics/field.py:_field_asm": "off axis: the window's pixel coordinates (a host grid) for the resampling",
+    "imaging/formation.py:check_capture_inputs": "the image formation checks the step's canvases finite",
+    "imaging/formation.py:add_noise": "with a camera: the noise checks its photon counts positive",
+    "imaging/metrics.py:_check_pair": "SSIM checks its reference (the clean scenes) finite",
+    "design/step.py:one_step": "the loss.csv row: the reported terms summed over ranks, one .tolist() after the "
+    "update, which is also the finite-loss check",
+    "design/train_loop.py:update": "AdamW reads its step count (a host tensor: no wait for the device)",
+}
 
 
 @dataclass(frozen=True)
@@ -64,10 +93,7 @@ def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
     """Depths, wavelengths and field point of a step; ``sensitivity``: the preset's S^c, or a
     ``BandSampler`` (``spectral_sampling = "bands"``: its weights a tensor, differentiable in its
     filter)."""
-    rng = np.random.default_rng([seed, step, 3])
-    z_near = float(rng.uniform(*preset.scene.z_near_m))
-    lo, hi = preset.scene.z_far_m
-    z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
+    rng, z_near, z_far = _depth_stream(preset, seed, step)
     angle, azimuth = draw_field(preset, seed, step)
     if isinstance(sensitivity, BandSampler):
         return StepDraw(z_near, z_far, *sensitivity.draw(rng), field_angle_rad=angle, azimuth_rad=azimuth)
@@ -77,6 +103,21 @@ def draw_step(preset, sensitivity, seed: int, step: int) -> StepDraw:
         rng if preset.optimize.spectral_sampling == "stratified" else None,
     )
     return StepDraw(z_near, z_far, sample.wavelengths_m, sample.weights, field_angle_rad=angle, azimuth_rad=azimuth)
+
+
+def _depth_stream(preset, seed: int, step: int) -> tuple[np.random.Generator, float, float]:
+    """The (seed, step) stream of a step's depths and wavelengths, after its first draws: z_near
+    and z_far (m)."""
+    rng = np.random.default_rng([seed, step, 3])
+    z_near = float(rng.uniform(*preset.scene.z_near_m))
+    lo, hi = preset.scene.z_far_m
+    z_far = float(rng.uniform(lo, hi)) if math.isfinite(hi) else math.inf
+    return rng, z_near, z_far
+
+
+def near_depth(preset, seed: int, step: int) -> float:
+    """z_near (m) of step ``step`` (``draw_step``'s): the depth of its obstructions."""
+    return _depth_stream(preset, seed, step)[1]
 
 
 def field_training(preset) -> bool:
@@ -131,8 +172,7 @@ class Windows:
     def margin(self, scales: TwoScale | None = None) -> int:
         """Canvas margin (pixels) the ``near`` and ``far`` capacities need around the sensor, their
         PSFs sampled as ``scales`` says (None: one scale)."""
-        s = scales or TwoScale()
-        return max(reach(n, s.scale, s.core_pixels) for n in (self.near, self.far))
+        return max(window_reach(n, scales) for n in (self.near, self.far))
 
     def grown(self, outgrown) -> Windows:
         """The capacities of the depths whose light passed them (``outgrown`` (2, 3)) made larger."""
@@ -175,7 +215,7 @@ def core_window(preset) -> int | None:
     return preset.loss.sharp_window if preset.loss.sharp_mode in WAVELENGTH_MODES else None
 
 
-def two_scale(preset) -> TwoScale:
+def psf_scales(preset) -> TwoScale:
     """How the step samples its PSFs: ``[optimize] halo_scale``, ``core_pixels``, ``halo_radial_step``."""
     o = preset.optimize
     return TwoScale(o.halo_scale, o.core_pixels, o.halo_radial_step)
@@ -208,7 +248,7 @@ def step_psfs(
             field_capacities(lens, preset, lams, zs, draw.field_angle_rad, windows),
             preset.sensor.pixel_pitch_m, draw.field_angle_rad, azimuth_rad=draw.azimuth_rad,
             distance_m=preset.lens.focal_length_m, device=device, core_window=core_window(preset),
-            two_scale=two_scale(preset),
+            two_scale=psf_scales(preset),
         )  # fmt: skip
         _add_psf_timing(watch, stack)
         return stack, windows
@@ -229,7 +269,7 @@ def step_psfs(
             plan_depths_m=plan_z,
             plan_frequency=frequency,
             core_window=core_window(preset),
-            two_scale=two_scale(preset),
+            two_scale=psf_scales(preset),
         )
         _add_psf_timing(watch, stack)
         return stack
@@ -282,6 +322,34 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
                 made = separate[i].result()
             entries.append((clean, made.rgb, made.mask))
     return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
+
+
+def scene_pool(preset, images, shard: list[int], device, end: int, background: bool = True) -> ScenePool:
+    """The batches of a run's steps below ``end`` for the batch entries ``shard``
+    (``step_batch`` of (seed, step, z_near of the step, margin) with the training ``images`` or
+    procedural scenes), drawn ahead on a background thread unless not ``background``
+    (``design.scene_pool``)."""
+    seed = preset.optimize.seed
+
+    def draw(step: int, margin: int):
+        return step_batch(preset, seed, step, shard, near_depth(preset, seed, step), images, margin, "cpu")
+
+    return ScenePool(draw, device, end, background)
+
+
+def step_canvases(scenes: ScenePool, step: int, reach: int, margin: int, watch: Stopwatch) -> tuple:
+    """Clean scenes, obstruction colours and masks of ``step`` on the canvas of ``margin`` (its
+    PSFs'): its batch drawn at ``reach`` (the margin of the capacities the step started from,
+    ``Windows.margin``), cropped to ``margin`` (``imaging.canvas.narrow_margin``); when the
+    step's windows grew past ``reach``, drawn now at ``margin`` (timed as ``scenes_redrawn``).
+    ``watch`` times the wait (``scenes``)."""
+    if margin > reach:
+        batch = scenes.take(step, margin)
+        watch.lap("scenes_redrawn")
+        return batch
+    batch = tuple(narrow_margin(x, reach, margin) for x in scenes.take(step, reach))
+    watch.lap("scenes")
+    return batch
 
 
 def image_pool(preset, margin: int):
@@ -348,6 +416,7 @@ class Session:
     frequency: float
     windows: Windows  # follows the light; its plan grows when the light or the lens outgrows it (saved in checkpoints)
     notes: list[str]
+    scenes: ScenePool  # the batches, drawn ahead (``scene_pool``)
     band_filter: LearnedFilter | None = None  # the filter learned with θ ([filter] learn = true)
     incidence: float = 1.0  # its bands' blue shift over the cone (analysis.bands)
     camera: TrainingCamera | None = None  # the light, noise and zero order the captures carry (design.training_camera)
@@ -360,7 +429,15 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
     forms this rank's share of the batch as obstructed captures with the preset's noise, takes
     the loss (``design.losses.training_loss``, and a learned filter's split and light terms),
     back-propagates, sums gradients over ranks and updates θ (``design.train_loop.update``).
-    ``watch`` collects the seconds of each stage.
+    ``watch`` collects the seconds of each stage (on CUDA each waits for the device). The step's
+    batch was drawn ahead (``session.scenes``, ``step_canvases``); it asks for the next step's.
+
+    Host reads (``HOST_READS``; nothing else leaves the run's device): θ's finiteness and steepest
+    phase step (the lens and the propagator's sampling checks), the radii of the Hankel output
+    rows, the encircled energy that chooses the PSF windows and the light they hold, the
+    finiteness checks of the canvases (image formation) and of SSIM's reference, AdamW's host
+    step count, and one ``.tolist()`` of the reported loss terms after the update (the loss.csv
+    row and the finite-loss check: a diverged step raises after its update).
 
     Returns:
         The loss.csv row (the terms summed over the whole batch, the draws, the windows and the
@@ -369,6 +446,10 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
     """
     o = preset.optimize
     draw = draw_step(preset, session.sensitivity, o.seed, step)
+    reach = session.windows.margin(
+        psf_scales(preset)
+    )  # the canvas the step's batch is drawn on, before its PSFs say what they need
+    session.scenes.prefetch(step, reach)  # already asked for by the step before, but for a run's first step
     session.optimizer.zero_grad(set_to_none=True)
     watch.restart()
     try:
@@ -385,10 +466,10 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
     near, far = stack.psfs
     margin = psf_margin(near, far)
     watch.lap("psf")
-    clean, colour, mask = step_batch(
-        preset, o.seed, step, session.shard, draw.z_near_m, session.pool, margin, ctx.device
-    )
-    watch.lap("scenes")
+    clean, colour, mask = step_canvases(session.scenes, step, reach, margin, watch)
+    session.scenes.prefetch(
+        step + 1, session.windows.margin(psf_scales(preset))
+    )  # drawn while this step forms, backs up and updates
     capture = camera_capture(clean, colour, mask, near, far, margin, session.camera, draw, o.seed, step, session.shard)
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])
@@ -407,12 +488,6 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
     if session.band_filter is not None:
         loss = loss + _filter_terms(session, preset, draw, parts, loss.device).to(loss.dtype) / ctx.world
     watch.lap("formation_loss")
-    if not torch.isfinite(loss):
-        raise InputError(
-            "optimize.learning_rate",
-            f"training diverged at step {step + 1}: the loss is {float(loss)}",
-            "a smaller learning rate or loss weights",
-        )
     loss.backward()
     watch.lap("backward")
     names = sorted(parts)
@@ -421,8 +496,15 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
     if session.band_filter is not None:
         session.band_filter.project(preset.filter, preset.sensor.wavelength_range_m)
     watch.lap("update")
-    values = dict(zip(names, reported.tolist()))
-    values["total"] = weighted_total(values, preset.loss, preset.filter)
+    values = dict(zip(names, reported.tolist()))  # the step's one read of its loss, summed over ranks
+    total = weighted_total(values, preset.loss, preset.filter)
+    if not all(map(math.isfinite, [total, *values.values()])):  # every rank reads the sum: all stop here
+        raise InputError(
+            "optimize.learning_rate",
+            f"training diverged at step {step + 1}: the loss is {total}",
+            "a smaller learning rate or loss weights",
+        )
+    values["total"] = total
     row = {"step": step + 1, "lr": session.optimizer.param_groups[0]["lr"], **values}
     return {**row, **_step_record(session, preset, draw, stack)}, stack.grid, sample
 

@@ -13,8 +13,9 @@ run repeats an uninterrupted one exactly and every data-parallel rank agrees on 
    ``optics.field.field_psf`` in a window centred on the chief ray (``optics.channel_psf.
    field_channel_stack``), the step's scenes then being what the sensor sees around that field
    point, blurred by its PSF (isoplanatic over the sensor crop);
-4. a batch of clean scenes with generated obstructions at z_near, rendered by the image
-   formation of ``imaging.formation``;
+4. a batch of clean scenes with generated obstructions at z_near (drawn ahead on a background
+   thread on the canvas of the step's starting capacities, ``design.scene_pool``), rendered by
+   the image formation of ``imaging.formation``;
 5. loss (``design.losses``), backward, gradient sum over ranks, AdamW and the LR schedule.
 
 This module holds the session around the steps (``train``, ``time_steps``) and the cost estimate
@@ -51,8 +52,9 @@ from metalens_cli.design.step import (
     image_pool,
     one_step,
     plan_windows,
+    psf_scales,
+    scene_pool,
     spectral_source,
-    two_scale,
 )
 from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides
 from metalens_cli.design.training_camera import training_camera
@@ -117,7 +119,7 @@ def estimate_training(preset) -> tuple[int, float | None]:
     zs = [preset.scene.z_near_m[0], preset.scene.z_far_m[0]]
     grid = PsfGrid(waves, zs, max(windows.near, windows.far), preset.sensor.pixel_pitch_m, preset.lens.focal_length_m)
     psf = estimate_psf(build_model(preset).lens(), grid)
-    scales = two_scale(preset)
+    scales = psf_scales(preset)
     canvas = preset.sensor.pixels + 2 * windows.margin(scales)
     # the FFT grids of a capture: one canvas, or the core's and the halo's blocks (imaging.formation)
     grids = [canvas] if scales.single else [preset.sensor.pixels + scales.core_pixels, canvas / scales.scale]
@@ -194,7 +196,10 @@ def train(
         return _train(preset, RunDirectory(run_dir), steps, seed, ctx, resume, on_step)
 
 
-def _session(preset, ctx) -> Session:
+def _session(preset, ctx, prefetch: bool = False, end: int | None = None) -> Session:
+    """The session of a run of ``preset`` on ``ctx``; its scenes drawn ahead on a background
+    thread with ``prefetch`` (then close ``session.scenes``), for steps below ``end`` (the
+    preset's steps)."""
     o = preset.optimize
     model = build_model(preset).to(ctx.device)
     notes: list[str] = []
@@ -208,20 +213,22 @@ def _session(preset, ctx) -> Session:
     optimizer = torch.optim.AdamW(groups, lr=o.learning_rate, weight_decay=o.weight_decay)
     sensitivity = spectral_source(preset, band_filter)
     windows = plan_windows(preset, sensitivity)
+    images, shard = image_pool(preset, windows.margin(psf_scales(preset))), ctx.shard(o.batch_size)
     return Session(
         model,
         optimizer,
         _scheduler(optimizer, o),
         sensitivity,
         _features(preset, notes),
-        image_pool(preset, windows.margin(two_scale(preset))),
-        ctx.shard(o.batch_size),
+        images,
+        shard,
         plan_frequency(preset),
         windows,
         notes,
-        band_filter,
-        incidence,
-        training_camera(preset),
+        scene_pool(preset, images, shard, ctx.device, o.steps if end is None else end, prefetch),
+        band_filter=band_filter,
+        incidence=incidence,
+        camera=training_camera(preset),
     )
 
 
@@ -243,24 +250,26 @@ def _filter_start(preset, incidence: float, notes: list[str]) -> LearnedFilter |
     return band_filter
 
 
-def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu") -> dict:
+def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu", prefetch: bool = True) -> dict:
     """Run ``steps`` training steps of ``preset`` without a run directory and report their cost:
     seconds per step (median over the steps after the first, which builds the kernels), seconds by
     stage (totals over the steps), the first step's seconds, the number of θ parameters, the last
-    step's PSF windows and, on CUDA, the peak memory (bytes)."""
+    step's PSF windows and, on CUDA, the peak memory (bytes). ``prefetch``: each step's scenes
+    drawn ahead, as a run draws them (``design.scene_pool``); without it, in the step."""
     with distributed.session(torch.device(device)) as ctx:
-        session = _session(preset, ctx)
+        session = _session(preset, ctx, prefetch, steps)
         if ctx.device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(ctx.device)
         watch = Stopwatch(ctx.device)
         seconds = []
         row: dict = {}
-        for step in range(steps):
-            t0 = time.perf_counter()
-            row = one_step(session, preset, step, ctx, watch)[0]
-            if ctx.device.type == "cuda":
-                torch.cuda.synchronize(ctx.device)
-            seconds.append(time.perf_counter() - t0)
+        with session.scenes:
+            for step in range(steps):
+                t0 = time.perf_counter()
+                row = one_step(session, preset, step, ctx, watch)[0]
+                if ctx.device.type == "cuda":
+                    torch.cuda.synchronize(ctx.device)
+                seconds.append(time.perf_counter() - t0)
         report = {
             "steps": steps,
             "first_step_s": seconds[0],
@@ -290,7 +299,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     if field_training(preset):
         run.columns = run.columns + FIELD_COLUMNS
     checkpoint = checkpoint_to_resume(run, resume, o.steps)
-    session = _session(preset, ctx)
+    session = _session(preset, ctx, prefetch=True)
     if ctx.is_main and not resume:
         start = {} if o.init_from is None else {START_THETA: Path(o.init_from)}
         run.create(run_preset_toml(preset), copies=start)
@@ -318,7 +327,8 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
         if done % o.sample_every == 0:
             _write_sample(run, sample, done - 1)
 
-    loop.train(run_step, on_step, after_step)
+    with session.scenes:  # the worker stops with the steps, whether they finish or not
+        loop.train(run_step, on_step, after_step)
     history, start = loop.history, loop.start
     theta = model.full_theta().detach().cpu().numpy()
     summary = RunSummary(run.path, o.steps, start, history, _seconds_per_step(history[start:]), theta)

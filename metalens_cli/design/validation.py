@@ -31,11 +31,11 @@ from metalens_cli.design.step import (
     far_cores,
     image_pool,
     plan_windows,
+    psf_scales,
     sensor_psf,
     spectral_source,
     step_batch,
     step_psfs,
-    two_scale,
 )
 from metalens_cli.design.training_camera import training_camera
 from metalens_cli.imaging.canvas import sensor_crop
@@ -54,7 +54,7 @@ def validation_parts(model, preset, draws: int, device, frequency: float | None,
     sensitivity = spectral_source(preset)
     o = preset.optimize
     windows = plan_windows(preset, sensitivity)
-    pool = image_pool(preset, windows.margin(two_scale(preset)))
+    pool = image_pool(preset, windows.margin(psf_scales(preset)))
     camera = training_camera(preset)
     for k in range(draws):
         step = VALIDATION_STEP + k

@@ -18,6 +18,15 @@ def sensor_crop(canvas: np.ndarray, margin: int) -> np.ndarray:
     return canvas[..., margin:-margin, margin:-margin]
 
 
+def narrow_margin(canvas, margin: int, to: int):
+    """The central (..., H + 2m, W + 2m) of a (..., H + 2M, W + 2M) canvas of ``margin`` M:
+    the canvas of margin m = ``to`` ≤ M around the same sensor field (numpy or torch; a view)."""
+    if not 0 <= to <= margin:
+        raise ValueError(f"a canvas of margin {margin} holds margins 0..{margin}, not {to}")
+    cut = margin - to
+    return canvas if cut == 0 else canvas[..., cut:-cut, cut:-cut]
+
+
 def fit_to_canvas(image: np.ndarray, shape: tuple[int, int], margin: int = 0) -> np.ndarray:
     """(C, H0, W0) scaled so it covers ``shape`` = (H, W) (area resampling when shrinking, cubic
     when enlarging), then the (H + 2M, W + 2M) crop centred on it; reflected where too small."""

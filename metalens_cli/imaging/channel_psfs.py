@@ -15,8 +15,7 @@ import torch
 
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
 from metalens_cli.imaging.formation import canvas_margin, psf_margin
-from metalens_cli.optics.channel_psf import TwoScale
-from metalens_cli.optics.two_scale import split
+from metalens_cli.optics.two_scale import TwoScale, split_at
 
 KEPT_WARNING = 0.99  # warn when a PSF window holds less of the light than this
 
@@ -55,9 +54,9 @@ class ChannelPsfs:
 
     def capture_forms(self) -> tuple:
         """The near and far PSFs as captures use them: as they are, or split into core and halo."""
-        if self.two_scale is None or self.two_scale.single:
+        if self.two_scale is None:
             return self.near, self.far
-        return tuple(split(p, self.two_scale.scale, self.two_scale.core_pixels) for p in (self.near, self.far))
+        return tuple(split_at(p, self.two_scale) for p in (self.near, self.far))
 
     @property
     def margin(self) -> int:

@@ -46,7 +46,7 @@ from metalens_cli.optics.field import ON_AXIS_MARGIN, field_psf
 from metalens_cli.optics.lens import Metalens
 from metalens_cli.optics.psf import check_psf_memory, compute_psf, psf_inputs, pupil_field
 from metalens_cli.optics.sensor import radial_sensor, radial_sensor_radii
-from metalens_cli.optics.two_scale import TwoScalePsf, check_scales, core_mask, halo_pixels, split
+from metalens_cli.optics.two_scale import TwoScale, TwoScalePsf, core_mask, halo_pixels, split_at
 from metalens_cli.optics.window import crop_window
 from metalens_cli.runtime import Stopwatch
 
@@ -215,27 +215,6 @@ def _capacities_and_mix(capacity, depths: int, weights, wavelengths: int) -> tup
     return caps, mix
 
 
-@dataclass(frozen=True)
-class TwoScale:
-    """How a stack samples its PSFs (``optics.two_scale``): halo pixels of ``scale`` × ``scale``
-    sensor pixels around a ``core_pixels`` core at the sensor's pitch, and, for radial lenses,
-    the halo's radial samples ``radial_step`` times the core's (the core's intensity is sampled
-    4× above its Nyquist rate, ``sampling.plan_radial``). ``scale`` 1: one scale, as before."""
-
-    scale: int = 1
-    core_pixels: int = 1
-    radial_step: int = 1
-
-    def __post_init__(self):
-        check_scales(self.scale, self.core_pixels)
-        arguments.count(self.radial_step, "halo_radial_step", hi=4)
-
-    @property
-    def single(self) -> bool:
-        """Whether this is the single-scale PSF."""
-        return self.scale == 1
-
-
 def _radial_stack(
     lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window, scales
 ):
@@ -245,9 +224,11 @@ def _radial_stack(
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, False), plan_f or 0.0)
     plan = sampling.plan_radial(lens, sampling.PsfGrid(plan_lams, zs, plan_px, pitch, d), f_max)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
-    # the halo's radial samples and pixels (one scale: the core's)
-    step_h, pitch_h = plan.step_m * (1 if scales.single else scales.radial_step), pitch * scales.scale
-    n_rows = [radial_sensor_radii(step_h, halo_pixels(cap, scales.core_pixels, scales.scale), pitch_h) for cap in caps]
+    # the rule's and the halos' radial samples (one scale: the core's)
+    coarse = not scales.single
+    step_h = plan.step_m * (scales.radial_step if coarse else 1)
+    reach_px = [max(cap, scales.core_pixels) + 2 * scales.scale if coarse else cap for cap in caps]
+    n_rows = [radial_sensor_radii(step_h, n, pitch) for n in reach_px]
     rows_h = prop.hankel_output_rows(kernel, step_h, max(n_rows))  # only the rows the capacities reach
     watch.lap("kernels")
     r = kernel.r.double()
@@ -292,28 +273,41 @@ def _radial_stack(
         on_sensor.append(target)
         outgrown.append(lost)
     core_op = None if core_window is None else radial_sensor(plan.step_m, core_window, pitch)
-    if scales.single:
-        ops = [radial_sensor(step_h, max(chosen), pitch) for chosen in windows]
-        center_op, fine_ops = None, ops + [core_op] * (core_op is not None)
-    else:
-        ops = [radial_sensor(step_h, halo_pixels(max(c), scales.core_pixels, scales.scale), pitch_h) for c in windows]
-        center_op = radial_sensor(plan.step_m, scales.core_pixels, pitch)
-        fine_ops = [center_op] + [core_op] * (core_op is not None)
-    need = max(op.n_radii for op in ops + (fine_ops if scales.single else []))
+    ops, centres = [], []  # per depth: the window's operator (the halo's, at s·p), and (s, the core's)
+    for chosen in windows:
+        s, k = scales.at(max(chosen))
+        if s == 1:
+            ops.append(radial_sensor(plan.step_m, max(chosen), pitch))
+            centres.append(None)
+        else:
+            ops.append(radial_sensor(step_h, halo_pixels(max(chosen), k, s), pitch * s))
+            centres.append((s, radial_sensor(plan.step_m, k, pitch)))
+    halo_ops = [op for op, c in zip(ops, centres) if c is not None]
+    fine_ops = [op for op, c in zip(ops, centres) if c is None] + [c[1] for c in centres if c is not None]
+    fine_ops += [core_op] if core_op is not None else []
+    if step_h == plan.step_m:  # one set of samples serves both
+        halo_ops, fine_ops = [], halo_ops + fine_ops
+    need = max([op.n_radii for op in halo_ops], default=0)
     if need > mono.shape[0]:
         mono = torch.cat([mono, intensity(rows_h, mono.shape[0], need)])
-    fine = mono  # one scale: the core's samples are the halo's
-    if not scales.single:
-        fine = intensity(prop.hankel_output_rows(kernel, plan.step_m, max(op.n_radii for op in fine_ops)), 0, None)
+    fine = mono
+    if step_h != plan.step_m:
+        need = max([op.n_radii for op in fine_ops], default=0)
+        fine = intensity(prop.hankel_output_rows(kernel, plan.step_m, need), 0, None) if need else None
+    elif max([op.n_radii for op in fine_ops], default=0) > mono.shape[0]:
+        mono = fine = torch.cat([mono, intensity(rows_h, mono.shape[0], max(op.n_radii for op in fine_ops))])
     psfs, kept, cores = [], [], []
     for i, op in enumerate(ops):
         cols = slice(i * w, (i + 1) * w)
         if core_op is not None:
             cores.append(core_op.apply(fine[: core_op.n_radii, cols]).sum(dim=(-2, -1)))
-        psf = op.apply(mono[: op.n_radii, cols] @ mix_d.T)  # channels mixed first
-        if not scales.single:
-            core = center_op.apply(fine[: center_op.n_radii, cols] @ mix_d.T)
-            psf = TwoScalePsf(core, psf * core_mask(op.n_pixels, scales.core_pixels, scales.scale, psf), scales.scale)
+        if centres[i] is None:
+            psf = op.apply(fine[: op.n_radii, cols] @ mix_d.T)  # channels mixed first
+        else:
+            s, centre = centres[i]
+            halo = op.apply(mono[: op.n_radii, cols] @ mix_d.T)
+            core = centre.apply(fine[: centre.n_radii, cols] @ mix_d.T)
+            psf = TwoScalePsf(core, halo * core_mask(op.n_pixels, centre.n_pixels, s, halo), s)
         psfs.append(psf)
         kept.append(ts.power(psf).detach().double().cpu().numpy())
     watch.lap("propagate")
@@ -325,7 +319,7 @@ def _radial_stack(
         "pupil_nodes": plan.n_nodes,
         "output_step_m": plan.step_m,
         "plan_pixels": plan_px,
-        **({} if scales.single else {"halo_scale": scales.scale, "core_pixels": scales.core_pixels}),
+        **({} if scales.single else {"halo_scale": [p.scale if isinstance(p, TwoScalePsf) else 1 for p in psfs]}),
         **({} if scales.single else {"halo_output_step_m": step_h}),
     }
     return ChannelPsfStack(
@@ -406,8 +400,8 @@ def _square_stack(mono, mix, caps, energy, core_window, grid, timing, two_scale=
         total = squares[:, -1]
         chosen = [2 * int(np.argmax(squares[c] >= energy * total[c])) + 1 for c in range(3)]
         psf = crop_window(psf, max(chosen))
-        if two_scale is not None and not two_scale.single:
-            psf = split(psf, two_scale.scale, two_scale.core_pixels)
+        if two_scale is not None:
+            psf = split_at(psf, two_scale)
         psfs.append(psf)
         windows.append(tuple(chosen))
         kept.append(

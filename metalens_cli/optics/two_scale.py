@@ -20,7 +20,10 @@ from dataclasses import dataclass
 
 import torch
 
+from metalens_cli import arguments
 from metalens_cli.errors import InputError
+
+WINDOW_PER_BLOCK = 200  # a PSF window spans at least this many halo blocks: s ≤ N/200 (docs/benchmarks.md)
 
 
 @dataclass(frozen=True)
@@ -66,9 +69,46 @@ class TwoScalePsf:
         return psf + _fit(self.core, n)
 
 
+@dataclass(frozen=True)
+class TwoScale:
+    """How PSFs are sampled: halo blocks of at most ``scale`` × ``scale`` sensor pixels around a
+    core of about ``core_pixels`` at the sensor's pitch, and, for radial lenses, the halo's radial
+    samples ``radial_step`` times the core's (the core's intensity is sampled 4× above its Nyquist
+    rate, ``sampling.plan_radial``). Each PSF gets the scale its window allows (:meth:`at`): the
+    capture error grows as (s/N)², so a window of N pixels has blocks of at most N/``window_blocks``
+    (default 200). ``scale`` 1: one scale, the exact path."""
+
+    scale: int = 1
+    core_pixels: int = 1
+    radial_step: int = 1
+    window_blocks: int = WINDOW_PER_BLOCK
+
+    def __post_init__(self):
+        check_scales(self.scale, self.core_pixels)
+        arguments.count(self.radial_step, "halo_radial_step", hi=4)
+
+    @property
+    def single(self) -> bool:
+        """Whether every PSF keeps one scale."""
+        return self.scale == 1
+
+    def at(self, window: int) -> tuple[int, int]:
+        """(s, K) for a PSF of ``window`` pixels: the largest odd s ≤ ``scale`` and ≤ N/``window_blocks``, and
+        the smallest odd multiple of s ≥ ``core_pixels`` (s = 1: one scale)."""
+        s = max(1, min(self.scale, int(window // self.window_blocks)))
+        s -= 1 - s % 2
+        k = -(-self.core_pixels // s)
+        return s, s * (k + 1 - k % 2)
+
+
 def power(psf) -> torch.Tensor:
     """The power of each PSF (..., C) of (..., C, N, N) tensors or a :class:`TwoScalePsf`."""
     return psf.sum() if isinstance(psf, TwoScalePsf) else psf.sum(dim=(-2, -1))
+
+
+def window_reach(window: int, scales: TwoScale | None = None) -> int:
+    """:func:`reach` of a ``window``-pixel PSF sampled as ``scales`` gives it (``TwoScale.at``)."""
+    return reach(window, *(scales or TwoScale()).at(window))
 
 
 def reach(window: int, scale: int = 1, core_pixels: int = 1) -> int:
@@ -150,3 +190,10 @@ def split(psf: torch.Tensor, scale: int, core_pixels: int) -> TwoScalePsf:
     m = max(halo.shape[-1], core_pixels // scale)
     halo = _fit(halo, m)
     return TwoScalePsf(core, halo * core_mask(m, core_pixels, scale, halo), scale)
+
+
+def split_at(psf: torch.Tensor, scales: TwoScale):
+    """``psf`` (..., C, N, N) split at the scale its window allows (``TwoScale.at``), or as it is
+    where that is one scale."""
+    s, k = scales.at(psf.shape[-1])
+    return psf if s == 1 else split(psf, s, k)

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
+from metalens_cli.imaging.canvas import fit_to_canvas, narrow_margin, sensor_crop
 from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.obstructions import make_obstruction
 
@@ -17,6 +17,22 @@ def test_sensor_field_does_not_depend_on_the_margin():
         canvas = fit_to_canvas(image, (64, 64), margin)
         assert canvas.shape == (3, 64 + 2 * margin, 64 + 2 * margin)
         np.testing.assert_array_equal(sensor_crop(canvas, margin), plain)
+
+
+def test_a_narrower_margin_is_the_central_crop_around_the_same_field():
+    """A canvas of margin 20 narrowed to 7: the (H + 14)² centre, its sensor field the same; a
+    margin wider than the canvas's is refused."""
+    import torch
+
+    canvas = torch.arange(2 * 3 * 50 * 50, dtype=torch.float32).reshape(2, 3, 50, 50)  # a 10² field, margin 20
+    narrow = narrow_margin(canvas, 20, 7)
+    assert narrow.shape == (2, 3, 24, 24)
+    assert torch.equal(sensor_crop(narrow, 7), sensor_crop(canvas, 20))
+    assert torch.equal(narrow_margin(canvas, 20, 20), canvas) and torch.equal(
+        narrow_margin(canvas, 20, 0), sensor_crop(canvas, 20)
+    )
+    with pytest.raises(ValueError, match="margin 20"):
+        narrow_margin(canvas, 20, 21)
 
 
 def test_margin_comes_from_the_source_then_reflection():

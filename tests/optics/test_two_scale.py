@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from metalens_cli.errors import InputError
-from metalens_cli.optics.channel_psf import TwoScale, channel_psf_stack
+from metalens_cli.optics.channel_psf import channel_psf_stack
 from metalens_cli.optics.lens import hyperbolic
-from metalens_cli.optics.two_scale import block_sum, check_scales, power, reach, split
+from metalens_cli.optics.two_scale import TwoScale, block_sum, check_scales, power, reach, split
+from metalens_cli.optics.window import crop_window
 
 PITCH = 1.85e-6
 
@@ -76,14 +77,11 @@ def test_radial_halo_matches_the_single_scale_psf_in_blocks(radial_step):
     weights = np.eye(3)
     kw = {"dtype": torch.float64, "energy": 1 - 1e-9}
     single = channel_psf_stack(lens, waves, depths, weights, 99, PITCH, **kw)
-    double = channel_psf_stack(lens, waves, depths, weights, 99, PITCH, **kw, two_scale=TwoScale(3, 9, radial_step))
+    double = channel_psf_stack(lens, waves, depths, weights, 99, PITCH, **kw, two_scale=TwoScale(3, 9, radial_step, 1))
     assert single.windows == ((99,) * 3,) * 2 and min(min(w) for w in double.windows) >= 93
     for one, two in zip(single.psfs, double.psfs):
         reference = split(one, 3, 9)
         n = min(reference.halo.shape[-1], two.halo.shape[-1])
-        crop = lambda x: x[
-            ..., (x.shape[-1] - n) // 2 : (x.shape[-1] + n) // 2, (x.shape[-1] - n) // 2 : (x.shape[-1] + n) // 2
-        ]  # noqa: E731
-        error = float((crop(two.halo) - crop(reference.halo)).norm() / reference.halo.norm())
+        error = float((crop_window(two.halo, n) - crop_window(reference.halo, n)).norm() / reference.halo.norm())
         assert error < 2e-4, error
         torch.testing.assert_close(two.core, reference.core, rtol=0, atol=1e-6 * float(one.max()))
