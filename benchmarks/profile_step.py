@@ -1,15 +1,15 @@
 """Profile: where a training step of a preset spends its time, by stage and by operator.
 
 Run: python benchmarks/profile_step.py [PRESET] [--device cpu|cuda] [--threads 2] [--warmup 40] [--steps 8]
-[--no-pool]
+[--pool auto|on|off]
 Runs ``--warmup`` steps (the windows grow with the lens, and the kernels' plan with them), then
 profiles ``--steps`` more with ``torch.profiler``: seconds per step by stage (on CUDA each stage
 waits for the device) and the operators that took the most self time (device time on CUDA),
 grouped by input shape; then the time a step spends outside torch's operators (Python, numpy, the
 host's share of the scenes and obstructions: what a GPU would wait for) and, on CUDA, the share of
-the step the device is busy. Each step's scenes are drawn ahead on the scene pool's thread, as a
-run draws them (``design.scene_pool``: the stage ``scenes`` is the step's wait for them), or with
-``--no-pool`` in the step. Prints; writes nothing.
+the step the device is busy. Each step's scenes are drawn ahead on the scene pool's thread where a
+run would (``design.scene_pool.draws_ahead``; the stage ``scenes`` is then the wait), or with
+``--pool off`` in the step. Prints; writes nothing.
 """
 
 from __future__ import annotations
@@ -32,10 +32,13 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=40)
     parser.add_argument("--steps", type=int, default=8)
     parser.add_argument("--rows", type=int, default=25)
-    parser.add_argument("--no-pool", action="store_true", help="draw each step's scenes in the step")
+    parser.add_argument(
+        "--pool", choices=("auto", "on", "off"), default="auto", help="scenes drawn ahead (auto: as a run would)"
+    )
     args = parser.parse_args()
 
     from metalens_cli.design import distributed
+    from metalens_cli.design.scene_pool import draws_ahead
     from metalens_cli.design.step import one_step
     from metalens_cli.design.training import _session
     from metalens_cli.io.presets import load_preset
@@ -46,7 +49,8 @@ def main() -> None:
     device = torch.device(args.device)
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
     with distributed.session(device) as ctx:
-        session = _session(preset, ctx, not args.no_pool, args.warmup + args.steps)
+        ahead = draws_ahead(device) if args.pool == "auto" else args.pool == "on"
+        session = _session(preset, ctx, ahead, args.warmup + args.steps)
         with session.scenes:
             for step in range(args.warmup):
                 one_step(session, preset, step, ctx, Stopwatch(device))
@@ -57,7 +61,7 @@ def main() -> None:
                     one_step(session, preset, step, ctx, watch)
             seconds = (time.perf_counter() - start) / args.steps
     stages = ", ".join(f"{k} {v / args.steps:.3f}" for k, v in watch.times.items() if not k.startswith("psf_"))
-    pool = "in the step" if args.no_pool else "drawn ahead"
+    pool = "drawn ahead" if ahead else "in the step"
     print(
         f"{args.preset} on {device}: {seconds:.3f} s/step under the profiler (scenes {pool}); windows {session.windows}"
     )

@@ -12,12 +12,23 @@ draws ahead: a pool with ``background=False`` gives the same batches, drawn when
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import torch
 
 Batch = tuple[torch.Tensor, ...]
+
+
+def draws_ahead(device) -> bool:
+    """Whether a run draws its scenes on a background thread: on an accelerator (the host idles
+    while the device runs the step), or on a CPU with a core the step's torch threads leave free.
+    On 2 cores with 2 torch threads the background draw stalled the step's parallel regions more
+    than it saved (quick preset: 1.57 s a step against 1.49 s drawing in the step;
+    docs/benchmarks.md)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return torch.device(device).type != "cpu" or cores > torch.get_num_threads()
 
 
 class ScenePool:

@@ -44,6 +44,7 @@ from metalens_cli.design.filter_learning import LearnedFilter, filter_columns, l
 from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_frequency, plan_range
 from metalens_cli.design.report import write_results
 from metalens_cli.design.rundir import START_THETA, RunDirectory, run_preset_toml
+from metalens_cli.design.scene_pool import draws_ahead
 from metalens_cli.design.step import (
     Session,
     Windows,
@@ -250,14 +251,15 @@ def _filter_start(preset, incidence: float, notes: list[str]) -> LearnedFilter |
     return band_filter
 
 
-def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu", prefetch: bool = True) -> dict:
+def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu", prefetch: bool | None = None) -> dict:
     """Run ``steps`` training steps of ``preset`` without a run directory and report their cost:
     seconds per step (median over the steps after the first, which builds the kernels), seconds by
     stage (totals over the steps), the first step's seconds, the number of θ parameters, the last
     step's PSF windows and, on CUDA, the peak memory (bytes). ``prefetch``: each step's scenes
-    drawn ahead, as a run draws them (``design.scene_pool``); without it, in the step."""
+    drawn ahead (``design.scene_pool``); without it, in the step; None: as a run would
+    (``draws_ahead``)."""
     with distributed.session(torch.device(device)) as ctx:
-        session = _session(preset, ctx, prefetch, steps)
+        session = _session(preset, ctx, draws_ahead(ctx.device) if prefetch is None else prefetch, steps)
         if ctx.device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(ctx.device)
         watch = Stopwatch(ctx.device)
@@ -299,7 +301,7 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
     if field_training(preset):
         run.columns = run.columns + FIELD_COLUMNS
     checkpoint = checkpoint_to_resume(run, resume, o.steps)
-    session = _session(preset, ctx, prefetch=True)
+    session = _session(preset, ctx, prefetch=draws_ahead(ctx.device))
     if ctx.is_main and not resume:
         start = {} if o.init_from is None else {START_THETA: Path(o.init_from)}
         run.create(run_preset_toml(preset), copies=start)

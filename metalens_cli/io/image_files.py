@@ -18,17 +18,20 @@ from metalens_cli.io.input_files import check_image_size, library_output, open_e
 
 
 def srgb_to_linear(values: np.ndarray, dtype=np.float32) -> np.ndarray:
-    """sRGB-encoded 0..1 (clipped) → linear (IEC 61966-2-1; colour-science's ``cctf_decoding``)."""
-    import colour
-
-    return np.asarray(colour.cctf_decoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=dtype)
+    """sRGB-encoded 0..1 (clipped) → linear, IEC 61966-2-1's piecewise curve in float64 (the
+    values of colour-science's ``cctf_decoding``, tests/io/test_image_files.py, without its
+    per-call overhead: procedural scenes decode hundreds of single colours a step)."""
+    x = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 12.92 * 0.0031308, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(
+        dtype
+    )  # the curves meet there
 
 
 def linear_to_srgb(values: np.ndarray, dtype=np.float32) -> np.ndarray:
-    """Linear 0..1 (clipped) → sRGB-encoded, for display (colour-science's ``cctf_encoding``)."""
-    import colour
-
-    return np.asarray(colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB"), dtype=dtype)
+    """Linear 0..1 (clipped) → sRGB-encoded, for display (IEC 61966-2-1, as colour-science's
+    ``cctf_encoding``)."""
+    x = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055).astype(dtype)
 
 
 def srgb_encode_tensor(x):
