@@ -43,6 +43,11 @@ class ScenePool:
         self._workers = ThreadPoolExecutor(1, thread_name_prefix="metalens-scenes") if background else None
         self._ahead: dict[tuple[int, int], Future] = {}
 
+    @property
+    def background(self) -> bool:
+        """Whether batches are drawn ahead on the worker thread."""
+        return self._workers is not None
+
     def prefetch(self, step: int, margin: int) -> None:
         """Start drawing the batch of ``step`` on the canvas of ``margin`` (pixels) in the
         background, unless it is already asked for, the run ends before ``step`` or the pool

@@ -446,9 +446,10 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
     """
     o = preset.optimize
     draw = draw_step(preset, session.sensitivity, o.seed, step)
-    reach = session.windows.margin(
-        psf_scales(preset)
-    )  # the canvas the step's batch is drawn on, before its PSFs say what they need
+    scales = psf_scales(preset)
+    # drawn ahead, the step's batch is drawn on the canvas of its capacities, before its PSFs say what they need;
+    # drawn in the step, on the canvas its PSFs need (0: no canvas drawn ahead)
+    reach = session.windows.margin(scales) if session.scenes.background else 0
     session.scenes.prefetch(step, reach)  # already asked for by the step before, but for a run's first step
     session.optimizer.zero_grad(set_to_none=True)
     watch.restart()
@@ -467,9 +468,7 @@ def one_step(session: Session, preset, step: int, ctx, watch: Stopwatch) -> tupl
     margin = psf_margin(near, far)
     watch.lap("psf")
     clean, colour, mask = step_canvases(session.scenes, step, reach, margin, watch)
-    session.scenes.prefetch(
-        step + 1, session.windows.margin(psf_scales(preset))
-    )  # drawn while this step forms, backs up and updates
+    session.scenes.prefetch(step + 1, session.windows.margin(scales))  # drawn while this step forms and backs up
     capture = camera_capture(clean, colour, mask, near, far, margin, session.camera, draw, o.seed, step, session.shard)
     clean, colour, mask = (sensor_crop(x, margin) for x in (clean, colour, mask))
     grey = colour[0] * mask[0] + 0.5 * (1 - mask[0])

@@ -176,14 +176,16 @@ def test_the_zero_order_veil_of_a_grey_wall_is_its_share_of_the_wall():
 def test_an_image_only_fine_tune_removes_a_defocus(tiny):
     """A toy problem whose optimum is known: the tiny lens defocused (θ_hyperbolic + c·r², the
     focus moved by ~15 µm at f = 1 mm) and trained on the image terms alone (w_sharp = w_bright
-    = 0, the metric's images) for 12 steps: the quadratic part of θ − θ_hyperbolic shrinks."""
+    = 0, the metric's images) for 12 steps: the quadratic part of θ − θ_hyperbolic shrinks. (At a
+    learning rate of 0.5 rad the per-ring Adam steps roughen θ past the pitch's sampling limit by
+    step 11 on some scene draws; 0.3 rad keeps it smooth.)"""
     from metalens_cli.design import distributed
     from metalens_cli.design.model import build_model
     from metalens_cli.design.step import one_step
     from metalens_cli.design.training import _session
     from metalens_cli.runtime import Stopwatch
 
-    preset = _with(_with(tiny, "loss", bright=0.0, sharp=0.0, space="metric"), "optimize", learning_rate=0.5)
+    preset = _with(_with(tiny, "loss", bright=0.0, sharp=0.0, space="metric"), "optimize", learning_rate=0.3)
     start = build_model(preset).full_theta().detach().numpy()
     r = np.arange(start.size) * preset.nanofin.pitch_m
     a = preset.lens.aperture_m / 2
