@@ -72,8 +72,16 @@ class ChannelPsfs:
             "psf_window_px": {"near": self.near.shape[-1], "far": self.far.shape[-1]},
             "psf_energy": {"near": dict(zip("RGB", self.kept_near)), "far": dict(zip("RGB", self.kept_far))},
             **({"psf_held": self.held} if self.held else {}),
+            **({} if self.two_scale is None else {"halo_blocks_px": self._blocks()}),
             **({"field": self.field_test} if self.field_test is not None else {}),
             **({} if self.field_psfs is None else self.field_psfs.report()),
+        }
+
+    def _blocks(self) -> dict:
+        """Per depth, the halo's block side and the core's (pixels; 1, N: one scale)."""
+        return {
+            d: dict(zip(("halo", "core"), self.two_scale.at(p.shape[-1])))
+            for d, p in (("near", self.near), ("far", self.far))
         }
 
     def warnings(self) -> list[str]:

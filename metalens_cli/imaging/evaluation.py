@@ -41,6 +41,7 @@ from metalens_cli.imaging.pipeline import (
     simulate_captures,
 )
 from metalens_cli.io.atomic import atomic_write
+from metalens_cli.optics.two_scale import halo_sampling
 
 CONDITIONS = ("unobstructed", "obstructed")
 MIN_UNITS = 20  # fewer units per cell: a warning (bootstrap CIs of a handful of units are wide and unreliable)
@@ -75,6 +76,8 @@ class EvaluationSettings:
             isoplanatic patch.
         field_tolerance: the space-variant formation's tolerance (relative L2,
             ``imaging.field_formation``).
+        halo_scale: each PSF's halo convolved in blocks of up to this many pixels
+            (``optics.two_scale.halo_sampling``); 1: one scale.
         light_levels: ``imaging.camera``: electrons at full scale before each design's filter, None
             for noise-free; one table per level, the same noise draws at every level.
         read_electrons: read noise (electrons rms) with ``light_levels``.
@@ -100,6 +103,7 @@ class EvaluationSettings:
     device: object = "cpu"
     field_model: str = "on-axis"  # "auto": PSFs over the field where the sensor outgrows the isoplanatic patch
     field_tolerance: float = DEFAULT_TOLERANCE  # the space-variant formation's (imaging.field_formation)
+    halo_scale: int = 1  # captures with each PSF's halo in blocks of up to this many pixels (optics.two_scale)
     light_levels: list | None = None
     read_electrons: float = DEFAULT_READ_ELECTRONS
     zero_order_leak: float | None = None
@@ -297,6 +301,7 @@ def evaluate(
                     settings.pixels,
                     field_model=settings.field_model,
                     field_tolerance=settings.field_tolerance,
+                    two_scale=halo_sampling(settings.halo_scale),
                     device=settings.device,
                     window=settings.psf_window,
                 )

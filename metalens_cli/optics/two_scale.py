@@ -23,6 +23,7 @@ import torch
 from metalens_cli import arguments
 from metalens_cli.errors import InputError
 
+CORE_PIXELS = 65  # the core a halo scale goes with by default (optimize.core_pixels, --halo-scale)
 WINDOW_PER_BLOCK = 200  # a PSF window spans at least this many halo blocks: s ≤ N/200 (docs/benchmarks.md)
 
 
@@ -197,3 +198,14 @@ def split_at(psf: torch.Tensor, scales: TwoScale):
     where that is one scale."""
     s, k = scales.at(psf.shape[-1])
     return psf if s == 1 else split(psf, s, k)
+
+
+def halo_sampling(scale: int, core_pixels: int = CORE_PIXELS) -> TwoScale | None:
+    """The sampling of ``--halo-scale`` s: blocks of up to s × s around the odd multiple of s
+    nearest above ``core_pixels``; None for s = 1 (one scale)."""
+    if scale == 1:
+        return None
+    if not (isinstance(scale, int) and scale > 1 and scale % 2):
+        raise InputError("--halo-scale", f"{scale!r}", "an odd number of pixels per halo block (1: one scale)")
+    k = -(-core_pixels // scale)
+    return TwoScale(scale, scale * (k + 1 - k % 2))
