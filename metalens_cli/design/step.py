@@ -341,11 +341,12 @@ def step_canvases(scenes: ScenePool, step: int, reach: int, margin: int, watch: 
     """Clean scenes, obstruction colours and masks of ``step`` on the canvas of ``margin`` (its
     PSFs'): its batch drawn at ``reach`` (the margin of the capacities the step started from,
     ``Windows.margin``), cropped to ``margin`` (``imaging.canvas.narrow_margin``); when the
-    step's windows grew past ``reach``, drawn now at ``margin`` (timed as ``scenes_redrawn``).
+    step's windows grew past ``reach``, drawn now at ``margin`` (timed as ``scenes_redrawn``; with
+    ``reach`` 0, nothing drawn ahead, as ``scenes``).
     ``watch`` times the wait (``scenes``)."""
     if margin > reach:
         batch = scenes.take(step, margin)
-        watch.lap("scenes_redrawn")
+        watch.lap("scenes_redrawn" if reach else "scenes")  # reach 0: nothing was drawn ahead
         return batch
     batch = tuple(narrow_margin(x, reach, margin) for x in scenes.take(step, reach))
     watch.lap("scenes")

@@ -133,4 +133,4 @@ def test_scenes_drawn_ahead_train_the_same_every_time(tiny):
     _, inline, _, times_inline = _recorded_steps(tiny, range(3, 4), prefetch=False)
     assert ahead == again and torch.equal(theta_ahead, theta_again)
     assert {"scenes", "scenes_redrawn"} <= set(times)
-    assert "scenes_redrawn" in times_inline and "scenes" not in times_inline
+    assert "scenes" in times_inline and "scenes_redrawn" not in times_inline
