@@ -2,9 +2,10 @@
 
 A step s draws everything from (seed, s) alone (``draw_step``, ``draw_field``, ``step_batch``), so
 that a resumed run repeats an uninterrupted one and every data-parallel rank agrees on the shared
-draws; its PSFs are computed in the windows their light needs (``Windows``, ``step_psfs``); its
-batch is drawn ahead, while the step before it runs, on the canvas of the capacities it starts
-from, and cropped to the margin its PSFs need (``scene_pool``, ``step_canvases``); the step
+draws; its PSFs are computed in the windows their light needs (``Windows``, ``step_psfs``), each
+as core and halo (``psf_scales``); its batch is drawn ahead where a core is free, while the step
+before it runs, on the canvas of the capacities it starts from and cropped to the margin its PSFs
+need, else in the step on that margin (``scene_pool``, ``step_canvases``); the step
 (``one_step``) forms the batch's captures, takes the loss and updates θ, reading on the host only
 what ``HOST_READS`` lists. The session that carries the model and optimiser from step to step is
 built in ``design.training``.

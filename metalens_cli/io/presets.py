@@ -477,7 +477,7 @@ def _check_consistency(p: Preset) -> None:
     would otherwise make later (bands disjoint, a known camera, optical wavelengths)."""
     from metalens_cli.io.tables import check_wavelengths
     from metalens_cli.optics.band_rules import CAMERA_NAMES, check_bands
-    from metalens_cli.optics.two_scale import check_scales
+    from metalens_cli.optics.window import check_scales
 
     check_name(p.name)
     check_scales(p.optimize.halo_scale, p.optimize.core_pixels, "optimize.")

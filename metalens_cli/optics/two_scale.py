@@ -22,6 +22,7 @@ import torch
 
 from metalens_cli import arguments
 from metalens_cli.errors import InputError
+from metalens_cli.optics.window import check_scales
 
 CORE_PIXELS = 65  # the core a halo scale goes with by default (optimize.core_pixels, --halo-scale)
 WINDOW_PER_BLOCK = 200  # a PSF window spans at least this many halo blocks: s ≤ N/200 (TwoScale)
@@ -147,21 +148,6 @@ def core_mask(halo_pixels: int, core_pixels: int, scale: int, like: torch.Tensor
     if k:
         mask[lo : lo + k, lo : lo + k] = 0
     return mask
-
-
-def check_scales(scale: int, core_pixels: int, prefix: str = "") -> None:
-    """``scale`` s an odd count ≥ 1 and ``core_pixels`` K an odd multiple of it (K = k·s, k odd);
-    errors name ``prefix`` + halo_scale or core_pixels."""
-    if not (isinstance(scale, int) and scale >= 1 and scale % 2 == 1):
-        raise InputError(
-            f"{prefix}halo_scale", f"{scale!r}", "an odd number of sensor pixels per halo pixel (1: one scale)"
-        )
-    if not (isinstance(core_pixels, int) and core_pixels >= scale and core_pixels % (2 * scale) == scale):
-        raise InputError(
-            f"{prefix}core_pixels",
-            f"{core_pixels!r} with a halo scale of {scale}",
-            f"an odd multiple of {scale} (K = k·s, k odd)",
-        )
 
 
 def halo_pixels(window: int, core_pixels: int, scale: int) -> int:
