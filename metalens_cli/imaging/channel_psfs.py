@@ -14,8 +14,8 @@ import numpy as np
 import torch
 
 from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
-from metalens_cli.imaging.formation import canvas_margin, psf_margin
-from metalens_cli.optics.two_scale import TwoScale, split_at
+from metalens_cli.imaging.formation import canvas_margin
+from metalens_cli.optics.two_scale import TwoScale, split_at, window_reach
 
 KEPT_WARNING = 0.99  # warn when a PSF window holds less of the light than this
 
@@ -61,7 +61,7 @@ class ChannelPsfs:
     @property
     def margin(self) -> int:
         """Canvas margin (pixels) these PSFs need around the sensor."""
-        own = psf_margin(*self.capture_forms())
+        own = max(window_reach(p.shape[-1], self.two_scale) for p in (self.near, self.far))  # no split needed
         if self.zero_order is not None:
             own = max(own, canvas_margin(self.zero_order.near.shape[-1], self.zero_order.far.shape[-1]))
         return own if self.field_psfs is None else max(own, self.field_psfs.margin)

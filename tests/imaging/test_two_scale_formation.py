@@ -93,3 +93,16 @@ def test_capture_error_within_budget_at_both_depths(ripple):
         a = form_image(clean, rgb, mask, *one.psfs, m).obstructed
         b = form_image(clean, rgb, mask, *two.psfs, m).obstructed
         assert float((a - b).norm() / a.norm()) < BUDGET, kind
+
+
+def test_channel_psfs_margin_is_that_of_the_forms_captures_use():
+    """ChannelPsfs.margin comes from the windows alone; the split PSFs the captures convolve need
+    exactly it (imaging.formation.psf_margin)."""
+    from metalens_cli.imaging.channel_psfs import ChannelPsfs
+
+    for n_near, n_far in [(757, 897), (425, 397), (1301, 999), (61, 45)]:
+        for scales in [None, TwoScale(5, 65, 2), TwoScale(5, 65, 2, 1), TwoScale(9, 99, 1, 1)]:
+            psfs = ChannelPsfs(
+                torch.rand(3, n_near, n_near), torch.rand(3, n_far, n_far), 0.04, 1.0, [], [], [], 0.0, two_scale=scales
+            )
+            assert psfs.margin == psf_margin(*psfs.capture_forms()), (n_near, n_far, scales)
