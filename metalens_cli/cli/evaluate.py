@@ -7,6 +7,7 @@ import click
 
 from metalens_cli.cli import render
 from metalens_cli.cli.options import (
+    CommaChoice,
     LightLevels,
     MetalensCommand,
     Number,
@@ -29,6 +30,7 @@ MATCH_METHODS = (
     "luminance",
 )  # imaging.metrics.MATCH_METHODS, the first the default (not imported: it pulls in torch)
 ALIGN_MODES = ("unobstructed", "each", "none")  # imaging.captured_pairs.ALIGN_MODES
+TASKS = ("markers", "qr")  # imaging.targets.TASKS (not imported: it pulls in numpy)
 LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 
 
@@ -145,6 +147,15 @@ PAIRS_OPTIONS = {
     help="Add Wiener rows: the oracle linear restoration from each design's far PSFs, its regularisation chosen per "
     "design and light level on held-out charts.",
 )
+@click.option(
+    "--task",
+    "tasks",
+    type=CommaChoice(TASKS),
+    multiple=True,
+    help="Vision tasks, comma-separated or repeated: ArUco markers (side 24-160 px) and QR codes (modules "
+    "1.5-6 px) are printed into every clean scene before imaging, and OpenCV's detectors score each capture "
+    "and the clean scene (the ceiling): found rate, wrong detections, corner error, size50.",
+)
 @quiet_option()
 @max_memory_option
 @json_option
@@ -187,6 +198,7 @@ def evaluate(
     read_electrons,
     zero_order_leak,
     wiener,
+    tasks,
     quiet,
     max_memory,
     as_json,
@@ -206,7 +218,10 @@ def evaluate(
     per scene: each capture registered onto its gt image (homography, then a smooth
     refinement), the metrics over the region every capture of the scene covers.
     """
+    tasks = tuple(dict.fromkeys(t for group in tasks for t in group))
     if pairs is not None:
+        if tasks:
+            raise click.BadParameter("is not yet scored on captured pairs (--pairs)", param_hint="--task")
         return _evaluate_pairs(
             ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path
         )
@@ -237,6 +252,7 @@ def evaluate(
         read_electrons=read_electrons,
         zero_order_leak=zero_order_leak if light_levels else None,
         wiener=wiener,
+        tasks=tasks,
         **formation_options,
     )
     if light_levels and (photons or read_noise or photons_before_filter):
@@ -262,6 +278,17 @@ def evaluate(
         field_model=field_model,
         zero_order=bool(light_levels) and zero_order_leak > 0,
     )
+    if tasks:
+        import dataclasses
+
+        from metalens_cli.imaging.task_detection import scoring_seconds
+
+        per_capture = (1 + len(kinds)) * max(1, len(light_levels or ()))  # unobstructed and each kind, each camera
+        made = sum(1 + wiener + (r is not None) for r in reconstructors)  # raw, wiener, recon per design
+        scored = len(seeds) * count * (1 + made * per_capture)  # 1: the clean scene
+        estimate = dataclasses.replace(
+            estimate, seconds=(estimate.seconds or 0.0) + scoring_seconds(tasks, s.pixels, scored)
+        )
     announce(estimate, max_memory, device=s.device)
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s.designs}
     with progress_bar("evaluate", quiet) as update:
@@ -363,6 +390,68 @@ def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, 
                 [[v["design"], v["versus"], v["capture"], v["obstruction"], v["verdict"]] for v in verdicts],
             )
         )
+    _task_tables(con, result)
+
+
+def _task_tables(con, result) -> None:
+    """Per task and light level: found rate, size50, wrong detections and corner error per cell,
+    then the paired found-rate differences of the obstructed captures."""
+    for task, light in dict.fromkeys((r["task"], r.get("light")) for r in result.tasks):
+        where = "" if light is None else f", light {light}"
+        rows = [r for r in result.tasks if r["task"] == task and r.get("light") == light]
+        con.print(
+            render.table(
+                f"Task {task}{where}: found rate [95 % CI] over {rows[0]['n']} units, size50 ({rows[0]['size_unit']})",
+                ["design", "capture", "obstruction", "condition", "found", "size50", "wrong/unit", "corner err px"],
+                [
+                    [
+                        r["design"],
+                        r["capture"],
+                        r["obstruction"] or "",
+                        r["condition"],
+                        _ci(r["found_rate"], r["found_rate_ci"], 2, lines=False),
+                        _size50(r),
+                        f"{r['wrong_per_unit']:.2f}",
+                        "" if r["corner_error_px"] is None else f"{r['corner_error_px']:.2f}",
+                    ]
+                    for r in rows
+                ],
+            )
+        )
+        pairs = [
+            c
+            for c in result.task_comparisons
+            if c["task"] == task and c.get("light") == light and c["condition"] == "obstructed"
+        ]
+        if not pairs:
+            continue
+        con.print(
+            render.table(
+                f"Task {task}{where}: paired found-rate differences, obstructed (design − versus) [95 % CI]",
+                ["design", "versus", "obstruction", "difference"],
+                [
+                    [
+                        f"{c['design']} ({c['capture']})",
+                        f"{c['versus']} ({c['versus_capture']})",
+                        c["obstruction"],
+                        _ci(c["difference"], c["ci"], 2, lines=False),
+                    ]
+                    for c in pairs
+                ],
+            )
+        )
+
+
+def _size50(row: dict) -> str:
+    """size50 with its interval, or the bound it lies beyond."""
+    if row["size50_bound"] == "below":
+        return f"≤ {row['size50']:.3g}"
+    if row["size50_bound"] == "above":
+        return f"> {row['size50']:.3g}"
+    if row["size50_bound"] == "flat":
+        return "— (not larger → found)"
+    lo, hi = row["size50_ci"]
+    return f"{row['size50']:.3g} [{lo:.3g}, {hi:.3g}]"
 
 
 def _evaluate_pairs(

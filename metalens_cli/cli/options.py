@@ -197,6 +197,25 @@ class SeedList(click.ParamType):
         return [seed for lo, hi in bounds for seed in range(lo, hi + 1)]
 
 
+class CommaChoice(click.ParamType):
+    """Comma-separated names, each one of ``choices`` → a tuple of them (repeats dropped)."""
+
+    name = "names"
+
+    def __init__(self, choices) -> None:
+        self.choices = tuple(choices)
+
+    def convert(self, value, param, ctx):
+        """The names given, in order, each once; an unknown one fails naming the choices."""
+        if isinstance(value, tuple):
+            return value
+        names = tuple(dict.fromkeys(part.strip() for part in str(value).split(",")))
+        unknown = [n for n in names if n not in self.choices]
+        if unknown:
+            self.fail(f"{unknown[0]!r} (expected {', '.join(self.choices)}, comma-separated)", param, ctx)
+        return names
+
+
 class LightLevels(click.ParamType):
     """Light levels (``imaging.camera``): electrons at full scale before the filter, or a name
     (dim, indoor, daylight), or ``none`` (noise-free), comma-separated → sorted floats, None first."""

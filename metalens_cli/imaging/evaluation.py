@@ -40,6 +40,9 @@ from metalens_cli.imaging.pipeline import (
     score,
     simulate_captures,
 )
+from metalens_cli.imaging.targets import check_tasks, draw_targets, layout, task_sizes
+from metalens_cli.imaging.task_detection import score_tasks
+from metalens_cli.imaging.task_scores import summarise_tasks, unit_tasks
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.optics.two_scale import halo_sampling
 
@@ -83,6 +86,8 @@ class EvaluationSettings:
         read_electrons: read noise (electrons rms) with ``light_levels``.
         zero_order_leak: the analyzer's zero-order leak in 0..1; None: no zero-order light.
         wiener: add the oracle Wiener rows (``imaging.wiener``).
+        tasks: vision tasks (``imaging.targets.TASKS``) whose targets are drawn into every clean
+            scene before imaging, and whose detectors score every capture (``imaging.task_scores``).
     """
 
     pixels: int
@@ -108,6 +113,7 @@ class EvaluationSettings:
     read_electrons: float = DEFAULT_READ_ELECTRONS
     zero_order_leak: float | None = None
     wiener: bool = False
+    tasks: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         """The sensor, depth intervals and wavelengths, the form and the noise, each checked with
@@ -123,6 +129,10 @@ class EvaluationSettings:
             if getattr(self, name) is not None:
                 arguments.number(getattr(self, name), name, lo=0.0, form="a number ≥ 0")
         arguments.number(self.read_electrons, "read_electrons", lo=0.0, form="read noise ≥ 0 (e⁻)")
+        self.tasks = check_tasks(self.tasks)
+        for task in self.tasks:
+            if not task_sizes(task, (self.pixels, self.pixels)).size:
+                raise InputError("--task", f"{task}: no target fits a {self.pixels}² sensor", "a larger --pixels")
 
     @classmethod
     def from_setup(cls, setup: CaptureSetup, **options) -> EvaluationSettings:
@@ -154,7 +164,8 @@ class Evaluation:
     ``verdicts`` (per pair of designs over the light levels, :func:`verdicts`), ``units`` (every
     score), ``psfs`` (per design and seed: depths, windows, kept light), ``images`` (names),
     ``panels`` (first image and seed, for figures), ``warnings``, ``notes``, ``cameras`` (each
-    level's label, the designs' budgets and Wiener μ) and, for captured pairs, ``alignments``."""
+    level's label, the designs' budgets and Wiener μ), for captured pairs ``alignments``, and with
+    tasks their ``tasks`` rows and ``task_comparisons`` (``imaging.task_scores``)."""
 
     rows: list[dict] = field(default_factory=list)
     deltas: list[dict] = field(default_factory=list)
@@ -168,6 +179,8 @@ class Evaluation:
     notes: list[str] = field(default_factory=list)
     cameras: list[dict] = field(default_factory=list)
     alignments: list[dict] = field(default_factory=list)
+    tasks: list[dict] = field(default_factory=list)
+    task_comparisons: list[dict] = field(default_factory=list)
 
 
 def design_photons(design, settings: EvaluationSettings):
@@ -322,6 +335,10 @@ def evaluate(
     margin = max(p.margin for p in psfs.values())  # one canvas for all: every design sees the same scene
     images = load_images(settings.images, (settings.pixels, settings.pixels), settings.limit, margin)
     out.images = [image.name for image in images]
+    sensor = (settings.pixels, settings.pixels)
+    targets = {(seed, i): layout(settings.tasks, sensor, seed, i) for seed in seeds for i in range(len(images))}
+    outcomes: dict[tuple, dict] = {}  # task outcomes, keyed as scores
+    ceiling: dict[tuple, dict] = {}  # (seed, image index) → the clean scene's task outcomes
     metrics = metric_names(lpips_model)
     captures_of = [
         ["raw", *(["wiener"] if settings.wiener else []), *(["recon"] if r is not None else [])] for r in recon
@@ -348,8 +365,11 @@ def evaluate(
         )
         for kind in kinds:
             for seed in seeds:
+                scenes = [
+                    draw_targets(image, targets[seed, i]) for i, image in enumerate(images)
+                ]  # as is without tasks
                 captures = simulate_captures(
-                    images,
+                    scenes,
                     kind,
                     psfs[d, seed],
                     design.focal_length_m,
@@ -363,6 +383,8 @@ def evaluate(
                     obstructions=obstructions,
                 )
                 for index, c in enumerate(captures):
+                    if settings.tasks and (seed, index) not in ceiling:
+                        ceiling[seed, index] = score_tasks(c.clean, targets[seed, index], settings.tasks)
                     for li, camera in enumerate(levels):
                         if camera is None:
                             clear, obstructed = c.unobstructed, c.obstructed
@@ -379,11 +401,18 @@ def evaluate(
                         for capture, restore in estimates.items():
                             key = (li, capture, d, "unobstructed", seed, index)  # the same for every obstruction kind
                             if key not in scores:
-                                scores[key] = score(restore(clear), c.clean, lpips_model, settings.match)
+                                restored = restore(clear)
+                                scores[key] = score(restored, c.clean, lpips_model, settings.match)
+                                if settings.tasks:
+                                    outcomes[key] = score_tasks(restored, targets[seed, index], settings.tasks)
                             estimate = restore(obstructed)
                             scores[li, capture, d, kind, seed, index] = score(
                                 estimate, c.clean, lpips_model, settings.match
                             )
+                            if settings.tasks:
+                                outcomes[li, capture, d, kind, seed, index] = score_tasks(
+                                    estimate, targets[seed, index], settings.tasks
+                                )
                             units.setdefault((kind, seed, d), []).append(
                                 {
                                     "design": design.spec,
@@ -394,6 +423,17 @@ def evaluate(
                                     **({} if camera is None else {"light": camera.label()}),
                                     "unobstructed": scores[key],
                                     "obstructed": scores[li, capture, d, kind, seed, index],
+                                    **(
+                                        {
+                                            "tasks": unit_tasks(
+                                                targets[seed, index],
+                                                outcomes[key],
+                                                outcomes[li, capture, d, kind, seed, index],
+                                            )
+                                        }
+                                        if settings.tasks
+                                        else {}
+                                    ),
                                 }
                             )
                             if seed == seeds[0] and index == 0 and li == len(levels) - 1:
@@ -417,6 +457,20 @@ def evaluate(
             for entries, start in zip((out.rows, out.deltas, out.comparisons), first):
                 for entry in entries[start:]:
                     entry["light"] = camera.label()
+        if settings.tasks:
+            rows, comparisons = summarise_tasks(
+                settings.tasks,
+                specs,
+                captures_of,
+                kinds,
+                [(seed, index) for seed in seeds for index in range(len(images))],
+                {key[1:]: value for key, value in outcomes.items() if key[0] == li},
+                ceiling,
+                targets,
+                None if camera is None else camera.label(),
+            )
+            out.tasks += rows
+            out.task_comparisons += comparisons
     if cameras:
         out.verdicts = verdicts(specs, captures_of, kinds, seeds, len(images), cameras, scores)
     warn_few_units(
@@ -584,6 +638,7 @@ def evaluation_report(result: Evaluation, extra: dict, notes: list[str], csv_pat
         "units": result.units,
         "images": result.images,
         "confidence": 0.95,
+        **({"tasks": result.tasks, "task_comparisons": result.task_comparisons} if result.tasks else {}),
         **extra,
         "notes": notes,
         "warnings": result.warnings,

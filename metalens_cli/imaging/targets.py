@@ -1,0 +1,159 @@
+"""Vision-task targets drawn into clean scenes: ArUco markers and QR codes with exact ground truth.
+
+A target is printed matte (linear reflectance ``PAPER`` white, ``INK`` black) on the far plane and
+drawn into the clean image before imaging, so every design images the same targets. Its
+footprint is the code and its quiet zone (one cell for a marker, four modules for a QR code),
+an integer square of sensor pixels; the code inside it is rendered ``RENDER`` times finer and
+area-averaged onto the pixels in linear light, so its corners are exact to a fraction of a pixel
+at any size.
+
+Coordinates: sensor pixels (x right, y down) with pixel centres at integers (OpenCV's), so the
+code's outer corner at pixel boundary b lies at b − 0.5. Corners run clockwise from the code's
+top-left. A target's ``size_px`` is the quantity its detection limit is stated in: the marker's
+side (outer black border) or the QR code's module.
+
+Sizes are log-spaced over ``SIZES_PX`` (one target of each size per unit, those whose footprint
+fits a third of the sensor's side), placed without overlap at positions drawn from the unit's
+seed; the markers' IDs and the QR payloads are drawn the same way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.images import CleanImage
+
+TASKS = ("markers", "qr")
+SIZE_MEANING = {"markers": "marker side (px)", "qr": "QR module (px)"}
+SIZES_PX = {"markers": (24.0, 160.0), "qr": (1.5, 6.0)}  # log-spaced, smallest to largest
+PER_UNIT = 6  # targets of each task per unit, one of each size
+PAPER, INK = 0.8, 0.03  # linear reflectance of matte white paper and black ink
+RENDER = 24  # render sub-samples per cell or module before area averaging
+MARKER_DICTIONARY = "DICT_4X4_250"  # cv2.aruco: 4 × 4 data bits, 1-cell black border, 250 IDs
+MARKER_CELLS, MARKER_QUIET = 6, 1  # cells across the marker (data and border) and in its quiet zone
+QR_MODULES, QR_QUIET = 21, 4  # version 1, and the standard's quiet zone
+PLACEMENT_TRIES = 400
+
+
+@dataclass(frozen=True)
+class Target:
+    """One drawn target: ``task``, ``key`` (marker ID as text, or QR payload), ``size_px`` (see the
+    module), ``corners`` (4, 2) x, y of the code's outer corners in sensor pixels, clockwise from
+    top-left, and ``footprint`` (x0, y0, side): the pixels it covers with its quiet zone."""
+
+    task: str
+    key: str
+    size_px: float
+    corners: np.ndarray
+    footprint: tuple[int, int, int]
+
+    @property
+    def side_px(self) -> float:
+        """The code's side (px): what a corner tolerance is stated in."""
+        return float(np.linalg.norm(self.corners[1] - self.corners[0]))
+
+
+def check_tasks(tasks) -> tuple[str, ...]:
+    """``tasks`` as a tuple of known task names, each once (``InputError`` naming ``--task``)."""
+    out = tuple(dict.fromkeys(tasks))
+    for task in out:
+        if task not in TASKS:
+            raise InputError("--task", f"unknown task {task!r}", ", ".join(TASKS))
+    return out
+
+
+def task_sizes(task: str, sensor_hw: tuple[int, int]) -> np.ndarray:
+    """The ``PER_UNIT`` log-spaced sizes of ``task`` (px, :data:`SIZE_MEANING`) whose footprint fits a
+    third of the sensor's shorter side."""
+    lo, hi = SIZES_PX[task]
+    sizes = np.geomspace(lo, hi, PER_UNIT)
+    return sizes[[_footprint_side(task, s) <= min(sensor_hw) // 3 for s in sizes]]
+
+
+def _footprint_side(task: str, size_px: float) -> int:
+    """The footprint's side (px, an integer) of a target of ``size_px``."""
+    if task == "markers":
+        return round(size_px * (MARKER_CELLS + 2 * MARKER_QUIET) / MARKER_CELLS)
+    return round(size_px * (QR_MODULES + 2 * QR_QUIET))
+
+
+def layout(tasks, sensor_hw: tuple[int, int], seed: int, index: int) -> list[Target]:
+    """The targets of one unit (``seed``, image ``index``) on an H × W sensor: each task's sizes
+    (:func:`task_sizes`), largest first, at non-overlapping random places (a target that finds
+    no place in ``PLACEMENT_TRIES`` draws is left out), keys drawn from the same generator."""
+    rng = np.random.default_rng([seed, index, 0x7A5C])
+    h, w = sensor_hw
+    wanted = [(task, size) for task in check_tasks(tasks) for size in task_sizes(task, sensor_hw)]
+    wanted.sort(key=lambda ts: -_footprint_side(*ts))
+    marker_ids = iter(rng.choice(250, size=PER_UNIT, replace=False))
+    taken: list[tuple[int, int, int]] = []
+    targets = []
+    for k, (task, size) in enumerate(wanted):
+        side = _footprint_side(task, size)
+        for _ in range(PLACEMENT_TRIES):
+            x0, y0 = int(rng.integers(0, w - side + 1)), int(rng.integers(0, h - side + 1))
+            if all(x0 >= a + s or a >= x0 + side or y0 >= b + s or b >= y0 + side for a, b, s in taken):
+                break
+        else:
+            continue
+        taken.append((x0, y0, side))
+        key = str(int(next(marker_ids))) if task == "markers" else f"ML-{k:02d}-{int(rng.integers(10**5)):05d}"
+        targets.append(_target(task, key, (x0, y0, side)))
+    return targets
+
+
+def _target(task: str, key: str, footprint: tuple[int, int, int]) -> Target:
+    """A target of ``task`` with its exact corners in the footprint (x0, y0, side)."""
+    x0, y0, side = footprint
+    cells, quiet = (MARKER_CELLS, MARKER_QUIET) if task == "markers" else (QR_MODULES, QR_QUIET)
+    unit = side / (cells + 2 * quiet)  # a cell or module (px)
+    a, b = quiet * unit - 0.5, (quiet + cells) * unit - 0.5
+    corners = np.array([[a, a], [b, a], [b, b], [a, b]]) + [x0, y0]
+    return Target(task, key, unit * cells if task == "markers" else unit, corners, footprint)
+
+
+def _code_cells(target: Target) -> np.ndarray:
+    """The target's code with its quiet zone, one uint8 value per cell or module (0 ink, 255 paper)."""
+    import cv2
+
+    if target.task == "markers":
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, MARKER_DICTIONARY))
+        code = cv2.aruco.generateImageMarker(dictionary, int(target.key), MARKER_CELLS, borderBits=1)
+        quiet = MARKER_QUIET
+    else:
+        params = cv2.QRCodeEncoder.Params()
+        params.version, params.correction_level = 1, cv2.QRCodeEncoder_CORRECT_LEVEL_M
+        encoded = cv2.QRCodeEncoder.create(params).encode(target.key)
+        ys, xs = np.nonzero(encoded < 128)
+        code = encoded[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+        quiet = QR_QUIET
+    return np.pad(code, quiet, constant_values=255)
+
+
+def render(target: Target) -> np.ndarray:
+    """The target's footprint (side, side) as linear reflectance in [``INK``, ``PAPER``]: the code
+    rendered ``RENDER`` × finer, area-averaged onto the footprint's pixels."""
+    import cv2
+
+    cells = _code_cells(target)
+    fine = np.repeat(np.repeat(cells, RENDER, axis=0), RENDER, axis=1).astype(np.float32) / 255.0
+    side = target.footprint[2]
+    paper = cv2.resize(fine, (side, side), interpolation=cv2.INTER_AREA)
+    return INK + (PAPER - INK) * paper
+
+
+def draw_targets(image: CleanImage, targets: list[Target]) -> CleanImage:
+    """A copy of ``image`` with ``targets`` printed on it (grey: the same reflectance in R, G, B);
+    ``image`` itself when there are none."""
+    if not targets:
+        return image
+    linear = image.linear.copy()
+    m = image.margin
+    for target in targets:
+        x0, y0, side = target.footprint
+        linear[:, m + y0 : m + y0 + side, m + x0 : m + x0 + side] = render(target)
+    return dataclasses.replace(image, linear=linear)

@@ -1,0 +1,107 @@
+"""Vision-task targets and their detectors: exact ground truth, a sharp capture finds every target,
+blur raises size50, a grey wall gives no detections."""
+
+import numpy as np
+import pytest
+import torch
+
+from metalens_cli.analysis.size50 import size50
+from metalens_cli.errors import InputError
+from metalens_cli.imaging.formation import form_image
+from metalens_cli.imaging.images import CleanImage, load_images
+from metalens_cli.imaging.targets import INK, PAPER, TASKS, check_tasks, draw_targets, layout, render, task_sizes
+from metalens_cli.imaging.task_detection import score_tasks, to_grey8
+
+SENSOR = (384, 384)
+
+
+@pytest.fixture(scope="module")
+def photos():
+    return load_images("photos", SENSOR, 3, margin=4)
+
+
+def test_layout_is_seeded_inside_the_sensor_and_without_overlap():
+    a = layout(TASKS, SENSOR, 3, 1)
+    assert [(t.key, t.footprint) for t in a] == [(t.key, t.footprint) for t in layout(TASKS, SENSOR, 3, 1)]
+    assert [t.footprint for t in a] != [t.footprint for t in layout(TASKS, SENSOR, 4, 1)]
+    for task in TASKS:
+        sizes = sorted(t.size_px for t in a if t.task == task)
+        assert np.allclose(sizes, sorted(task_sizes(task, SENSOR)), rtol=0.02)  # footprints are whole pixels
+    boxes = [t.footprint for t in a]
+    for i, (x0, y0, s) in enumerate(boxes):
+        assert 0 <= x0 and x0 + s <= SENSOR[1] and 0 <= y0 and y0 + s <= SENSOR[0]
+        for x1, y1, r in boxes[i + 1 :]:
+            assert x0 >= x1 + r or x1 >= x0 + s or y0 >= y1 + r or y1 >= y0 + s
+    assert len({t.key for t in a}) == len(a)
+
+
+def test_rendered_targets_hold_their_ink_exactly():
+    """Area averaging keeps the printed ink: the footprint's mean reflectance is the cells' ink
+    fraction, whatever the (fractional) size of a cell."""
+    for target in layout(TASKS, SENSOR, 0, 0):
+        from metalens_cli.imaging.targets import _code_cells
+
+        ink = (_code_cells(target) < 128).mean()
+        assert render(target).mean() == pytest.approx(PAPER - (PAPER - INK) * ink, abs=2e-4)
+
+
+def test_sharp_capture_finds_every_target_at_its_corners(photos):
+    """Through a delta-function PSF the capture is the scene: every target is found (QR codes
+    above the smallest module: OpenCV's decoder misses some at 1.5 px), none wrongly, with its
+    corners within a pixel of the truth."""
+    delta = torch.zeros(3, 5, 5, dtype=torch.float64)
+    delta[:, 2, 2] = 1.0
+    for index, image in enumerate(photos):
+        targets = layout(TASKS, SENSOR, 0, index)
+        scene = draw_targets(image, targets)
+        canvas = torch.as_tensor(scene.linear, dtype=torch.float64)
+        zero = torch.zeros_like(canvas)
+        capture = form_image(canvas, zero, zero[:1], delta, delta, scene.margin).unobstructed.numpy()
+        np.testing.assert_allclose(capture, scene.sensor, atol=1e-6)
+        for task, outcome in score_tasks(capture, targets, TASKS).items():
+            drawn = [t for t in targets if t.task == task]
+            smallest = min(t.size_px for t in drawn)
+            assert all(f for f, t in zip(outcome.found, drawn) if t.size_px > smallest), (task, outcome)
+            assert outcome.wrong == 0
+            assert np.nanmax(outcome.corner_error_px) < 0.75
+
+
+def test_grey_wall_gives_no_detections():
+    for level in (0.0, 0.18, 1.0):
+        wall = np.full((3, *SENSOR), level, dtype=np.float32)
+        for outcome in score_tasks(wall, layout(TASKS, SENSOR, 0, 0), TASKS).values():
+            assert not outcome.found.any() and outcome.wrong == 0
+    assert (to_grey8(np.full((3, 8, 8), 0.5)) == 0).all()  # no contrast to stretch: black, not noise
+
+
+def test_size50_grows_with_blur(photos):
+    """Gaussian blurs of σ = 0 (sharp), 1, 2, 3 px: size50 of markers never falls, and rises from sharp
+    to the strongest blur."""
+    import cv2
+
+    fits = []
+    for sigma in (0, 1, 2, 3):
+        sizes, found, units = [], [], []
+        for seed in (0, 1):
+            for index, image in enumerate(photos):
+                targets = layout(("markers",), SENSOR, seed, index)
+                scene = draw_targets(image, targets).sensor
+                if sigma:
+                    scene = np.stack([cv2.GaussianBlur(c, (0, 0), sigma) for c in scene])
+                outcome = score_tasks(scene, targets, ("markers",))["markers"]
+                sizes += [t.size_px for t in targets]
+                found += outcome.found.tolist()
+                units += [(seed, index)] * len(targets)
+        fits.append(size50(sizes, found, [f"{s}-{i}" for s, i in units]))
+    values = [f["size50"] for f in fits]
+    assert fits[0]["bound"] == "below"
+    assert all(b >= a for a, b in zip(values, values[1:])), values
+    assert values[-1] > 1.5 * values[0], values
+
+
+def test_unknown_task_and_empty_layout():
+    with pytest.raises(InputError, match="--task"):
+        check_tasks(["faces"])
+    assert task_sizes("qr", (96, 96)).size == 0  # no QR footprint fits a third of 96 px
+    image = CleanImage("x", np.zeros((3, 8, 8), np.float32))
+    assert draw_targets(image, []) is image
