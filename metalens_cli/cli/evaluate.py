@@ -156,6 +156,26 @@ PAIRS_OPTIONS = {
     "1.5-6 px) are printed into every clean scene before imaging, and OpenCV's detectors score each capture "
     "and the clean scene (the ceiling): found rate, wrong detections, corner error, size50.",
 )
+@click.option(
+    "--task-model",
+    help="Your own model on every capture: a .onnx (pip install 'metalens-cli[tasks]'), .pt2 (torch.export) or "
+    "TorchScript file taking float N×3×H×W sRGB in 0..1, or module:callable taking uint8 N×H×W×3 sRGB.",
+)
+@click.option(
+    "--task-kind",
+    type=click.Choice(("detect", "segment")),  # imaging.task_models.KINDS
+    default="detect",
+    show_default=True,
+    help="--task-model's output: (N, K, 6) boxes or a raw (N, 4 + classes, anchors) YOLO head; or segmentation "
+    "(N, C, H, W) scores or (N, H, W) classes. Scored by mAP50, mAP50-95 and recall, or mIoU, IoU and Dice.",
+)
+@click.option(
+    "--task-labels",
+    default="clean",
+    show_default=True,
+    help="--task-model's truth: 'clean' (its own output on each clean scene, scores ≥ 0.25) or a folder of labels "
+    "for --images DIR: NAME.txt (YOLO), one COCO .json, or NAME.png class masks.",
+)
 @quiet_option()
 @max_memory_option
 @json_option
@@ -199,6 +219,9 @@ def evaluate(
     zero_order_leak,
     wiener,
     tasks,
+    task_model,
+    task_kind,
+    task_labels,
     quiet,
     max_memory,
     as_json,
@@ -220,8 +243,10 @@ def evaluate(
     """
     tasks = tuple(dict.fromkeys(t for group in tasks for t in group))
     if pairs is not None:
-        if tasks:
-            raise click.BadParameter("is not yet scored on captured pairs (--pairs)", param_hint="--task")
+        if tasks or task_model:
+            raise click.BadParameter(
+                "is not yet scored on captured pairs (--pairs)", param_hint="--task-model" if task_model else "--task"
+            )
         return _evaluate_pairs(
             ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path
         )
@@ -238,6 +263,7 @@ def evaluate(
     metrics = metric_names(lpips_model)
     s = setup_from(list(specs), ctx.params)
     formation_options = dict(formation=formation, alpha_gain=alpha_gain, photons=photons, read_noise=read_noise)
+    model, model_truth = _task_model(task_model, task_kind, task_labels, images, limit, s)
     settings = EvaluationSettings.from_setup(
         s,
         images=images,
@@ -253,6 +279,8 @@ def evaluate(
         zero_order_leak=zero_order_leak if light_levels else None,
         wiener=wiener,
         tasks=tasks,
+        model=model,
+        model_truth=model_truth,
         **formation_options,
     )
     if light_levels and (photons or read_noise or photons_before_filter):
@@ -278,7 +306,7 @@ def evaluate(
         field_model=field_model,
         zero_order=bool(light_levels) and zero_order_leak > 0,
     )
-    if tasks:
+    if tasks or model:
         import dataclasses
 
         from metalens_cli.imaging.task_detection import scoring_seconds
@@ -286,9 +314,8 @@ def evaluate(
         per_capture = (1 + len(kinds)) * max(1, len(light_levels or ()))  # unobstructed and each kind, each camera
         made = sum(1 + wiener + (r is not None) for r in reconstructors)  # raw, wiener, recon per design
         scored = len(seeds) * count * (1 + made * per_capture)  # 1: the clean scene
-        estimate = dataclasses.replace(
-            estimate, seconds=(estimate.seconds or 0.0) + scoring_seconds(tasks, s.pixels, scored)
-        )
+        seconds = scoring_seconds(tasks, s.pixels, scored) + (model.seconds * scored if model else 0.0)
+        estimate = dataclasses.replace(estimate, seconds=(estimate.seconds or 0.0) + seconds)
     announce(estimate, max_memory, device=s.device)
     efficiency = {d.spec: efficiency_used(d.preset, quiet) for d in s.designs}
     with progress_bar("evaluate", quiet) as update:
@@ -314,6 +341,26 @@ def evaluate(
     }
     title = _title(result, seeds, [*reconstructors, wiener or None])
     _report(result, [d.spec for d in s.designs], kinds, metrics, notes, csv_path, plot_path, as_json, extra, title)
+
+
+def _task_model(spec, kind, labels, images, limit, setup):
+    """(the loaded --task-model, checked on a grey image of the sensor's size, and its truth) or
+    (None, "clean")."""
+    if spec is None:
+        return None, "clean"
+    from metalens_cli.imaging.task_models import load_task_model
+
+    model = load_task_model(spec, kind, setup.device, check_pixels=setup.pixels)
+    if labels.strip() == "clean":
+        return model, "clean"
+    from pathlib import Path
+
+    from metalens_cli.errors import InputError
+    from metalens_cli.imaging.task_truth import label_truths
+
+    if not Path(labels).is_dir():
+        raise InputError("--task-labels", f"no such folder {labels!r}", "clean or a folder of labels")
+    return model, label_truths(Path(labels), images, limit, kind, (setup.pixels, setup.pixels))
 
 
 def _title(result, seeds, reconstructors) -> str:
@@ -391,6 +438,7 @@ def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, 
             )
         )
     _task_tables(con, result)
+    _model_tables(con, result)
 
 
 def _task_tables(con, result) -> None:
@@ -440,6 +488,49 @@ def _task_tables(con, result) -> None:
                 ],
             )
         )
+
+
+def _model_tables(con, result) -> None:
+    """Per light level: the user's model's scores per cell, then its paired differences (obstructed)."""
+    names = {"map50": "mAP50", "map50_95": "mAP50-95", "recall50": "recall50"}
+    names |= {"miou": "mIoU", "iou_foreground": "IoU fg", "dice_foreground": "Dice fg"}
+    for light in dict.fromkeys(r.get("light") for r in result.model):
+        where = "" if light is None else f", light {light}"
+        rows = [r for r in result.model if r.get("light") == light]
+        metrics = [m for m in names if m in rows[0]]
+        con.print(
+            render.table(
+                f"Your model{where}: {', '.join(names[m] for m in metrics)} [95 % CI] over {rows[0]['n']} units",
+                ["design", "capture", "obstruction", "condition", *(names[m] for m in metrics)],
+                [
+                    [
+                        r["design"],
+                        r["capture"],
+                        r["obstruction"] or "",
+                        r["condition"],
+                        *("—" if r[m] is None else _ci(r[m], r[f"{m}_ci"], 3, lines=False) for m in metrics),
+                    ]
+                    for r in rows
+                ],
+            )
+        )
+        pairs = [c for c in result.model_comparisons if c.get("light") == light and c["condition"] == "obstructed"]
+        if pairs:
+            con.print(
+                render.table(
+                    f"Your model{where}: paired {names[pairs[0]['metric']]} differences, obstructed [95 % CI]",
+                    ["design", "versus", "obstruction", "difference"],
+                    [
+                        [
+                            f"{c['design']} ({c['capture']})",
+                            f"{c['versus']} ({c['versus_capture']})",
+                            c["obstruction"],
+                            "—" if c["difference"] is None else _ci(c["difference"], c["ci"], 3, lines=False),
+                        ]
+                        for c in pairs
+                    ],
+                )
+            )
 
 
 def _size50(row: dict) -> str:

@@ -34,15 +34,15 @@ def fit_to_canvas(image: np.ndarray, shape: tuple[int, int], margin: int = 0) ->
 
     h, w = shape
     _, ih, iw = image.shape
+    nh, nw, top, left = fit_geometry((ih, iw), shape)
     scale = max(h / ih, w / iw)
-    nh, nw = max(h, round(ih * scale)), max(w, round(iw * scale))
     hwc = np.ascontiguousarray(np.transpose(image, (1, 2, 0)))
     interpolation = cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC
     resized = cv2.resize(hwc, (nw, nh), interpolation=interpolation)
     if resized.ndim == 2:
         resized = resized[:, :, None]
     resized = np.transpose(resized, (2, 0, 1))
-    top, left = (nh - h) // 2 - margin, (nw - w) // 2 - margin  # canvas corner in the resized image
+    top, left = top - margin, left - margin  # canvas corner in the resized image
     pad = [
         (0, 0),
         (max(-top, 0), max(top + h + 2 * margin - nh, 0)),
@@ -51,3 +51,12 @@ def fit_to_canvas(image: np.ndarray, shape: tuple[int, int], margin: int = 0) ->
     resized = np.pad(resized, pad, mode="symmetric")
     top, left = max(top, 0), max(left, 0)
     return np.ascontiguousarray(resized[:, top : top + h + 2 * margin, left : left + w + 2 * margin], dtype=np.float32)
+
+
+def fit_geometry(source_hw: tuple[int, int], shape: tuple[int, int]) -> tuple[int, int, int, int]:
+    """How :func:`fit_to_canvas` frames an image of ``source_hw`` on a sensor of ``shape``: (nh, nw)
+    the size it is resized to, and (top, left) the sensor's corner in the resized image (pixels)."""
+    (ih, iw), (h, w) = source_hw, shape
+    scale = max(h / ih, w / iw)
+    nh, nw = max(h, round(ih * scale)), max(w, round(iw * scale))
+    return nh, nw, (nh - h) // 2, (nw - w) // 2

@@ -32,6 +32,7 @@ from metalens_cli.imaging.field_formation import DEFAULT_TOLERANCE
 from metalens_cli.imaging.formation import check_formation
 from metalens_cli.imaging.images import load_images
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
+from metalens_cli.imaging.model_scores import summarise_model, unit_output
 from metalens_cli.imaging.pipeline import (
     CaptureSetup,
     attach_zero_order,
@@ -41,8 +42,9 @@ from metalens_cli.imaging.pipeline import (
     simulate_captures,
 )
 from metalens_cli.imaging.targets import check_tasks, draw_targets, layout, task_sizes
-from metalens_cli.imaging.task_detection import score_tasks
-from metalens_cli.imaging.task_scores import summarise_tasks, unit_tasks
+from metalens_cli.imaging.task_detection import score_tasks, to_rgb8
+from metalens_cli.imaging.task_scores import compared_pairs, summarise_tasks, unit_tasks
+from metalens_cli.imaging.task_truth import truth_of
 from metalens_cli.io.atomic import atomic_write
 from metalens_cli.optics.two_scale import halo_sampling
 
@@ -88,6 +90,10 @@ class EvaluationSettings:
         wiener: add the oracle Wiener rows (``imaging.wiener``).
         tasks: vision tasks (``imaging.targets.TASKS``) whose targets are drawn into every clean
             scene before imaging, and whose detectors score every capture (``imaging.task_scores``).
+        model: a user's model (``imaging.task_models.TaskModel``) run on every capture and scored
+            (``imaging.model_scores``); None: none.
+        model_truth: its truth: "clean" (its own output on each clean scene,
+            ``imaging.task_truth``), or per image name the labels on the sensor (``label_truths``).
     """
 
     pixels: int
@@ -114,6 +120,8 @@ class EvaluationSettings:
     zero_order_leak: float | None = None
     wiener: bool = False
     tasks: tuple[str, ...] = ()
+    model: object = None
+    model_truth: object = "clean"
 
     def __post_init__(self) -> None:
         """The sensor, depth intervals and wavelengths, the form and the noise, each checked with
@@ -164,8 +172,9 @@ class Evaluation:
     ``verdicts`` (per pair of designs over the light levels, :func:`verdicts`), ``units`` (every
     score), ``psfs`` (per design and seed: depths, windows, kept light), ``images`` (names),
     ``panels`` (first image and seed, for figures), ``warnings``, ``notes``, ``cameras`` (each
-    level's label, the designs' budgets and Wiener μ), for captured pairs ``alignments``, and with
-    tasks their ``tasks`` rows and ``task_comparisons`` (``imaging.task_scores``)."""
+    level's label, the designs' budgets and Wiener μ), for captured pairs ``alignments``, with
+    tasks their ``tasks`` rows and ``task_comparisons`` (``imaging.task_scores``), and with a
+    user's model its ``model`` rows and ``model_comparisons`` (``imaging.model_scores``)."""
 
     rows: list[dict] = field(default_factory=list)
     deltas: list[dict] = field(default_factory=list)
@@ -181,6 +190,8 @@ class Evaluation:
     alignments: list[dict] = field(default_factory=list)
     tasks: list[dict] = field(default_factory=list)
     task_comparisons: list[dict] = field(default_factory=list)
+    model: list[dict] = field(default_factory=list)
+    model_comparisons: list[dict] = field(default_factory=list)
 
 
 def design_photons(design, settings: EvaluationSettings):
@@ -339,6 +350,10 @@ def evaluate(
     targets = {(seed, i): layout(settings.tasks, sensor, seed, i) for seed in seeds for i in range(len(images))}
     outcomes: dict[tuple, dict] = {}  # task outcomes, keyed as scores
     ceiling: dict[tuple, dict] = {}  # (seed, image index) → the clean scene's task outcomes
+    model = settings.model
+    model_outputs: dict[tuple, object] = {}  # what each capture's model output keeps, keyed as scores
+    model_clean: dict[tuple, object] = {}  # (seed, image index) → the same of the clean scene
+    model_truth: dict[tuple, object] = {}  # (seed, image index) → the truth
     metrics = metric_names(lpips_model)
     captures_of = [
         ["raw", *(["wiener"] if settings.wiener else []), *(["recon"] if r is not None else [])] for r in recon
@@ -385,6 +400,10 @@ def evaluate(
                 for index, c in enumerate(captures):
                     if settings.tasks and (seed, index) not in ceiling:
                         ceiling[seed, index] = score_tasks(c.clean, targets[seed, index], settings.tasks)
+                    if model is not None and (seed, index) not in model_truth:
+                        on_clean = model(to_rgb8(c.clean))
+                        model_truth[seed, index] = truth_of(model, on_clean, settings.model_truth, c.name)
+                        model_clean[seed, index] = unit_output(model.kind, on_clean, model_truth[seed, index])
                     for li, camera in enumerate(levels):
                         if camera is None:
                             clear, obstructed = c.unobstructed, c.obstructed
@@ -405,6 +424,10 @@ def evaluate(
                                 scores[key] = score(restored, c.clean, lpips_model, settings.match)
                                 if settings.tasks:
                                     outcomes[key] = score_tasks(restored, targets[seed, index], settings.tasks)
+                                if model is not None:
+                                    model_outputs[key] = unit_output(
+                                        model.kind, model(to_rgb8(restored)), model_truth[seed, index]
+                                    )
                             estimate = restore(obstructed)
                             scores[li, capture, d, kind, seed, index] = score(
                                 estimate, c.clean, lpips_model, settings.match
@@ -412,6 +435,10 @@ def evaluate(
                             if settings.tasks:
                                 outcomes[li, capture, d, kind, seed, index] = score_tasks(
                                     estimate, targets[seed, index], settings.tasks
+                                )
+                            if model is not None:
+                                model_outputs[li, capture, d, kind, seed, index] = unit_output(
+                                    model.kind, model(to_rgb8(estimate)), model_truth[seed, index]
                                 )
                             units.setdefault((kind, seed, d), []).append(
                                 {
@@ -471,6 +498,20 @@ def evaluate(
             )
             out.tasks += rows
             out.task_comparisons += comparisons
+        if model is not None:
+            rows, comparisons = summarise_model(
+                model.kind,
+                specs,
+                captures_of,
+                kinds,
+                [(seed, index) for seed in seeds for index in range(len(images))],
+                {key[1:]: value for key, value in model_outputs.items() if key[0] == li},
+                model_clean,
+                model_truth,
+                None if camera is None else camera.label(),
+            )
+            out.model += rows
+            out.model_comparisons += comparisons
     if cameras:
         out.verdicts = verdicts(specs, captures_of, kinds, seeds, len(images), cameras, scores)
     warn_few_units(
@@ -602,9 +643,7 @@ def summarise(
                 entry[f"delta_{metric}"], entry[f"delta_{metric}_ci"] = stats["mean"], stats["ci"]
             out.deltas.append(entry)
         # design against design on the same kind of capture, and each design's recon against its raw
-        pairs = [(a, b) for i, a in enumerate(cells) for b in cells[i + 1 :] if a[0] == b[0] or a[1] == b[1]]
-        for (cap_a, a), (cap_b, b) in pairs:
-            first_cell, second_cell = ((cap_b, b), (cap_a, a)) if a == b else ((cap_a, a), (cap_b, b))  # recon − raw
+        for first_cell, second_cell in compared_pairs(cells):
             for condition in (*CONDITIONS, "delta"):
                 for metric in metrics:
                     if condition == "delta":
@@ -639,6 +678,7 @@ def evaluation_report(result: Evaluation, extra: dict, notes: list[str], csv_pat
         "images": result.images,
         "confidence": 0.95,
         **({"tasks": result.tasks, "task_comparisons": result.task_comparisons} if result.tasks else {}),
+        **({"model": result.model, "model_comparisons": result.model_comparisons} if result.model else {}),
         **extra,
         "notes": notes,
         "warnings": result.warnings,

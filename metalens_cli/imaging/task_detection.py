@@ -52,12 +52,24 @@ class Outcome:
     wrong: int
 
 
+def _levelled8(values: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``values`` auto-levelled by the ``LEVELS`` percentiles of luminance ``y``, sRGB, 8 bits."""
+    lo, hi = np.percentile(y, LEVELS)
+    scaled = (values - lo) / (hi - lo) if hi > lo else np.zeros_like(values)
+    return np.round(255.0 * linear_to_srgb(np.clip(scaled, 0.0, 1.0))).astype(np.uint8)
+
+
 def to_grey8(linear: np.ndarray) -> np.ndarray:
     """A linear (3, H, W) capture as the 8-bit sRGB grey image (H, W) a detector sees (module doc)."""
     y = luminance(np.asarray(linear, dtype=np.float64))
-    lo, hi = np.percentile(y, LEVELS)
-    scaled = (y - lo) / (hi - lo) if hi > lo else np.zeros_like(y)
-    return np.round(255.0 * linear_to_srgb(np.clip(scaled, 0.0, 1.0))).astype(np.uint8)
+    return _levelled8(y, y)
+
+
+def to_rgb8(linear: np.ndarray) -> np.ndarray:
+    """A linear (3, H, W) capture as the 8-bit sRGB colour image (H, W, 3) a user's model sees:
+    the same levels as :func:`to_grey8`, one gain for every channel."""
+    x = np.asarray(linear, dtype=np.float64)
+    return np.ascontiguousarray(_levelled8(x, luminance(x)).transpose(1, 2, 0))
 
 
 def detect(task: str, grey: np.ndarray) -> list[Detection]:

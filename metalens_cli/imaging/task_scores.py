@@ -86,9 +86,7 @@ def summarise_tasks(
                 for condition in CONDITIONS:
                     labels = {"design": specs[d], "capture": capture, "obstruction": kind, "condition": condition}
                     rows.append(task_row(task, rate(capture, d, kind, condition), drawn, {**labels, **extra}))
-            pairs = [(a, b) for i, a in enumerate(cells) for b in cells[i + 1 :] if a[0] == b[0] or a[1] == b[1]]
-            for (cap_a, a), (cap_b, b) in pairs:
-                first, second = ((cap_b, b), (cap_a, a)) if a == b else ((cap_a, a), (cap_b, b))  # recon − raw
+            for first, second in compared_pairs(cells):
                 for condition in CONDITIONS:
                     x, y = ([_fraction(o) for o in rate(*cell, kind, condition)] for cell in (first, second))
                     stats = paired_difference_ci(x, y, metric="found_rate")
@@ -109,6 +107,13 @@ def summarise_tasks(
                         }
                     )
     return rows, comparisons
+
+
+def compared_pairs(cells: list[tuple[str, int]]) -> list[tuple[tuple[str, int], tuple[str, int]]]:
+    """The (first, second) cells (capture, design index) compared: designs on the same capture,
+    and each design's restorations against its raw capture (recon − raw, wiener − raw, recon − wiener)."""
+    pairs = [(a, b) for i, a in enumerate(cells) for b in cells[i + 1 :] if a[0] == b[0] or a[1] == b[1]]
+    return [((b, a) if a[1] == b[1] else (a, b)) for a, b in pairs]
 
 
 def _fraction(outcome: Outcome) -> float:

@@ -1,0 +1,170 @@
+"""Scores of a user's model (``evaluate --task-model``) over an evaluation's units.
+
+Detection and segmentation are scored over the set, as their benchmarks are (COCO mAP,
+dataset-level mIoU: ``analysis.detection_metrics``), not per unit; the 95 % intervals resample the
+units (image × seed) ``RESAMPLES`` times, and a paired difference between two cells resamples the
+same units for both. A segmentation unit is kept as its confusion counts (sparse), so resampling
+never touches the maps again.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from metalens_cli.analysis.detection_metrics import detection_scores, segmentation_from_confusion
+from metalens_cli.imaging.task_models import Detections
+
+RESAMPLES = 200
+CONFIDENCE = 0.95
+METRICS = {"detect": ("map50", "map50_95", "recall50"), "segment": ("miou", "iou_foreground", "dice_foreground")}
+COMPARED = {"detect": "map50_95", "segment": "miou"}  # the metric of the paired differences
+
+
+def confusion_counts(predicted: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One unit's confusion as sparse (pairs (P, 2) of truth, predicted class; counts (P,))."""
+    pairs, counts = np.unique(np.stack([truth.ravel(), predicted.ravel()], axis=1), axis=0, return_counts=True)
+    return pairs, counts
+
+
+def _dense(units: list, classes: int) -> np.ndarray:
+    """The summed confusion matrix (classes, classes) of sparse units."""
+    matrix = np.zeros((classes, classes), dtype=np.int64)
+    for pairs, counts in units:
+        np.add.at(matrix, (pairs[:, 0], pairs[:, 1]), counts)
+    return matrix
+
+
+def _score(kind: str, outputs: list, truths: list, classes: int) -> dict:
+    """The set's scores: {metric: value or None}."""
+    if kind == "detect":
+        s = detection_scores([(d.boxes, d.scores, d.classes) for d in outputs], [(t.boxes, t.classes) for t in truths])
+    else:
+        s = segmentation_from_confusion(_dense(outputs, classes))
+    return {m: s.get(m) for m in METRICS[kind]}
+
+
+def _classes(kind: str, outputs: list) -> int:
+    """The number of classes a segmentation's sparse units span (0 for detection)."""
+    return 1 + max((int(pairs.max()) for pairs, _ in outputs if pairs.size), default=0) if kind == "segment" else 0
+
+
+def model_row(kind: str, outputs: list, truths: list, labels: dict, seed: int = 0) -> dict:
+    """``labels`` and the scores of per-unit ``outputs`` (:class:`Detections`, or sparse confusions
+    for "segment") against ``truths`` (:class:`Detections`; unused for "segment"), with intervals."""
+    classes = _classes(kind, outputs)
+    point = _score(kind, outputs, truths, classes)
+    rng = np.random.default_rng(seed)
+    n = len(outputs)
+    draws = {m: [] for m in point}
+    for _ in range(RESAMPLES if n > 1 else 0):
+        take = rng.integers(0, n, n)
+        for m, v in _score(
+            kind, [outputs[i] for i in take], [truths[i] for i in take] if truths else [], classes
+        ).items():
+            if v is not None:
+                draws[m].append(v)
+    tail = 100 * (1 - CONFIDENCE) / 2
+    row = {**labels, "n": n}
+    for m, v in point.items():
+        row[m] = v
+        row[f"{m}_ci"] = (
+            None
+            if v is None
+            else ([float(x) for x in np.percentile(draws[m], [tail, 100 - tail])] if draws[m] else [v, v])
+        )
+    return row
+
+
+def model_difference(kind: str, first: list, second: list, truths: list, metric: str, seed: int = 0) -> dict:
+    """{"difference", "ci", "n"} of ``metric`` between two cells' per-unit outputs on the same
+    units, resampling the units jointly."""
+    classes = max(_classes(kind, first), _classes(kind, second))
+    a, b = _score(kind, first, truths, classes)[metric], _score(kind, second, truths, classes)[metric]
+    if a is None or b is None:
+        return {"difference": None, "ci": None, "n": len(first)}
+    rng = np.random.default_rng(seed)
+    n = len(first)
+    draws = []
+    for _ in range(RESAMPLES if n > 1 else 0):
+        take = rng.integers(0, n, n)
+        t = [truths[i] for i in take] if truths else []
+        x = _score(kind, [first[i] for i in take], t, classes)[metric]
+        y = _score(kind, [second[i] for i in take], t, classes)[metric]
+        if x is not None and y is not None:
+            draws.append(x - y)
+    tail = 100 * (1 - CONFIDENCE) / 2
+    ci = [float(v) for v in np.percentile(draws, [tail, 100 - tail])] if draws else [a - b, a - b]
+    return {"difference": a - b, "ci": ci, "n": n}
+
+
+def unit_output(kind: str, output, truth) -> Detections | tuple:
+    """What a unit keeps of a model's output: its :class:`Detections`, or its sparse confusion
+    against the truth map for "segment"."""
+    return output if kind == "detect" else confusion_counts(output, truth)
+
+
+def summarise_model(
+    kind: str, specs, captures_of, kinds, units, outputs: dict, clean: dict, truths: dict, light: str | None = None
+) -> tuple[list[dict], list[dict]]:
+    """(rows, comparisons) of one camera, as ``task_scores.summarise_tasks`` lays them out.
+
+    Args:
+        kind: "detect" or "segment".
+        specs: the designs' specs; ``captures_of[d]`` the captures design d was scored on.
+        kinds: obstruction kinds.
+        units: the (seed, image index) units, in order.
+        outputs: ``outputs[capture, d, kind or "unobstructed", seed, index]``: what each unit keeps
+            (:func:`unit_output`).
+        clean: ``clean[seed, index]``: the same of the clean scene (the ceiling).
+        truths: ``truths[seed, index]``: the unit's truth :class:`Detections` (detection).
+        light: the camera's label (added to every entry), None for none.
+    """
+    from metalens_cli.imaging.task_scores import CONDITIONS, compared_pairs
+
+    extra = {} if light is None else {"light": light}
+    truth = [truths[u] for u in units] if kind == "detect" else []
+    rows = [
+        model_row(
+            kind,
+            [clean[u] for u in units],
+            truth,
+            {"design": "clean", "capture": "clean", "obstruction": None, "condition": "clean", **extra},
+        )
+    ]
+    comparisons = []
+    cells = [(capture, d) for d in range(len(specs)) for capture in captures_of[d]]
+
+    def unit_outputs(capture, d, obstruction, condition):
+        return [outputs[capture, d, "unobstructed" if condition == "unobstructed" else obstruction, *u] for u in units]
+
+    for obstruction in kinds:
+        for capture, d in cells:
+            for condition in CONDITIONS:
+                labels = {"design": specs[d], "capture": capture, "obstruction": obstruction, "condition": condition}
+                rows.append(
+                    model_row(kind, unit_outputs(capture, d, obstruction, condition), truth, {**labels, **extra})
+                )
+        for first, second in compared_pairs(cells):
+            for condition in CONDITIONS:
+                metric = COMPARED[kind]
+                stats = model_difference(
+                    kind,
+                    unit_outputs(*first, obstruction, condition),
+                    unit_outputs(*second, obstruction, condition),
+                    truth,
+                    metric,
+                )
+                comparisons.append(
+                    {
+                        "design": specs[first[1]],
+                        "capture": first[0],
+                        "versus": specs[second[1]],
+                        "versus_capture": second[0],
+                        "obstruction": obstruction,
+                        "condition": condition,
+                        "metric": metric,
+                        **stats,
+                        **extra,
+                    }
+                )
+    return rows, comparisons
