@@ -256,7 +256,16 @@ def segmentation_scores(predicted_maps, truth_maps, classes=None, ignore_index: 
                     f"{name}[{i}]", f"class {values[outside][0]} not among classes", f"values in {labels.tolist()}"
                 )
         confusion += np.bincount(np.searchsorted(labels, t) * k + np.searchsorted(labels, p), minlength=k * k)
-    confusion = confusion.reshape(k, k)
+    return segmentation_from_confusion(confusion.reshape(k, k), labels)
+
+
+def segmentation_from_confusion(confusion, classes=None) -> dict:
+    """:func:`segmentation_scores` of a pooled confusion matrix (K, K), rows the truth's class and
+    columns the prediction's, of ``classes`` (K,) (default 0..K−1)."""
+    confusion = np.asarray(confusion, dtype=np.int64)
+    if confusion.ndim != 2 or confusion.shape[0] != confusion.shape[1] or (confusion < 0).any():
+        raise InputError("confusion", f"shape {confusion.shape}", "a square matrix of counts ≥ 0")
+    labels = np.arange(len(confusion)) if classes is None else np.asarray(classes)
     tp = np.diag(confusion)
     union = confusion.sum(axis=0) + confusion.sum(axis=1) - tp
     present = union > 0

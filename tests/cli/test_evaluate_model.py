@@ -70,7 +70,7 @@ def test_labels_from_a_folder(capsys, tmp_path):
     labels.mkdir()
     for k in range(2):
         image = np.full((200, 240, 3), 128, np.uint8)  # framed on the 160² sensor: scaled 0.8, cropped 16 px a side
-        y, x = 60 + 10 * k, 80
+        y, x = 60 + 20 * k, 80  # on the sensor: rows 48-64 or 64-80, columns 48-64, cells of the detector
         image[y : y + 20, x : x + 20] = 255  # one bright 20 × 20 square: 16 px on the sensor, one anchor cell
         cv2.imwrite(str(images / f"im{k}.png"), image)
         (labels / f"im{k}.txt").write_text(f"0 {(x + 10) / 240} {(y + 10) / 200} {20 / 240} {20 / 200}\n")

@@ -105,3 +105,10 @@ def test_unknown_task_and_empty_layout():
     assert task_sizes("qr", (96, 96)).size == 0  # no QR footprint fits a third of 96 px
     image = CleanImage("x", np.zeros((3, 8, 8), np.float32))
     assert draw_targets(image, []) is image
+
+
+def test_opencv_keeps_its_contrib_modules():
+    """The detectors need opencv-contrib's aruco: no other package may have installed a second cv2."""
+    import cv2
+
+    assert hasattr(cv2, "aruco") and hasattr(cv2, "QRCodeDetector")

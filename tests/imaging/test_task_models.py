@@ -7,10 +7,10 @@ import sys
 import numpy as np
 import pytest
 import torch
+from toy_models import BrightSegmenter, CellDetector
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.task_models import decode, load_task_model
-from toy_models import BrightSegmenter, CellDetector
 
 SIDE = 64
 
