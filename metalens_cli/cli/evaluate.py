@@ -48,6 +48,7 @@ PAIRS_OPTIONS = {
     "max_memory",
     "max_time",
     "specs",
+    "tasks",
 }
 
 
@@ -243,12 +244,10 @@ def evaluate(
     """
     tasks = tuple(dict.fromkeys(t for group in tasks for t in group))
     if pairs is not None:
-        if tasks or task_model:
-            raise click.BadParameter(
-                "is not yet scored on captured pairs (--pairs)", param_hint="--task-model" if task_model else "--task"
-            )
+        if task_model:
+            raise click.BadParameter("is not yet scored on captured pairs (--pairs)", param_hint="--task-model")
         return _evaluate_pairs(
-            ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path
+            ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path, tasks
         )
     if not specs:
         raise click.UsageError("give at least one DESIGN, or --pairs DIR for captured photographs")
@@ -546,7 +545,7 @@ def _size50(row: dict) -> str:
 
 
 def _evaluate_pairs(
-    ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path
+    ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path, tasks
 ) -> None:
     """evaluate --pairs: the table of captured photographs (imaging.captured_pairs)."""
     from pathlib import Path
@@ -595,7 +594,7 @@ def _evaluate_pairs(
     lpips_model, notes = _lpips(lpips_weights)
     metrics = metric_names(lpips_model)
     with progress_bar("evaluate --pairs", quiet) as update:
-        result = evaluate_pairs(layout, lpips_model, match, align, refine, update)
+        result = evaluate_pairs(layout, lpips_model, match, align, refine, update, tasks)
     _report(
         result,
         layout.designs,

@@ -100,6 +100,10 @@ COMMANDS = {
     "mtf": ("mtf", "MTFs of a PSF cube (EXR, .npz, .mat, TIFF) or the slanted-edge SFR of an image."),
     "simulate": ("simulate", "Simulated captures of images through a design with a near obstruction."),
     "evaluate": ("evaluate", "PSNR/SSIM of obstructed and unobstructed captures, design against design."),
+    "board": (
+        "board",
+        "A printable board of ArUco markers and QR codes and its layout file, for evaluate --pairs --task.",
+    ),
     "optimize": ("optimize", "Learn the rotation map end to end from a preset into a run directory."),
     "reconstruct": ("reconstruct", "The reconstruction network of a design: train, apply, export."),
 }

@@ -36,6 +36,9 @@ from metalens_cli.errors import InputError
 from metalens_cli.imaging.evaluation import Evaluation, metric_names, summarise, warn_few_units
 from metalens_cli.imaging.images import luminance, read_linear
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
+from metalens_cli.imaging.targets import from_records
+from metalens_cli.imaging.task_detection import score_tasks
+from metalens_cli.imaging.task_scores import summarise_tasks
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 BYTES_PER_PIXEL = 500  # peak memory per pixel of the largest image: float64 SSIM/PSNR copies, the warp
@@ -160,54 +163,74 @@ def evaluate_pairs(
     align: str = "unobstructed",
     refine: str = "flow",
     on_progress: Callable[[int, int], None] | None = None,
+    tasks=(),
 ) -> Evaluation:
     """Score every capture of ``layout`` against its reference (see the module docstring); the
     result is that of simulated evaluation with ``alignments`` (one report per registration)
-    and no ``psfs``."""
+    and no ``psfs``. With ``tasks`` (``imaging.targets.TASKS``), each reference's layout file
+    (``DIR/gt/NAME.targets.json``, ``io.target_files``) gives its targets in its pixels, and the
+    detectors score every aligned capture and the reference itself (the ceiling) on the targets
+    that lie inside the region every capture of the scene, of every design, covers."""
     from metalens_cli.imaging.pipeline import score
 
     if align not in ALIGN_MODES:
         raise InputError("--align", repr(align), " or ".join(ALIGN_MODES))
+    layouts = {name: _scene_targets(layout.gt[name]) for name in layout.names} if tasks else {}
     out = Evaluation(images=list(layout.names))
     out.panels = {design: [] for design in layout.designs}
     metrics = metric_names(lpips_model)
     scores: dict[tuple, dict] = {}
+    outcomes: dict[tuple, dict] = {}
+    ceiling: dict[tuple, dict] = {}
+    in_view: dict[tuple, list] = {}
+    units: dict[tuple[int, int], list] = {}
     total = len(layout.designs) * len(layout.names)
     grey_names: list[str] = []
-    for d, design in enumerate(layout.designs):
-        for index, name in enumerate(layout.names):
-            clean = read_linear(layout.gt[name], f"--pairs: {layout.gt[name]}")
-            grey = bool((clean[0] == clean[1]).all() and (clean[1] == clean[2]).all())
-            if grey and d == 0:
-                grey_names.append(name)
-            aligned = _aligned_captures(layout, design, name, clean, align, refine, out)
-            box = _common_box([valid for _, valid in aligned.values()])
+    for index, name in enumerate(layout.names):
+        clean = read_linear(layout.gt[name], f"--pairs: {layout.gt[name]}")
+        grey = bool((clean[0] == clean[1]).all() and (clean[1] == clean[2]).all())
+        if grey:
+            grey_names.append(name)
+        scene = {
+            d: _aligned_captures(layout, design, name, clean, align, refine, out)
+            for d, design in enumerate(layout.designs)
+        }
+        boxes = {d: _common_box([valid for _, valid in aligned.values()]) for d, aligned in scene.items()}
+        if tasks:
+            shared = _common_box([valid for aligned in scene.values() for _, valid in aligned.values()])
+            in_view[0, index] = targets = [t for t in layouts[name] if _inside(t, shared)]
+            ceiling[0, index] = score_tasks(clean, targets, tasks)
+        for d, design in enumerate(layout.designs):
+            box = boxes[d]
             reference = clean[:, box[0] : box[1], box[2] : box[3]]
-            for (capture, condition), (image, _) in aligned.items():
+            for (capture, condition), (image, _) in scene[d].items():
                 crop = image[:, box[0] : box[1], box[2] : box[3]]
                 if grey:  # a monochrome reference says nothing of colour: compare luminance only
                     crop = np.repeat(luminance(crop)[None], 3, axis=0)
                 scores[capture, d, condition, 0, index] = score(crop, reference, lpips_model, match)
+                if tasks:
+                    outcomes[capture, d, condition, 0, index] = score_tasks(image, in_view[0, index], tasks)
                 if index == 0:
                     if not out.panels[design]:
                         out.panels[design].append(("gt", reference))
                     prefix = "recon, " if capture == "recon" else ""
                     out.panels[design].append((f"{prefix}{condition}", crop))
-            for capture in ("raw", "recon") if layout.has_recon(design) else ("raw",):
-                for kind in layout.kinds:
-                    out.units.append(
-                        {
-                            "design": design,
-                            "capture": capture,
-                            "obstruction": kind,
-                            "seed": None,
-                            "image": name,
-                            "unobstructed": scores[capture, d, "unobstructed", 0, index],
-                            "obstructed": scores[capture, d, kind, 0, index],
-                        }
-                    )
+            units[d, index] = [
+                {
+                    "design": design,
+                    "capture": capture,
+                    "obstruction": kind,
+                    "seed": None,
+                    "image": name,
+                    "unobstructed": scores[capture, d, "unobstructed", 0, index],
+                    "obstructed": scores[capture, d, kind, 0, index],
+                }
+                for capture in (("raw", "recon") if layout.has_recon(design) else ("raw",))
+                for kind in layout.kinds
+            ]
             if on_progress is not None:
-                on_progress(d * len(layout.names) + index + 1, total)
+                on_progress(index * len(layout.designs) + d + 1, total)
+    out.units = [unit for d in range(len(layout.designs)) for i in range(len(layout.names)) for unit in units[d, i]]
     if grey_names:
         out.warnings.append(
             f"{len(grey_names)} greyscale reference(s) "
@@ -216,8 +239,36 @@ def evaluate_pairs(
         )
     captures_of = [["raw", "recon"] if layout.has_recon(design) else ["raw"] for design in layout.designs]
     summarise(out, layout.designs, captures_of, layout.kinds, [0], len(layout.names), metrics, scores)
+    if tasks:
+        out.tasks, out.task_comparisons = summarise_tasks(
+            tasks, layout.designs, captures_of, layout.kinds, [(0, i) for i in range(len(layout.names))],
+            outcomes, ceiling, in_view,
+        )  # fmt: skip
     warn_few_units(out, len(layout.names), f"{len(layout.names)} scene(s)", "capture more scenes")
     return out
+
+
+def _scene_targets(reference: Path) -> list:
+    """The targets of a reference image from its layout file, checked to be of its size."""
+    from metalens_cli.io.input_files import check_image_size
+    from metalens_cli.io.target_files import read_targets, targets_path
+
+    path = targets_path(reference)
+    field = "--task"
+    if not path.is_file():
+        raise InputError(
+            field, f"no layout {path.name} beside {reference}", "DIR/gt/NAME.targets.json (metalens board)"
+        )
+    hw, records = read_targets(path, field)
+    if tuple(hw) != check_image_size(reference, "--pairs"):
+        raise InputError(field, f"{path.name} is for {hw[1]} × {hw[0]} pixels", f"the size of {reference.name}")
+    return from_records(records, field)
+
+
+def _inside(target, box: tuple[int, int, int, int]) -> bool:
+    """Whether ``target``'s footprint lies inside ``box`` (top, bottom, left, right)."""
+    x0, y0, side = target.footprint
+    return box[2] <= x0 and x0 + side <= box[3] and box[0] <= y0 and y0 + side <= box[1]
 
 
 def _aligned_captures(

@@ -157,3 +157,37 @@ def draw_targets(image: CleanImage, targets: list[Target]) -> CleanImage:
         x0, y0, side = target.footprint
         linear[:, m + y0 : m + y0 + side, m + x0 : m + x0 + side] = render(target)
     return dataclasses.replace(image, linear=linear)
+
+
+def to_records(targets: list[Target]) -> list[dict]:
+    """``targets`` as the records of a layout file (``io.target_files``)."""
+    return [
+        {
+            "task": t.task,
+            "key": t.key,
+            "size_px": t.size_px,
+            "corners": t.corners.tolist(),
+            "footprint": list(t.footprint),
+        }
+        for t in targets
+    ]
+
+
+def from_records(records: list[dict], field: str) -> list[Target]:
+    """The targets of a layout file's records; a task this version does not know is an
+    ``InputError`` naming ``field``."""
+    out = []
+    for r in records:
+        if r["task"] not in TASKS:
+            raise InputError(field, f"target of unknown task {r['task']!r}", ", ".join(TASKS))
+        out.append(Target(r["task"], r["key"], r["size_px"], np.asarray(r["corners"]), tuple(r["footprint"])))
+    return out
+
+
+def board(tasks, pixels_hw: tuple[int, int], seed: int = 0) -> tuple[np.ndarray, list[Target]]:
+    """A printable board: (linear (3, H, W) in 0..1, white paper and black ink, and its targets),
+    the layout of unit (``seed``, 0) (:func:`layout`)."""
+    targets = layout(tasks, pixels_hw, seed, 0)
+    paper = CleanImage("board", np.full((3, *pixels_hw), PAPER, dtype=np.float32))
+    printed = draw_targets(paper, targets).linear
+    return np.clip((printed - INK) / (PAPER - INK), 0.0, 1.0), targets

@@ -54,7 +54,6 @@ def test_bad_tasks_exit_2_in_one_line(capsys, tmp_path):
     for args in (
         ["--task", "faces"],
         ["--task", "qr", "--pixels", "96"],  # no QR code fits a 96² sensor
-        ["--task", "markers", "--pairs", str(tmp_path)],
     ):
         code, stdout, stderr = invoke(capsys, "evaluate", "hyperbolic:532nm", *SMALL, *args)
         assert code == 2, (args, stderr)
