@@ -7,7 +7,7 @@ import click
 from metalens_cli.cli import render
 from metalens_cli.cli.options import CommaChoice, MetalensCommand, OutputFile, json_option
 
-TASKS = ("markers", "qr")  # imaging.targets.TASKS (not imported: it pulls in numpy)
+TASKS = ("markers", "qr", "text")  # imaging.targets.TASKS (not imported: it pulls in numpy)
 
 
 @click.command("board", cls=MetalensCommand)

@@ -30,7 +30,7 @@ MATCH_METHODS = (
     "luminance",
 )  # imaging.metrics.MATCH_METHODS, the first the default (not imported: it pulls in torch)
 ALIGN_MODES = ("unobstructed", "each", "none")  # imaging.captured_pairs.ALIGN_MODES
-TASKS = ("markers", "qr")  # imaging.targets.TASKS (not imported: it pulls in numpy)
+TASKS = ("markers", "qr", "text")  # imaging.targets.TASKS (not imported: it pulls in numpy)
 LABELS = {"unobstructed": "Unobs.", "obstructed": "Obs.", "delta": "Δ"}
 
 
@@ -153,9 +153,10 @@ PAIRS_OPTIONS = {
     "tasks",
     type=CommaChoice(TASKS),
     multiple=True,
-    help="Vision tasks, comma-separated or repeated: ArUco markers (side 24-160 px) and QR codes (modules "
-    "1.5-6 px) are printed into every clean scene before imaging, and OpenCV's detectors score each capture "
-    "and the clean scene (the ceiling): found rate, wrong detections, corner error, size50.",
+    help="Vision tasks, comma-separated or repeated: ArUco markers (side 24-160 px), QR codes (modules 1.5-6 px) "
+    "and text lines (10-40 px) are printed into every clean scene before imaging; OpenCV's detectors and RapidOCR "
+    "(text: pip install --no-deps rapidocr) score each capture and the clean scene (the ceiling): found rate, "
+    "wrong detections, corner error, size50 (text: also line recall and character error rate).",
 )
 @click.option(
     "--task-model",
@@ -446,10 +447,14 @@ def _task_tables(con, result) -> None:
     for task, light in dict.fromkeys((r["task"], r.get("light")) for r in result.tasks):
         where = "" if light is None else f", light {light}"
         rows = [r for r in result.tasks if r["task"] == task and r.get("light") == light]
+        text = task == "text"
         con.print(
             render.table(
-                f"Task {task}{where}: found rate [95 % CI] over {rows[0]['n']} units, size50 ({rows[0]['size_unit']})",
-                ["design", "capture", "obstruction", "condition", "found", "size50", "wrong/unit", "corner err px"],
+                f"Task {task}{where}: {'read exactly' if text else 'found'} [95 % CI] over {rows[0]['n']} units, "
+                f"size50 ({rows[0]['size_unit']})",
+                ["design", "capture", "obstruction", "condition", "read" if text else "found", "size50"]
+                + (["line recall", "CER"] if text else [])
+                + ["wrong/unit", "corner err px"],
                 [
                     [
                         r["design"],
@@ -458,6 +463,7 @@ def _task_tables(con, result) -> None:
                         r["condition"],
                         _ci(r["found_rate"], r["found_rate_ci"], 2, lines=False),
                         _size50(r),
+                        *([f"{r['line_recall']:.2f}", f"{r['cer']:.2f}"] if text else []),
                         f"{r['wrong_per_unit']:.2f}",
                         "" if r["corner_error_px"] is None else f"{r['corner_error_px']:.2f}",
                     ]

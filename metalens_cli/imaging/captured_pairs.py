@@ -267,8 +267,8 @@ def _scene_targets(reference: Path) -> list:
 
 def _inside(target, box: tuple[int, int, int, int]) -> bool:
     """Whether ``target``'s footprint lies inside ``box`` (top, bottom, left, right)."""
-    x0, y0, side = target.footprint
-    return box[2] <= x0 and x0 + side <= box[3] and box[0] <= y0 and y0 + side <= box[1]
+    x0, y0, fw, fh = target.footprint
+    return box[2] <= x0 and x0 + fw <= box[3] and box[0] <= y0 and y0 + fh <= box[1]
 
 
 def _aligned_captures(

@@ -42,7 +42,7 @@ from metalens_cli.imaging.pipeline import (
     simulate_captures,
 )
 from metalens_cli.imaging.targets import check_tasks, draw_targets, layout, task_sizes
-from metalens_cli.imaging.task_detection import score_tasks, to_rgb8
+from metalens_cli.imaging.task_detection import check_dependencies, score_tasks, to_rgb8
 from metalens_cli.imaging.task_scores import compared_pairs, summarise_tasks, unit_tasks
 from metalens_cli.imaging.task_truth import truth_of
 from metalens_cli.io.atomic import atomic_write
@@ -138,6 +138,7 @@ class EvaluationSettings:
                 arguments.number(getattr(self, name), name, lo=0.0, form="a number ≥ 0")
         arguments.number(self.read_electrons, "read_electrons", lo=0.0, form="read noise ≥ 0 (e⁻)")
         self.tasks = check_tasks(self.tasks)
+        check_dependencies(self.tasks)
         for task in self.tasks:
             if not task_sizes(task, (self.pixels, self.pixels)).size:
                 raise InputError("--task", f"{task}: no target fits a {self.pixels}² sensor", "a larger --pixels")

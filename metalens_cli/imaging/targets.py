@@ -1,60 +1,69 @@
-"""Vision-task targets drawn into clean scenes: ArUco markers and QR codes with exact ground truth.
+"""Vision-task targets drawn into clean scenes: ArUco markers, QR codes and text lines with exact
+ground truth.
 
 A target is printed matte (linear reflectance ``PAPER`` white, ``INK`` black) on the far plane and
 drawn into the clean image before imaging, so every design images the same targets. Its
-footprint is the code and its quiet zone (one cell for a marker, four modules for a QR code),
-an integer square of sensor pixels; the code inside it is rendered ``RENDER`` times finer and
-area-averaged onto the pixels in linear light, so its corners are exact to a fraction of a pixel
-at any size.
+footprint is the code and its quiet zone (one cell for a marker, four modules for a QR code, half
+the text's size around a line), an integer rectangle of sensor pixels; the target inside it is
+rendered ``RENDER`` times finer and area-averaged onto the pixels in linear light, so its corners
+are exact to a fraction of a pixel at any size.
 
 Coordinates: sensor pixels (x right, y down) with pixel centres at integers (OpenCV's), so the
 code's outer corner at pixel boundary b lies at b − 0.5. Corners run clockwise from the code's
-top-left. A target's ``size_px`` is the quantity its detection limit is stated in: the marker's
-side (outer black border) or the QR code's module.
+top-left (a text line's: its ink box). A target's ``size_px`` is the quantity its detection limit
+is stated in: the marker's side (outer black border), the QR code's module, or the text's size
+(the font's em, DejaVu Sans as matplotlib ships it, so the rendering is the same everywhere).
 
 Sizes are log-spaced over ``SIZES_PX`` (one target of each size per unit, those whose footprint
-fits a third of the sensor's side), placed without overlap at positions drawn from the unit's
-seed; the markers' IDs and the QR payloads are drawn the same way.
+fits a third of the sensor's side; a text line may be two thirds wide), placed without overlap
+at positions drawn from the unit's seed; the markers' IDs, the QR payloads and the text strings
+are drawn the same way.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.images import CleanImage
 
-TASKS = ("markers", "qr")
-SIZE_MEANING = {"markers": "marker side (px)", "qr": "QR module (px)"}
-SIZES_PX = {"markers": (24.0, 160.0), "qr": (1.5, 6.0)}  # log-spaced, smallest to largest
+TASKS = ("markers", "qr", "text")
+SIZE_MEANING = {"markers": "marker side (px)", "qr": "QR module (px)", "text": "text size, em (px)"}
+SIZES_PX = {"markers": (24.0, 160.0), "qr": (1.5, 6.0), "text": (10.0, 40.0)}  # log-spaced, smallest to largest
 PER_UNIT = 6  # targets of each task per unit, one of each size
 PAPER, INK = 0.8, 0.03  # linear reflectance of matte white paper and black ink
-RENDER = 24  # render sub-samples per cell or module before area averaging
+RENDER = 24  # render sub-samples per cell, module or text pixel before area averaging
 MARKER_DICTIONARY = "DICT_4X4_250"  # cv2.aruco: 4 × 4 data bits, 1-cell black border, 250 IDs
 MARKER_CELLS, MARKER_QUIET = 6, 1  # cells across the marker (data and border) and in its quiet zone
 QR_MODULES, QR_QUIET = 21, 4  # version 1, and the standard's quiet zone
+TEXT_ALPHABET = "ABCDEFGHJKLMNPQRSTUVWXYZ23456789"  # no 0/O, 1/I: a reading error is an error
+TEXT_GROUPS, TEXT_GROUP = 2, 4  # a line: two groups of four characters, e.g. "QX7K M2PA"
+TEXT_MARGIN = 0.5  # the paper around a text line, in its size
+TEXT_WIDTH = 0.72  # upper bound of a character's advance (em): sizes the footprint before rendering
 PLACEMENT_TRIES = 400
 
 
 @dataclass(frozen=True)
 class Target:
-    """One drawn target: ``task``, ``key`` (marker ID as text, or QR payload), ``size_px`` (see the
-    module), ``corners`` (4, 2) x, y of the code's outer corners in sensor pixels, clockwise from
-    top-left, and ``footprint`` (x0, y0, side): the pixels it covers with its quiet zone."""
+    """One drawn target: ``task``, ``key`` (marker ID as text, QR payload or the text line),
+    ``size_px`` (see the module), ``corners`` (4, 2) x, y of the code's outer corners (or the text's
+    ink box) in sensor pixels, clockwise from top-left, and ``footprint`` (x0, y0, width, height):
+    the pixels it covers with its quiet zone."""
 
     task: str
     key: str
     size_px: float
     corners: np.ndarray
-    footprint: tuple[int, int, int]
+    footprint: tuple[int, int, int, int]
 
     @property
     def side_px(self) -> float:
-        """The code's side (px): what a corner tolerance is stated in."""
-        return float(np.linalg.norm(self.corners[1] - self.corners[0]))
+        """The code's side, or the text line's height (px): what a corner tolerance is stated in."""
+        return float(np.linalg.norm(self.corners[3] - self.corners[0]))
 
 
 def check_tasks(tasks) -> tuple[str, ...]:
@@ -68,17 +77,28 @@ def check_tasks(tasks) -> tuple[str, ...]:
 
 def task_sizes(task: str, sensor_hw: tuple[int, int]) -> np.ndarray:
     """The ``PER_UNIT`` log-spaced sizes of ``task`` (px, :data:`SIZE_MEANING`) whose footprint fits a
-    third of the sensor's shorter side."""
+    third of the sensor's shorter side (a text line's width: two thirds)."""
     lo, hi = SIZES_PX[task]
     sizes = np.geomspace(lo, hi, PER_UNIT)
-    return sizes[[_footprint_side(task, s) <= min(sensor_hw) // 3 for s in sizes]]
+    side = min(sensor_hw)
+    return sizes[
+        [
+            h <= side // 3 and w <= (2 if task == "text" else 1) * side // 3
+            for h, w in (_footprint_hw(task, s) for s in sizes)
+        ]
+    ]
 
 
-def _footprint_side(task: str, size_px: float) -> int:
-    """The footprint's side (px, an integer) of a target of ``size_px``."""
+def _footprint_hw(task: str, size_px: float) -> tuple[int, int]:
+    """The footprint's (height, width) (px, integers) of a target of ``size_px``."""
     if task == "markers":
-        return round(size_px * (MARKER_CELLS + 2 * MARKER_QUIET) / MARKER_CELLS)
-    return round(size_px * (QR_MODULES + 2 * QR_QUIET))
+        side = round(size_px * (MARKER_CELLS + 2 * MARKER_QUIET) / MARKER_CELLS)
+    elif task == "qr":
+        side = round(size_px * (QR_MODULES + 2 * QR_QUIET))
+    else:
+        characters = TEXT_GROUPS * TEXT_GROUP + TEXT_GROUPS - 1
+        return round(size_px * (1.2 + 2 * TEXT_MARGIN)), round(size_px * (characters * TEXT_WIDTH + 2 * TEXT_MARGIN))
+    return side, side
 
 
 def layout(tasks, sensor_hw: tuple[int, int], seed: int, index: int) -> list[Target]:
@@ -88,32 +108,65 @@ def layout(tasks, sensor_hw: tuple[int, int], seed: int, index: int) -> list[Tar
     rng = np.random.default_rng([seed, index, 0x7A5C])
     h, w = sensor_hw
     wanted = [(task, size) for task in check_tasks(tasks) for size in task_sizes(task, sensor_hw)]
-    wanted.sort(key=lambda ts: -_footprint_side(*ts))
+    wanted.sort(key=lambda ts: -np.prod(_footprint_hw(*ts)))
     marker_ids = iter(rng.choice(250, size=PER_UNIT, replace=False))
-    taken: list[tuple[int, int, int]] = []
+    taken: list[tuple[int, int, int, int]] = []
     targets = []
     for k, (task, size) in enumerate(wanted):
-        side = _footprint_side(task, size)
+        fh, fw = _footprint_hw(task, size)
         for _ in range(PLACEMENT_TRIES):
-            x0, y0 = int(rng.integers(0, w - side + 1)), int(rng.integers(0, h - side + 1))
-            if all(x0 >= a + s or a >= x0 + side or y0 >= b + s or b >= y0 + side for a, b, s in taken):
+            x0, y0 = int(rng.integers(0, w - fw + 1)), int(rng.integers(0, h - fh + 1))
+            if all(x0 >= a + aw or a >= x0 + fw or y0 >= b + bh or b >= y0 + fh for a, b, aw, bh in taken):
                 break
         else:
             continue
-        taken.append((x0, y0, side))
-        key = str(int(next(marker_ids))) if task == "markers" else f"ML-{k:02d}-{int(rng.integers(10**5)):05d}"
-        targets.append(_target(task, key, (x0, y0, side)))
+        taken.append((x0, y0, fw, fh))
+        if task == "markers":
+            key = str(int(next(marker_ids)))
+        elif task == "qr":
+            key = f"ML-{k:02d}-{int(rng.integers(10**5)):05d}"
+        else:
+            letters = rng.choice(list(TEXT_ALPHABET), TEXT_GROUPS * TEXT_GROUP)
+            key = " ".join("".join(letters[g * TEXT_GROUP : (g + 1) * TEXT_GROUP]) for g in range(TEXT_GROUPS))
+        targets.append(_target(task, key, size, (x0, y0, fw, fh)))
     return targets
 
 
-def _target(task: str, key: str, footprint: tuple[int, int, int]) -> Target:
-    """A target of ``task`` with its exact corners in the footprint (x0, y0, side)."""
-    x0, y0, side = footprint
+def _target(task: str, key: str, size_px: float, footprint: tuple[int, int, int, int]) -> Target:
+    """A target of ``task`` with its exact corners in the footprint (x0, y0, width, height)."""
+    x0, y0, fw, fh = footprint
+    if task == "text":
+        ink, _ = _text_ink(key, size_px, fw, fh)
+        left, top, right, bottom = (v / RENDER - 0.5 for v in ink)
+        corners = np.array([[left, top], [right, top], [right, bottom], [left, bottom]]) + [x0, y0]
+        return Target(task, key, size_px, corners, footprint)
     cells, quiet = (MARKER_CELLS, MARKER_QUIET) if task == "markers" else (QR_MODULES, QR_QUIET)
-    unit = side / (cells + 2 * quiet)  # a cell or module (px)
+    unit = fw / (cells + 2 * quiet)  # a cell or module (px)
     a, b = quiet * unit - 0.5, (quiet + cells) * unit - 0.5
     corners = np.array([[a, a], [b, a], [b, b], [a, b]]) + [x0, y0]
     return Target(task, key, unit * cells if task == "markers" else unit, corners, footprint)
+
+
+@lru_cache(maxsize=64)
+def _text_ink(text: str, size_px: float, fw: int, fh: int) -> tuple[tuple[int, int, int, int], np.ndarray]:
+    """((left, top, right, bottom) of the ink in the fine footprint's pixels (edges), the fine
+    footprint (fh·RENDER, fw·RENDER) as ink coverage 0..1): ``text`` in DejaVu Sans at ``size_px``
+    em, centred."""
+    from matplotlib import font_manager, ft2font
+
+    font = ft2font.FT2Font(font_manager.findfont("DejaVu Sans", fallback_to_default=False))
+    font.set_size(size_px * RENDER, 72)  # at 72 dpi a point is a pixel: the em is size_px · RENDER fine pixels
+    font.set_text(text, 0.0)
+    font.draw_glyphs_to_bitmap()
+    glyphs = np.asarray(font.get_image(), dtype=np.float32) / 255.0
+    rows, cols = np.nonzero(glyphs > 0)
+    glyphs = glyphs[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
+    fine = np.zeros((fh * RENDER, fw * RENDER), dtype=np.float32)
+    top, left = (fine.shape[0] - glyphs.shape[0]) // 2, (fine.shape[1] - glyphs.shape[1]) // 2
+    if top < 0 or left < 0:
+        raise ValueError(f"text {text!r} at {size_px:g} px outgrows its footprint {fw} × {fh}")
+    fine[top : top + glyphs.shape[0], left : left + glyphs.shape[1]] = glyphs
+    return (left, top, left + glyphs.shape[1], top + glyphs.shape[0]), fine
 
 
 def _code_cells(target: Target) -> np.ndarray:
@@ -135,14 +188,17 @@ def _code_cells(target: Target) -> np.ndarray:
 
 
 def render(target: Target) -> np.ndarray:
-    """The target's footprint (side, side) as linear reflectance in [``INK``, ``PAPER``]: the code
-    rendered ``RENDER`` × finer, area-averaged onto the footprint's pixels."""
+    """The target's footprint (height, width) as linear reflectance in [``INK``, ``PAPER``]: the
+    target rendered ``RENDER`` × finer, area-averaged onto the footprint's pixels."""
     import cv2
 
-    cells = _code_cells(target)
-    fine = np.repeat(np.repeat(cells, RENDER, axis=0), RENDER, axis=1).astype(np.float32) / 255.0
-    side = target.footprint[2]
-    paper = cv2.resize(fine, (side, side), interpolation=cv2.INTER_AREA)
+    _, _, fw, fh = target.footprint
+    if target.task == "text":
+        paper = 1.0 - _text_ink(target.key, target.size_px, fw, fh)[1]
+    else:
+        cells = _code_cells(target)
+        paper = np.repeat(np.repeat(cells, RENDER, axis=0), RENDER, axis=1).astype(np.float32) / 255.0
+    paper = cv2.resize(paper, (fw, fh), interpolation=cv2.INTER_AREA)
     return INK + (PAPER - INK) * paper
 
 
@@ -154,8 +210,8 @@ def draw_targets(image: CleanImage, targets: list[Target]) -> CleanImage:
     linear = image.linear.copy()
     m = image.margin
     for target in targets:
-        x0, y0, side = target.footprint
-        linear[:, m + y0 : m + y0 + side, m + x0 : m + x0 + side] = render(target)
+        x0, y0, fw, fh = target.footprint
+        linear[:, m + y0 : m + y0 + fh, m + x0 : m + x0 + fw] = render(target)
     return dataclasses.replace(image, linear=linear)
 
 

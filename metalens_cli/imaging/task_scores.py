@@ -45,7 +45,20 @@ def task_row(task: str, outcomes: list[Outcome], targets: list[list], labels: di
         "size50_ci": fit["ci"],
         "size50_bound": fit["bound"],
         "size_unit": SIZE_MEANING[task],
+        **(_text_scores(outcomes) if task == "text" else {}),
     }
+
+
+def _text_scores(outcomes: list[Outcome]) -> dict:
+    """Text's line recall (detected at IoU ≥ 0.5) and character error rate, means over units with CIs."""
+    out = {}
+    for name, values in (
+        ("line_recall", [float(o.detected.mean()) if o.detected.size else 0.0 for o in outcomes]),
+        ("cer", [float(o.cer.mean()) if o.cer.size else 1.0 for o in outcomes]),
+    ):
+        stats = mean_ci(values, metric=name)
+        out[name], out[f"{name}_ci"] = stats["mean"], stats["ci"]
+    return out
 
 
 def summarise_tasks(
@@ -136,6 +149,7 @@ def unit_tasks(targets: list, unobstructed: dict, obstructed: dict) -> dict:
                     "found": o.found.tolist(),
                     "corner_error_px": [None if np.isnan(e) else float(e) for e in o.corner_error_px],
                     "wrong": o.wrong,
+                    **({} if o.cer is None else {"detected": o.detected.tolist(), "cer": o.cer.tolist()}),
                 }
                 for condition, o in (("unobstructed", clear), ("obstructed", obstructed[task]))
             },

@@ -1,7 +1,7 @@
 """Target layouts on disk: ``NAME.targets.json`` beside a board or reference image.
 
 Format ``metalens-targets/1``: {"format", "pixels": [H, W] of the image the corners refer to,
-"targets": [{"task", "key", "size_px", "corners": [[x, y] × 4], "footprint": [x0, y0, side]}]},
+"targets": [{"task", "key", "size_px", "corners": [[x, y] × 4], "footprint": [x0, y0, width, height]}]},
 corners in that image's pixels (pixel centres at integers, clockwise from the code's top-left;
 ``imaging.targets``). Written by ``metalens board``; read by ``evaluate --pairs DIR --task``.
 """
@@ -34,7 +34,7 @@ def write_targets(path: Path, pixels_hw: tuple[int, int], records: list[dict]) -
 
 def read_targets(path: Path, field: str) -> tuple[tuple[int, int], list[dict]]:
     """((H, W), records) of a layout file, each record checked: ``task`` and ``key`` text,
-    ``size_px`` > 0, ``corners`` 4 × 2 finite, ``footprint`` three integers."""
+    ``size_px`` > 0, ``corners`` 4 × 2 finite, ``footprint`` four integers."""
     try:
         data = json.loads(read_text(path, field, FORM))
         if data.get("format") != FORMAT:
@@ -43,7 +43,10 @@ def read_targets(path: Path, field: str) -> tuple[tuple[int, int], list[dict]]:
         records = []
         for item in data["targets"]:
             corners = np.asarray(item["corners"], dtype=np.float64)
+            footprint = [int(v) for v in item["footprint"]]
             if corners.shape != (4, 2) or not np.isfinite(corners).all() or not float(item["size_px"]) > 0:
+                raise ValueError(f"target {item.get('key')!r}")
+            if len(footprint) != 4 or min(footprint) < 0:
                 raise ValueError(f"target {item.get('key')!r}")
             records.append(
                 {
@@ -51,7 +54,7 @@ def read_targets(path: Path, field: str) -> tuple[tuple[int, int], list[dict]]:
                     "key": str(item["key"]),
                     "size_px": float(item["size_px"]),
                     "corners": corners.tolist(),
-                    "footprint": [int(v) for v in item["footprint"]],
+                    "footprint": footprint,
                 }
             )
     except (ValueError, KeyError, TypeError, AttributeError) as error:

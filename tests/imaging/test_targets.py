@@ -13,6 +13,7 @@ from metalens_cli.imaging.targets import INK, PAPER, TASKS, check_tasks, draw_ta
 from metalens_cli.imaging.task_detection import score_tasks, to_grey8
 
 SENSOR = (384, 384)
+CODES = ("markers", "qr")  # the tasks OpenCV detects (text needs RapidOCR: tests/imaging/test_text_task.py)
 
 
 @pytest.fixture(scope="module")
@@ -28,17 +29,20 @@ def test_layout_is_seeded_inside_the_sensor_and_without_overlap():
         sizes = sorted(t.size_px for t in a if t.task == task)
         assert np.allclose(sizes, sorted(task_sizes(task, SENSOR)), rtol=0.02)  # footprints are whole pixels
     boxes = [t.footprint for t in a]
-    for i, (x0, y0, s) in enumerate(boxes):
-        assert 0 <= x0 and x0 + s <= SENSOR[1] and 0 <= y0 and y0 + s <= SENSOR[0]
-        for x1, y1, r in boxes[i + 1 :]:
-            assert x0 >= x1 + r or x1 >= x0 + s or y0 >= y1 + r or y1 >= y0 + s
+    for i, (x0, y0, w, h) in enumerate(boxes):
+        assert 0 <= x0 and x0 + w <= SENSOR[1] and 0 <= y0 and y0 + h <= SENSOR[0]
+        for x1, y1, w1, h1 in boxes[i + 1 :]:
+            assert x0 >= x1 + w1 or x1 >= x0 + w or y0 >= y1 + h1 or y1 >= y0 + h
     assert len({t.key for t in a}) == len(a)
+    for t in a:  # the code (or ink) lies inside its footprint
+        x0, y0, w, h = t.footprint
+        assert (t.corners.min(0) >= [x0 - 0.5, y0 - 0.5]).all() and (t.corners.max(0) <= [x0 + w, y0 + h]).all()
 
 
 def test_rendered_targets_hold_their_ink_exactly():
     """Area averaging keeps the printed ink: the footprint's mean reflectance is the cells' ink
     fraction, whatever the (fractional) size of a cell."""
-    for target in layout(TASKS, SENSOR, 0, 0):
+    for target in layout(CODES, SENSOR, 0, 0):
         from metalens_cli.imaging.targets import _code_cells
 
         ink = (_code_cells(target) < 128).mean()
@@ -52,13 +56,13 @@ def test_sharp_capture_finds_every_target_at_its_corners(photos):
     delta = torch.zeros(3, 5, 5, dtype=torch.float64)
     delta[:, 2, 2] = 1.0
     for index, image in enumerate(photos):
-        targets = layout(TASKS, SENSOR, 0, index)
+        targets = layout(CODES, SENSOR, 0, index)
         scene = draw_targets(image, targets)
         canvas = torch.as_tensor(scene.linear, dtype=torch.float64)
         zero = torch.zeros_like(canvas)
         capture = form_image(canvas, zero, zero[:1], delta, delta, scene.margin).unobstructed.numpy()
         np.testing.assert_allclose(capture, scene.sensor, atol=1e-6)
-        for task, outcome in score_tasks(capture, targets, TASKS).items():
+        for task, outcome in score_tasks(capture, targets, CODES).items():
             drawn = [t for t in targets if t.task == task]
             smallest = min(t.size_px for t in drawn)
             assert all(f for f, t in zip(outcome.found, drawn) if t.size_px > smallest), (task, outcome)
@@ -69,7 +73,7 @@ def test_sharp_capture_finds_every_target_at_its_corners(photos):
 def test_grey_wall_gives_no_detections():
     for level in (0.0, 0.18, 1.0):
         wall = np.full((3, *SENSOR), level, dtype=np.float32)
-        for outcome in score_tasks(wall, layout(TASKS, SENSOR, 0, 0), TASKS).values():
+        for outcome in score_tasks(wall, layout(CODES, SENSOR, 0, 0), CODES).values():
             assert not outcome.found.any() and outcome.wrong == 0
     assert (to_grey8(np.full((3, 8, 8), 0.5)) == 0).all()  # no contrast to stretch: black, not noise
 
