@@ -1245,15 +1245,19 @@ def write(
             f"broadband's (target ≤ 1/5: {'met' if near_ratio <= 0.2 else 'NOT met'})."
         )
     lines += verdict_b2
-    path.write_text("\n".join(lines) + "\n" + field_block(path), encoding="utf-8")
+    path.write_text("\n".join(lines) + "\n" + kept_blocks(path), encoding="utf-8")
 
 
-def field_block(path: Path) -> str:
-    """The section examples/field_results.py keeps at the end of ``path`` (between its markers),
-    carried over as it is; empty when there is none."""
+def kept_blocks(path: Path) -> str:
+    """The sections examples/field_results.py and examples/task_results.py keep at the end of
+    ``path`` (each between its markers), carried over as they are; empty when there are none."""
     text = path.read_text(encoding="utf-8") if path.is_file() else ""
-    found = re.search(r"<!-- field_results -->\n.*?<!-- /field_results -->\n", text, re.S)
-    return "" if found is None else "\n" + found.group(0)
+    blocks = []
+    for name in ("field_results", "task_results"):
+        found = re.search(rf"<!-- {name} -->\n.*?<!-- /{name} -->\n", text, re.S)
+        if found is not None:
+            blocks.append("\n" + found.group(0))
+    return "".join(blocks)
 
 
 def step_benchmark() -> str:
