@@ -479,14 +479,14 @@ def write(
     )
 
 
-def results_block(lines: list[str], path: Path = ROOT / "docs" / "results.md") -> None:
-    """Put ``lines`` between this script's markers in docs/results.md (at its end if they are not
+def results_block(lines: list[str], markers=BLOCK, path: Path = ROOT / "docs" / "results.md") -> None:
+    """Put ``lines`` between a script's ``markers`` in docs/results.md (at its end if they are not
     there yet); examples/quick_results.py carries the block over when it rewrites the file."""
     text = path.read_text(encoding="utf-8")
-    block = f"{BLOCK[0]}\n" + "\n".join(lines) + f"\n{BLOCK[1]}\n"
-    if BLOCK[0] in text:
-        head, rest = text.split(BLOCK[0], 1)
-        text = head + block + rest.split(BLOCK[1], 1)[1].lstrip("\n")
+    block = f"{markers[0]}\n" + "\n".join(lines) + f"\n{markers[1]}\n"
+    if markers[0] in text:
+        head, rest = text.split(markers[0], 1)
+        text = head + block + rest.split(markers[1], 1)[1].lstrip("\n")
     else:
         text = text.rstrip("\n") + "\n\n" + block
     path.write_text(text, encoding="utf-8")

@@ -29,7 +29,12 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "docs" / "results.md"
+sys.path.insert(0, str(Path(__file__).parent))
+from field_results import results_block  # noqa: E402  (the block writer both scripts share)
+
+sys.path.insert(0, str(ROOT))
+from metalens_cli.analysis.size50 import describe  # noqa: E402
+
 BLOCK = ("<!-- task_results -->", "<!-- /task_results -->")
 DESIGNS = {
     "runs/quick-split-spectrum": "learned split-spectrum",
@@ -76,17 +81,6 @@ def run_evaluation(light: str, reuse: bool) -> dict:
     return kept
 
 
-def _size50(row: dict) -> str:
-    if row["size50_bound"] == "below":
-        return f"≤ {row['size50']:.3g}"
-    if row["size50_bound"] == "above":
-        return f"> {row['size50']:.3g}"
-    if row["size50_bound"] == "flat":
-        return "—"
-    lo, hi = row["size50_ci"]
-    return f"{row['size50']:.3g} [{lo:.3g}, {hi:.3g}]"
-
-
 def _rate(value: float, ci) -> str:
     return f"{value:.2f} [{ci[0]:.2f}, {ci[1]:.2f}]"
 
@@ -120,7 +114,7 @@ def block_lines(kept: dict) -> list[str]:
         clean = next(r for r in rows if r["task"] == task and r["design"] == "clean")
         lines.append(
             f"Ceiling (clean scenes): found {_rate(clean['found_rate'], clean['found_rate_ci'])}, "
-            f"size50 {_size50(clean)}."
+            f"size50 {describe(clean)}."
         )
         lines += ["", "| design | capture | obstruction | light | unobstructed | obstructed | size50 (obstructed) |"]
         lines.append("|---|---|---|---|---|---|---|")
@@ -140,7 +134,7 @@ def block_lines(kept: dict) -> list[str]:
                         lines.append(
                             f"| {names[design]} | {capture} | {kind} | {light} | "
                             f"{_rate(u['found_rate'], u['found_rate_ci'])} | "
-                            f"{_rate(o['found_rate'], o['found_rate_ci'])} | {_size50(o)} |"
+                            f"{_rate(o['found_rate'], o['found_rate_ci'])} | {describe(o)} |"
                         )
         lines += ["", "Paired found-rate differences, obstructed, split-spectrum − baseline [95 % CI]:", ""]
         lines += ["| versus | capture | obstruction | light | difference |", "|---|---|---|---|---|"]
@@ -193,25 +187,13 @@ def block_lines(kept: dict) -> list[str]:
     return lines
 
 
-def write(lines: list[str], path: Path = RESULTS) -> None:
-    """Replace (or append) the block in ``path``."""
-    text = path.read_text(encoding="utf-8") if path.is_file() else ""
-    block = f"{BLOCK[0]}\n" + "\n".join(lines) + f"\n{BLOCK[1]}\n"
-    if BLOCK[0] in text:
-        head, rest = text.split(BLOCK[0], 1)
-        text = head + block + rest.split(BLOCK[1], 1)[1].lstrip("\n")
-    else:
-        text = text.rstrip("\n") + "\n\n" + block
-    path.write_text(text, encoding="utf-8")
-
-
 def main() -> None:
     """Evaluate (or reuse) and write the block."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reuse", action="store_true", help="read runs/evaluate_tasks.json back when its args match")
     parser.add_argument("--light", default="2000,20000", help="evaluate --light: the camera's light levels")
     args = parser.parse_args()
-    write(block_lines(run_evaluation(args.light, args.reuse)))
+    results_block(block_lines(run_evaluation(args.light, args.reuse)), BLOCK)
 
 
 if __name__ == "__main__":

@@ -81,3 +81,16 @@ def size50(sizes, found, units, confidence: float = 0.95, n_resamples: int = 100
     else:
         ci = [float(v) for v in np.percentile(draws, [tail, 100 - tail])] if draws else [value, value]
     return {"size50": value, "ci": ci, "bound": bound, "n": int(s.size)}
+
+
+def describe(row: dict) -> str:
+    """A row's ``size50`` with its ``size50_ci``, or the bound (``size50_bound``) it lies beyond."""
+    value, bound = row["size50"], row["size50_bound"]
+    if bound == "below":
+        return f"≤ {value:.3g}"
+    if bound == "above":
+        return f"> {value:.3g}"
+    if bound == "flat":
+        return "— (larger not found more often)"
+    lo, hi = row["size50_ci"]
+    return f"{value:.3g} [{lo:.3g}, {hi:.3g}]"

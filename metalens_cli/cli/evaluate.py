@@ -444,6 +444,8 @@ def _report(result, specs, kinds, metrics, notes, csv_path, plot_path, as_json, 
 def _task_tables(con, result) -> None:
     """Per task and light level: found rate, size50, wrong detections and corner error per cell,
     then the paired found-rate differences of the obstructed captures."""
+    from metalens_cli.analysis.size50 import describe
+
     for task, light in dict.fromkeys((r["task"], r.get("light")) for r in result.tasks):
         where = "" if light is None else f", light {light}"
         rows = [r for r in result.tasks if r["task"] == task and r.get("light") == light]
@@ -462,7 +464,7 @@ def _task_tables(con, result) -> None:
                         r["obstruction"] or "",
                         r["condition"],
                         _ci(r["found_rate"], r["found_rate_ci"], 2, lines=False),
-                        _size50(r),
+                        describe(r),
                         *([f"{r['line_recall']:.2f}", f"{r['cer']:.2f}"] if text else []),
                         f"{r['wrong_per_unit']:.2f}",
                         "" if r["corner_error_px"] is None else f"{r['corner_error_px']:.2f}",
@@ -536,18 +538,6 @@ def _model_tables(con, result) -> None:
                     ],
                 )
             )
-
-
-def _size50(row: dict) -> str:
-    """size50 with its interval, or the bound it lies beyond."""
-    if row["size50_bound"] == "below":
-        return f"≤ {row['size50']:.3g}"
-    if row["size50_bound"] == "above":
-        return f"> {row['size50']:.3g}"
-    if row["size50_bound"] == "flat":
-        return "— (not larger → found)"
-    lo, hi = row["size50_ci"]
-    return f"{row['size50']:.3g} [{lo:.3g}, {hi:.3g}]"
 
 
 def _evaluate_pairs(

@@ -63,16 +63,16 @@ def model_row(kind: str, outputs: list, truths: list, labels: dict, seed: int = 
         ).items():
             if v is not None:
                 draws[m].append(v)
-    tail = 100 * (1 - CONFIDENCE) / 2
     row = {**labels, "n": n}
     for m, v in point.items():
-        row[m] = v
-        row[f"{m}_ci"] = (
-            None
-            if v is None
-            else ([float(x) for x in np.percentile(draws[m], [tail, 100 - tail])] if draws[m] else [v, v])
-        )
+        row[m], row[f"{m}_ci"] = v, None if v is None else _interval(draws[m], v)
     return row
+
+
+def _interval(draws: list[float], value: float) -> list[float]:
+    """The percentile interval of bootstrap ``draws`` at ``CONFIDENCE`` ([value, value] without any)."""
+    tail = 100 * (1 - CONFIDENCE) / 2
+    return [float(x) for x in np.percentile(draws, [tail, 100 - tail])] if draws else [value, value]
 
 
 def model_difference(kind: str, first: list, second: list, truths: list, metric: str, seed: int = 0) -> dict:
@@ -92,9 +92,7 @@ def model_difference(kind: str, first: list, second: list, truths: list, metric:
         y = _score(kind, [second[i] for i in take], t, classes)[metric]
         if x is not None and y is not None:
             draws.append(x - y)
-    tail = 100 * (1 - CONFIDENCE) / 2
-    ci = [float(v) for v in np.percentile(draws, [tail, 100 - tail])] if draws else [a - b, a - b]
-    return {"difference": a - b, "ci": ci, "n": n}
+    return {"difference": a - b, "ci": _interval(draws, a - b), "n": n}
 
 
 def unit_output(kind: str, output, truth) -> Detections | tuple:
