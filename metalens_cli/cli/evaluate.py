@@ -500,7 +500,12 @@ def _task_tables(con, result) -> None:
 def _model_tables(con, result) -> None:
     """Per light level: the user's model's scores per cell, then its paired differences (obstructed)."""
     names = {"map50": "mAP50", "map50_95": "mAP50-95", "recall50": "recall50"}
-    names |= {"miou": "mIoU", "iou_foreground": "IoU fg", "dice_foreground": "Dice fg"}
+    names |= {
+        "miou": "mIoU",
+        "miou_paper": "mIoU, paper's rule",
+        "iou_foreground": "IoU fg",
+        "dice_foreground": "Dice fg",
+    }
     for light in dict.fromkeys(r.get("light") for r in result.model):
         where = "" if light is None else f", light {light}"
         rows = [r for r in result.model if r.get("light") == light]

@@ -5,6 +5,13 @@ dataset-level mIoU: ``analysis.detection_metrics``), not per unit; the 95 % inte
 units (image × seed) ``RESAMPLES`` times, and a paired difference between two cells resamples the
 same units for both. A segmentation unit is kept as its confusion counts (sparse), so resampling
 never touches the maps again.
+
+Segmentation reports two means of the per-class IoU: ``miou``, over every class present in the
+truth or the prediction of that cell (the benchmarks' rule), and ``miou_paper``, the paper's
+rule (Suppl. Note 12): a class whose IoU is undefined or 0 in any cell of the table is left out
+of every cell, so that all designs are averaged over the same classes; the classes left out are
+listed with each row (``excluded_classes``). The paper's rule drops the classes a design fails
+on entirely, so it flatters every design; the paired differences use ``miou``.
 """
 
 from __future__ import annotations
@@ -16,7 +23,10 @@ from metalens_cli.imaging.task_models import Detections
 
 RESAMPLES = 200
 CONFIDENCE = 0.95
-METRICS = {"detect": ("map50", "map50_95", "recall50"), "segment": ("miou", "iou_foreground", "dice_foreground")}
+METRICS = {
+    "detect": ("map50", "map50_95", "recall50"),
+    "segment": ("miou", "miou_paper", "iou_foreground", "dice_foreground"),
+}
 COMPARED = {"detect": "map50_95", "segment": "miou"}  # the metric of the paired differences
 
 
@@ -34,13 +44,25 @@ def _dense(units: list, classes: int) -> np.ndarray:
     return matrix
 
 
-def _score(kind: str, outputs: list, truths: list, classes: int) -> dict:
-    """The set's scores: {metric: value or None}."""
+def _score(kind: str, outputs: list, truths: list, classes: int, exclude=frozenset()) -> dict:
+    """The set's scores: {metric: value or None}; ``exclude``: the classes ``miou_paper`` leaves out."""
     if kind == "detect":
         s = detection_scores([(d.boxes, d.scores, d.classes) for d in outputs], [(t.boxes, t.classes) for t in truths])
     else:
         s = segmentation_from_confusion(_dense(outputs, classes))
+        kept = [iou for c, iou in s["per_class_iou"].items() if c not in exclude]
+        s["miou_paper"] = float(np.mean(kept)) if kept else None
     return {m: s.get(m) for m in METRICS[kind]}
+
+
+def paper_exclusions(cells: list[list], classes: int) -> frozenset:
+    """The classes the paper's mIoU rule leaves out of a table whose cells hold these per-unit
+    sparse confusions: those of IoU undefined or 0 in any cell."""
+    out = set()
+    for units in cells:
+        iou = segmentation_from_confusion(_dense(units, classes))["per_class_iou"]
+        out |= {c for c in range(classes) if iou.get(c, 0.0) == 0.0}
+    return frozenset(out)
 
 
 def _classes(kind: str, outputs: list) -> int:
@@ -48,22 +70,25 @@ def _classes(kind: str, outputs: list) -> int:
     return 1 + max((int(pairs.max()) for pairs, _ in outputs if pairs.size), default=0) if kind == "segment" else 0
 
 
-def model_row(kind: str, outputs: list, truths: list, labels: dict, seed: int = 0) -> dict:
+def model_row(
+    kind: str, outputs: list, truths: list, labels: dict, classes: int = 0, exclude=frozenset(), seed: int = 0
+) -> dict:
     """``labels`` and the scores of per-unit ``outputs`` (:class:`Detections`, or sparse confusions
-    for "segment") against ``truths`` (:class:`Detections`; unused for "segment"), with intervals."""
-    classes = _classes(kind, outputs)
-    point = _score(kind, outputs, truths, classes)
+    for "segment" over ``classes`` classes, ``exclude`` left out of ``miou_paper``) against
+    ``truths`` (:class:`Detections`; unused for "segment"), with intervals."""
+    classes = max(classes, _classes(kind, outputs))
+    point = _score(kind, outputs, truths, classes, exclude)
     rng = np.random.default_rng(seed)
     n = len(outputs)
     draws = {m: [] for m in point}
     for _ in range(RESAMPLES if n > 1 else 0):
         take = rng.integers(0, n, n)
         for m, v in _score(
-            kind, [outputs[i] for i in take], [truths[i] for i in take] if truths else [], classes
+            kind, [outputs[i] for i in take], [truths[i] for i in take] if truths else [], classes, exclude
         ).items():
             if v is not None:
                 draws[m].append(v)
-    row = {**labels, "n": n}
+    row = {**labels, "n": n, **({"excluded_classes": sorted(exclude)} if kind == "segment" else {})}
     for m, v in point.items():
         row[m], row[f"{m}_ci"] = v, None if v is None else _interval(draws[m], v)
     return row
@@ -121,27 +146,28 @@ def summarise_model(
 
     extra = {} if light is None else {"light": light}
     truth = [truths[u] for u in units] if kind == "detect" else []
-    rows = [
-        model_row(
-            kind,
-            [clean[u] for u in units],
-            truth,
-            {"design": "clean", "capture": "clean", "obstruction": None, "condition": "clean", **extra},
-        )
-    ]
-    comparisons = []
     cells = [(capture, d) for d in range(len(specs)) for capture in captures_of[d]]
 
     def unit_outputs(capture, d, obstruction, condition):
         return [outputs[capture, d, "unobstructed" if condition == "unobstructed" else obstruction, *u] for u in units]
 
+    table = [[clean[u] for u in units]] + [
+        unit_outputs(capture, d, obstruction, condition)
+        for obstruction in kinds
+        for capture, d in cells
+        for condition in CONDITIONS
+    ]
+    classes = max(_classes(kind, units) for units in table)
+    exclude = paper_exclusions(table, classes) if kind == "segment" else frozenset()
+    ceiling = {"design": "clean", "capture": "clean", "obstruction": None, "condition": "clean", **extra}
+    rows = [model_row(kind, table[0], truth, ceiling, classes, exclude)]
+    comparisons = []
     for obstruction in kinds:
         for capture, d in cells:
             for condition in CONDITIONS:
                 labels = {"design": specs[d], "capture": capture, "obstruction": obstruction, "condition": condition}
-                rows.append(
-                    model_row(kind, unit_outputs(capture, d, obstruction, condition), truth, {**labels, **extra})
-                )
+                cell = unit_outputs(capture, d, obstruction, condition)
+                rows.append(model_row(kind, cell, truth, {**labels, **extra}, classes, exclude))
         for first, second in compared_pairs(cells):
             for condition in CONDITIONS:
                 metric = COMPARED[kind]
