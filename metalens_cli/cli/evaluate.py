@@ -49,6 +49,9 @@ PAIRS_OPTIONS = {
     "max_time",
     "specs",
     "tasks",
+    "task_model",
+    "task_kind",
+    "task_labels",
 }
 
 
@@ -245,10 +248,21 @@ def evaluate(
     """
     tasks = tuple(dict.fromkeys(t for group in tasks for t in group))
     if pairs is not None:
-        if task_model:
-            raise click.BadParameter("is not yet scored on captured pairs (--pairs)", param_hint="--task-model")
+        model = (task_model, task_kind, task_labels)
         return _evaluate_pairs(
-            ctx, pairs, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path, tasks
+            ctx,
+            pairs,
+            align,
+            refine,
+            match,
+            csv_path,
+            lpips_weights,
+            quiet,
+            max_memory,
+            as_json,
+            plot_path,
+            tasks,
+            model,
         )
     if not specs:
         raise click.UsageError("give at least one DESIGN, or --pairs DIR for captured photographs")
@@ -361,6 +375,27 @@ def _task_model(spec, kind, labels, images, limit, setup):
     if not Path(labels).is_dir():
         raise InputError("--task-labels", f"no such folder {labels!r}", "clean or a folder of labels")
     return model, label_truths(Path(labels), images, limit, kind, (setup.pixels, setup.pixels))
+
+
+def _pairs_model(spec, kind, labels, layout):
+    """--task-model with --pairs: (the model, checked on a grey image, and its truth: "clean" or
+    the labels of each reference in its own pixels) or (None, "clean")."""
+    if spec is None:
+        return None, "clean"
+    from pathlib import Path
+
+    from metalens_cli.errors import InputError
+    from metalens_cli.imaging.task_models import load_task_model
+    from metalens_cli.imaging.task_truth import framed_labels
+    from metalens_cli.io.input_files import check_image_size
+
+    model = load_task_model(spec, kind, "cpu", check_pixels=256)
+    if labels.strip() == "clean":
+        return model, "clean"
+    if not Path(labels).is_dir():
+        raise InputError("--task-labels", f"no such folder {labels!r}", "clean or a folder of labels")
+    sources = {name: check_image_size(path, "--pairs") for name, path in layout.gt.items()}
+    return model, framed_labels(Path(labels), sources, kind)
 
 
 def _title(result, seeds, reconstructors) -> str:
@@ -546,7 +581,7 @@ def _model_tables(con, result) -> None:
 
 
 def _evaluate_pairs(
-    ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path, tasks
+    ctx, folder, align, refine, match, csv_path, lpips_weights, quiet, max_memory, as_json, plot_path, tasks, model
 ) -> None:
     """evaluate --pairs: the table of captured photographs (imaging.captured_pairs)."""
     from pathlib import Path
@@ -582,7 +617,12 @@ def _evaluate_pairs(
         [("--csv", csv_path), ("--plot", plot_path)],
         [*layout.gt.values(), *(p for d in layout.captures.values() for paths in d.values() for p in paths.values())],
     )
+    task_model, model_truth = _pairs_model(*model, layout)
     memory, seconds = estimate_pairs(layout)
+    if task_model is not None:  # the reference and every capture, once each
+        seconds += task_model.seconds * (
+            len(layout.gt) + sum(len(p) for d in layout.captures.values() for p in d.values())
+        )
     announce(
         Estimate(
             f"evaluate --pairs of {len(layout.designs)} design(s) × {len(layout.names)} scene(s)",
@@ -595,7 +635,7 @@ def _evaluate_pairs(
     lpips_model, notes = _lpips(lpips_weights)
     metrics = metric_names(lpips_model)
     with progress_bar("evaluate --pairs", quiet) as update:
-        result = evaluate_pairs(layout, lpips_model, match, align, refine, update, tasks)
+        result = evaluate_pairs(layout, lpips_model, match, align, refine, update, tasks, task_model, model_truth)
     _report(
         result,
         layout.designs,

@@ -36,9 +36,11 @@ from metalens_cli.errors import InputError
 from metalens_cli.imaging.evaluation import Evaluation, metric_names, summarise, warn_few_units
 from metalens_cli.imaging.images import luminance, read_linear
 from metalens_cli.imaging.metrics import DEFAULT_MATCH
+from metalens_cli.imaging.model_scores import summarise_model, unit_output
 from metalens_cli.imaging.targets import from_records
-from metalens_cli.imaging.task_detection import score_tasks
+from metalens_cli.imaging.task_detection import score_tasks, to_rgb8
 from metalens_cli.imaging.task_scores import summarise_tasks
+from metalens_cli.imaging.task_truth import cropped, truth_of
 from metalens_cli.io.input_files import IMAGE_SUFFIXES
 
 BYTES_PER_PIXEL = 500  # peak memory per pixel of the largest image: float64 SSIM/PSNR copies, the warp
@@ -164,13 +166,19 @@ def evaluate_pairs(
     refine: str = "flow",
     on_progress: Callable[[int, int], None] | None = None,
     tasks=(),
+    model=None,
+    model_truth="clean",
 ) -> Evaluation:
     """Score every capture of ``layout`` against its reference (see the module docstring); the
     result is that of simulated evaluation with ``alignments`` (one report per registration)
     and no ``psfs``. With ``tasks`` (``imaging.targets.TASKS``), each reference's layout file
     (``DIR/gt/NAME.targets.json``, ``io.target_files``) gives its targets in its pixels, and the
     detectors score every aligned capture and the reference itself (the ceiling) on the targets
-    that lie inside the region every capture of the scene, of every design, covers."""
+    that lie inside the region every capture of the scene, of every design, covers. With a user's
+    ``model`` (``imaging.task_models``), it is run on that region of every aligned capture and of
+    the reference; its truth is its output on the reference (``model_truth`` "clean") or the
+    reference's labels (per name, in the reference's pixels: ``task_truth.framed_labels``), cut
+    to the region."""
     from metalens_cli.imaging.pipeline import score
 
     if align not in ALIGN_MODES:
@@ -183,6 +191,9 @@ def evaluate_pairs(
     outcomes: dict[tuple, dict] = {}
     ceiling: dict[tuple, dict] = {}
     in_view: dict[tuple, list] = {}
+    model_outputs: dict[tuple, object] = {}
+    model_clean: dict[tuple, object] = {}
+    model_truths: dict[tuple, object] = {}
     units: dict[tuple[int, int], list] = {}
     total = len(layout.designs) * len(layout.names)
     grey_names: list[str] = []
@@ -196,10 +207,18 @@ def evaluate_pairs(
             for d, design in enumerate(layout.designs)
         }
         boxes = {d: _common_box([valid for _, valid in aligned.values()]) for d, aligned in scene.items()}
+        shared = _common_box([valid for aligned in scene.values() for _, valid in aligned.values()])
         if tasks:
-            shared = _common_box([valid for aligned in scene.values() for _, valid in aligned.values()])
             in_view[0, index] = targets = [t for t in layouts[name] if _inside(t, shared)]
             ceiling[0, index] = score_tasks(clean, targets, tasks)
+        if model is not None:
+            region = clean[:, shared[0] : shared[1], shared[2] : shared[3]]
+            on_clean = model(to_rgb8(region))
+            if isinstance(model_truth, str):
+                model_truths[0, index] = truth_of(model, on_clean, model_truth, name)
+            else:
+                model_truths[0, index] = cropped(model_truth[name], shared)
+            model_clean[0, index] = unit_output(model.kind, on_clean, model_truths[0, index])
         for d, design in enumerate(layout.designs):
             box = boxes[d]
             reference = clean[:, box[0] : box[1], box[2] : box[3]]
@@ -210,6 +229,11 @@ def evaluate_pairs(
                 scores[capture, d, condition, 0, index] = score(crop, reference, lpips_model, match)
                 if tasks:
                     outcomes[capture, d, condition, 0, index] = score_tasks(image, in_view[0, index], tasks)
+                if model is not None:
+                    seen = model(to_rgb8(image[:, shared[0] : shared[1], shared[2] : shared[3]]))
+                    model_outputs[capture, d, condition, 0, index] = unit_output(
+                        model.kind, seen, model_truths[0, index]
+                    )
                 if index == 0:
                     if not out.panels[design]:
                         out.panels[design].append(("gt", reference))
@@ -243,6 +267,11 @@ def evaluate_pairs(
         out.tasks, out.task_comparisons = summarise_tasks(
             tasks, layout.designs, captures_of, layout.kinds, [(0, i) for i in range(len(layout.names))],
             outcomes, ceiling, in_view,
+        )  # fmt: skip
+    if model is not None:
+        out.model, out.model_comparisons = summarise_model(
+            model.kind, layout.designs, captures_of, layout.kinds, [(0, i) for i in range(len(layout.names))],
+            model_outputs, model_clean, model_truths,
         )  # fmt: skip
     warn_few_units(out, len(layout.names), f"{len(layout.names)} scene(s)", "capture more scenes")
     return out

@@ -29,12 +29,9 @@ def boxes_on_sensor(boxes: np.ndarray, classes: np.ndarray, source_hw, sensor_hw
     as :class:`Detections` of score 1."""
     nh, nw, top, left = fit_geometry(source_hw, sensor_hw)
     h, w = sensor_hw
-    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4) * [nw, nh, nw, nh] - [left, top, left, top]
-    clipped = np.clip(b, 0, [w, h, w, h])
-    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    inside = (clipped[:, 2] - clipped[:, 0]) * (clipped[:, 3] - clipped[:, 1])
-    keep = inside >= MIN_INSIDE * np.maximum(area, 1e-12)
-    return Detections(clipped[keep], np.ones(int(keep.sum())), np.asarray(classes)[keep].astype(np.int64))
+    resized = np.asarray(boxes, dtype=np.float64).reshape(-1, 4) * [nw, nh, nw, nh]
+    labels = Detections(resized, np.ones(len(resized)), np.asarray(classes, dtype=np.int64))
+    return cropped(labels, (top, top + h, left, left + w))
 
 
 def mask_on_sensor(mask: np.ndarray, source_hw, sensor_hw, name: str) -> np.ndarray:
@@ -61,10 +58,34 @@ def label_truths(folder, images, limit, kind: str, sensor_hw) -> dict:
             raise InputError("--task-labels", "a folder of labels for the dead-leaves charts", "--task-labels clean")
         path = photograph_path(entry) if isinstance(entry, Photograph) else entry
         sources[entry.name if isinstance(entry, Photograph) else entry.stem] = check_image_size(path, "--images")
+    return framed_labels(folder, sources, kind, sensor_hw)
+
+
+def framed_labels(folder, sources: dict, kind: str, sensor_hw=None) -> dict:
+    """Per image name of ``sources`` (name → its (H, W)): its labels from ``folder`` framed on an
+    H × W sensor (``sensor_hw``; None: on the image itself, as a captured pair's reference)."""
     names = list(sources)
+
+    def frame(name):
+        return sources[name] if sensor_hw is None else sensor_hw
+
     if kind == "detect":
-        return {n: boxes_on_sensor(*b, sources[n], sensor_hw) for n, b in read_box_labels(folder, names).items()}
-    return {n: mask_on_sensor(m, sources[n], sensor_hw, n) for n, m in read_mask_labels(folder, names).items()}
+        return {n: boxes_on_sensor(*b, sources[n], frame(n)) for n, b in read_box_labels(folder, names).items()}
+    return {n: mask_on_sensor(m, sources[n], frame(n), n) for n, m in read_mask_labels(folder, names).items()}
+
+
+def cropped(truth, box: tuple[int, int, int, int]):
+    """A truth on an image's frame cut to ``box`` (top, bottom, left, right): boxes shifted and
+    clipped (less than ``MIN_INSIDE`` of a box's area inside: dropped), or the map sliced."""
+    top, bottom, left, right = box
+    if not isinstance(truth, Detections):
+        return truth[top:bottom, left:right]
+    b = truth.boxes - [left, top, left, top]
+    clipped = np.clip(b, 0, [right - left, bottom - top, right - left, bottom - top])
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    inside = (clipped[:, 2] - clipped[:, 0]) * (clipped[:, 3] - clipped[:, 1])
+    keep = inside >= MIN_INSIDE * np.maximum(area, 1e-12)
+    return Detections(clipped[keep], truth.scores[keep], truth.classes[keep])
 
 
 def truth_of(model, on_clean, truth, name: str):

@@ -101,7 +101,6 @@ def test_bad_model_options_exit_2_before_any_work(capsys, tmp_path):
         (["--task-model", flat], "--task-model"),  # (N, 3·H·W): neither detection form
         (["--task-model", detector, "--task-labels", labels, "--images", images], "--task-labels"),
         (["--task-model", detector, "--task-labels", tmp_path / "none"], "--task-labels"),
-        (["--task-model", detector, "--pairs", tmp_path], "--task-model"),
     ):
         code, stdout, stderr = invoke(capsys, "evaluate", "hyperbolic:532nm", *SMALL, *args)
         assert code == 2, (args, stderr)

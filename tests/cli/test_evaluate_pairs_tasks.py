@@ -88,3 +88,18 @@ def test_board_imports_no_torch(tmp_path):
     args = ["board", "-o", str(tmp_path / "b.png"), "--pixels", "200"]
     proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and proc.stderr.endswith("False"), proc.stderr
+
+
+def test_pairs_with_your_model(capsys, bench):
+    """A detector (a callable here) on the registered captures, its truth its own output on the
+    board: mAP 1 there, and no better through the blurry lens than through the sharp one."""
+    args = ["evaluate", "--pairs", bench, "--task-model", "toy_models:cell_detector", "--json", "--quiet"]
+    code, stdout, stderr = invoke(capsys, *args)
+    assert code == 0, stderr
+    rows = json.loads(stdout)["model"]
+    assert next(r for r in rows if r["design"] == "clean")["map50_95"] == pytest.approx(1.0)
+
+    def score(design):
+        return next(r for r in rows if (r["design"], r["condition"]) == (design, "unobstructed"))["map50_95"]
+
+    assert score("sharp") >= score("blurry")
