@@ -72,8 +72,17 @@ class TaskModel:
     seconds: float = 0.0  # one image's run, timed on the check image (0: not checked)
 
     def __call__(self, rgb8: np.ndarray):
-        """The decoded output for one uint8 H × W × 3 image: :class:`Detections` or an (H, W) map."""
-        raw = self.run(rgb8[None])
+        """The decoded output for one uint8 H × W × 3 image: :class:`Detections` or an (H, W) map.
+        A model that fails on the image is an ``InputError`` naming ``--task-model``."""
+        try:
+            raw = self.run(rgb8[None])
+        except Exception as error:  # the user's model, not ours: say which image size it refused
+            h, w = rgb8.shape[:2]
+            raise InputError(
+                "--task-model",
+                f"{self.source} failed on a {w} × {h} image: {error}".splitlines()[0],
+                "a model that takes any size (export with dynamic shapes), or one fixed size it declares",
+            ) from None
         return decode(raw, self.kind, rgb8.shape[:2], self.input_hw, self.source)[0]
 
 
@@ -95,14 +104,9 @@ def load_task_model(spec: str, kind: str, device="cpu", check_pixels: int | None
         raise InputError("--task-model", f"{text!r}", FORM)
     model = TaskModel(kind, text, run, input_hw)
     if check_pixels:
-        try:
-            start = time.perf_counter()
-            model(np.full((check_pixels, check_pixels, 3), 128, np.uint8))
-            model.seconds = time.perf_counter() - start
-        except InputError:
-            raise
-        except Exception as error:  # the user's model failed on a plain image: say so, not a traceback
-            raise InputError("--task-model", f"{text} failed on a grey image: {error}".splitlines()[0], FORM) from None
+        start = time.perf_counter()
+        model(np.full((check_pixels, check_pixels, 3), 128, np.uint8))
+        model.seconds = time.perf_counter() - start
     return model
 
 

@@ -122,3 +122,12 @@ def _has(name):
     import importlib.util
 
     return importlib.util.find_spec(name) is not None
+
+
+def test_a_model_that_refuses_a_size_says_so(tmp_path):
+    """A torch.export program is specialised to its example's shape: another size is an
+    InputError naming the option and the size, not a traceback."""
+    model = load_task_model(str(_export(CellDetector(), tmp_path, "pt2")), "detect", check_pixels=SIDE)
+    with pytest.raises(InputError, match="failed on a 48 × 48 image") as error:
+        model(np.zeros((48, 48, 3), np.uint8))
+    assert error.value.field == "--task-model"
