@@ -5,7 +5,7 @@
    reconstruction networks runs/recon-*) on the photographs at the full 512² sensor, behind dirt and
    a fence, seeds 0-2 (27 units per cell), under one camera at two light levels (``--light``),
    with ``--task markers,qr,text``: ArUco markers, QR codes and text lines printed into every
-   clean scene, found by OpenCV's detectors and RapidOCR in the raw and reconstructed captures.
+   clean scene, found by OpenCV's ArUco detector, zxing-cpp and RapidOCR in the raw and reconstructed captures.
    The report is kept in runs/evaluate_tasks.json (``--reuse`` reads it back).
 2. Writes its block of docs/results.md (between ``<!-- task_results -->`` markers; the rest of
    the file, which examples/quick_results.py writes and carries this block over, is left as it is):
@@ -43,11 +43,12 @@ DESIGNS = {
 }
 TASKS = "markers,qr,text"
 INTRODUCTION = (
-    "ArUco markers (side 24-109 px), QR codes (modules 1.5-4.6 px) and text lines (10-40 px) are printed "
-    "into each photograph before imaging (docs/tasks.md); OpenCV's detectors and RapidOCR look for them "
-    "in every capture, raw and reconstructed, under the same camera for every design (`--light`: electrons "
-    "at full scale before each design's filter). Found: the right ID, payload or line in the right place "
-    "(text: read exactly). The clean row is the ceiling: the detectors on the scenes themselves."
+    "ArUco markers (side 24-109 px), QR codes (modules 1.5-4.6 px) and text lines (10-40 px) are "
+    "printed into each photograph before imaging (docs/tasks.md); OpenCV's ArUco detector, zxing-cpp "
+    "and RapidOCR look for them in every capture, raw and reconstructed, under the same camera for "
+    "every design (`--light`: electrons at full scale before each design's filter). Found: the right "
+    "ID, payload or line in the right place (text: read exactly). The clean row is the ceiling: the "
+    "detectors on the scenes themselves."
 )
 # The paper's Suppl. Note 12: the split lens's gain in detection (YOLOv11, VisDrone mAP) over each baseline.
 PAPER_GAIN = {"hyperbolic 532 nm": "+13.5 % mAP", "learned broadband": "+14.1 % mAP"}

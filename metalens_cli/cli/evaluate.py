@@ -157,9 +157,9 @@ PAIRS_OPTIONS = {
     type=CommaChoice(TASKS),
     multiple=True,
     help="Vision tasks, comma-separated or repeated: ArUco markers (side 24-160 px), QR codes (modules 1.5-6 px) "
-    "and text lines (10-40 px) are printed into every clean scene before imaging; OpenCV's detectors and RapidOCR "
-    "(text: pip install --no-deps rapidocr) score each capture and the clean scene (the ceiling): found rate, "
-    "wrong detections, corner error, size50 (text: also line recall and character error rate).",
+    "and text lines (10-40 px) are printed into every clean scene before imaging; OpenCV's ArUco detector, "
+    "zxing-cpp and RapidOCR (text: pip install --no-deps rapidocr) score each capture and the clean scene (the "
+    "ceiling): found rate, wrong detections, corner error, size50 (text: also line recall and character error rate).",
 )
 @click.option(
     "--task-model",
