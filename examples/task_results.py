@@ -77,7 +77,13 @@ def run_evaluation(light: str, reuse: bool) -> dict:
     done = subprocess.run(
         [sys.executable, "-m", "metalens_cli", *args, "--json"], cwd=ROOT, check=True, capture_output=True, text=True
     )
-    kept = {"report": json.loads(done.stdout), "seconds": time.perf_counter() - start, "args": args}
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    kept = {
+        "report": json.loads(done.stdout),
+        "seconds": time.perf_counter() - start,
+        "args": args,
+        "commit": commit.stdout.strip() or "unknown",
+    }
     saved.write_text(json.dumps(kept), encoding="utf-8")
     return kept
 
@@ -106,7 +112,8 @@ def block_lines(kept: dict) -> list[str]:
         "metalens " + shlex.join(args),
         "```",
         "",
-        f"{kept['seconds'] / 60:.0f} min on 2 CPU cores. " + INTRODUCTION,
+        f"{kept['seconds'] / 60:.0f} min on 2 CPU cores, evaluated at commit {kept.get('commit', 'unknown')} on the "
+        "run directories in runs/. " + INTRODUCTION,
         "",
     ]
     for task in dict.fromkeys(r["task"] for r in rows):
