@@ -1,8 +1,10 @@
 """Benchmark: what scoring a vision task adds to a capture (``evaluate --task``).
 
 Per task: the median seconds to score one capture (auto-levels, 8-bit sRGB, the detector, the
-match against the drawn targets; ``imaging.task_detection.score_tasks``) and to draw the unit's
-targets into the clean scene (``imaging.targets.draw_targets``), over the evaluation photographs
+match against the drawn targets; ``imaging.task_detection.score_tasks``) and to place and draw the
+unit's targets into the clean scene (``imaging.targets.layout`` and ``draw_targets``: the first
+time a unit's targets are rendered; later draws, for the other designs and obstructions, reuse
+the cached renderings), over the evaluation photographs
 with their targets, sharp and blurred by a Gaussian of σ = 1, 2 and 4 px (a detector's work
 depends on what it finds); with the found rate at each blur.
 
@@ -39,8 +41,8 @@ def measure(pixels: int, repeats: int) -> list[dict]:
         for sigma in BLURS:
             score_times, draw_times, found = [], [], []
             for index, image in enumerate(images):
-                targets = layout((task,), (pixels, pixels), 0, index)
                 start = time.perf_counter()
+                targets = layout((task,), (pixels, pixels), 0, index)
                 scene = draw_targets(image, targets).sensor
                 draw_times.append(time.perf_counter() - start)
                 if sigma:
@@ -73,7 +75,7 @@ def markdown(rows: list[dict], pixels: int, repeats: int) -> str:
         f"photographs at {pixels}², each with one unit's targets, sharp and blurred; median over images × repeats, "
         "2 CPU cores. Issue 55's targets: ≤ 20 ms a 512² capture for markers and QR codes.",
         "",
-        "| task | blur σ (px) | score a capture | draw the targets | found |",
+        "| task | blur σ (px) | score a capture | place and draw the targets (σ = 0: first rendering) | found |",
         "|---|---|---|---|---|",
     ]
     for r in rows:

@@ -147,11 +147,13 @@ def _target(task: str, key: str, size_px: float, footprint: tuple[int, int, int,
     return Target(task, key, unit * cells if task == "markers" else unit, corners, footprint)
 
 
-@lru_cache(maxsize=64)
+@lru_cache(maxsize=4096)
 def _text_ink(text: str, size_px: float, fw: int, fh: int) -> tuple[tuple[int, int, int, int], np.ndarray]:
-    """((left, top, right, bottom) of the ink in the fine footprint's pixels (edges), the fine
-    footprint (fh·RENDER, fw·RENDER) as ink coverage 0..1): ``text`` in DejaVu Sans at ``size_px``
-    em, centred."""
+    """((left, top, right, bottom) of the ink in the footprint's fine pixels, ``RENDER`` to a
+    pixel (edges); the ink's coverage 0..1 of each of the footprint's (fh, fw) pixels): ``text``
+    in DejaVu Sans at ``size_px`` em, centred, rendered fine and area-averaged. Cached: a unit's
+    lines are drawn once per design and obstruction kind."""
+    import cv2
     from matplotlib import font_manager, ft2font
 
     font = ft2font.FT2Font(font_manager.findfont("DejaVu Sans", fallback_to_default=False))
@@ -166,21 +168,23 @@ def _text_ink(text: str, size_px: float, fw: int, fh: int) -> tuple[tuple[int, i
     if top < 0 or left < 0:
         raise ValueError(f"text {text!r} at {size_px:g} px outgrows its footprint {fw} × {fh}")
     fine[top : top + glyphs.shape[0], left : left + glyphs.shape[1]] = glyphs
-    return (left, top, left + glyphs.shape[1], top + glyphs.shape[0]), fine
+    coverage = cv2.resize(fine, (fw, fh), interpolation=cv2.INTER_AREA)
+    return (left, top, left + glyphs.shape[1], top + glyphs.shape[0]), coverage
 
 
-def _code_cells(target: Target) -> np.ndarray:
-    """The target's code with its quiet zone, one uint8 value per cell or module (0 ink, 255 paper)."""
+def _code_cells(task: str, key: str) -> np.ndarray:
+    """A code (``task`` "markers" or "qr", ``key``) with its quiet zone, one uint8 value per cell or
+    module (0 ink, 255 paper)."""
     import cv2
 
-    if target.task == "markers":
+    if task == "markers":
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, MARKER_DICTIONARY))
-        code = cv2.aruco.generateImageMarker(dictionary, int(target.key), MARKER_CELLS, borderBits=1)
+        code = cv2.aruco.generateImageMarker(dictionary, int(key), MARKER_CELLS, borderBits=1)
         quiet = MARKER_QUIET
     else:
         params = cv2.QRCodeEncoder.Params()
         params.version, params.correction_level = 1, cv2.QRCodeEncoder_CORRECT_LEVEL_M
-        encoded = cv2.QRCodeEncoder.create(params).encode(target.key)
+        encoded = cv2.QRCodeEncoder.create(params).encode(key)
         ys, xs = np.nonzero(encoded < 128)
         code = encoded[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
         quiet = QR_QUIET
@@ -190,16 +194,22 @@ def _code_cells(target: Target) -> np.ndarray:
 def render(target: Target) -> np.ndarray:
     """The target's footprint (height, width) as linear reflectance in [``INK``, ``PAPER``]: the
     target rendered ``RENDER`` × finer, area-averaged onto the footprint's pixels."""
-    import cv2
-
     _, _, fw, fh = target.footprint
     if target.task == "text":
         paper = 1.0 - _text_ink(target.key, target.size_px, fw, fh)[1]
     else:
-        cells = _code_cells(target)
-        paper = np.repeat(np.repeat(cells, RENDER, axis=0), RENDER, axis=1).astype(np.float32) / 255.0
-    paper = cv2.resize(paper, (fw, fh), interpolation=cv2.INTER_AREA)
+        paper = _code_paper(target.task, target.key, fw, fh)
     return INK + (PAPER - INK) * paper
+
+
+@lru_cache(maxsize=4096)
+def _code_paper(task: str, key: str, fw: int, fh: int) -> np.ndarray:
+    """The paper's share 0..1 of each of a code's footprint pixels (fh, fw), cached as text's."""
+    import cv2
+
+    cells = _code_cells(task, key)
+    fine = np.repeat(np.repeat(cells, RENDER, axis=0), RENDER, axis=1).astype(np.float32) / 255.0
+    return cv2.resize(fine, (fw, fh), interpolation=cv2.INTER_AREA)
 
 
 def draw_targets(image: CleanImage, targets: list[Target]) -> CleanImage:

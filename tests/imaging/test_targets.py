@@ -45,7 +45,7 @@ def test_rendered_targets_hold_their_ink_exactly():
     for target in layout(CODES, SENSOR, 0, 0):
         from metalens_cli.imaging.targets import _code_cells
 
-        ink = (_code_cells(target) < 128).mean()
+        ink = (_code_cells(target.task, target.key) < 128).mean()
         assert render(target).mean() == pytest.approx(PAPER - (PAPER - INK) * ink, abs=2e-4)
 
 
@@ -115,3 +115,15 @@ def test_opencv_keeps_its_contrib_modules():
     import cv2
 
     assert hasattr(cv2, "aruco") and hasattr(cv2, "QRCodeDetector")
+
+
+def test_detector_image_is_the_srgb_curve_within_one_code():
+    """to_grey8's table against the closed-form sRGB curve on auto-levelled luminance."""
+    from metalens_cli.imaging.images import luminance
+    from metalens_cli.io.image_files import linear_to_srgb
+
+    x = np.random.default_rng(0).random((3, 128, 128)).astype(np.float32) ** 3
+    y = luminance(x.astype(np.float64))
+    lo, hi = np.percentile(y, (0.5, 99.5))
+    exact = np.round(255 * linear_to_srgb(np.clip((y - lo) / (hi - lo), 0, 1))).astype(int)
+    assert np.abs(to_grey8(x).astype(int) - exact).max() <= 1
