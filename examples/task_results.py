@@ -113,7 +113,8 @@ def block_lines(kept: dict) -> list[str]:
         "```",
         "",
         f"{kept['seconds'] / 60:.0f} min on 2 CPU cores, evaluated at commit {kept.get('commit', 'unknown')} on the "
-        "run directories in runs/. " + INTRODUCTION,
+        "run directories in runs/ (trained by examples/quick_results.py; where that script last wrote the sections "
+        "above from other runs, the two may differ). " + INTRODUCTION,
         "",
     ]
     for task in dict.fromkeys(r["task"] for r in rows):
