@@ -363,18 +363,13 @@ def _task_model(spec, kind, labels, images, limit, setup):
     if spec is None:
         return None, "clean"
     from metalens_cli.imaging.task_models import load_task_model
-
-    model = load_task_model(spec, kind, setup.device, check_pixels=setup.pixels)
-    if labels.strip() == "clean":
-        return model, "clean"
-    from pathlib import Path
-
-    from metalens_cli.errors import InputError
     from metalens_cli.imaging.task_truth import label_truths
 
-    if not Path(labels).is_dir():
-        raise InputError("--task-labels", f"no such folder {labels!r}", "clean or a folder of labels")
-    return model, label_truths(Path(labels), images, limit, kind, (setup.pixels, setup.pixels))
+    model = load_task_model(spec, kind, setup.device, check_pixels=setup.pixels)
+    folder = _label_folder(labels)
+    if folder is None:
+        return model, "clean"
+    return model, label_truths(folder, images, limit, kind, (setup.pixels, setup.pixels))
 
 
 def _pairs_model(spec, kind, labels, layout):
@@ -382,20 +377,29 @@ def _pairs_model(spec, kind, labels, layout):
     the labels of each reference in its own pixels) or (None, "clean")."""
     if spec is None:
         return None, "clean"
-    from pathlib import Path
-
-    from metalens_cli.errors import InputError
     from metalens_cli.imaging.task_models import load_task_model
     from metalens_cli.imaging.task_truth import framed_labels
     from metalens_cli.io.input_files import check_image_size
 
     model = load_task_model(spec, kind, "cpu", check_pixels=256)
-    if labels.strip() == "clean":
+    folder = _label_folder(labels)
+    if folder is None:
         return model, "clean"
+    sources = {name: check_image_size(path, "--pairs") for name, path in layout.gt.items()}
+    return model, framed_labels(folder, sources, kind)
+
+
+def _label_folder(labels: str):
+    """--task-labels as a folder, or None for "clean"; anything else is refused naming the option."""
+    from pathlib import Path
+
+    from metalens_cli.errors import InputError
+
+    if labels.strip() == "clean":
+        return None
     if not Path(labels).is_dir():
         raise InputError("--task-labels", f"no such folder {labels!r}", "clean or a folder of labels")
-    sources = {name: check_image_size(path, "--pairs") for name, path in layout.gt.items()}
-    return model, framed_labels(Path(labels), sources, kind)
+    return Path(labels)
 
 
 def _title(result, seeds, reconstructors) -> str:
