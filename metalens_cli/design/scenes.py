@@ -79,8 +79,8 @@ def procedural_scene(
     sample's footprint, strokes and gratings covered in proportion within it."""
     h, w = shape
     grid = grid or SampleGrid.pixels(shape)
-    if structure and not grid.whole:
-        raise ValueError("structure scenes are drawn at every pixel (grid=None)")
+    if grid.shape != (h, w) or (structure and not grid.whole):
+        raise ValueError(f"a grid of the canvas {(h, w)} (structure scenes: at every pixel, grid=None)")
     side = max(max(h, w) - 2 * int(margin), 1)  # the field's side: every scale is relative to it, as a photo's framing
     band = max(int(margin) - DETAIL_BAND_PX, 0)
     top, left, bottom, right = band, band, h - band, w - band  # the detailed region

@@ -88,7 +88,7 @@ def test_dirt_is_the_same_near_the_field_and_covers_its_share():
 
 def test_structured_scenes_are_drawn_at_every_pixel():
     shape, _, blocks = _grids(40)
-    with pytest.raises(ValueError, match="structure"):
+    with pytest.raises(ValueError, match="structure scenes"):
         procedural_scene(shape, np.random.default_rng(0), 40, structure=True, grid=blocks)
 
 
