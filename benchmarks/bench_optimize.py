@@ -5,9 +5,8 @@ paper).
 
 Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4] [--steps-quick 40]
 [--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR [--baseline-label NAME]] [--presets DIR]
-[--scene-blocks]. Rewrites
-its section of docs/benchmarks.md (one per device type). Every row runs in a fresh process (its own
-peak memory). ``--baseline DIR`` (a checkout of an earlier commit, e.g. from ``git worktree add
+[--scene-blocks]. Rewrites its section of docs/benchmarks.md (one per device type; with ``--scene-blocks``
+a section of its own). Every row runs in a fresh process (its own peak memory). ``--baseline DIR`` (a checkout of an earlier commit, e.g. from ``git worktree add
 DIR HEAD``) measures each row again with DIR's package right after, on the same presets, so that
 the before/after ratios come from one sitting. Each step's PSF windows follow its light
 (``optics.channel_psf``), so the step's cost follows the design: the quick rows run long enough
@@ -173,8 +172,9 @@ def main() -> None:
         else ""
     )
     lines = [
-        f"## Training step, {device.type} (`python benchmarks/bench_optimize.py --device {args.device}"
-        f"{' --baseline DIR' if args.baseline else ''}`)",
+        f"## Training step, {device.type}{', scenes at the halo blocks' if args.scene_blocks else ''} "
+        f"(`python benchmarks/bench_optimize.py --device {args.device}{' --baseline DIR' if args.baseline else ''}"
+        f"{' --scene-blocks' if args.scene_blocks else ''}`)",
         "",
         ("" if args.presets.resolve() == PRESET.parent.resolve() else f"Presets from `{args.presets}`. ")
         + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2; `quick-joint-filter.toml` learns the "
@@ -226,7 +226,7 @@ def main() -> None:
     print("\n".join(lines), flush=True)
     from report import write_section
 
-    write_section(f"optimize-{device.type}", "\n".join(lines))
+    write_section(f"optimize-{device.type}" + ("-scene-blocks" if args.scene_blocks else ""), "\n".join(lines))
 
 
 if __name__ == "__main__":
