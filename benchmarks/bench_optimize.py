@@ -6,8 +6,8 @@ paper).
 Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4] [--steps-quick 40]
 [--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR [--baseline-label NAME]] [--presets DIR]
 [--scene-blocks]. Rewrites its section of docs/benchmarks.md (one per device type; with ``--scene-blocks``
-a section of its own). Every row runs in a fresh process (its own peak memory). ``--baseline DIR`` (a checkout of an earlier commit, e.g. from ``git worktree add
-DIR HEAD``) measures each row again with DIR's package right after, on the same presets, so that
+a section of its own). Every row runs in a fresh process (its own peak memory). ``--baseline DIR``
+(a checkout of an earlier commit, e.g. from ``git worktree add DIR HEAD``) measures each row again with DIR's package right after, on the same presets, so that
 the before/after ratios come from one sitting. Each step's PSF windows follow its light
 (``optics.channel_psf``), so the step's cost follows the design: the quick rows run long enough
 for the learned lens to spread its light (and the kernels' plan to grow, which costs seconds
