@@ -3,19 +3,20 @@ resolution (presets/split-spectrum.toml: 512 × 512 sensor, 3 wavelengths per ch
 radial θ(r) (one parameter per meta-atom ring) and 2-D θ(x, y) (one per site, 6369² as in the
 paper).
 
-Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4] [--steps-quick 40]
-[--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR [--baseline-label NAME]] [--presets DIR]
-[--scene-blocks]. Rewrites its section of docs/benchmarks.md (one per device type; with ``--scene-blocks``
-a section of its own). Every row runs in a fresh process (its own peak memory). ``--baseline DIR``
-(a checkout of an earlier commit, e.g. from ``git worktree add DIR HEAD``) measures each row again with DIR's package right after, on the same presets, so that
-the before/after ratios come from one sitting. Each step's PSF windows follow its light
-(``optics.channel_psf``), so the step's cost follows the design: the quick rows run long enough
-for the learned lens to spread its light (and the kernels' plan to grow, which costs seconds
-each time); the rows give the windows the last step needed. A 2-D step at this size takes
-minutes and several GiB on 2 CPU cores; its backward pass runs the adjoint propagation (see
-``optics.psf``). ``--scene-blocks``: this checkout's rows draw their scenes and dirt at the halo's
-blocks beyond the cores' reach (``[optimize] scene_blocks = true``, ``imaging.sample_grid``); the
-baseline's rows as their presets say.
+Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4]
+[--steps-quick 40] [--steps-2d 1] [--parameterization quick radial 2d]
+[--baseline DIR [--baseline-label NAME]] [--presets DIR] [--scene-blocks].
+Rewrites its section of docs/benchmarks.md (one per device type; with ``--scene-blocks`` a section
+of its own). Every row runs in a fresh process (its own peak memory). ``--baseline DIR`` (a checkout
+of an earlier commit, e.g. from ``git worktree add DIR HEAD``) measures each row again with DIR's
+package right after, on the same presets, so that the before/after ratios come from one sitting.
+Each step's PSF windows follow its light (``optics.channel_psf``), so the step's cost follows the
+design: the quick rows run long enough for the learned lens to spread its light (and the kernels'
+plan to grow, which costs seconds each time); the rows give the windows the last step needed. A 2-D
+step at this size takes minutes and several GiB on 2 CPU cores; its backward pass runs the adjoint
+propagation (see ``optics.psf``). ``--scene-blocks``: this checkout's rows draw their scenes and
+dirt at the halo's blocks beyond the cores' reach (``[optimize] scene_blocks = true``,
+``imaging.sample_grid``); the baseline's rows as their presets say.
 """
 
 from __future__ import annotations
