@@ -3,17 +3,20 @@ resolution (presets/split-spectrum.toml: 512 × 512 sensor, 3 wavelengths per ch
 radial θ(r) (one parameter per meta-atom ring) and 2-D θ(x, y) (one per site, 6369² as in the
 paper).
 
-Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4] [--steps-quick 40]
-[--steps-2d 1] [--parameterization quick radial 2d] [--baseline DIR [--baseline-label NAME]] [--presets DIR]. Rewrites
-its section of docs/benchmarks.md (one per device type). Every row runs in a fresh process (its own
-peak memory). ``--baseline DIR`` (a checkout of an earlier commit, e.g. from ``git worktree add
-DIR HEAD``) measures each row again with DIR's package right after, on the same presets, so that
-the before/after ratios come from one sitting. Each step's PSF windows follow its light
-(``optics.channel_psf``), so the step's cost follows the design: the quick rows run long enough
-for the learned lens to spread its light (and the kernels' plan to grow, which costs seconds
-each time); the rows give the windows the last step needed. A 2-D step at this size takes
-minutes and several GiB on 2 CPU cores; its backward pass runs the adjoint propagation (see
-``optics.psf``).
+Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4]
+[--steps-quick 40] [--steps-2d 1] [--parameterization quick radial 2d]
+[--baseline DIR [--baseline-label NAME]] [--presets DIR] [--scene-blocks].
+Rewrites its section of docs/benchmarks.md (one per device type; with ``--scene-blocks`` a section
+of its own). Every row runs in a fresh process (its own peak memory). ``--baseline DIR`` (a checkout
+of an earlier commit, e.g. from ``git worktree add DIR HEAD``) measures each row again with DIR's
+package right after, on the same presets, so that the before/after ratios come from one sitting.
+Each step's PSF windows follow its light (``optics.channel_psf``), so the step's cost follows the
+design: the quick rows run long enough for the learned lens to spread its light (and the kernels'
+plan to grow, which costs seconds each time); the rows give the windows the last step needed. A 2-D
+step at this size takes minutes and several GiB on 2 CPU cores; its backward pass runs the adjoint
+propagation (see ``optics.psf``). ``--scene-blocks``: this checkout's rows draw their scenes and
+dirt at the halo's blocks beyond the cores' reach (``[optimize] scene_blocks = true``,
+``imaging.sample_grid``); the baseline's rows as their presets say.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ QUICK_PRESETS = {"quick": "quick-split-spectrum.toml", "joint": "quick-joint-fil
 KINDS = ("quick", "joint", "radial", "2d")
 
 
-def measure(kind: str, presets: Path, device: str, threads: int, steps: int) -> dict:
+def measure(kind: str, presets: Path, device: str, threads: int, steps: int, scene_blocks: bool = False) -> dict:
     """time_steps' report for one kind, plus this process's peak memory."""
     from metalens_cli.design.training import time_steps
     from metalens_cli.io.presets import load_preset
@@ -53,6 +56,8 @@ def measure(kind: str, presets: Path, device: str, threads: int, steps: int) -> 
             lens=dataclasses.replace(base.lens, parameterization=kind),
             optimize=dataclasses.replace(base.optimize, design_grid=0),
         )
+    if scene_blocks:
+        preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, scene_blocks=True))
     r = time_steps(preset, steps, torch.device(device))
     r["peak_bytes"] = r.get("peak_memory_bytes") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     r["kind"] = kind
@@ -75,6 +80,7 @@ def measure_in_subprocess(kind: str, args, steps: int, code: Path) -> dict:
         str(args.threads),
         "--steps",
         str(steps),
+        *(["--scene-blocks"] if args.scene_blocks and code == ROOT else []),
     ]
     result = json.loads(
         subprocess.run(
@@ -131,6 +137,9 @@ def main() -> None:
         choices=KINDS,
         help="the rows measured with the baseline too (default: all)",
     )
+    parser.add_argument(
+        "--scene-blocks", action="store_true", help="this checkout's rows with [optimize] scene_blocks = true"
+    )
     parser.add_argument("--emit-json", choices=KINDS, help=argparse.SUPPRESS)  # one kind, in a subprocess
     parser.add_argument(
         "--presets",
@@ -141,7 +150,8 @@ def main() -> None:
     args = parser.parse_args()
     retain_freed_memory()
     if args.emit_json:
-        print(json.dumps(measure(args.emit_json, args.presets, args.device, args.threads, args.steps)))
+        report = measure(args.emit_json, args.presets, args.device, args.threads, args.steps, args.scene_blocks)
+        print(json.dumps(report))
         return
     device = torch.device(args.device)
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else f"{args.threads} CPU threads"
@@ -163,8 +173,9 @@ def main() -> None:
         else ""
     )
     lines = [
-        f"## Training step, {device.type} (`python benchmarks/bench_optimize.py --device {args.device}"
-        f"{' --baseline DIR' if args.baseline else ''}`)",
+        f"## Training step, {device.type}{', scenes at the halo blocks' if args.scene_blocks else ''} "
+        f"(`python benchmarks/bench_optimize.py --device {args.device}{' --baseline DIR' if args.baseline else ''}"
+        f"{' --scene-blocks' if args.scene_blocks else ''}`)",
         "",
         ("" if args.presets.resolve() == PRESET.parent.resolve() else f"Presets from `{args.presets}`. ")
         + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2; `quick-joint-filter.toml` learns the "
@@ -173,6 +184,12 @@ def main() -> None:
         f"per channel, batch 1): {args.steps} steps (radial), {args.steps_2d} (2-D); on {name}, each row a fresh "
         "process. Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their "
         "total seconds (Hankel kernel and output rows). Windows: what the last step's light needed (near / far, px)."
+        + (
+            " Rows without a commit: scenes and dirt drawn at the halo's blocks beyond the cores' reach "
+            "(`--scene-blocks`: `[optimize] scene_blocks = true`)."
+            if args.scene_blocks
+            else ""
+        )
         + (
             f" Baseline rows: commit {commit} (the same presets), each measured right after the row above it, on the "
             "same machine."
@@ -210,7 +227,7 @@ def main() -> None:
     print("\n".join(lines), flush=True)
     from report import write_section
 
-    write_section(f"optimize-{device.type}", "\n".join(lines))
+    write_section(f"optimize-{device.type}" + ("-scene-blocks" if args.scene_blocks else ""), "\n".join(lines))
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from metalens_cli.imaging.noise import fractal_noise
+from metalens_cli.imaging.sample_grid import SampleGrid
 from metalens_cli.io.image_files import srgb_to_linear
 
 SHAPES_PER_256_SQUARE = 250  # shapes per 256² pixels (density, not count: scenes are alike at every size)
@@ -27,6 +28,9 @@ TEXTURE = 1.5  # largest amplitude of the fine texture inside a shape
 LIGHT_DECADES = 0.55  # illumination varies over ±this many decades (shading, shadows)
 FINE_RADIUS_PX = 16  # shapes smaller than this, and the fine texture, are drawn only near the field
 DETAIL_BAND_PX = 32  # ... the sensor's field grown by this many pixels
+# within this of the field lies every shape narrower than 2.5 px (r < 8.3 px, reaching ≤ 2.5 r past the detail
+# band), whose coverage a 5-px cell would overstate: a scene drawn in blocks keeps pixels there (imaging.sample_grid)
+FINE_BAND_PX = DETAIL_BAND_PX + 24
 
 # structure=True only
 STRUCTURE_KINDS = (0.34, 0.24, 0.14, 0.08, 0.12, 0.08)  # SHAPE_KINDS' four, then tilings and text blocks
@@ -40,7 +44,12 @@ GLYPH_STROKES = (0.3, 0.2, 0.15, 0.25, 0.1)  # a glyph's strokes: stems, bars, d
 
 
 def procedural_scene(
-    shape: tuple[int, int], rng: np.random.Generator, margin: int = 0, *, structure: bool = False
+    shape: tuple[int, int],
+    rng: np.random.Generator,
+    margin: int = 0,
+    *,
+    structure: bool = False,
+    grid: SampleGrid | None = None,
 ) -> np.ndarray:
     """One random linear-RGB scene (3, H, W) in 0.002..1 whose statistics are those of the
     photographs of ``imaging.images`` (``imaging.scene_statistics``; tests/design/test_scenes.py):
@@ -62,15 +71,25 @@ def procedural_scene(
     direction) instead of a texture; ``FLAT_FRACTION`` of the shapes are flat (one colour, no
     texture or ramp); shape kinds ``STRUCTURE_KINDS`` add tilings (:func:`_tiling`) and text
     blocks (:func:`_text`), which, being fine detail, are plain rectangles when their centre lies
-    outside the detailed region."""
+    outside the detailed region.
+
+    ``grid`` (``imaging.sample_grid``, without ``structure``): the scene evaluated at its samples
+    only, each cell of the canvas filled with its sample. Every random draw is the one the pixel
+    grid makes, so it is the same scene at the grid's resolution; edges are antialiased over each
+    sample's footprint, strokes and gratings covered in proportion within it."""
     h, w = shape
+    grid = grid or SampleGrid.pixels(shape)
+    if grid.shape != (h, w) or (structure and not grid.whole):
+        raise ValueError(f"a grid of the canvas {(h, w)} (structure scenes: at every pixel, grid=None)")
     side = max(max(h, w) - 2 * int(margin), 1)  # the field's side: every scale is relative to it, as a photo's framing
     band = max(int(margin) - DETAIL_BAND_PX, 0)
     top, left, bottom, right = band, band, h - band, w - band  # the detailed region
-    coarse = fractal_noise((h, w), side / rng.uniform(2, 6), 3, rng).astype(np.float32)
-    fine = np.zeros((h, w), np.float32)
-    fine[top:bottom, left:right] = fractal_noise((bottom - top, right - left), rng.uniform(4, 16), 3, rng)
-    y, x = np.arange(h, dtype=np.float32)[:, None], np.arange(w, dtype=np.float32)[None, :]
+    coarse = fractal_noise((h, w), side / rng.uniform(2, 6), 3, rng, at=grid.at).astype(np.float32)
+    fine = np.zeros(grid.samples, np.float32)
+    (i0, i1, j0, j1), at = grid.within(top, bottom, left, right)
+    fine[i0:i1, j0:j1] = fractal_noise((bottom - top, right - left), rng.uniform(4, 16), 3, rng, at=at)
+    y, x = grid.rows[:, None], grid.cols[None, :]
+    footprint = None if grid.whole else grid.footprint()
     if structure and rng.random() < GRADIENT_FRACTION:
         image = _ramp(y - h / 2, x - w / 2, side, rng)
     else:
@@ -104,25 +123,32 @@ def procedural_scene(
         )
         if i0 >= i1 or j0 >= j1:
             continue
+        (i0, i1), (j0, j1) = grid.span(i0, i1, 0), grid.span(j0, j1, 1)  # empty ones still draw
         angle = rng.uniform(0, np.pi) if kind < 4 else rng.uniform(-TILT_RAD, TILT_RAD)
         dy, dx = y[i0:i1] - cy, x[:, j0:j1] - cx
         along, across = dx * np.cos(angle) + dy * np.sin(angle), dy * np.cos(angle) - dx * np.sin(angle)
+        cell, size = (1.0 if footprint is None else footprint[i0:i1, j0:j1]), 0.0
         if kind == 0:  # ellipse; inside distance ≈ pixels to the edge
             inside = r - np.sqrt(along**2 + (across / rng.uniform(0.4, 1.0)) ** 2)
         elif kind == 1:  # rectangle
             inside = np.minimum(r - np.abs(along), rng.uniform(0.3, 1.0) * r - np.abs(across))
         elif kind == 2:  # stroke
-            inside = np.minimum(rng.uniform(0.5, 1.5) - np.abs(across), 3 * r - np.abs(along))
+            size = rng.uniform(0.5, 1.5)  # half-width
+            inside = np.minimum(size - np.abs(across), 3 * r - np.abs(along))
         elif kind == 3:  # grating patch
-            bars = np.sin(2 * np.pi * along / rng.uniform(2.0, 10.0)) > 0
+            size = rng.uniform(2.0, 10.0)  # period
+            bars = np.sin(2 * np.pi * along / size) > 0
             inside = np.where(bars, r - np.hypot(along, across), -1.0)
         flat = structure and rng.random() < FLAT_FRACTION
         if kind == 4:
             mask, paint = _tiling(along, across, r, rng)
         elif kind == 5:
             mask, paint = _text(along, across, r, alphabet, rng)
-        else:
+        elif footprint is None:
             mask = np.clip(inside + 0.5, 0, 1)  # 1-pixel antialiased edge
+            colour = _colour(rng).astype(np.float32)
+        else:
+            mask = _sampled_mask(kind, inside, along, across, r, size, cell)
             colour = _colour(rng).astype(np.float32)
         shade = 1  # flat: one colour
         if not flat:  # texture and shading ramp
@@ -131,8 +157,23 @@ def procedural_scene(
         box = image[:, i0:i1, j0:j1]  # image ← (1 − mask)·image + paint (premultiplied by mask), in place
         box *= 1 - mask
         box += paint
-    light = 10 ** (LIGHT_DECADES * fractal_noise((h, w), side / rng.uniform(1, 3), 2, rng))
-    return np.clip(image * light, 0.002, 1.0).astype(np.float32)
+    light = 10 ** (LIGHT_DECADES * fractal_noise((h, w), side / rng.uniform(1, 3), 2, rng, at=grid.at))
+    return grid.canvas(np.clip(image * light, 0.002, 1.0).astype(np.float32))
+
+
+def _sampled_mask(kind, inside, along, across, r: float, size: float, cell: np.ndarray) -> np.ndarray:
+    """A shape's coverage of each sample's cell (``cell``: its footprint, pixels) on a grid coarser
+    than the pixels: edges antialiased over the footprint; a stroke (half-width ``size``) covers
+    the overlap of its band with the footprint; a grating (period ``size``) finer than two
+    footprints covers half its disc."""
+    if kind == 2:
+        d = np.abs(across)
+        band = np.clip((np.minimum(d + cell / 2, size) - np.maximum(d - cell / 2, -size)) / cell, 0, 1)
+        return band * np.clip((3 * r - np.abs(along)) / cell + 0.5, 0, 1)
+    if kind == 3:
+        disc = np.clip((r - np.hypot(along, across)) / cell + 0.5, 0, 1)
+        return disc * np.where(size < 2 * cell, 0.5, np.sin(2 * np.pi * along / size) > 0)
+    return np.clip(inside / cell + 0.5, 0, 1)
 
 
 def _ramp(dy: np.ndarray, dx: np.ndarray, side: float, rng: np.random.Generator) -> np.ndarray:
@@ -289,11 +330,18 @@ def random_crop(image: np.ndarray, shape: tuple[int, int], rng: np.random.Genera
 
 
 def training_scene(
-    shape: tuple[int, int], seed: int, step: int, index: int, pool: list[np.ndarray] | None = None, margin: int = 0
+    shape: tuple[int, int],
+    seed: int,
+    step: int,
+    index: int,
+    pool: list[np.ndarray] | None = None,
+    margin: int = 0,
+    grid: SampleGrid | None = None,
 ) -> np.ndarray:
     """The clean scene number ``index`` of step ``step`` on a canvas of ``shape`` with ``margin``
-    pixels around the sensor's field: the same (seed, step, index), the same scene."""
+    pixels around the sensor's field: the same (seed, step, index), the same scene (a procedural
+    one at ``grid``'s samples, ``procedural_scene``; a crop of a training image at every pixel)."""
     rng = np.random.default_rng([seed, step, index, 11])
     if pool:
         return random_crop(pool[rng.integers(len(pool))], shape, rng)
-    return procedural_scene(shape, rng, margin)
+    return procedural_scene(shape, rng, margin, grid=grid)

@@ -24,13 +24,14 @@ from metalens_cli.design.filter_learning import BandSampler, LearnedFilter, band
 from metalens_cli.design.losses import training_loss, weighted_total
 from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_range
 from metalens_cli.design.scene_pool import ScenePool
-from metalens_cli.design.scenes import training_scene
+from metalens_cli.design.scenes import FINE_BAND_PX, training_scene
 from metalens_cli.design.train_loop import update
 from metalens_cli.design.training_camera import TrainingCamera, expose, zero_order_veil
 from metalens_cli.errors import InputError, SamplingError
 from metalens_cli.imaging.canvas import narrow_margin, sensor_crop
 from metalens_cli.imaging.formation import form_image, psf_margin
 from metalens_cli.imaging.obstructions import make_obstruction
+from metalens_cli.imaging.sample_grid import SampleGrid
 from metalens_cli.io.preset_spectra import preset_sensitivity
 from metalens_cli.io.presets import WAVELENGTH_MODES
 from metalens_cli.optics.blur import psf_window
@@ -293,6 +294,7 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
     n = preset.sensor.pixels
     kinds = preset.optimize.obstructions
     canvas = (n + 2 * margin, n + 2 * margin)
+    grid = scene_grid(preset, canvas, margin)
     kind = {i: kinds[np.random.default_rng([seed, step, i, 13]).integers(len(kinds))] for i in indices}
 
     def obstruction(index, clean=None):
@@ -306,10 +308,11 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
             params=preset.obstruction,
             clean=clean,
             margin=margin,
+            grid=grid,
         )
 
     def scene(index):
-        clean = training_scene(canvas, seed, step, index, pool, margin)
+        clean = training_scene(canvas, seed, step, index, pool, margin, grid)
         return clean, (obstruction(index, clean) if kind[index] == "rain" else None)
 
     tasks = len(indices) + sum(kind[i] != "rain" for i in indices)
@@ -323,6 +326,16 @@ def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float
                 made = separate[i].result()
             entries.append((clean, made.rgb, made.mask))
     return tuple(torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device) for arrays in zip(*entries))
+
+
+def scene_grid(preset, canvas: tuple[int, int], margin: int) -> SampleGrid | None:
+    """Where a step's procedural scenes and dirt are drawn (``[optimize] scene_blocks``): at the
+    pixels within the cores' reach of the field (at least ``design.scenes.FINE_BAND_PX``) and in
+    ``halo_scale`` × ``halo_scale`` cells beyond (``imaging.sample_grid``); None: every pixel."""
+    o = preset.optimize
+    if not o.scene_blocks or o.halo_scale == 1:
+        return None
+    return SampleGrid.blocks(canvas, margin, o.halo_scale, max(o.core_pixels // 2, FINE_BAND_PX))
 
 
 def scene_pool(preset, images, shard: list[int], device, end: int, background: bool = True) -> ScenePool:

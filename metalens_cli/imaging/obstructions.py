@@ -22,7 +22,8 @@ import numpy as np
 from metalens_cli.constants import OBSTRUCTION_KINDS
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.canvas import fit_to_canvas, sensor_crop
-from metalens_cli.imaging.noise import fractal_noise
+from metalens_cli.imaging.noise import fractal_noise, sampled_fractal_noise
+from metalens_cli.imaging.sample_grid import SampleGrid
 from metalens_cli.io.presets import ObstructionConfig
 
 FORM = "dirt, fence, drops, rain or file:PATH.png"
@@ -70,12 +71,15 @@ def _smoothstep(t: np.ndarray) -> np.ndarray:
     return t * t * (3 - 2 * t)
 
 
-def _soft_threshold(noise: np.ndarray, coverage: float, edge: float) -> np.ndarray:
-    """Soft mask smoothstep((noise − t)/edge + ½) with t chosen by bisection so that its mean is
-    ``coverage`` (the mean is taken on every 4th pixel per axis: within ~1 % of the full mean for
-    noise smooth over several pixels, 16× cheaper)."""
-    sample = noise[::4, ::4]
-    lo, hi = float(noise.min()) - edge, float(noise.max()) + edge
+def _soft_threshold(noise: np.ndarray, coverage: float, edge: float, sample: np.ndarray | None = None) -> np.ndarray:
+    """Soft mask smoothstep((noise − t)/edge + ½) with t chosen by bisection so that its mean over
+    ``sample`` (a uniform sample of the canvas's noise; default every 4th pixel per axis: within
+    ~1 % of the full mean for noise smooth over several pixels, 16× cheaper) is ``coverage``."""
+    if sample is None:
+        sample, lo, hi = noise[::4, ::4], float(noise.min()), float(noise.max())
+    else:
+        lo, hi = float(sample.min()), float(sample.max())
+    lo, hi = lo - edge, hi + edge
     for _ in range(30):
         t = 0.5 * (lo + hi)
         mean = _smoothstep((sample - t) / edge + 0.5).mean()
@@ -83,12 +87,18 @@ def _soft_threshold(noise: np.ndarray, coverage: float, edge: float) -> np.ndarr
     return _smoothstep((noise - 0.5 * (lo + hi)) / edge + 0.5)
 
 
-def dirt(shape, scale_px: float, rng: np.random.Generator, p: ObstructionConfig) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Brownish dirt: fractal Perlin noise thresholded to a coverage drawn in ``p.dirt_coverage``."""
+def dirt(
+    shape, scale_px: float, rng: np.random.Generator, p: ObstructionConfig, grid: SampleGrid | None = None
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Brownish dirt: fractal Perlin noise thresholded to a coverage drawn in ``p.dirt_coverage``;
+    at ``grid``'s samples (``imaging.sample_grid``) when given, else at every pixel."""
     target = rng.uniform(*p.dirt_coverage)
-    noise = fractal_noise(shape, scale_px, p.dirt_octaves, rng)
-    mask = _soft_threshold(noise, target, p.dirt_edge)
-    shade = 0.7 + 0.3 * fractal_noise(shape, scale_px / 4, 3, rng)  # mottled brightness
+    if grid is None:
+        noise, sample = fractal_noise(shape, scale_px, p.dirt_octaves, rng), None
+    else:
+        noise, sample = sampled_fractal_noise(shape, scale_px, p.dirt_octaves, rng, grid.at)
+    mask = _soft_threshold(noise, target, p.dirt_edge, sample)
+    shade = 0.7 + 0.3 * fractal_noise(shape, scale_px / 4, 3, rng, at=None if grid is None else grid.at)  # mottled
     brown = np.array([0.20, 0.12, 0.05])[:, None, None]  # linear RGB of dry soil
     return brown * shade[None], mask, {"target_coverage": target, "cell_px": scale_px}
 
@@ -185,10 +195,12 @@ def make_obstruction(
     params: ObstructionConfig | None = None,
     clean: np.ndarray | None = None,
     margin: int = 0,
+    grid: SampleGrid | None = None,
 ) -> Obstruction:
     """Generate obstruction ``spec`` (``dirt``, ``fence``, ``drops``, ``rain`` or ``file:PATH``) for
     an H × W sensor on a canvas of ``margin`` pixels, at ``depth_m`` in front of a lens of focal
-    length ``focal_length_m``; generators fill the whole canvas.
+    length ``focal_length_m``; generators fill the whole canvas. ``grid``: where dirt is evaluated
+    on the canvas (``imaging.sample_grid``; the other kinds are drawn at every pixel).
 
     ``clean`` (3, H + 2M, W + 2M) linear is needed by ``rain``. Same seed → the same obstruction.
     """
@@ -212,8 +224,9 @@ def make_obstruction(
             )
         return size
 
+    grid = grid if spec == "dirt" and grid is not None and not grid.whole else None
     if spec == "dirt":
-        rgb, mask, info = dirt(shape, px(p.dirt_scale_m), rng, p)
+        rgb, mask, info = dirt(shape, px(p.dirt_scale_m), rng, p, grid)
     elif spec == "fence":
         rgb, mask, info = fence(shape, px(p.fence_pitch_m), px(p.fence_width_m), p.fence_angle_deg, rng)
     elif spec == "drops":
@@ -227,8 +240,11 @@ def make_obstruction(
     else:
         raise InputError("--obstruction", f"unknown obstruction {spec!r}", FORM)
     mask = np.clip(mask, 0.0, 1.0)
-    rgb = np.where(mask[None] > 0, rgb, 0.0)  # I_obs = 0 where nothing obstructs
-    return Obstruction(spec, rgb.astype(np.float32), mask[None].astype(np.float32), depth_m, info, margin)
+    rgb = np.where(mask[None] > 0, rgb, 0.0).astype(np.float32)  # I_obs = 0 where nothing obstructs
+    mask = mask[None].astype(np.float32)
+    if grid is not None:
+        rgb, mask = grid.canvas(rgb), grid.canvas(mask)
+    return Obstruction(spec, rgb, mask, depth_m, info, margin)
 
 
 def parse_obstructions(text: str) -> list[str]:

@@ -207,6 +207,10 @@ class OptimizeConfig:
     halo_scale: int = toml_key("halo_scale", "int", lo=1, hi=31, default=5)
     core_pixels: int = toml_key("core_pixels", "int", lo=1, hi=1023, default=65)
     halo_radial_step: int = toml_key("halo_radial_step", "int", lo=1, hi=4, default=2)
+    # procedural scenes and dirt drawn at the pixels only within the cores' reach of the field (core_pixels // 2, at
+    # least the scenes' detail band) and in halo_scale × halo_scale cells beyond, which only the halos see
+    # (imaging.sample_grid; docs/benchmarks.md, scenes at the halo's blocks); false: every pixel, the exact path
+    scene_blocks: bool = toml_key("scene_blocks", "bool", default=False)
 
 
 LOSS_SPACES = ("linear", "metric")  # design.losses.training_loss

@@ -7,8 +7,17 @@ import numpy as np
 import pytest
 
 import metalens_cli.design.scenes as scenes_module
-from metalens_cli.design.scenes import GLYPH_PX, _alphabet, _glyph_rows, procedural_scene, training_scene
+from metalens_cli.design.scenes import (
+    FINE_BAND_PX,
+    GLYPH_PX,
+    _alphabet,
+    _glyph_rows,
+    procedural_scene,
+    training_scene,
+)
+from metalens_cli.imaging.canvas import sensor_crop
 from metalens_cli.imaging.images import PHOTOGRAPHS, load_images, luminance
+from metalens_cli.imaging.sample_grid import SampleGrid
 from metalens_cli.imaging.scene_statistics import STATISTICS, scene_statistics, spectrum_slope, summarise
 from metalens_cli.io.image_files import linear_to_srgb
 
@@ -22,14 +31,26 @@ def photographs():
 
 @pytest.fixture(scope="module")
 def scenes():
-    """16 procedural scenes (``structure=False``) and 32 natural ones (``structure=True``), N × N."""
+    """16 procedural scenes (``structure=False``) and 32 natural ones (``structure=True``), N × N;
+    and 16 procedural ones drawn at the halo's blocks beyond the field (``"blocks"``: a canvas
+    margin of 100 px, 5-px cells past ``FINE_BAND_PX``), cropped to the field."""
+    m = 100
+    shape = (N + 2 * m, N + 2 * m)
+    grid = SampleGrid.blocks(shape, m, 5, FINE_BAND_PX)
     return {
-        structure: [procedural_scene((N, N), np.random.default_rng([0, k, 11]), structure=structure) for k in range(n)]
-        for structure, n in ((False, 16), (True, 32))
+        **{
+            structure: [
+                procedural_scene((N, N), np.random.default_rng([0, k, 11]), structure=structure) for k in range(n)
+            ]
+            for structure, n in ((False, 16), (True, 32))
+        },
+        "blocks": [
+            sensor_crop(procedural_scene(shape, np.random.default_rng([0, k, 11]), m, grid=grid), m) for k in range(16)
+        ],
     }
 
 
-@pytest.mark.parametrize("structure", [False, True], ids=["procedural", "natural"])
+@pytest.mark.parametrize("structure", [False, True, "blocks"], ids=["procedural", "natural", "blocks"])
 def test_procedural_scenes_match_the_photographs_statistics(photographs, scenes, structure):
     """Each statistic's mean over the scenes lies within half the photographs' spread (standard
     deviation) of their mean; saturation against the colour photographs only (four are grey).

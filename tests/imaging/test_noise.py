@@ -45,3 +45,31 @@ def test_fractal_noise_is_normalised_and_seeded():
     a = fractal_noise((64, 80), 24.0, 4, np.random.default_rng(1))
     assert a.shape == (64, 80) and np.isclose(np.abs(a).max(), 1.0)
     assert np.array_equal(a, fractal_noise((64, 80), 24.0, 4, np.random.default_rng(1)))
+
+
+def test_perlin_at_samples_is_the_noise_at_those_pixels():
+    """Rows × columns ``at`` (pixel coordinates, in any grid) read the same lattice as the whole field."""
+    whole = perlin((40, 50), 6.5, np.random.default_rng(2))
+    rows, cols = np.array([0, 3, 4, 17, 39]), np.array([1, 2, 30, 49])
+    (part,) = perlin((40, 50), 6.5, np.random.default_rng(2), at=[(rows, cols)])
+    assert_allclose(part, whole[rows][:, cols], atol=1e-6)
+
+
+def test_sampled_fractal_noise_is_one_field_whatever_the_samples():
+    """A pixel has the same value on any grid (normalised on the same uniform sample, whose largest
+    |·| is 1), and the field is fractal_noise's up to its bilinear resize from the lattice grid
+    (measured over seeds 0-4: largest difference 0.07-0.09 at 4 samples per finest cell)."""
+    from metalens_cli.imaging.noise import NORM_STRIDE, sampled_fractal_noise
+
+    shape, cell = (96, 120), 40.0
+    every = (np.arange(96), np.arange(120))
+    full, uniform = sampled_fractal_noise(shape, cell, 3, np.random.default_rng(4), every)
+    rows, cols = np.array([5, 6, 50, 95]), np.array([0, 64, 119])
+    part, same = sampled_fractal_noise(shape, cell, 3, np.random.default_rng(4), (rows, cols))
+    np.testing.assert_array_equal(part, full[rows][:, cols])
+    np.testing.assert_array_equal(same, uniform)
+    assert np.abs(uniform).max() == 1.0
+    np.testing.assert_array_equal(uniform, full[::NORM_STRIDE, ::NORM_STRIDE])
+    resized = fractal_noise(shape, cell, 3, np.random.default_rng(4))
+    resized /= np.abs(resized[::NORM_STRIDE, ::NORM_STRIDE]).max()  # normalised as the sampled field is
+    assert np.abs(full - resized).max() < 0.15
