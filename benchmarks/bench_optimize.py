@@ -185,13 +185,13 @@ def main() -> None:
         "process. Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their "
         "total seconds (Hankel kernel and output rows). Windows: what the last step's light needed (near / far, px)."
         + (
-            " Rows without a commit: scenes and dirt drawn at the halo's blocks beyond the cores' reach "
+            " Rows without a baseline label: scenes and dirt drawn at the halo's blocks beyond the cores' reach "
             "(`--scene-blocks`: `[optimize] scene_blocks = true`)."
             if args.scene_blocks
             else ""
         )
         + (
-            f" Baseline rows: commit {commit} (the same presets), each measured right after the row above it, on the "
+            f" Baseline rows ({commit}): {'' if args.baseline_label else 'that commit, '}the same presets, each measured right after the row above it, on the "
             "same machine."
             if args.baseline
             else ""
