@@ -5,18 +5,19 @@ paper).
 
 Run: python benchmarks/bench_optimize.py [--device cpu|cuda] [--threads 2] [--steps 4]
 [--steps-quick 40] [--steps-2d 1] [--parameterization quick radial 2d]
-[--baseline DIR [--baseline-label NAME]] [--presets DIR] [--scene-blocks].
-Rewrites its section of docs/benchmarks.md (one per device type; with ``--scene-blocks`` a section
-of its own). Every row runs in a fresh process (its own peak memory). ``--baseline DIR`` (a checkout
+[--baseline DIR [--baseline-label NAME]] [--presets DIR] [--optimize KEY=VALUE ...].
+Rewrites its section of docs/benchmarks.md (one per device type; with ``--optimize`` a section of
+its own per set of keys). Every row runs in a fresh process (its own peak memory). ``--baseline DIR`` (a checkout
 of an earlier commit, e.g. from ``git worktree add DIR HEAD``) measures each row again with DIR's
 package right after, on the same presets, so that the before/after ratios come from one sitting.
 Each step's PSF windows follow its light (``optics.channel_psf``), so the step's cost follows the
 design: the quick rows run long enough for the learned lens to spread its light (and the kernels'
 plan to grow, which costs seconds each time); the rows give the windows the last step needed. A 2-D
 step at this size takes minutes and several GiB on 2 CPU cores; its backward pass runs the adjoint
-propagation (see ``optics.psf``). ``--scene-blocks``: this checkout's rows draw their scenes and
-dirt at the halo's blocks beyond the cores' reach (``[optimize] scene_blocks = true``,
-``imaging.sample_grid``); the baseline's rows as their presets say.
+propagation (see ``optics.psf``). ``--optimize KEY=VALUE`` (TOML values, repeatable): this
+checkout's rows with those ``[optimize]`` keys set, e.g. ``scene_blocks=true`` (scenes and dirt at
+the halo's blocks beyond the cores' reach) or ``radial_margin=0.1``; the baseline's rows as their
+presets say.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import os
 import resource
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import torch
@@ -41,7 +43,19 @@ QUICK_PRESETS = {"quick": "quick-split-spectrum.toml", "joint": "quick-joint-fil
 KINDS = ("quick", "joint", "radial", "2d")
 
 
-def measure(kind: str, presets: Path, device: str, threads: int, steps: int, scene_blocks: bool = False) -> dict:
+def optimize_key(text: str) -> tuple[str, str]:
+    """``KEY=VALUE`` of ``--optimize``: an ``[optimize]`` key and its TOML value."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE, e.g. scene_blocks=true")
+    try:
+        tomllib.loads(f"v = {value.strip()}")
+    except tomllib.TOMLDecodeError as error:
+        raise argparse.ArgumentTypeError(f"{text!r}: the value is not TOML ({error})") from None
+    return key.strip(), value.strip()
+
+
+def measure(kind: str, presets: Path, device: str, threads: int, steps: int, optimize: dict | None = None) -> dict:
     """time_steps' report for one kind, plus this process's peak memory."""
     from metalens_cli.design.training import time_steps
     from metalens_cli.io.presets import load_preset
@@ -56,8 +70,8 @@ def measure(kind: str, presets: Path, device: str, threads: int, steps: int, sce
             lens=dataclasses.replace(base.lens, parameterization=kind),
             optimize=dataclasses.replace(base.optimize, design_grid=0),
         )
-    if scene_blocks:
-        preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, scene_blocks=True))
+    if optimize:
+        preset = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **optimize))
     r = time_steps(preset, steps, torch.device(device))
     r["peak_bytes"] = r.get("peak_memory_bytes") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     r["kind"] = kind
@@ -80,7 +94,7 @@ def measure_in_subprocess(kind: str, args, steps: int, code: Path) -> dict:
         str(args.threads),
         "--steps",
         str(steps),
-        *(["--scene-blocks"] if args.scene_blocks and code == ROOT else []),
+        *(f"--optimize={k}={v}" for k, v in (args.optimize if code == ROOT else [])),
     ]
     result = json.loads(
         subprocess.run(
@@ -138,7 +152,12 @@ def main() -> None:
         help="the rows measured with the baseline too (default: all)",
     )
     parser.add_argument(
-        "--scene-blocks", action="store_true", help="this checkout's rows with [optimize] scene_blocks = true"
+        "--optimize",
+        action="append",
+        type=optimize_key,
+        default=[],
+        metavar="KEY=VALUE",
+        help="this checkout's rows with this [optimize] key (a TOML value: scene_blocks=true, radial_margin=0.1)",
     )
     parser.add_argument("--emit-json", choices=KINDS, help=argparse.SUPPRESS)  # one kind, in a subprocess
     parser.add_argument(
@@ -150,7 +169,8 @@ def main() -> None:
     args = parser.parse_args()
     retain_freed_memory()
     if args.emit_json:
-        report = measure(args.emit_json, args.presets, args.device, args.threads, args.steps, args.scene_blocks)
+        overrides = {k: tomllib.loads(f"v = {v}")["v"] for k, v in args.optimize}
+        report = measure(args.emit_json, args.presets, args.device, args.threads, args.steps, overrides)
         print(json.dumps(report))
         return
     device = torch.device(args.device)
@@ -172,10 +192,11 @@ def main() -> None:
         if args.baseline
         else ""
     )
+    keys = "".join(f" --optimize {k}={v}" for k, v in args.optimize)
     lines = [
-        f"## Training step, {device.type}{', scenes at the halo blocks' if args.scene_blocks else ''} "
+        f"## Training step, {device.type}{', ' + ', '.join(f'{k} = {v}' for k, v in args.optimize) if keys else ''} "
         f"(`python benchmarks/bench_optimize.py --device {args.device}{' --baseline DIR' if args.baseline else ''}"
-        f"{' --scene-blocks' if args.scene_blocks else ''}`)",
+        f"{keys}`)",
         "",
         ("" if args.presets.resolve() == PRESET.parent.resolve() else f"Presets from `{args.presets}`. ")
         + f"The quick preset (`quick-split-spectrum.toml`, 128² crop, batch 2; `quick-joint-filter.toml` learns the "
@@ -185,14 +206,15 @@ def main() -> None:
         "process. Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their "
         "total seconds (Hankel kernel and output rows). Windows: what the last step's light needed (near / far, px)."
         + (
-            " Rows without a baseline label: scenes and dirt drawn at the halo's blocks beyond the cores' reach "
-            "(`--scene-blocks`: `[optimize] scene_blocks = true`)."
-            if args.scene_blocks
+            " Rows without a baseline label: this checkout with `[optimize]` "
+            + ", ".join(f"`{k} = {v}`" for k, v in args.optimize)
+            + "."
+            if keys
             else ""
         )
         + (
-            f" Baseline rows ({commit}): {'' if args.baseline_label else 'that commit, '}the same presets, each measured right after the row above it, on the "
-            "same machine."
+            f" Baseline rows ({commit}): {'' if args.baseline_label else 'that commit, '}the same presets, each "
+            "measured right after the row above it, on the same machine."
             if args.baseline
             else ""
         ),
@@ -227,7 +249,8 @@ def main() -> None:
     print("\n".join(lines), flush=True)
     from report import write_section
 
-    write_section(f"optimize-{device.type}" + ("-scene-blocks" if args.scene_blocks else ""), "\n".join(lines))
+    section = "".join(f"-{k.replace('_', '-')}" for k, _ in args.optimize)  # e.g. optimize-cpu-scene-blocks
+    write_section(f"optimize-{device.type}{section}", "\n".join(lines))
 
 
 if __name__ == "__main__":

@@ -272,6 +272,7 @@ def step_psfs(
             plan_frequency=frequency,
             core_window=core_window(preset),
             two_scale=psf_scales(preset),
+            radial_margin=preset.optimize.radial_margin,
         )
         _add_psf_timing(watch, stack)
         return stack

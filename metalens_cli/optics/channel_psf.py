@@ -112,6 +112,7 @@ def channel_psf_stack(
     plan_frequency: float | None = None,
     core_window: int | None = None,
     two_scale: TwoScale | None = None,
+    radial_margin: float = sampling.RADIAL_MARGIN,
 ) -> ChannelPsfStack:
     """Channel PSFs at every depth, each in the window its light needs (module docstring).
 
@@ -141,6 +142,8 @@ def channel_psf_stack(
         two_scale: the PSFs as ``optics.two_scale.TwoScalePsf`` (core and halo; radial lenses
             compute the halo at its own sampling, others sum it from the sensor's pixels); None:
             (3, N, N) tensors.
+        radial_margin: a radial lens's angle margin (sin-angle kept beyond the field's steepest
+            ray, ``sampling.plan_radial``): a smaller one shrinks the Hankel products.
 
     Returns:
         A :class:`ChannelPsfStack`: per depth ``psfs[i]`` (3, N_i, N_i) R, G, B in fractions of the
@@ -182,6 +185,7 @@ def channel_psf_stack(
             plan_frequency,
             core_window,
             two_scale or TwoScale(),
+            radial_margin,
         )
     else:
         stack = _grid_stack(
@@ -216,13 +220,14 @@ def _capacities_and_mix(capacity, depths: int, weights, wavelengths: int) -> tup
 
 
 def _radial_stack(
-    lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window, scales
-):
+    lens, lams, zs, mix, caps, plan_px, pitch, d, energy, dtype, device, plan_l, plan_z, plan_f, core_window, scales,
+    margin,
+):  # fmt: skip
     watch = Stopwatch()
     plan_lams = lams + [float(x) for x in np.ravel(plan_l if plan_l is not None else [])]
     plan_zs = zs + [float(x) for x in np.ravel(plan_z if plan_z is not None else [])]
     f_max = max(sampling.check_lens_sampling(lens, plan_lams, plan_zs, False), plan_f or 0.0)
-    plan = sampling.plan_radial(lens, sampling.PsfGrid(plan_lams, zs, plan_px, pitch, d), f_max)
+    plan = sampling.plan_radial(lens, sampling.PsfGrid(plan_lams, zs, plan_px, pitch, d), f_max, margin=margin)
     kernel = prop.hankel_kernel(plan.n_freq, plan.radius_m, lens.radius_m, plan.n_nodes, dtype, device)
     # the rule's and the halos' radial samples (one scale: the core's)
     coarse = not scales.single
@@ -235,7 +240,7 @@ def _radial_stack(
     phase_lens = lens.phase_at_radius(r.to(lens.theta.device)).to(device)
     fields = torch.stack([pupil_field(phase_lens, r, lam, z, dtype) for z in zs for lam in lams], 1)
     power = (kernel.weight[:, None] * fields.abs() ** 2).sum(0)
-    sins = [sampling.sin_limit(f_max, [lam], 2.0) for lam in lams]
+    sins = [sampling.sin_limit(f_max, [lam], margin / sampling.ANGLE_MARGIN) for lam in lams]
     # frequencies past every wavelength's band limit carry nothing: drop them from both products
     n_freq = int(torch.searchsorted(kernel.nu.double().cpu(), max(s / lam for s, lam in zip(sins, lams)), right=True))
     transfer = prop.radial_transfer(kernel, torch.tensor(lams, dtype=torch.float64), d, torch.tensor(sins))[:n_freq]

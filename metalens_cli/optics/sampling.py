@@ -26,6 +26,7 @@ from metalens_cli.optics.source import source_frequency
 MAX_FFT_SIZE = 32768
 MAX_HANKEL_SIZE = 40000
 ANGLE_MARGIN = 0.1  # sin-angle kept beyond the field's steepest ray (edge diffraction), × oversample
+RADIAL_MARGIN = 2 * ANGLE_MARGIN  # the radial path's (the doubled margin, plan_radial); sin-angle
 # the off-axis grid's guard beyond the light's reach a + W/2, each side, in Fresnel lengths √(λd): the edge of the kept
 # band blurs the kernel's cut over about one. 40 µm lens at 10° against the direct sum: 0 → 5.2e-3, 1 → 1.8e-3,
 # 2 → 7e-4, 3 → 5.3e-4 (6 → 5.2e-4)
@@ -187,14 +188,17 @@ def frequency_limit(f_max: float, wavelengths_m, oversample: float) -> float:
     return max(sin_limit(f_max, [lam], oversample) / lam for lam in wavelengths_m)
 
 
-def plan_radial(lens: Metalens, grid: PsfGrid, f_max: float, oversample: float = 1.0) -> RadialPlan:
+def plan_radial(
+    lens: Metalens, grid: PsfGrid, f_max: float, oversample: float = 1.0, margin: float = RADIAL_MARGIN
+) -> RadialPlan:
     """Sampling for ``radial_propagate`` from the geometry (see the module docstring) over ``grid``'s
     wavelengths, window and distance (its depths do not enter).
 
-    The angle margin is doubled here (the radial path is cheap). R = (a + ρ_w + d·tan θ_lim)/2 keeps waves up to θ_lim
-    from reflecting at R into the window of radius ρ_w; n_freq = 2R·ν_max with ν_max = max_λ sin θ_lim(λ)/λ; Gauss nodes
-    3 per cycle of the forward integrand; output step 1/(8·ν_max): the intensity, band-limited to 2·ν_max, is
-    sampled 4× above Nyquist for the cubic pixel integration.
+    The angle margin ``margin`` (sin-angle, × ``oversample``) is doubled by default (``RADIAL_MARGIN``: the
+    radial path is cheap; a training step takes ``[optimize] radial_margin``). R = (a + ρ_w + d·tan θ_lim)/2
+    keeps waves up to θ_lim from reflecting at R into the window of radius ρ_w; n_freq = 2R·ν_max with
+    ν_max = max_λ sin θ_lim(λ)/λ; Gauss nodes 3 per cycle of the forward integrand; output step 1/(8·ν_max):
+    the intensity, band-limited to 2·ν_max, is sampled 4× above Nyquist for the cubic pixel integration.
     """
     wavelengths_m, distance_m, n_pixels, pixel_pitch_m = (
         grid.wavelengths_m,
@@ -203,10 +207,11 @@ def plan_radial(lens: Metalens, grid: PsfGrid, f_max: float, oversample: float =
         grid.pixel_pitch_m,
     )
     a, rho_w = lens.radius_m, window_radius(n_pixels, pixel_pitch_m)
-    sin_lim = sin_limit(f_max, wavelengths_m, 2 * oversample)
+    factor = margin / ANGLE_MARGIN * oversample  # 2 × oversample by default
+    sin_lim = sin_limit(f_max, wavelengths_m, factor)
     tan_lim = sin_lim / math.sqrt(1 - sin_lim**2)
     radius = max((a + rho_w + distance_m * tan_lim) / 2, 1.05 * max(a, rho_w))
-    nu_max = frequency_limit(f_max, wavelengths_m, 2 * oversample)
+    nu_max = frequency_limit(f_max, wavelengths_m, factor)
     n_freq = math.ceil(2 * radius * nu_max * 1.05 * math.sqrt(oversample))
     n_nodes = 16 * math.ceil(3 * (f_max + nu_max) * a * oversample / 16)
     step = 1 / (8 * nu_max * oversample)

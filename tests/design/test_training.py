@@ -162,6 +162,29 @@ def test_step_windows_follow_the_light_when_theta_is_perturbed(tiny):
     assert after.near >= max(calm.windows[0]) and after.far >= max(calm.windows[1])
 
 
+def test_the_radial_margin_key_reaches_the_steps_propagator(tiny):
+    """``[optimize] radial_margin`` 0.1 plans the step's Hankel transform for half the default's
+    angle margin (fewer samples, a shorter support radius; its error budget is tested in
+    tests/optics/test_channel_psf.py); 0.2 is the default's plan itself."""
+    from metalens_cli.design.step import draw_step, plan_windows, step_psfs
+    from metalens_cli.io.preset_spectra import preset_sensitivity
+
+    sensitivity = preset_sensitivity(tiny)
+    draw, lens = draw_step(tiny, sensitivity, 0, 0), build_model(tiny).lens()
+    windows = plan_windows(tiny, sensitivity)
+    with torch.no_grad():
+        stacks = {
+            m: step_psfs(lens, dataclasses.replace(tiny, optimize=dataclasses.replace(tiny.optimize, radial_margin=m)),
+                         draw, windows, "cpu")[0]
+            for m in (0.1, 0.2)
+        }  # fmt: skip
+        default = step_psfs(lens, tiny, draw, windows, "cpu")[0]
+    assert stacks[0.2].grid == default.grid
+    narrow, wide = stacks[0.1].grid, stacks[0.2].grid
+    assert narrow["hankel_samples"] < wide["hankel_samples"]
+    assert narrow["support_radius_m"] < wide["support_radius_m"]
+
+
 def test_gradient_norms_of_each_term(tiny):
     """Every weighted term has a finite, positive gradient norm, and a term weighted 0 has none."""
     from metalens_cli.design.validation import term_gradient_norms
