@@ -57,6 +57,7 @@ def _paper_dict():
         (lambda d: d["optimize"].update(field_angles="3"), "optimize.field_angles", "not an angle"),
         (lambda d: d["optimize"].update(field_angles=["0deg", "70deg"]), "optimize.field_angles", "past 60°"),
         (lambda d: d["optimize"].update(field_angles=[]), "optimize.field_angles", "at least one angle"),
+        (lambda d: d["optimize"].update(radial_margin=0.01), "optimize.radial_margin", "out of range"),
     ],
 )
 def test_validation_names_the_key_path(mutate, path, why):
