@@ -213,7 +213,7 @@ class OptimizeConfig:
     scene_blocks: bool = toml_key("scene_blocks", "bool", default=False)
     # a radial lens's angle margin: the sin-angle its propagator keeps beyond the field's steepest ray (optics.sampling.
     # plan_radial; edge diffraction). 0.2, the doubled margin of every other radial PSF; 0.1 shrinks the Hankel products
-    # about 1.5× at 2e-4 of the PSFs (docs/benchmarks.md, radial margin)
+    # about 1.5× at ≤ 5e-4 of the PSFs (docs/benchmarks.md, radial margin)
     radial_margin: float = toml_key("radial_margin", "float", lo=0.05, hi=0.5, default=0.2)
 
 
