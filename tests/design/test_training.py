@@ -347,15 +347,16 @@ def test_an_off_axis_step_close_to_the_axis_is_the_on_axis_step(tiny):
 
 def test_a_run_over_the_field_logs_its_field_points_and_resumes_exactly(tiny, tmp_path, monkeypatch):
     """loss.csv gains the field point of each step (the draw's); θ moves on off-axis steps; and
-    a resumed run repeats an uninterrupted one bit for bit. (The run's steering diagnostic over 4
-    draws, its least, not 8: off-axis draws cost seconds each, and it is tested on axis.)"""
+    a resumed run repeats an uninterrupted one bit for bit. The run skips its steering diagnostic
+    as a 2-D θ too large for it does (off-axis draws cost seconds each; it is tested on axis), and
+    its run.json says so."""
     import csv
     import math
 
-    from metalens_cli.design import training
+    from metalens_cli.design import validation
     from metalens_cli.design.step import draw_field
 
-    monkeypatch.setattr(training, "STEERING_DRAWS", 4)
+    monkeypatch.setattr(validation, "MAX_STEERING_PARAMETERS", 0)
     field = _over_field(tiny, 0, 4)
     straight = train(field, tmp_path / "a", steps=4)
     train(field, tmp_path / "b", steps=2)
@@ -367,3 +368,5 @@ def test_a_run_over_the_field_logs_its_field_points_and_resumes_exactly(tiny, tm
     logged = [float(r["field_angle_deg"]) for r in rows]
     assert logged == pytest.approx([math.degrees(draw_field(field, 0, s)[0]) for s in range(4)])
     assert any(a > 0 for a in logged)
+    steer = json.loads((tmp_path / "a" / "run.json").read_text())["validation_loss"]["steering"]
+    assert all("skipped" in steer[k] for k in ("initial", "final"))
