@@ -240,7 +240,7 @@ def _radial_stack(
     phase_lens = lens.phase_at_radius(r.to(lens.theta.device)).to(device)
     fields = torch.stack([pupil_field(phase_lens, r, lam, z, dtype) for z in zs for lam in lams], 1)
     power = (kernel.weight[:, None] * fields.abs() ** 2).sum(0)
-    sins = [sampling.sin_limit(f_max, [lam], margin / sampling.ANGLE_MARGIN) for lam in lams]
+    sins = [sampling.sin_limit(f_max, [lam], 1.0, margin) for lam in lams]
     # frequencies past every wavelength's band limit carry nothing: drop them from both products
     n_freq = int(torch.searchsorted(kernel.nu.double().cpu(), max(s / lam for s, lam in zip(sins, lams)), right=True))
     transfer = prop.radial_transfer(kernel, torch.tensor(lams, dtype=torch.float64), d, torch.tensor(sins))[:n_freq]

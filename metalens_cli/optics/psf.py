@@ -259,7 +259,7 @@ def _radial_psf(lens, grid, f_max, dtype, device, oversample, clock, plan_lams):
     phase_lens = lens.phase_at_radius(r.to(lens.theta.device)).to(device)
     fields = torch.stack([pupil_field(phase_lens, r, lam, z, dtype) for z in zs for lam in lams], 1)
     power = (kernel.weight[:, None] * fields.abs() ** 2).sum(0)
-    sins = torch.tensor([sampling.sin_limit(f_max, [lam], 2 * oversample) for lam in lams])
+    sins = torch.tensor([sampling.sin_limit(f_max, [lam], oversample, sampling.RADIAL_MARGIN) for lam in lams])
     transfer = prop.radial_transfer(kernel, torch.tensor(lams, dtype=torch.float64), d, sins).repeat(1, len(zs))
     clock.lap("source")
     out = prop.radial_propagate(fields, kernel, transfer, out_matrix)

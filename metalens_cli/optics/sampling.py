@@ -178,14 +178,15 @@ class RadialPlan:
     n_radii: int
 
 
-def sin_limit(f_max: float, wavelengths_m, oversample: float) -> float:
-    """sin of the band-limit angle: the field's steepest ray at the longest λ plus the margin."""
-    return min(0.99, max(wavelengths_m) * f_max + ANGLE_MARGIN * oversample)
+def sin_limit(f_max: float, wavelengths_m, oversample: float, margin: float = ANGLE_MARGIN) -> float:
+    """sin of the band-limit angle: the field's steepest ray at the longest λ plus ``margin`` ×
+    ``oversample`` (sin-angle)."""
+    return min(0.99, max(wavelengths_m) * f_max + margin * oversample)
 
 
-def frequency_limit(f_max: float, wavelengths_m, oversample: float) -> float:
+def frequency_limit(f_max: float, wavelengths_m, oversample: float, margin: float = ANGLE_MARGIN) -> float:
     """Largest kept spatial frequency (cycles/m) over the wavelengths: max_λ sin_limit(λ)/λ."""
-    return max(sin_limit(f_max, [lam], oversample) / lam for lam in wavelengths_m)
+    return max(sin_limit(f_max, [lam], oversample, margin) / lam for lam in wavelengths_m)
 
 
 def plan_radial(
@@ -207,11 +208,10 @@ def plan_radial(
         grid.pixel_pitch_m,
     )
     a, rho_w = lens.radius_m, window_radius(n_pixels, pixel_pitch_m)
-    factor = margin / ANGLE_MARGIN * oversample  # 2 × oversample by default
-    sin_lim = sin_limit(f_max, wavelengths_m, factor)
+    sin_lim = sin_limit(f_max, wavelengths_m, oversample, margin)
     tan_lim = sin_lim / math.sqrt(1 - sin_lim**2)
     radius = max((a + rho_w + distance_m * tan_lim) / 2, 1.05 * max(a, rho_w))
-    nu_max = frequency_limit(f_max, wavelengths_m, factor)
+    nu_max = frequency_limit(f_max, wavelengths_m, oversample, margin)
     n_freq = math.ceil(2 * radius * nu_max * 1.05 * math.sqrt(oversample))
     n_nodes = 16 * math.ceil(3 * (f_max + nu_max) * a * oversample / 16)
     step = 1 / (8 * nu_max * oversample)
