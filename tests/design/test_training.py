@@ -185,6 +185,33 @@ def test_the_radial_margin_key_reaches_the_steps_propagator(tiny):
     assert narrow["support_radius_m"] < wide["support_radius_m"]
 
 
+def test_through_a_narrower_margins_psfs_a_grey_wall_stays_grey_and_a_cover_hides_it(tiny):
+    """The step's PSFs with ``radial_margin`` 0.1: a grey wall images as that grey, an opaque cover
+    hides the scene, and no channel gains light: each keeps at most what it keeps with the default
+    margin, and never more than reaches the sensor plane (the edge diffraction it drops is lost)."""
+    from metalens_cli.design.step import draw_step, plan_windows, step_psfs
+    from metalens_cli.imaging.formation import form_image, psf_margin
+    from metalens_cli.io.preset_spectra import preset_sensitivity
+
+    sensitivity = preset_sensitivity(tiny)
+    draw, lens = draw_step(tiny, sensitivity, 0, 0), build_model(tiny).lens()
+    windows = plan_windows(tiny, sensitivity)
+    narrow_preset = dataclasses.replace(tiny, optimize=dataclasses.replace(tiny.optimize, radial_margin=0.1))
+    with torch.no_grad():
+        narrow, _ = step_psfs(lens, narrow_preset, draw, windows, "cpu")
+        wide, _ = step_psfs(lens, tiny, draw, windows, "cpu")
+    near, far = narrow.psfs
+    m, n = psf_margin(near, far), tiny.sensor.pixels
+    grey = torch.full((1, 3, n + 2 * m, n + 2 * m), 0.37)
+    clear, opaque = torch.zeros(1, 1, *grey.shape[-2:]), torch.ones(1, 1, *grey.shape[-2:])
+    wall = form_image(grey, torch.zeros_like(grey), clear, near, far, m).obstructed
+    assert float((wall - 0.37).abs().max()) < 1e-5
+    cover = form_image(grey, torch.zeros_like(grey), opaque, near, far, m).obstructed
+    assert float(cover.abs().max()) < 1e-6
+    assert np.all(narrow.kept <= wide.kept + 1e-6) and np.all(narrow.kept <= narrow.on_sensor + 1e-6)
+    assert np.all(narrow.on_sensor <= 1 + 1e-6)
+
+
 def test_gradient_norms_of_each_term(tiny):
     """Every weighted term has a finite, positive gradient norm, and a term weighted 0 has none."""
     from metalens_cli.design.validation import term_gradient_norms
