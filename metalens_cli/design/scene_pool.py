@@ -32,10 +32,11 @@ def draws_ahead(device) -> bool:
 
 
 class ScenePool:
-    """Batches ``draw(step, margin)`` (host tensors) of steps below ``end``, drawn ahead on one
-    background thread (``background``) and handed out on ``device``; on CUDA they are pinned in
-    the worker and copied without blocking the host. Use it as a context manager (or call
-    :meth:`close`): the worker is shut down at the end of a run and on errors."""
+    """Batches ``draw(step, margin)`` (host tensors, or tensors already on ``device``) of steps
+    below ``end``, drawn ahead on one background thread (``background``) and handed out on
+    ``device``; on CUDA host batches are pinned in the worker and copied without blocking the
+    host. Use it as a context manager (or call :meth:`close`): the worker is shut down at the end
+    of a run and on errors."""
 
     def __init__(self, draw: Callable[[int, int], Batch], device, end: int, background: bool = True):
         self.device, self.end = torch.device(device), end
@@ -68,7 +69,8 @@ class ScenePool:
 
     def _host_batch(self, step: int, margin: int) -> Batch:
         batch = self._draw(step, margin)
-        return tuple(x.pin_memory() for x in batch) if self.device.type == "cuda" else batch
+        on_host = self.device.type == "cuda" and batch[0].device.type == "cpu"
+        return tuple(x.pin_memory() for x in batch) if on_host else batch
 
     def close(self) -> None:
         """Drop the batches not yet taken and stop the worker (after the batch it is drawing)."""

@@ -309,9 +309,21 @@ def _alphabet(rng: np.random.Generator) -> np.ndarray:
 
 def _colour(rng: np.random.Generator) -> np.ndarray:
     """A linear RGB colour: hue uniform, HSV saturation Beta(2, 1.5) × 0.95, value Beta(2, 2), sRGB-decoded."""
-    import colorsys
+    return colours(rng, 1)[0]
 
-    return srgb_to_linear(np.array(colorsys.hsv_to_rgb(rng.uniform(), 0.95 * rng.beta(2.0, 1.5), rng.beta(2.0, 2.0))))
+
+def colours(rng: np.random.Generator, n: int) -> np.ndarray:
+    """``n`` photo-like linear RGB colours (n, 3) as :func:`_colour` draws them, drawn as arrays:
+    hues, then saturations, then values (one colour: the same numbers as :func:`_colour`)."""
+    h, s, v = rng.uniform(size=n), 0.95 * rng.beta(2.0, 1.5, size=n), rng.beta(2.0, 2.0, size=n)
+    sector = (h * 6.0).astype(int)  # colorsys.hsv_to_rgb, element-wise
+    f = h * 6.0 - sector
+    p, q, t = v * (1.0 - s), v * (1.0 - s * f), v * (1.0 - s * (1.0 - f))
+    rgb = np.choose(
+        sector[:, None] % 6,
+        [np.stack(c, -1) for c in ((v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q))],
+    )
+    return srgb_to_linear(np.where(s[:, None] == 0.0, v[:, None], rgb))
 
 
 def random_crop(image: np.ndarray, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:

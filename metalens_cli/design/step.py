@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from metalens_cli.design.device_scenes import device_batch
 from metalens_cli.design.filter_learning import BandSampler, LearnedFilter, band_sampler, filter_row, split_penalty
 from metalens_cli.design.losses import training_loss, weighted_total
 from metalens_cli.design.model import PLAN_HEADROOM, build_model, plan_range
@@ -33,7 +34,7 @@ from metalens_cli.imaging.formation import form_image, psf_margin
 from metalens_cli.imaging.obstructions import make_obstruction
 from metalens_cli.imaging.sample_grid import SampleGrid
 from metalens_cli.io.preset_spectra import preset_sensitivity
-from metalens_cli.io.presets import WAVELENGTH_MODES
+from metalens_cli.io.presets import DEVICE_OBSTRUCTIONS, WAVELENGTH_MODES
 from metalens_cli.optics.blur import psf_window
 from metalens_cli.optics.channel_psf import (
     MAX_WINDOW,
@@ -286,12 +287,27 @@ def _add_psf_timing(watch: Stopwatch | None, stack: ChannelPsfStack) -> None:
         watch.add(stack.timing_s, "psf_")
 
 
+def scenes_on_device(preset, device) -> bool:
+    """Whether a step's scenes and obstructions are drawn with torch on ``device``
+    (``design.device_scenes``) rather than with numpy on the host (``[optimize] scene_generator``;
+    "auto": on an accelerator, for procedural scenes and obstructions it draws)."""
+    o = preset.optimize
+    if o.scene_generator != "auto":
+        return o.scene_generator == "torch"
+    supported = o.images is None and set(o.obstructions) <= set(DEVICE_OBSTRUCTIONS)
+    return supported and torch.device(device).type != "cpu"
+
+
 def step_batch(preset, seed: int, step: int, indices: list[int], z_near_m: float, pool, margin: int, device):
     """Clean scenes, obstruction colours and masks (B, C, H + 2M, W + 2M) on the canvas of
-    ``margin`` M for the batch entries ``indices``, generated on a thread pool, each scene and
-    each obstruction a task of its own (``rain``, which refracts its scene, runs in its scene's
-    task): numpy releases the GIL, and every scene and obstruction draws from its own (seed,
-    step, index) stream, so neither the order nor the number of threads changes them."""
+    ``margin`` M for the batch entries ``indices`` on ``device``: with torch there where
+    :func:`scenes_on_device` says so (``design.device_scenes.device_batch``), else on the host on
+    a thread pool, each scene and each obstruction a task of its own (``rain``, which refracts its
+    scene, runs in its scene's task): numpy releases the GIL, and every scene and obstruction draws
+    from its own (seed, step, index) stream, so neither the order nor the number of threads
+    changes them."""
+    if scenes_on_device(preset, device):
+        return device_batch(preset, seed, step, indices, z_near_m, margin, device)
     n = preset.sensor.pixels
     kinds = preset.optimize.obstructions
     canvas = (n + 2 * margin, n + 2 * margin)
@@ -342,14 +358,16 @@ def scene_grid(preset, canvas: tuple[int, int], margin: int) -> SampleGrid | Non
 def scene_pool(preset, images, shard: list[int], device, end: int, background: bool = True) -> ScenePool:
     """The batches of a run's steps below ``end`` for the batch entries ``shard``
     (``step_batch`` of (seed, step, z_near of the step, margin) with the training ``images`` or
-    procedural scenes), drawn ahead on a background thread unless not ``background``
-    (``design.scene_pool``)."""
+    procedural scenes), drawn ahead on a background thread unless not ``background`` or drawn on
+    the run's device (:func:`scenes_on_device`: the device queues that work) (``design.scene_pool``)."""
     seed = preset.optimize.seed
+    on_device = scenes_on_device(preset, device)  # then drawn in the step, the device queueing the work
 
     def draw(step: int, margin: int):
-        return step_batch(preset, seed, step, shard, near_depth(preset, seed, step), images, margin, "cpu")
+        where = device if on_device else "cpu"
+        return step_batch(preset, seed, step, shard, near_depth(preset, seed, step), images, margin, where)
 
-    return ScenePool(draw, device, end, background)
+    return ScenePool(draw, device, end, background and not on_device)
 
 
 def step_canvases(scenes: ScenePool, step: int, reach: int, margin: int, watch: Stopwatch) -> tuple:

@@ -66,6 +66,23 @@ def pixels_from_metres(size_m: float, focal_length_m: float, depth_m: float, pix
     return size_m * focal_length_m / depth_m / pixel_pitch_m
 
 
+def feature_px(
+    spec: str, size_m: float, focal_length_m: float, depth_m: float, pixel_pitch_m: float, canvas: tuple[int, int]
+) -> float:
+    """Sensor pixels spanned by a ``size_m`` feature of obstruction ``spec`` at ``depth_m``
+    (:func:`pixels_from_metres`); an error unless ``MIN_FEATURE_PX`` to ``MAX_FEATURE_CANVASES``
+    of the ``canvas``'s longer side."""
+    size = pixels_from_metres(size_m, focal_length_m, depth_m, pixel_pitch_m)
+    if not MIN_FEATURE_PX <= size <= MAX_FEATURE_CANVASES * max(canvas):
+        raise InputError(
+            "--z-near",
+            f"a {size_m * 1e3:g} mm {spec} feature at {depth_m * 1e3:g} mm spans {size:.3g} pixels "
+            f"(f {focal_length_m * 1e3:g} mm, pitch {pixel_pitch_m * 1e6:g} µm)",
+            f"a geometry where obstruction features span {MIN_FEATURE_PX}-{MAX_FEATURE_CANVASES} canvases of pixels",
+        )
+    return size
+
+
 def _smoothstep(t: np.ndarray) -> np.ndarray:
     t = np.clip(t, 0.0, 1.0)
     return t * t * (3 - 2 * t)
@@ -213,16 +230,7 @@ def make_obstruction(
     shape = (sensor[0] + 2 * margin, sensor[1] + 2 * margin)
 
     def px(size_m):
-        size = pixels_from_metres(size_m, focal_length_m, depth_m, pixel_pitch_m)
-        if not MIN_FEATURE_PX <= size <= MAX_FEATURE_CANVASES * max(shape):
-            raise InputError(
-                "--z-near",
-                f"a {size_m * 1e3:g} mm {spec} feature at {depth_m * 1e3:g} mm spans {size:.3g} pixels "
-                f"(f {focal_length_m * 1e3:g} mm, pitch {pixel_pitch_m * 1e6:g} µm)",
-                f"a geometry where obstruction features span {MIN_FEATURE_PX}-{MAX_FEATURE_CANVASES} canvases of "
-                "pixels",
-            )
-        return size
+        return feature_px(spec, size_m, focal_length_m, depth_m, pixel_pitch_m, shape)
 
     grid = grid if spec == "dirt" and grid is not None and not grid.whole else None
     if spec == "dirt":

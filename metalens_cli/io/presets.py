@@ -157,6 +157,10 @@ class SceneConfig:
     z_far_m: tuple[float, float] = toml_key("z_far", "interval")
 
 
+SCENE_GENERATORS = ("auto", "numpy", "torch")
+DEVICE_OBSTRUCTIONS = ("dirt", "fence")  # the obstructions design.device_scenes draws
+
+
 @dataclass(frozen=True)
 class OptimizeConfig:
     """End-to-end learning of θ (Suppl. Note 4): AdamW with cosine annealing."""
@@ -215,6 +219,10 @@ class OptimizeConfig:
     # plan_radial; edge diffraction). 0.2, the doubled margin of every other radial PSF; 0.1 shrinks the Hankel products
     # about 1.5× at ≤ 5e-4 of the PSFs (docs/benchmarks.md, radial margin)
     radial_margin: float = toml_key("radial_margin", "float", lo=0.05, hi=0.5, default=0.2)
+    # where a step's procedural scenes and obstructions are drawn (design.step.scenes_on_device): "numpy" on the
+    # host (design.scenes; scene_blocks applies), "torch" on the run's device (design.device_scenes: every pixel,
+    # dirt and fence only, no training images), "auto": torch on an accelerator where it can, else numpy
+    scene_generator: str = toml_key("scene_generator", "choice", choices=SCENE_GENERATORS, default="auto")
 
 
 LOSS_SPACES = ("linear", "metric")  # design.losses.training_loss
@@ -580,6 +588,17 @@ def _check_consistency(p: Preset) -> None:
         if kind not in ("dirt", "fence", "drops", "rain") and not kind.startswith("file:"):
             raise InputError(
                 "optimize.obstructions", f"unknown obstruction {kind!r}", "dirt, fence, drops, rain or file:PATH.png"
+            )
+    if p.optimize.scene_generator == "torch":
+        if p.optimize.images is not None:
+            raise InputError(
+                "optimize.scene_generator", '"torch" with optimize.images', 'procedural scenes (no images) or "numpy"'
+            )
+        if not set(p.optimize.obstructions) <= set(DEVICE_OBSTRUCTIONS):
+            raise InputError(
+                "optimize.scene_generator",
+                f'"torch" with obstructions {", ".join(p.optimize.obstructions)}',
+                f'obstructions among {", ".join(DEVICE_OBSTRUCTIONS)}, or "numpy"',
             )
     if p.loss.sharp_mode in WAVELENGTH_MODES and p.loss.sharp_window % 2 == 0:
         raise InputError(

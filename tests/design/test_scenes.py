@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import metalens_cli.design.scenes as scenes_module
+from metalens_cli.design import device_scenes
 from metalens_cli.design.scenes import (
     FINE_BAND_PX,
     GLYPH_PX,
@@ -32,8 +33,9 @@ def photographs():
 @pytest.fixture(scope="module")
 def scenes():
     """16 procedural scenes (``structure=False``) and 32 natural ones (``structure=True``), N × N;
-    and 16 procedural ones drawn at the halo's blocks beyond the field (``"blocks"``: a canvas
-    margin of 100 px, 5-px cells past ``FINE_BAND_PX``), cropped to the field."""
+    16 procedural ones drawn at the halo's blocks beyond the field (``"blocks"``: a canvas
+    margin of 100 px, 5-px cells past ``FINE_BAND_PX``), cropped to the field; and 16 drawn with
+    torch (``"torch"``, ``design.device_scenes``) on the same canvas, cropped to the field."""
     m = 100
     shape = (N + 2 * m, N + 2 * m)
     grid = SampleGrid.blocks(shape, m, 5, FINE_BAND_PX)
@@ -47,10 +49,16 @@ def scenes():
         "blocks": [
             sensor_crop(procedural_scene(shape, np.random.default_rng([0, k, 11]), m, grid=grid), m) for k in range(16)
         ],
+        "torch": [
+            sensor_crop(device_scenes.procedural_scene(shape, np.random.default_rng([0, k, 11]), m, "cpu").numpy(), m)
+            for k in range(16)
+        ],
     }
 
 
-@pytest.mark.parametrize("structure", [False, True, "blocks"], ids=["procedural", "natural", "blocks"])
+@pytest.mark.parametrize(
+    "structure", [False, True, "blocks", "torch"], ids=["procedural", "natural", "blocks", "torch"]
+)
 def test_procedural_scenes_match_the_photographs_statistics(photographs, scenes, structure):
     """Each statistic's mean over the scenes lies within half the photographs' spread (standard
     deviation) of their mean; saturation against the colour photographs only (four are grey).

@@ -88,14 +88,18 @@ def _recorded_steps(preset, steps: range, prefetch: bool = True) -> tuple[set, l
         return recorder.sites, rows, session.model.full_theta().detach(), watch.times
 
 
-@pytest.mark.parametrize("case", ["on axis", "camera", pytest.param("off axis", marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "case", ["on axis", "camera", "scenes on the device", pytest.param("off axis", marks=pytest.mark.slow)]
+)
 def test_a_step_reads_the_host_only_where_logged(tiny, case):
     """Steps 1-2 (after the first, which builds the kernels; off axis, 18 s a step, the first
-    alone): every reader is in the allow-list."""
+    alone): every reader is in the allow-list, also where the scenes and obstructions are drawn
+    with torch (``design.device_scenes``)."""
     preset = {
         "on axis": tiny,
         "camera": _with(tiny, "optimize", light=2000.0),  # noise and its photon counts
         "off axis": _with(tiny, "optimize", field_angles_rad=(math.radians(4.0),)),  # every step at 4°
+        "scenes on the device": _with(tiny, "optimize", scene_generator="torch", obstructions=("dirt", "fence")),
     }[case]
     sites, rows, *_ = _recorded_steps(preset, range(0, 1) if case == "off axis" else range(1, 3))
     assert sites, "the recorder saw nothing: it no longer sees the reads"
