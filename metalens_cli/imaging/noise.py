@@ -83,7 +83,8 @@ def fractal_noise(
     for k in range(octaves):
         total += 0.5**k * perlin(coarse, cell_px / 2**k / step, rng)
     if step > 1:
-        # corner-aligned resize: coarse sample i sits at pixel i·step
+        # to (c − 1)·step + 1 pixels; OpenCV's half-pixel convention puts coarse sample i within (step − 1)/2 pixels
+        # of pixel i·step (at i·step exactly: design.device_scenes.fractal)
         total = cv2.resize(
             total, ((coarse[1] - 1) * step + 1, (coarse[0] - 1) * step + 1), interpolation=cv2.INTER_LINEAR
         )
