@@ -308,13 +308,16 @@ def _alphabet(rng: np.random.Generator) -> np.ndarray:
 
 
 def _colour(rng: np.random.Generator) -> np.ndarray:
-    """A linear RGB colour: hue uniform, HSV saturation Beta(2, 1.5) × 0.95, value Beta(2, 2), sRGB-decoded."""
-    return colours(rng, 1)[0]
+    """A linear RGB colour: hue uniform, HSV saturation Beta(2, 1.5) × 0.95, value Beta(2, 2), sRGB-decoded
+    (one at a time through ``colorsys``: 9 µs, against 40 µs for :func:`colours` of one)."""
+    import colorsys
+
+    return srgb_to_linear(np.array(colorsys.hsv_to_rgb(rng.uniform(), 0.95 * rng.beta(2.0, 1.5), rng.beta(2.0, 2.0))))
 
 
 def colours(rng: np.random.Generator, n: int) -> np.ndarray:
     """``n`` photo-like linear RGB colours (n, 3) as :func:`_colour` draws them, drawn as arrays:
-    hues, then saturations, then values (one colour: the same numbers as :func:`_colour`)."""
+    hues, then saturations, then values (one colour: :func:`_colour`'s numbers, bit for bit)."""
     h, s, v = rng.uniform(size=n), 0.95 * rng.beta(2.0, 1.5, size=n), rng.beta(2.0, 2.0, size=n)
     sector = (h * 6.0).astype(int)  # colorsys.hsv_to_rgb, element-wise
     f = h * 6.0 - sector

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from metalens_cli.design import device_scenes
+from metalens_cli.design.scenes import _colour, colours
 from metalens_cli.design.step import scenes_on_device, step_batch
 from metalens_cli.errors import InputError
 from metalens_cli.imaging.noise import fractal_noise, perlin
@@ -26,6 +27,14 @@ def tiny():
 
 def _with(preset, **changes):
     return dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, **changes))
+
+
+def test_colours_drawn_as_arrays_are_the_hosts():
+    """``design.scenes.colours`` (numpy, element-wise) of one colour draws ``_colour``'s numbers
+    (``colorsys``), bit for bit, over 2000 draws."""
+    a, b = np.random.default_rng(4), np.random.default_rng(4)
+    for _ in range(2000):
+        np.testing.assert_array_equal(colours(a, 1)[0], _colour(b))
 
 
 def test_noise_is_the_hosts():
