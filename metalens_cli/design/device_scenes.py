@@ -9,7 +9,8 @@ read back. The noise fields use :func:`imaging.noise.perlin`'s lattice draws; di
 what the host draws (their pixels within float32 rounding and the resize's half-pixel convention).
 
 The occluding shapes are composited in layers: each pixel keeps the ``LAYERS`` topmost shapes that
-cover it, painted over each other and over the background in occlusion order. Painting every
+cover it (none below one that covers it whole), painted over each other and over the background in
+occlusion order. Painting every
 shape in turn (``design.scenes``, and :func:`paint_every_shape` here, the slow exact path) differs
 only where a pixel's top ``LAYERS`` shapes are all partly transparent there, at their antialiased
 edges (tests/design/test_device_scenes.py measures it). Canvases are drawn at every pixel:
@@ -222,14 +223,27 @@ def _samples(shapes: Shapes, shape: tuple[int, int], device):
     return tuple(torch.cat(x) for x in zip(*parts))
 
 
-def composite(background: torch.Tensor, fine: torch.Tensor, shapes: Shapes, layers: int = LAYERS) -> torch.Tensor:
+def composite(
+    background: torch.Tensor, fine: torch.Tensor, shapes: Shapes, layers: int = LAYERS, drop: bool | None = None
+) -> torch.Tensor:
     """The shapes painted over ``background`` (3, H, W) on its device, each pixel by its ``layers``
-    topmost shapes (module docstring): shape k paints colour_k × coverage × (1 + texture_k ×
-    ``fine`` + slope_k × along / r_k) over what lies below, weighted by 1 − its coverage."""
+    topmost shapes down to the first that covers it whole (module docstring): shape k paints
+    colour_k × coverage × (1 + texture_k × ``fine`` + slope_k × along / r_k) over what lies below,
+    weighted by 1 − its coverage. ``drop`` (default: on a CPU) drops the samples no further layer
+    can use as the layers are taken (boolean indexing, which reads a count back); else they stay,
+    marked unused: the same image, nothing read back."""
     _, h, w = background.shape
     device, n = background.device, h * w
     pixel, rank, mask, along = _samples(shapes, (h, w), device)
     below = torch.where(pixel < n, rank, -1)
+    drop = device.type == "cpu" if drop is None else drop
+
+    def kept(keep, pixel, below, mask, along):
+        if drop:
+            return pixel[keep], below[keep], mask[keep], along[keep]
+        return pixel, torch.where(keep, below, -1), mask, along
+
+    pixel, below, mask, along = kept(below >= 0, pixel, below, mask, along)
     tops = []
     for _ in range(layers):
         top = torch.full((n + 1,), -1, dtype=torch.int64, device=device).scatter_reduce(0, pixel, below, "amax")
@@ -239,7 +253,8 @@ def composite(background: torch.Tensor, fine: torch.Tensor, shapes: Shapes, laye
         cover = torch.zeros(n + 1, device=device).scatter(0, at, torch.where(chosen, mask, 0.0))
         axis = torch.zeros(n + 1, device=device).scatter(0, at, torch.where(chosen, along, 0.0))
         tops.append((top[:n], cover[:n], axis[:n]))
-        below = torch.where(below < over, below, -1)
+        # below the chosen shape, unless it covers its pixel whole (then nothing below shows)
+        pixel, below, mask, along = kept((below < over) & (cover.index_select(0, pixel) < 1), pixel, below, mask, along)
     table = to_device(np.column_stack([shapes.colour, shapes.texture, shapes.slope, np.maximum(shapes.r, 1.0)]), device)
     image, fine = background.reshape(3, n), fine.reshape(n)
     for top, cover, axis in reversed(tops):
