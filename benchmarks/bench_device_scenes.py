@@ -31,21 +31,23 @@ WAYS = {  # [optimize] keys of each way; where the batch is drawn
 }
 
 
-def seconds(preset, margin: int, draws: int, device: str) -> float:
-    """Median seconds of a step's batch of ``preset`` on the canvas of ``margin``."""
+def seconds(preset, margin: int, draws: int, device: str) -> tuple[float, float]:
+    """Median seconds of a step's batch of ``preset`` on the canvas of ``margin``: until the host has
+    queued it, and until the device has finished it (the same on a CPU)."""
     from metalens_cli.design.step import near_depth, step_batch
 
     o = preset.optimize
-    times = []
+    queued, done = [], []
     for step in range(draws + 1):
         start = time.perf_counter()
         step_batch(
             preset, o.seed, step, list(range(o.batch_size)), near_depth(preset, o.seed, step), None, margin, device
         )
+        queued.append(time.perf_counter() - start)
         if device.startswith("cuda"):
             torch.cuda.synchronize()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times[1:])
+        done.append(time.perf_counter() - start)
+    return statistics.median(queued[1:]), statistics.median(done[1:])
 
 
 def main() -> None:
@@ -68,7 +70,11 @@ def main() -> None:
         row = [f"{name} (batch {o.batch_size}, {preset.sensor.pixels}² + {margin} px margin)"]
         for keys, where in WAYS.values():
             way = dataclasses.replace(preset, optimize=dataclasses.replace(o, **keys))
-            row.append(f"{seconds(way, margin, args.draws, args.device if where == 'device' else 'cpu'):.3f}")
+            queued, done = seconds(way, margin, args.draws, args.device if where == "device" else "cpu")
+            row.append(
+                f"{done:.3f}"
+                + (f" (queued in {queued:.3f})" if where == "device" and args.device.startswith("cuda") else "")
+            )
             print(name, keys, row[-1], file=sys.stderr, flush=True)
         lines.append("| " + " | ".join(row) + " |")
     device = torch.cuda.get_device_name() if args.device.startswith("cuda") else f"{platform.machine()} CPU"
@@ -81,7 +87,9 @@ def main() -> None:
                 "",
                 f"{device}, {args.threads} torch threads; the median seconds of a step's batch (clean scenes, "
                 f"obstruction colours and masks on the canvas) over {args.draws} steps after the first. numpy: on the "
-                f"host (`design.scenes`, `imaging.obstructions`); torch: `design.device_scenes` on {args.device}.",
+                f"host (`design.scenes`, `imaging.obstructions`); torch: `design.device_scenes` on {args.device} "
+                "(on an accelerator also the seconds until the host had queued the batch: the host's share, which "
+                "bounds a step whose device work is shorter).",
                 "",
                 "| preset | " + " | ".join(f"{way} s" for way in WAYS) + " |",
                 "|---|" + "---|" * len(WAYS),
