@@ -38,13 +38,12 @@ from metalens_cli.design.scenes import (
     colours,
 )
 from metalens_cli.imaging.noise import SAMPLES_PER_CELL
-from metalens_cli.imaging.obstructions import feature_px
+from metalens_cli.imaging.obstructions import DIRT_RGB, feature_px, smoothstep
 from metalens_cli.io.presets import DEVICE_OBSTRUCTIONS
 
 LAYERS = 4  # shapes kept per pixel, topmost first (tests/design/test_device_scenes.py: 4 paint as every shape would)
 CHUNK_SAMPLES = 2**21  # shapes' boxes are evaluated this many box pixels at a time
 BOX_SIDES = np.unique(np.ceil(2 ** np.arange(2, 16, 0.5) / 2).astype(int) * 2)  # 4, 6, 8, 12, 16, 24, 32, 46, …
-BROWN = (0.20, 0.12, 0.05)  # imaging.obstructions.dirt's linear RGB of dry soil
 
 
 def to_device(array, device, dtype=torch.float32) -> torch.Tensor:
@@ -164,10 +163,11 @@ def draw_shapes(shape: tuple[int, int], side: float, detailed: tuple[int, int, i
     )
 
 
-def _coverage(shapes: Shapes, index: np.ndarray, box: int, shape: tuple[int, int], device, pad: int = 0):
-    """The boxes (len(index), box, box) of shapes ``index`` (one kind; from their first row and
-    column less ``pad``): their canvas pixel (H·W where outside the canvas or uncovered), coverage
-    in 0..1 (1-px antialiased edges) and distance along the shape's axis (px; its shading ramp)."""
+def _coverage(shapes: Shapes, index: np.ndarray, origin: np.ndarray, box: int, shape: tuple[int, int], device):
+    """The boxes (len(index), box, box) of shapes ``index`` (one kind) from their first rows and
+    columns ``origin`` (2, len(index)): their canvas pixel (H·W where outside the canvas or
+    uncovered), coverage in 0..1 (1-px antialiased edges) and distance along the shape's axis (px;
+    its shading ramp)."""
     h, w = shape
     params = np.stack(
         [
@@ -179,7 +179,6 @@ def _coverage(shapes: Shapes, index: np.ndarray, box: int, shape: tuple[int, int
             shapes.size[index],
         ]
     )
-    origin = np.stack([first[index] - pad for first in shapes.boxes()[:2]])
     r, cy, cx, angle, aspect, size = to_device(params, device)[:, :, None, None]
     i0, j0 = to_device(origin, device, torch.int64)[:, :, None, None]
     o = torch.arange(box, device=device)
@@ -214,7 +213,9 @@ def _samples(shapes: Shapes, shape: tuple[int, int], device):
         for b in np.unique(box[seen & (shapes.kind == kind)]):
             members = np.flatnonzero(seen & (shapes.kind == kind) & (box == b))
             for chunk in np.array_split(members, min(len(members), -(-len(members) * b * b // CHUNK_SAMPLES))):
-                pixel, mask, along = _coverage(shapes, chunk, int(b), shape, device)
+                pixel, mask, along = _coverage(
+                    shapes, chunk, np.stack([rows0[chunk], cols0[chunk]]), int(b), shape, device
+                )
                 rank = to_device(chunk, device, torch.int64)[:, None, None].expand_as(pixel)
                 parts.append((pixel.reshape(-1), rank.reshape(-1), mask.reshape(-1), along.reshape(-1)))
     if not parts:
@@ -270,10 +271,11 @@ def paint_every_shape(background: torch.Tensor, fine: torch.Tensor, shapes: Shap
     exact path the layers are measured against)."""
     _, h, w = background.shape
     image, fine = background.reshape(3, h * w).clone(), fine.reshape(h * w)
-    box = shapes.boxes()[2]
+    rows0, cols0, box = shapes.boxes()
     for k in range(len(shapes.r)):
+        origin = np.array([[rows0[k]], [cols0[k]]])
         pixel, mask, along = (
-            x.reshape(-1) for x in _coverage(shapes, np.array([k]), int(box[k]), (h, w), image.device)
+            x.reshape(-1) for x in _coverage(shapes, np.array([k]), origin, int(box[k]), (h, w), image.device)
         )
         on = pixel < h * w
         pixel, mask, along = pixel[on], mask[on], along[on]
@@ -305,11 +307,6 @@ def procedural_scene(shape: tuple[int, int], rng: np.random.Generator, margin: i
 def soft_threshold(noise: torch.Tensor, coverage: float, edge: float) -> torch.Tensor:
     """:func:`imaging.obstructions._soft_threshold` on the device: smoothstep((noise − t)/edge + ½)
     with t bisected so that its mean over every 4th pixel per axis is ``coverage`` (no host read)."""
-
-    def smoothstep(t):
-        t = t.clamp(0.0, 1.0)
-        return t * t * (3 - 2 * t)
-
     sample = noise[::4, ::4]
     lo, hi = sample.amin() - edge, sample.amax() + edge
     for _ in range(30):
@@ -344,7 +341,7 @@ def obstruction(
             fractal(canvas, px(params.dirt_scale_m), params.dirt_octaves, rng, device), target, params.dirt_edge
         )
         shade = 0.7 + 0.3 * fractal(canvas, px(params.dirt_scale_m) / 4, 3, rng, device)  # mottled
-        rgb = to_device(BROWN, device)[:, None, None] * shade
+        rgb = to_device(DIRT_RGB, device)[:, None, None] * shade
     elif kind == "fence":
         pitch, width = px(params.fence_pitch_m), px(params.fence_width_m)
         y = torch.arange(canvas[0], device=device, dtype=torch.float32)[:, None]

@@ -83,8 +83,12 @@ def feature_px(
     return size
 
 
-def _smoothstep(t: np.ndarray) -> np.ndarray:
-    t = np.clip(t, 0.0, 1.0)
+DIRT_RGB = (0.20, 0.12, 0.05)  # linear RGB of dry soil
+
+
+def smoothstep(t):
+    """3t² − 2t³ of ``t`` clipped to 0..1 (a numpy array or a torch tensor)."""
+    t = t.clip(0.0, 1.0)
     return t * t * (3 - 2 * t)
 
 
@@ -99,9 +103,9 @@ def _soft_threshold(noise: np.ndarray, coverage: float, edge: float, sample: np.
     lo, hi = lo - edge, hi + edge
     for _ in range(30):
         t = 0.5 * (lo + hi)
-        mean = _smoothstep((sample - t) / edge + 0.5).mean()
+        mean = smoothstep((sample - t) / edge + 0.5).mean()
         lo, hi = (t, hi) if mean > coverage else (lo, t)
-    return _smoothstep((noise - 0.5 * (lo + hi)) / edge + 0.5)
+    return smoothstep((noise - 0.5 * (lo + hi)) / edge + 0.5)
 
 
 def dirt(
@@ -116,7 +120,7 @@ def dirt(
         noise, sample = sampled_fractal_noise(shape, scale_px, p.dirt_octaves, rng, grid.at)
     mask = _soft_threshold(noise, target, p.dirt_edge, sample)
     shade = 0.7 + 0.3 * fractal_noise(shape, scale_px / 4, 3, rng, at=None if grid is None else grid.at)  # mottled
-    brown = np.array([0.20, 0.12, 0.05])[:, None, None]  # linear RGB of dry soil
+    brown = np.array(DIRT_RGB)[:, None, None]
     return brown * shade[None], mask, {"target_coverage": target, "cell_px": scale_px}
 
 

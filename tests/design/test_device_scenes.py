@@ -76,11 +76,12 @@ def test_a_shapes_box_holds_every_pixel_it_covers():
     """Evaluated 12 px past its box on every side, no shape of any kind, size or orientation
     covers a pixel outside its box."""
     shapes = device_scenes.draw_shapes((400, 400), 300, (40, 40, 360, 360), np.random.default_rng(7))
-    side = shapes.boxes()[2]
+    rows0, cols0, side = shapes.boxes()
     for kind in range(4):
         for k in np.flatnonzero(shapes.kind == kind)[:60]:
-            tight = device_scenes._coverage(shapes, np.array([k]), int(side[k]), (400, 400), "cpu")[0]
-            wide = device_scenes._coverage(shapes, np.array([k]), int(side[k]) + 24, (400, 400), "cpu", pad=12)[0]
+            origin = np.array([[rows0[k]], [cols0[k]]])
+            tight = device_scenes._coverage(shapes, np.array([k]), origin, int(side[k]), (400, 400), "cpu")[0]
+            wide = device_scenes._coverage(shapes, np.array([k]), origin - 12, int(side[k]) + 24, (400, 400), "cpu")[0]
             covered = set(tight[tight < 400 * 400].tolist())
             assert covered == set(wide[wide < 400 * 400].tolist()), (kind, k)
 
