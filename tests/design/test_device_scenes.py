@@ -72,6 +72,38 @@ def test_layers_paint_as_painting_every_shape(seed):
     assert torch.equal(kept, device_scenes.composite(background, fine, shapes, drop=True))
 
 
+def test_grey_shapes_on_a_grey_wall_stay_grey_and_an_opaque_cover_hides_them():
+    """Painting conserves: grey shapes without texture or shading over a grey background leave
+    every pixel that grey (each pixel's weights sum to one, edges and layers included); a
+    rectangle over the whole canvas on top shows its colour alone, whatever lies below."""
+    shapes = device_scenes.draw_shapes((200, 200), 150, (8, 8, 192, 192), np.random.default_rng(5))
+    n = len(shapes.r)
+    flat = dataclasses.replace(shapes, colour=np.full((n, 3), 0.18), texture=np.zeros(n), slope=np.zeros(n))
+    wall = torch.full((3, 200, 200), 0.18)
+    fine = torch.randn(200, 200)
+    assert float((device_scenes.composite(wall, fine, flat) - 0.18).abs().max()) < 1e-6
+    cover = dataclasses.replace(
+        shapes,
+        **{
+            f: np.append(getattr(shapes, f), v)
+            for f, v in (
+                ("r", 400.0),
+                ("cy", 100.0),
+                ("cx", 100.0),
+                ("kind", 1),
+                ("angle", 0.0),
+                ("aspect", 1.0),
+                ("size", 5.0),
+                ("texture", 0.0),
+                ("slope", 0.0),
+            )
+        },
+        colour=np.vstack([shapes.colour, [0.05, 0.3, 0.7]]),
+    )
+    image = device_scenes.composite(torch.rand(3, 200, 200), fine, cover)
+    assert float((image - torch.tensor([0.05, 0.3, 0.7])[:, None, None]).abs().max()) < 1e-6
+
+
 def test_a_shapes_box_holds_every_pixel_it_covers():
     """Evaluated 12 px past its box on every side, no shape of any kind, size or orientation
     covers a pixel outside its box."""
