@@ -115,9 +115,11 @@ def row(r: dict, label: str) -> str:
     windows = r.get("windows_px")
     window_text = f"{windows['near']} / {windows['far']}" if windows and windows["near"] else "fixed"
     mean = r["mean_seconds_per_step"]
+    cpu = r.get("cpu_seconds_per_step")  # a baseline's time_steps may not report it
+    cpu_text = "—" if cpu is None else f"{cpu:.2f}"
     return (
         f"| {label} | {r['parameters']:,} | {'2-D ASM' if r['kind'] == '2d' else 'radial (Hankel)'} | {steps} | "
-        f"{window_text} | {r['seconds_per_step']:.2f} | {mean:.2f} | {r['first_step_s']:.2f} | "
+        f"{window_text} | {r['seconds_per_step']:.2f} | {cpu_text} | {mean:.2f} | {r['first_step_s']:.2f} | "
         f"{stages.get('psf_kernels', 0):.1f} | {stages.get('psf', 0) / steps:.2f} | "
         f"{stages.get('backward', 0) / steps:.2f} | {r['peak_bytes'] / 2**30:.1f} GiB ({memory}) |"
     )
@@ -204,7 +206,9 @@ def main() -> None:
         f"long enough for the light to spread and the plan to grow; `split-spectrum.toml` (512² sensor, 3 wavelengths "
         f"per channel, batch 1): {args.steps} steps (radial), {args.steps_2d} (2-D); on {name}, each row a fresh "
         "process. Median: over the steps after the first; mean: over all steps, kernel builds included; kernels: their "
-        "total seconds (Hankel kernel and output rows). Windows: what the last step's light needed (near / far, px)."
+        "total seconds (Hankel kernel and output rows); CPU s/step: the process's CPU time (every thread) over the "
+        "median's steps, their median: on a CPU no step is shorter than it over the threads' cores. Windows: what the "
+        "last step's light needed (near / far, px)."
         + (
             " Rows without a baseline label: this checkout with `[optimize]` "
             + ", ".join(f"`{k} = {v}`" for k, v in args.optimize)
@@ -219,9 +223,9 @@ def main() -> None:
             else ""
         ),
         "",
-        "| θ | parameters | propagator | steps | windows px | median s/step | mean s/step | first step s | kernels s "
-        "| PSFs s/step | backward s/step | peak memory |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| θ | parameters | propagator | steps | windows px | median s/step | CPU s/step | mean s/step | first step s "
+        "| kernels s | PSFs s/step | backward s/step | peak memory |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     labels = {
         "quick": "radial, quick preset",

@@ -254,8 +254,10 @@ def _filter_start(preset, incidence: float, notes: list[str]) -> LearnedFilter |
 def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu", prefetch: bool | None = None) -> dict:
     """Run ``steps`` training steps of ``preset`` without a run directory and report their cost:
     seconds per step (median over the steps after the first, which builds the kernels), seconds by
-    stage (totals over the steps), the first step's seconds, the number of θ parameters, the last
-    step's PSF windows and, on CUDA, the peak memory (bytes). ``prefetch``: each step's scenes
+    stage (totals over the steps), the first step's seconds, the process's CPU seconds per step
+    (median over the same steps, every thread: on a CPU, the step can take no less than this over
+    the cores it has), the number of θ parameters, the last step's PSF windows and, on CUDA, the
+    peak memory (bytes). ``prefetch``: each step's scenes
     drawn ahead (``design.scene_pool``); without it, in the step; None: as a run would
     (``draws_ahead``)."""
     with distributed.session(torch.device(device)) as ctx:
@@ -263,19 +265,21 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu", prefe
         if ctx.device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(ctx.device)
         watch = Stopwatch(ctx.device)
-        seconds = []
+        seconds, cpu_seconds = [], []
         row: dict = {}
         with session.scenes:
             for step in range(steps):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 row = one_step(session, preset, step, ctx, watch)[0]
                 if ctx.device.type == "cuda":
                     torch.cuda.synchronize(ctx.device)
                 seconds.append(time.perf_counter() - t0)
+                cpu_seconds.append(time.process_time() - c0)
         report = {
             "steps": steps,
             "first_step_s": seconds[0],
             "seconds_per_step": statistics.median(seconds[1:] or seconds),
+            "cpu_seconds_per_step": statistics.median(cpu_seconds[1:] or cpu_seconds),
             "seconds_by_stage": watch.times,
             "parameters": sum(p.numel() for p in session.model.parameters()),
             "windows_px": {"near": row.get("window_near"), "far": row.get("window_far")},

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,8 @@ def test_time_steps_reports_cost_and_writes_nothing(tiny, tmp_path, monkeypatch)
     report = time_steps(tiny, steps=2)
     assert report["steps"] == 2 and report["parameters"] == build_model(tiny).theta.numel()
     assert 0 < report["seconds_per_step"] and 0 < report["first_step_s"]
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    assert 0 < report["cpu_seconds_per_step"] <= cores * report["seconds_per_step"] + 0.05  # the same step's
     assert {"psf", "scenes", "formation_loss", "backward", "update"} <= set(report["seconds_by_stage"])
     assert list(tmp_path.iterdir()) == []
 
