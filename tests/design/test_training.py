@@ -113,6 +113,36 @@ def test_validation_loss_is_deterministic(tiny):
     assert validation_loss(model, tiny, 2) == validation_loss(model, tiny, 2)
 
 
+def test_theta_before_and_after_is_validated_on_the_same_scenes(tiny, monkeypatch):
+    """A run's θ before and after training have different PSF windows, so alone each would draw
+    its validation scenes on the canvas of its own margin, which are other scenes;
+    ``validation_losses`` draws one batch on the larger canvas and crops it to each design's
+    margin, so both are scored on the same scene (the sensor crops equal, bit for bit)."""
+    from metalens_cli.design import validation
+
+    start, defocused = build_model(tiny), build_model(tiny)
+    with torch.no_grad():
+        defocused.theta.mul_(0.8)  # a longer focal length: wider blur, larger windows
+    seen = []
+
+    def recording(capture, clean, *args, **kwargs):
+        seen.append(clean.clone())
+        return loss_of(capture, clean, *args, **kwargs)
+
+    loss_of = validation.training_loss
+    monkeypatch.setattr(validation, "training_loss", recording)
+    validation.validation_loss(start, tiny, 1)
+    validation.validation_loss(defocused, tiny, 1)
+    assert not torch.equal(seen[0], seen[1])  # alone: two canvases, two scenes
+    seen.clear()
+    together = validation.validation_losses([(start, tiny), (defocused, tiny)], 1)
+    assert torch.equal(seen[0], seen[1])
+    assert together[0] != together[1] and all(np.isfinite(together))
+    with pytest.raises(ValueError, match="same seed and the same scene settings"):
+        other = dataclasses.replace(tiny, optimize=dataclasses.replace(tiny.optimize, seed=tiny.optimize.seed + 1))
+        validation.validation_losses([(start, tiny), (start, other)], 1)
+
+
 @pytest.mark.parametrize("degrees", [0.0, 4.0])
 def test_gradient_reaches_every_ring_inside_the_pupil(tiny, degrees):
     """On axis (radial Hankel path) and off axis (shifted angular spectrum over the whole grid)."""
