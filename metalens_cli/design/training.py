@@ -59,7 +59,7 @@ from metalens_cli.design.step import (
 )
 from metalens_cli.design.train_loop import TrainLoop, checkpoint_to_resume, overrides
 from metalens_cli.design.training_camera import training_camera
-from metalens_cli.design.validation import STEERING_DRAWS, norms_of, steering, validation_loss
+from metalens_cli.design.validation import STEERING_DRAWS, norms_of, steering, validation_losses
 from metalens_cli.io.preset_spectra import preset_sensitivity
 from metalens_cli.io.presets import Preset, preset_incidence_factor
 from metalens_cli.optics.channel_psf import ENCIRCLED_ENERGY
@@ -347,10 +347,11 @@ def _train(preset, run: RunDirectory, steps, seed, ctx, resume, on_step) -> RunS
             "initial": steering(start_model, preset, STEERING_DRAWS, ctx.device, session.frequency, session.features),
             "final": steering(model, learned, STEERING_DRAWS, ctx.device, session.frequency, session.features),
         }
+        initial, final = validation_losses([(start_model, preset), (model, learned)], 4, ctx.device, session.frequency)
         validation = {
             "draws": 4,
-            "initial": validation_loss(start_model, preset, 4, ctx.device, session.frequency),
-            "final": validation_loss(model, learned, 4, ctx.device, session.frequency),
+            "initial": initial,  # both on the same scenes (design.validation.validation_losses)
+            "final": final,
             "gradient_norms": {k: norms_of(v) for k, v in steer.items()},
             "steering": steer,
         }

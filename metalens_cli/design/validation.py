@@ -1,8 +1,9 @@
 """Fixed validation draws of a run: its loss, and what steers θ (each term's gradient over draws).
 
 The draws are those of training steps no run takes (``VALIDATION_STEP`` on), each with the whole
-batch and the run's camera (``design.training_camera``), so the same numbers before and after
-training measure progress without sampling noise.
+batch and the run's camera (``design.training_camera``), and θ before and after training are
+scored on the same scenes (:func:`validation_losses`, whatever their PSF windows): the difference
+measures progress without sampling noise.
 
 What steers θ. Under Adam each parameter moves by its gradient's running mean over the root of its
 running mean square, so a term steers a parameter when its gradient points the same way from draw
@@ -38,7 +39,7 @@ from metalens_cli.design.step import (
     step_psfs,
 )
 from metalens_cli.design.training_camera import training_camera
-from metalens_cli.imaging.canvas import sensor_crop
+from metalens_cli.imaging.canvas import narrow_margin, sensor_crop
 from metalens_cli.imaging.formation import psf_margin
 
 VALIDATION_STEP = 10**9  # draws for the fixed validation loss start here, far from any training step
@@ -51,29 +52,58 @@ MAX_STEERING_PARAMETERS = 10_000_000  # above this (a 2-D θ), the per-draw grad
 def validation_parts(model, preset, draws: int, device, frequency: float | None, features=None):
     """For each of the ``draws`` fixed validation draws (step numbers no training step uses):
     the weighted loss and its parts on the whole batch (``design.losses.training_loss``)."""
-    sensitivity = spectral_source(preset)
-    o = preset.optimize
-    windows = plan_windows(preset, sensitivity)
-    pool = image_pool(preset, windows.margin(psf_scales(preset)))
-    camera = training_camera(preset)
+    for (parts,) in _validation_draws([(model, preset)], draws, device, frequency, features):
+        yield parts
+
+
+def _validation_draws(designs, draws: int, device, frequency: float | None, features=None):
+    """For each of the ``draws`` validation draws, the loss parts of each (model, preset) of
+    ``designs`` on one batch: drawn on the canvas of the largest margin their PSFs need and cropped
+    to each design's (``imaging.canvas.narrow_margin``), so that designs whose windows differ (a
+    run's θ before and after training) are scored on the same scenes, whatever their windows."""
+    first = designs[0][1]
+    if any(_scenes_of(preset) != _scenes_of(first) for _, preset in designs):
+        raise ValueError("designs validated on the same scenes need the same seed and the same scene settings")
+    o = first.optimize
+    states = []
+    for model, preset in designs:
+        sensitivity = spectral_source(preset)
+        states.append([model, preset, sensitivity, plan_windows(preset, sensitivity)])
+    pool = image_pool(first, states[0][3].margin(psf_scales(first)))
+    cameras = [training_camera(preset) for _, preset in designs]
     for k in range(draws):
         step = VALIDATION_STEP + k
-        draw = draw_step(preset, sensitivity, o.seed, step)
-        stack, windows = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
-        near, far = stack.psfs
-        margin = psf_margin(near, far)
-        clean, colour, mask = step_batch(
-            preset, o.seed, step, list(range(o.batch_size)), draw.z_near_m, pool, margin, device
-        )
-        capture = camera_capture(clean, colour, mask, near, far, margin, camera, draw, o.seed, step, [0])
-        yield training_loss(
-            capture,
-            sensor_crop(clean, margin),
-            sensor_psf(far, preset),
-            preset.loss,
-            features,
-            cores_far=far_cores(stack),
-        )
+        formed = []
+        for state in states:
+            model, preset, sensitivity, windows = state
+            draw = draw_step(preset, sensitivity, o.seed, step)
+            stack, state[3] = step_psfs(model.lens(), preset, draw, windows, device, frequency=frequency)
+            formed.append((draw, stack, psf_margin(*stack.psfs)))
+        reach = max(margin for *_, margin in formed)
+        batch = step_batch(first, o.seed, step, list(range(o.batch_size)), formed[0][0].z_near_m, pool, reach, device)
+        parts = []
+        for (_, preset, _, _), camera, (draw, stack, margin) in zip(states, cameras, formed):
+            clean, colour, mask = (narrow_margin(x, reach, margin) for x in batch)
+            near, far = stack.psfs
+            capture = camera_capture(clean, colour, mask, near, far, margin, camera, draw, o.seed, step, [0])
+            parts.append(
+                training_loss(
+                    capture,
+                    sensor_crop(clean, margin),
+                    sensor_psf(far, preset),
+                    preset.loss,
+                    features,
+                    cores_far=far_cores(stack),
+                )
+            )
+        yield parts
+
+
+def _scenes_of(preset) -> tuple:
+    """What a step's batch is drawn from (``design.step.step_batch``), but for its margin."""
+    o = preset.optimize
+    grid = (o.scene_blocks, o.halo_scale, o.core_pixels)
+    return (o.seed, o.batch_size, o.obstructions, o.images, grid, preset.sensor, preset.scene, preset.obstruction)
 
 
 def term_gradients(model, preset, draws: int, device="cpu", frequency: float | None = None, features=None):
@@ -164,11 +194,21 @@ def steering(
 
 
 def validation_loss(model, preset, draws: int = 4, device="cpu", frequency: float | None = None) -> float:
-    """Mean weighted loss (without L_DA) over ``draws`` fixed draws that training never uses:
-    the same number before and after training measures progress without sampling noise."""
+    """Mean weighted loss (without L_DA) over ``draws`` fixed draws that training never uses, the
+    scenes drawn on the canvas ``model``'s PSFs need (:func:`validation_losses` compares designs on
+    the same scenes)."""
+    return validation_losses([(model, preset)], draws, device, frequency)[0]
+
+
+def validation_losses(designs, draws: int = 4, device="cpu", frequency: float | None = None) -> list[float]:
+    """:func:`validation_loss` of each (model, preset) of ``designs`` on the same scenes (drawn on
+    the canvas of the largest margin any of them needs): a run's θ before and after training,
+    whose PSF windows differ, compared on one set of scenes."""
     with torch.no_grad():
-        totals = [float(total) for total, _ in validation_parts(model, preset, draws, device, frequency)]
-    return sum(totals) / len(totals)
+        totals = [
+            [float(total) for total, _ in parts] for parts in _validation_draws(designs, draws, device, frequency)
+        ]
+    return [sum(column) / len(column) for column in zip(*totals)]
 
 
 def norms_of(report: dict) -> dict[str, float]:

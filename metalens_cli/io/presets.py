@@ -214,11 +214,11 @@ class OptimizeConfig:
     # procedural scenes and dirt drawn at the pixels only within the cores' reach of the field (core_pixels // 2, at
     # least the scenes' detail band) and in halo_scale × halo_scale cells beyond, which only the halos see
     # (imaging.sample_grid; docs/benchmarks.md, scenes at the halo's blocks); false: every pixel, the exact path
-    scene_blocks: bool = toml_key("scene_blocks", "bool", default=False)
+    scene_blocks: bool = toml_key("scene_blocks", "bool", default=True)
     # a radial lens's angle margin: the sin-angle its propagator keeps beyond the field's steepest ray (optics.sampling.
     # plan_radial; edge diffraction). 0.2, the doubled margin of every other radial PSF; 0.1 shrinks the Hankel products
     # about 1.5× at ≤ 5e-4 of the PSFs (docs/benchmarks.md, radial margin)
-    radial_margin: float = toml_key("radial_margin", "float", lo=0.05, hi=0.5, default=0.2)
+    radial_margin: float = toml_key("radial_margin", "float", lo=0.05, hi=0.5, default=0.1)
     # where a step's procedural scenes and obstructions are drawn (design.step.scenes_on_device): "numpy" on the
     # host (design.scenes; scene_blocks applies), "torch" on the run's device (design.device_scenes: every pixel,
     # dirt and fence only, no training images), "auto": torch on an accelerator where it can, else numpy

@@ -93,13 +93,14 @@ def test_structured_scenes_are_drawn_at_every_pixel():
 
 
 def test_a_step_draws_at_the_halo_blocks_only_when_asked(tmp_path):
-    """``scene_blocks`` off (the default) or ``halo_scale = 1``: every pixel; on: the halo's blocks
+    """``scene_blocks`` off or ``halo_scale = 1``: every pixel; on (the default): the halo's blocks
     and the core's reach; the step's canvases agree near the field."""
-    preset = load_preset("presets/quick-split-spectrum.toml")
-    on = dataclasses.replace(preset, optimize=dataclasses.replace(preset.optimize, scene_blocks=True))
+    on = load_preset("presets/quick-split-spectrum.toml")
+    assert on.optimize.scene_blocks
+    off = dataclasses.replace(on, optimize=dataclasses.replace(on.optimize, scene_blocks=False))
     one = dataclasses.replace(on, optimize=dataclasses.replace(on.optimize, halo_scale=1))
     canvas, margin = (128 + 2 * 90,) * 2, 90
-    assert scene_grid(preset, canvas, margin) is None and scene_grid(one, canvas, margin) is None
+    assert scene_grid(off, canvas, margin) is None and scene_grid(one, canvas, margin) is None
     grid = scene_grid(on, canvas, margin)
     assert grid.block == 5 and grid.samples[0] < canvas[0]
     coarse = step_batch(on, 0, 3, [0], 0.045, None, margin, "cpu")

@@ -116,6 +116,36 @@ def test_validation_loss_is_deterministic(tiny):
     assert validation_loss(model, tiny, 2) == validation_loss(model, tiny, 2)
 
 
+def test_theta_before_and_after_is_validated_on_the_same_scenes(tiny, monkeypatch):
+    """A run's θ before and after training have different PSF windows, so alone each would draw
+    its validation scenes on the canvas of its own margin, which are other scenes;
+    ``validation_losses`` draws one batch on the larger canvas and crops it to each design's
+    margin, so both are scored on the same scene (the sensor crops equal, bit for bit)."""
+    from metalens_cli.design import validation
+
+    start, defocused = build_model(tiny), build_model(tiny)
+    with torch.no_grad():
+        defocused.theta.mul_(0.8)  # a longer focal length: wider blur, larger windows
+    seen = []
+
+    def recording(capture, clean, *args, **kwargs):
+        seen.append(clean.clone())
+        return loss_of(capture, clean, *args, **kwargs)
+
+    loss_of = validation.training_loss
+    monkeypatch.setattr(validation, "training_loss", recording)
+    validation.validation_loss(start, tiny, 1)
+    validation.validation_loss(defocused, tiny, 1)
+    assert not torch.equal(seen[0], seen[1])  # alone: two canvases, two scenes
+    seen.clear()
+    together = validation.validation_losses([(start, tiny), (defocused, tiny)], 1)
+    assert torch.equal(seen[0], seen[1])
+    assert together[0] != together[1] and all(np.isfinite(together))
+    with pytest.raises(ValueError, match="same seed and the same scene settings"):
+        other = dataclasses.replace(tiny, optimize=dataclasses.replace(tiny.optimize, seed=tiny.optimize.seed + 1))
+        validation.validation_losses([(start, tiny), (start, other)], 1)
+
+
 @pytest.mark.parametrize("degrees", [0.0, 4.0])
 def test_gradient_reaches_every_ring_inside_the_pupil(tiny, degrees):
     """On axis (radial Hankel path) and off axis (shifted angular spectrum over the whole grid)."""
@@ -166,9 +196,9 @@ def test_step_windows_follow_the_light_when_theta_is_perturbed(tiny):
 
 
 def test_the_radial_margin_key_reaches_the_steps_propagator(tiny):
-    """``[optimize] radial_margin`` 0.1 plans the step's Hankel transform for half the default's
-    angle margin (fewer samples, a shorter support radius; its error budget is tested in
-    tests/optics/test_channel_psf.py); 0.2 is the default's plan itself."""
+    """``[optimize] radial_margin`` 0.1 plans the step's Hankel transform for half the doubled
+    margin of every other radial PSF (fewer samples, a shorter support radius; its error budget is
+    tested in tests/optics/test_channel_psf.py); 0.1 is the default's plan itself."""
     from metalens_cli.design.step import draw_step, plan_windows, step_psfs
     from metalens_cli.io.preset_spectra import preset_sensitivity
 
@@ -182,16 +212,17 @@ def test_the_radial_margin_key_reaches_the_steps_propagator(tiny):
             for m in (0.1, 0.2)
         }  # fmt: skip
         default = step_psfs(lens, tiny, draw, windows, "cpu")[0]
-    assert stacks[0.2].grid == default.grid
+    assert stacks[0.1].grid == default.grid
     narrow, wide = stacks[0.1].grid, stacks[0.2].grid
     assert narrow["hankel_samples"] < wide["hankel_samples"]
     assert narrow["support_radius_m"] < wide["support_radius_m"]
 
 
 def test_through_a_narrower_margins_psfs_a_grey_wall_stays_grey_and_a_cover_hides_it(tiny):
-    """The step's PSFs with ``radial_margin`` 0.1: a grey wall images as that grey, an opaque cover
-    hides the scene, and no channel gains light: each keeps at most what it keeps with the default
-    margin, and never more than reaches the sensor plane (the edge diffraction it drops is lost)."""
+    """The step's PSFs with ``radial_margin`` 0.1 (the default): a grey wall images as that grey, an
+    opaque cover hides the scene, and no channel gains light: each keeps at most what it keeps with
+    the doubled margin 0.2, and never more than reaches the sensor plane (the edge diffraction it
+    drops is lost)."""
     from metalens_cli.design.step import draw_step, plan_windows, step_psfs
     from metalens_cli.imaging.formation import form_image, psf_margin
     from metalens_cli.io.preset_spectra import preset_sensitivity
@@ -199,10 +230,11 @@ def test_through_a_narrower_margins_psfs_a_grey_wall_stays_grey_and_a_cover_hide
     sensitivity = preset_sensitivity(tiny)
     draw, lens = draw_step(tiny, sensitivity, 0, 0), build_model(tiny).lens()
     windows = plan_windows(tiny, sensitivity)
-    narrow_preset = dataclasses.replace(tiny, optimize=dataclasses.replace(tiny.optimize, radial_margin=0.1))
+    assert tiny.optimize.radial_margin == 0.1
+    wide_preset = dataclasses.replace(tiny, optimize=dataclasses.replace(tiny.optimize, radial_margin=0.2))
     with torch.no_grad():
-        narrow, _ = step_psfs(lens, narrow_preset, draw, windows, "cpu")
-        wide, _ = step_psfs(lens, tiny, draw, windows, "cpu")
+        narrow, _ = step_psfs(lens, tiny, draw, windows, "cpu")
+        wide, _ = step_psfs(lens, wide_preset, draw, windows, "cpu")
     near, far = narrow.psfs
     m, n = psf_margin(near, far), tiny.sensor.pixels
     grey = torch.full((1, 3, n + 2 * m, n + 2 * m), 0.37)
