@@ -1120,7 +1120,8 @@ def write(
         "## Training",
         "",
         "| design | steps | torch threads | s/step (median) | training time "
-        "| validation loss before → after (4 fixed draws, the same scenes) | a step's PSF windows near / far (px, mean and max) "
+        "| validation loss before → after (4 fixed draws, the same scenes) "
+        "| a step's PSF windows near / far (px, mean and max) "
         "| least light a step's windows kept |",
         "|---|---|---|---|---|---|---|---|",
     ]
