@@ -257,9 +257,8 @@ def time_steps(preset, steps: int = 3, device: str | torch.device = "cpu", prefe
     stage (totals over the steps), the first step's seconds, the process's CPU seconds per step
     (median over the same steps, every thread: on a CPU, the step can take no less than this over
     the cores it has), the number of θ parameters, the last step's PSF windows and, on CUDA, the
-    peak memory (bytes). ``prefetch``: each step's scenes
-    drawn ahead (``design.scene_pool``); without it, in the step; None: as a run would
-    (``draws_ahead``)."""
+    peak memory (bytes). ``prefetch``: each step's scenes drawn ahead (``design.scene_pool``);
+    without it, in the step; None: as a run would (``draws_ahead``)."""
     with distributed.session(torch.device(device)) as ctx:
         session = _session(preset, ctx, draws_ahead(ctx.device) if prefetch is None else prefetch, steps)
         if ctx.device.type == "cuda":
