@@ -146,6 +146,37 @@ def test_theta_before_and_after_is_validated_on_the_same_scenes(tiny, monkeypatc
         validation.validation_losses([(start, tiny), (start, other)], 1)
 
 
+@pytest.mark.parametrize("cover, expected", [(0.0, 0.37), (1.0, 0.0)])
+def test_validated_on_one_cropped_batch_a_grey_wall_stays_grey_and_a_cover_hides_it(tiny, monkeypatch, cover, expected):
+    """Through ``validation_losses``' shared batch (drawn on the larger margin, cropped to each
+    design's): a grey wall images as that grey and an opaque cover hides it, for both designs."""
+    from metalens_cli.design import validation
+
+    start, defocused = build_model(tiny), build_model(tiny)
+    with torch.no_grad():
+        defocused.theta.mul_(0.8)  # larger windows: the batch is cropped for the other design
+    margins, captures = [], []
+
+    def walls(preset, seed, step, indices, z_near_m, pool, margin, device):
+        margins.append(margin)
+        n = preset.sensor.pixels + 2 * margin
+        grey = torch.full((len(indices), 3, n, n), 0.37)
+        return grey, torch.zeros_like(grey), torch.full((len(indices), 1, n, n), cover)
+
+    def recording(capture, clean, *args, **kwargs):
+        captures.append(capture.detach())
+        return loss_of(capture, clean, *args, **kwargs)
+
+    loss_of = validation.training_loss
+    monkeypatch.setattr(validation, "step_batch", walls)
+    monkeypatch.setattr(validation, "training_loss", recording)
+    validation.validation_losses([(start, tiny), (defocused, tiny)], 1)
+    assert len(captures) == 2 and len(margins) == 1
+    for capture in captures:
+        assert capture.shape[-1] == tiny.sensor.pixels
+        assert float((capture - expected).abs().max()) < 1e-5
+
+
 @pytest.mark.parametrize("degrees", [0.0, 4.0])
 def test_gradient_reaches_every_ring_inside_the_pupil(tiny, degrees):
     """On axis (radial Hankel path) and off axis (shifted angular spectrum over the whole grid)."""
