@@ -123,17 +123,21 @@ def procedural_scene(
         )
         if i0 >= i1 or j0 >= j1:
             continue
-        (i0, i1), (j0, j1) = grid.span(i0, i1, 0), grid.span(j0, j1, 1)  # empty ones still draw
         angle = rng.uniform(0, np.pi) if kind < 4 else rng.uniform(-TILT_RAD, TILT_RAD)
+        size = 0.0  # a stroke's half-width, a grating's period (px)
+        if kind == 2:  # only the part of a stroke's box that its band can cover is drawn
+            size = rng.uniform(0.5, 1.5)
+            grown = grid.block  # ≥ half a cell: the antialiased edge of the widest footprint in the box
+            i0, i1, j0, j1 = _stroke_box((i0, i1, j0, j1), cy, cx, 3 * r + grown, size + grown, angle)
+        (i0, i1), (j0, j1) = grid.span(i0, i1, 0), grid.span(j0, j1, 1)  # empty ones still draw
         dy, dx = y[i0:i1] - cy, x[:, j0:j1] - cx
         along, across = dx * np.cos(angle) + dy * np.sin(angle), dy * np.cos(angle) - dx * np.sin(angle)
-        cell, size = (1.0 if footprint is None else footprint[i0:i1, j0:j1]), 0.0
+        cell = 1.0 if footprint is None else footprint[i0:i1, j0:j1]
         if kind == 0:  # ellipse; inside distance ≈ pixels to the edge
             inside = r - np.sqrt(along**2 + (across / rng.uniform(0.4, 1.0)) ** 2)
         elif kind == 1:  # rectangle
             inside = np.minimum(r - np.abs(along), rng.uniform(0.3, 1.0) * r - np.abs(across))
         elif kind == 2:  # stroke
-            size = rng.uniform(0.5, 1.5)  # half-width
             inside = np.minimum(size - np.abs(across), 3 * r - np.abs(along))
         elif kind == 3:  # grating patch
             size = rng.uniform(2.0, 10.0)  # period
@@ -159,6 +163,18 @@ def procedural_scene(
         box += paint
     light = 10 ** (LIGHT_DECADES * fractal_noise((h, w), side / rng.uniform(1, 3), 2, rng, at=grid.at))
     return grid.canvas(np.clip(image * light, 0.002, 1.0).astype(np.float32))
+
+
+def _stroke_box(box, cy: float, cx: float, half_length: float, half_width: float, angle: float) -> tuple:
+    """``box`` (i0, i1, j0, j1: pixel rows and columns, ends excluded) cut to the bounding box of a
+    band of ``half_length`` × ``half_width`` px (each grown by 1 px for rounding) centred on
+    (cy, cx) along ``angle`` (rad): a stroke's mask is 0 outside its band with the antialiased
+    edge, so drawing only there leaves the canvas as drawing its whole box does, bit for bit; the
+    box of a stroke of length 6r is (6r)² whatever its angle, the band 1-3 px wide."""
+    c, s = abs(np.cos(angle)), abs(np.sin(angle))
+    ey, ex = (half_length + 1) * s + (half_width + 1) * c, (half_length + 1) * c + (half_width + 1) * s
+    i0, i1, j0, j1 = box
+    return max(i0, int(cy - ey)), min(i1, int(cy + ey) + 2), max(j0, int(cx - ex)), min(j1, int(cx + ex) + 2)
 
 
 def _sampled_mask(kind, inside, along, across, r: float, size: float, cell: np.ndarray) -> np.ndarray:
