@@ -11,13 +11,19 @@ seconds of one capture (transforms made once). Training: the PSF stack of traini
 (the quick preset's depths and wavelength samples) computed both ways; the relative L2 of the
 captures of the steps' procedural scenes and obstructions and the seconds of the stack.
 
+With ``--window-rule PRESET ...``: only the window rule (``[optimize] halo_window_blocks``): each
+preset's θ_init, its training draws under each rule of ``--rules`` (200, the default, and 130),
+the scales its PSFs take and the captures' error against one scale.
+
 Run: python benchmarks/bench_two_scale.py [--designs D ...] [--pixels 512] [--steps 4]
-Rewrites its section of docs/benchmarks.md.
+[--window-rule PRESET ... [--rules 200 130]]
+Rewrites its section of docs/benchmarks.md (with ``--window-rule``, the window rule's).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import sys
 import time
@@ -98,8 +104,10 @@ def evaluation_rows(design_spec: str, preset, pixels: int, limit: int | None) ->
     return windows, rows
 
 
-def training_rows(design_spec: str, preset, steps: int) -> list[dict]:
-    """One row per (s, K, radial step): the training captures' error and the stack's seconds."""
+def training_rows(design_spec: str, preset, steps: int, samplings: dict | None = None) -> list[dict]:
+    """One row per sampling (label → ``TwoScale``; default: each (s, K, radial step) of ``TRAINING``
+    with its blocks forced): the training captures' error against one scale, the stack's seconds
+    and the halo scales the draws' near and far PSFs took."""
     from metalens_cli.design.step import draw_step, plan_windows, spectral_source, step_batch
     from metalens_cli.imaging.canvas import sensor_crop
     from metalens_cli.imaging.formation import form_image, psf_margin
@@ -118,39 +126,91 @@ def training_rows(design_spec: str, preset, steps: int) -> list[dict]:
             plan_pixels=win.plan, two_scale=scales,
         )  # fmt: skip
 
-    configs = ((1, 1, 1), *TRAINING)
-    errors = {c: [] for c in configs}
-    seconds = {c: [] for c in configs}
+    samplings = {"one scale": TwoScale(), **(samplings or {c: TwoScale(*c, 1) for c in TRAINING})}
+    errors = {c: [] for c in samplings}
+    seconds = {c: [] for c in samplings}
+    taken = {c: set() for c in samplings}
+    windows = set()
     for step in range(steps):
         draw = draw_step(preset, sens, 0, step)
         caps = (win.near, win.far)
         stacks = {}
-        for config in configs:
-            scales = TwoScale(*config, 1)
+        for label, scales in samplings.items():
             stack(draw, scales, caps)  # warm: kernels and operators built
             t0 = time.perf_counter()
-            stacks[config] = stack(draw, scales, caps)
-            seconds[config].append(time.perf_counter() - t0)
+            stacks[label] = stack(draw, scales, caps)
+            seconds[label].append(time.perf_counter() - t0)
+            taken[label].add(tuple(getattr(p, "scale", 1) for p in stacks[label].psfs))
+        windows.add(tuple(max(w) for w in stacks["one scale"].windows))
         big = max(psf_margin(*st.psfs) for st in stacks.values())
         batch = step_batch(preset, 0, step, [0, 1], draw.z_near_m, None, big, "cpu")
         captures = {}
-        for config, result in stacks.items():
+        for label, result in stacks.items():
             margin = psf_margin(*result.psfs)
             clean, colour, mask = (sensor_crop(x, big - margin) for x in batch)
-            captures[config] = form_image(clean, colour, mask, *result.psfs, margin).obstructed.detach()
-        ref = captures[configs[0]]
-        for config in configs:
-            errors[config].append(float((captures[config] - ref).norm() / ref.norm()))
+            captures[label] = form_image(clean, colour, mask, *result.psfs, margin).obstructed.detach()
+        ref = captures["one scale"]
+        for label in samplings:
+            errors[label].append(float((captures[label] - ref).norm() / ref.norm()))
     return [
         {
-            "s": c[0],
-            "K": c[1],
-            "radial_step": c[2],
-            "rel_l2": max(errors[c]),
-            "stack_s": statistics.median(seconds[c]),
+            "label": label,
+            "s": scales.scale,
+            "K": scales.core_pixels,
+            "radial_step": scales.radial_step,
+            "rel_l2": max(errors[label]),
+            "stack_s": statistics.median(seconds[label]),
+            "scales_taken": sorted(taken[label]),
+            "windows": sorted(windows),
         }
-        for c in configs
+        for label, scales in samplings.items()
     ]
+
+
+def rule_rows(preset_paths: list[str], steps: int, rules: list[int]) -> list[tuple[str, list[dict]]]:
+    """For each preset, θ_init's training draws under the window rule N/b of each b in ``rules``
+    (``[optimize] halo_window_blocks``; the preset's halo scale, core and radial step)."""
+    from metalens_cli.design.step import psf_scales
+    from metalens_cli.io.presets import load_preset
+
+    out = []
+    for path in preset_paths:
+        preset = load_preset(path)
+        base = psf_scales(preset)
+        spec = f"hyperbolic:{preset.lens.design_wavelength_m * 1e9:.0f}nm"
+        samplings = {f"N/{b}": dataclasses.replace(base, window_blocks=b) for b in rules}
+        out.append((Path(path).name, training_rows(spec, preset, steps, samplings)))
+    return out
+
+
+def rule_markdown(results: list, args) -> str:
+    """The window rule's section of docs/benchmarks.md."""
+    import platform
+
+    lines = [
+        "## The window rule: which PSF windows take halo blocks (`python benchmarks/bench_two_scale.py "
+        "--window-rule PRESET ...`)",
+        "",
+        f"Machine: {platform.machine()}, {args.threads} CPU thread(s), torch {torch.__version__}. A training "
+        "step's PSF window of N px takes halo blocks of at most N/b px, odd, at most `halo_scale` "
+        "(`[optimize] halo_window_blocks` b, 200 by default; `optics.two_scale.TwoScale.at`). Each preset's "
+        f"θ_init, {args.steps} training draws: the windows (near / far, px, the largest channel's), the "
+        "scales the near and far PSFs took, the largest relative L2 of the draws' captures of their "
+        "procedural scenes and obstructions against one scale, and the median seconds of the PSF stack.",
+        "",
+        "| preset | windows near / far px | rule | scales taken | PSF stack s | × faster | rel. L2 of captures |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, rows in results:
+        base = rows[0]["stack_s"]
+        windows = ", ".join(f"{n} / {f}" for n, f in rows[0]["windows"])
+        for r in rows:
+            scales = ", ".join(" / ".join(map(str, t)) for t in r["scales_taken"])
+            lines.append(
+                f"| {name} | {windows} | {r['label']} | {scales} | {r['stack_s']:.3f} | "
+                f"{base / r['stack_s']:.2f} | {r['rel_l2']:.1e} |"
+            )
+    return "\n".join(lines)
 
 
 def markdown(results: dict, args) -> str:
@@ -213,11 +273,23 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="photographs (default: the whole set)")
     parser.add_argument("--steps", type=int, default=4)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument(
+        "--window-rule", nargs="+", metavar="PRESET", help="only the window rule's table, for these presets"
+    )
+    parser.add_argument("--rules", nargs="+", type=int, default=[200, 130], help="halo_window_blocks values")
     args = parser.parse_args()
 
     from metalens_cli.io.presets import load_preset
 
     torch.set_num_threads(args.threads)
+    sys.path.insert(0, str(Path(__file__).parent))
+    from report import write_section
+
+    if args.window_rule:
+        results = rule_rows(args.window_rule, args.steps, args.rules)
+        print(results, flush=True)
+        write_section("window-rule", rule_markdown(results, args))
+        return
     preset = load_preset(args.preset)
     learned = ROOT / "runs" / "quick-split-spectrum"
     designs = args.designs or ["hyperbolic:532nm"] + (["runs/quick-split-spectrum"] if learned.exists() else [])
@@ -228,9 +300,6 @@ def main() -> None:
         if not spec.startswith("hyperbolic"):
             results["training"][spec] = training_rows(spec, preset, args.steps)
             print(spec, results["training"][spec], flush=True)
-    sys.path.insert(0, str(Path(__file__).parent))
-    from report import write_section
-
     write_section("two-scale", markdown(results, args))
 
 

@@ -219,9 +219,10 @@ def core_window(preset) -> int | None:
 
 
 def psf_scales(preset) -> TwoScale:
-    """How the step samples its PSFs: ``[optimize] halo_scale``, ``core_pixels``, ``halo_radial_step``."""
+    """How the step samples its PSFs: ``[optimize] halo_scale``, ``core_pixels``, ``halo_radial_step``,
+    ``halo_window_blocks``."""
     o = preset.optimize
-    return TwoScale(o.halo_scale, o.core_pixels, o.halo_radial_step)
+    return TwoScale(o.halo_scale, o.core_pixels, o.halo_radial_step, o.halo_window_blocks)
 
 
 def far_cores(stack: ChannelPsfStack) -> torch.Tensor | None:

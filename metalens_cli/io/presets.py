@@ -34,6 +34,7 @@ from metalens_cli.optics.split_spectrum import (
     split_conditions,
     steepest_incidence,
 )
+from metalens_cli.optics.window import WINDOW_PER_BLOCK
 
 WAVELENGTH_MODES = ("log_wavelength", "harmonic_wavelength")  # loss.sharp_mode on each wavelength's own core
 SHARP_MODES = ("total", "per_channel", "log", *WAVELENGTH_MODES)  # design.losses.sharp_loss
@@ -211,6 +212,10 @@ class OptimizeConfig:
     halo_scale: int = toml_key("halo_scale", "int", lo=1, hi=31, default=5)
     core_pixels: int = toml_key("core_pixels", "int", lo=1, hi=1023, default=65)
     halo_radial_step: int = toml_key("halo_radial_step", "int", lo=1, hi=4, default=2)
+    # a PSF window of N px takes halo blocks of at most N / halo_window_blocks px (optics.two_scale.TwoScale.at): the
+    # guard that keeps small windows (a near defocus disc) at one scale; 130 puts 390-649 px windows at s = 3
+    # (3-5e-4 of the captures, docs/benchmarks.md, the window rule)
+    halo_window_blocks: int = toml_key("halo_window_blocks", "int", lo=1, hi=10_000, default=WINDOW_PER_BLOCK)
     # procedural scenes and dirt drawn at the pixels only within the cores' reach of the field (core_pixels // 2, at
     # least the scenes' detail band) and in halo_scale × halo_scale cells beyond, which only the halos see
     # (imaging.sample_grid; docs/benchmarks.md, scenes at the halo's blocks); false: every pixel, the exact path

@@ -22,10 +22,9 @@ import torch
 
 from metalens_cli import arguments
 from metalens_cli.errors import InputError
-from metalens_cli.optics.window import check_scales
+from metalens_cli.optics.window import WINDOW_PER_BLOCK, check_scales
 
 CORE_PIXELS = 65  # the core a halo scale goes with by default (optimize.core_pixels, --halo-scale)
-WINDOW_PER_BLOCK = 200  # a PSF window spans at least this many halo blocks: s ≤ N/200 (TwoScale)
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,8 @@ from __future__ import annotations
 from metalens_cli import arguments
 from metalens_cli.errors import InputError
 
+WINDOW_PER_BLOCK = 200  # a PSF window spans at least this many halo blocks: s ≤ N/200 (optics.two_scale.TwoScale)
+
 
 def crop_window(psf, n: int):
     """The central n × n pixels (n ≤ N) of (..., N, N) PSFs: axis pixel N//2 becomes n//2.
