@@ -14,6 +14,9 @@ used for training: they stay held out.
 
 from __future__ import annotations
 
+import bisect
+import math
+
 import numpy as np
 
 from metalens_cli.imaging.noise import fractal_noise
@@ -106,10 +109,11 @@ def procedural_scene(
         shapes += [(r, rng.uniform(y0 - r, y1 + r), rng.uniform(x0 - r, x1 + r)) for r in radii]
     alphabet = _alphabet(rng) if structure else None
     weights = STRUCTURE_KINDS if structure else SHAPE_KINDS
-    kinds_cdf = np.cumsum(weights) / sum(weights)  # rng.choice(p=weights)'s draw, without its overhead
+    kinds_cdf = (np.cumsum(weights) / sum(weights)).tolist()  # rng.choice(p=weights)'s draw, without its overhead
+    row_at, col_at = grid.span_table(0), grid.span_table(1)
     for k in rng.permutation(len(shapes)):  # occlusion order independent of size
         r, cy, cx = shapes[k]
-        kind = int(np.searchsorted(kinds_cdf, rng.random(), side="right"))
+        kind = bisect.bisect_right(kinds_cdf, rng.random())  # np.searchsorted(side="right") on a list
         if kind >= 4 and not (top <= cy < bottom and left <= cx < right):
             kind = 1  # structure is fine detail: a plain rectangle away from the field
         reach = r * (3 if kind == 2 else 1.5)
@@ -124,19 +128,21 @@ def procedural_scene(
         if i0 >= i1 or j0 >= j1:
             continue
         angle = rng.uniform(0, np.pi) if kind < 4 else rng.uniform(-TILT_RAD, TILT_RAD)
-        size = 0.0  # a stroke's half-width, a grating's period (px)
-        if kind == 2:  # only the part of a stroke's box that its band can cover is drawn
-            size = rng.uniform(0.5, 1.5)
-            grown = grid.block  # ≥ half a cell: the antialiased edge of the widest footprint in the box
-            i0, i1, j0, j1 = _stroke_box((i0, i1, j0, j1), cy, cx, 3 * r + grown, size + grown, angle)
-        (i0, i1), (j0, j1) = grid.span(i0, i1, 0), grid.span(j0, j1, 1)  # empty ones still draw
+        size = aspect = 0.0  # a stroke's half-width, a grating's period (px); an ellipse's or rectangle's aspect
+        if kind < 4:  # only the part of the box that the shape can cover is drawn
+            if kind < 2:
+                aspect = rng.uniform(0.4, 1.0) if kind == 0 else rng.uniform(0.3, 1.0)
+            elif kind == 2:
+                size = rng.uniform(0.5, 1.5)
+            i0, i1, j0, j1 = _shape_box((i0, i1, j0, j1), kind, r, aspect, size, cy, cx, angle, grid.block)
+        i0, i1, j0, j1 = row_at[i0], row_at[i1], col_at[j0], col_at[j1]  # grid.span; empty ones still draw
         dy, dx = y[i0:i1] - cy, x[:, j0:j1] - cx
         along, across = dx * np.cos(angle) + dy * np.sin(angle), dy * np.cos(angle) - dx * np.sin(angle)
         cell = 1.0 if footprint is None else footprint[i0:i1, j0:j1]
         if kind == 0:  # ellipse; inside distance ≈ pixels to the edge
-            inside = r - np.sqrt(along**2 + (across / rng.uniform(0.4, 1.0)) ** 2)
+            inside = r - np.sqrt(along**2 + (across / aspect) ** 2)
         elif kind == 1:  # rectangle
-            inside = np.minimum(r - np.abs(along), rng.uniform(0.3, 1.0) * r - np.abs(across))
+            inside = np.minimum(r - np.abs(along), aspect * r - np.abs(across))
         elif kind == 2:  # stroke
             inside = np.minimum(size - np.abs(across), 3 * r - np.abs(along))
         elif kind == 3:  # grating patch
@@ -165,16 +171,24 @@ def procedural_scene(
     return grid.canvas(np.clip(image * light, 0.002, 1.0).astype(np.float32))
 
 
-def _stroke_box(box, cy: float, cx: float, half_length: float, half_width: float, angle: float) -> tuple:
-    """``box`` (i0, i1, j0, j1: pixel rows and columns, ends excluded) cut to the bounding box of a
-    band of ``half_length`` × ``half_width`` px (each grown by 1 px for rounding) centred on
-    (cy, cx) along ``angle`` (rad): a stroke's mask is 0 outside its band with the antialiased
-    edge, so drawing only there leaves the canvas as drawing its whole box does, bit for bit; the
-    box of a stroke of length 6r is (6r)² whatever its angle, the band 1-3 px wide."""
-    c, s = abs(np.cos(angle)), abs(np.sin(angle))
-    ey, ex = (half_length + 1) * s + (half_width + 1) * c, (half_length + 1) * c + (half_width + 1) * s
+def _shape_box(box, kind: int, r: float, aspect: float, size: float, cy: float, cx: float, angle: float, grown: int):
+    """``box`` (i0, i1, j0, j1: pixel rows and columns, ends excluded) cut to the bounding box of
+    what a shape of ``kind`` 0-3 centred on (cy, cx) can cover along ``angle`` (rad): an ellipse of
+    semi-axes r and ``aspect``·r, a rectangle of those half-sides, a stroke of half-length 3r and
+    half-width ``size``, a grating's disc of radius r; each grown by ``grown`` px (at least half
+    the widest cell's footprint, over which the edge is antialiased) and 1 px for rounding. Its
+    mask is 0 outside, so drawing only there leaves the canvas as drawing the whole box does, bit
+    for bit; the box (2·1.5r or 2·3r a side) is far larger for thin, long or tilted shapes."""
+    along, across = {0: (r, aspect * r), 1: (r, aspect * r), 2: (3 * r, size), 3: (r, r)}[kind]
+    a, b = along + grown + 1, across + grown + 1
+    c, s = abs(math.cos(angle)), abs(math.sin(angle))
+    if kind in (0, 3):  # an ellipse's extents
+        ey, ex = math.hypot(a * s, b * c), math.hypot(a * c, b * s)
+    else:  # a rectangle's
+        ey, ex = a * s + b * c, a * c + b * s
     i0, i1, j0, j1 = box
-    return max(i0, int(cy - ey)), min(i1, int(cy + ey) + 2), max(j0, int(cx - ex)), min(j1, int(cx + ex) + 2)
+    top, left = min(max(i0, int(cy - ey)), i1), min(max(j0, int(cx - ex)), j1)  # within the box, maybe empty
+    return top, max(min(i1, int(cy + ey) + 2), top), left, max(min(j1, int(cx + ex) + 2), left)
 
 
 def _sampled_mask(kind, inside, along, across, r: float, size: float, cell: np.ndarray) -> np.ndarray:

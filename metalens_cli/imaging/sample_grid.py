@@ -88,6 +88,13 @@ class SampleGrid:
         coords = self.rows if axis == 0 else self.cols
         return int(np.searchsorted(coords, start)), int(np.searchsorted(coords, stop))
 
+    def span_table(self, axis: int) -> list[int]:
+        """``span`` of ``axis`` as a table: entry p is the first sample at or past pixel p, for p
+        in 0..n, so that span(start, stop, axis) is (table[start], table[stop]) (a list lookup,
+        for callers that ask for thousands of spans)."""
+        coords = self.rows if axis == 0 else self.cols
+        return np.searchsorted(coords, np.arange(self.shape[axis] + 1)).tolist()
+
     def within(self, top: int, bottom: int, left: int, right: int):
         """The samples in pixels [top, bottom) × [left, right): their index ranges (i0, i1, j0,
         j1) and their coordinates from (top, left), or None on a pixel grid (``at``)."""

@@ -14,7 +14,7 @@ from metalens_cli.design.scenes import (
     _alphabet,
     _glyph_rows,
     _sampled_mask,
-    _stroke_box,
+    _shape_box,
     procedural_scene,
     training_scene,
 )
@@ -118,30 +118,40 @@ def test_procedural_scenes_unchanged():
     )
 
 
-def test_a_strokes_cut_box_holds_all_it_covers():
-    """``_stroke_box`` cuts a stroke's (6r)² box to where its band can reach: over random strokes
-    (radius, half-width, angle, centre off the pixel lattice) and cells of 1-5 px, every sample of
-    the whole box with any coverage (``_sampled_mask``, or on pixels the 1-px antialiased edge) lies inside
-    the cut box, and the cut box is smaller for all but axis-near strokes."""
+def test_a_shapes_cut_box_holds_all_it_covers():
+    """``_shape_box`` cuts a shape's box (±1.5r, a stroke's ±3r) to the bounding box of what it can
+    cover: over random ellipses, rectangles, strokes and gratings (radius, aspect, half-width,
+    period, angle, centre off the pixel lattice) on cells of 1-5 px, every sample of the whole box
+    with any coverage (``_sampled_mask``, or on pixels the 1-px antialiased edge) lies inside the cut
+    box, and the cut box is smaller for most shapes."""
     rng = np.random.default_rng(0)
     smaller = 0
-    for _ in range(300):
-        r, size, angle, cell = rng.uniform(2, 60), rng.uniform(0.5, 1.5), rng.uniform(0, np.pi), rng.integers(1, 6)
+    for trial in range(400):
+        kind, r, angle, cell = trial % 4, rng.uniform(2, 60), rng.uniform(0, np.pi), int(rng.integers(1, 6))
+        aspect, size = rng.uniform(0.3, 1.0), rng.uniform(0.5, 1.5) if kind == 2 else rng.uniform(2.0, 10.0)
         cy, cx = rng.uniform(100, 101), rng.uniform(100, 101)
-        box = (int(cy - 3 * r), int(cy + 3 * r) + 1, int(cx - 3 * r), int(cx + 3 * r) + 1)
+        reach = r * (3 if kind == 2 else 1.5)
+        box = (int(cy - reach), int(cy + reach) + 1, int(cx - reach), int(cx + reach) + 1)
         y, x = np.arange(box[0], box[1], dtype=np.float32)[:, None], np.arange(box[2], box[3], dtype=np.float32)
         dy, dx = y - cy, x[None, :] - cx
         along, across = dx * np.cos(angle) + dy * np.sin(angle), dy * np.cos(angle) - dx * np.sin(angle)
-        inside = np.minimum(size - np.abs(across), 3 * r - np.abs(along))
-        mask = _sampled_mask(2, inside, along, across, r, size, np.full(along.shape, cell, np.float32))
+        if kind == 0:  # the shapes as procedural_scene draws them
+            inside = r - np.sqrt(along**2 + (across / aspect) ** 2)
+        elif kind == 1:
+            inside = np.minimum(r - np.abs(along), aspect * r - np.abs(across))
+        elif kind == 2:
+            inside = np.minimum(size - np.abs(across), 3 * r - np.abs(along))
+        else:
+            inside = np.where(np.sin(2 * np.pi * along / size) > 0, r - np.hypot(along, across), -1.0)
+        mask = _sampled_mask(kind, inside, along, across, r, size, np.full(along.shape, cell, np.float32))
         if cell == 1:  # the pixel grid's mask too
             mask = np.maximum(mask, np.clip(inside + 0.5, 0, 1))
-        i0, i1, j0, j1 = _stroke_box(box, cy, cx, 3 * r + cell, size + cell, angle)
+        i0, i1, j0, j1 = _shape_box(box, kind, r, aspect, size, cy, cx, angle, cell)
         rows, cols = np.nonzero(mask > 0)
         assert mask.any() and (rows + box[0] >= i0).all() and (rows + box[0] < i1).all()
         assert (cols + box[2] >= j0).all() and (cols + box[2] < j1).all()
         smaller += (i1 - i0) * (j1 - j0) < 0.9 * (box[1] - box[0]) * (box[3] - box[2])
-    assert smaller > 200
+    assert smaller > 250
 
 
 def flat_fraction(image: np.ndarray) -> float:

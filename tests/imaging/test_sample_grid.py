@@ -41,3 +41,15 @@ def test_the_pixel_grid_is_every_pixel_drawn_whole():
     assert grid.span(-3, 4, 0) == (0, 4) and grid.span(5, 20, 1) == (5, 9)
     one = SampleGrid.blocks((7, 9), 2, 1, 0)
     assert not one.whole and one.samples == (7, 9) and one.footprint().max() == 1
+
+
+@pytest.mark.parametrize("grid", [SampleGrid.blocks((57, 43), 12, 5, 6), SampleGrid.pixels((20, 30))])
+def test_span_tables_give_every_span(grid):
+    """``span_table(axis)[p]`` is the first sample at or past pixel p: every (start, stop) of the
+    canvas gets the samples ``span`` finds by search."""
+    for axis in (0, 1):
+        table, n = grid.span_table(axis), grid.shape[axis]
+        assert len(table) == n + 1
+        for start in range(n + 1):
+            for stop in range(start, n + 1):
+                assert (table[start], table[stop]) == grid.span(start, stop, axis)
